@@ -1,0 +1,353 @@
+//! The estimators C-EPD, RU-EPD and ML-EPD: one call from a point cloud to a canonical
+//! β with its status, fit quality and 1-σ uncertainty.
+
+use std::fmt;
+use std::str::FromStr;
+
+use nalgebra::{DMatrix, SMatrix, SVector};
+
+use crate::cloud::clean;
+use crate::error::EpdError;
+use crate::init::initial_guess;
+use crate::lm::{LmOptions, NormalEquations, Status, minimize};
+use crate::params::{N_PARAMS, Params};
+use crate::problem::PipeFit;
+use crate::residual::Residual;
+use crate::symmetry::canonical_form;
+
+/// An estimator of the paper (C-EPD, RU-EPD) or ours (ML-EPD).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Method {
+    /// Canonical-ellipse residual, eq. (6): biased under depth noise (Theorem 1).
+    CEpd,
+    /// Error-based residual, eqs. (20)–(23): unbiased (Theorem 2).
+    RuEpd,
+    /// Range residual along the sensing line (maximum likelihood for range noise).
+    MlEpd,
+}
+
+impl Method {
+    /// All methods, in the order of the paper then ours.
+    pub const ALL: [Method; 3] = [Method::CEpd, Method::RuEpd, Method::MlEpd];
+
+    /// The residual the method minimises.
+    pub fn residual(self) -> Residual {
+        match self {
+            Method::CEpd => Residual::Canonical,
+            Method::RuEpd => Residual::ErrorBased,
+            Method::MlEpd => Residual::Range,
+        }
+    }
+
+    /// The name used on command lines, in CSV and JSON: `c-epd`, `ru-epd`, `ml-epd`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::CEpd => "c-epd",
+            Method::RuEpd => "ru-epd",
+            Method::MlEpd => "ml-epd",
+        }
+    }
+}
+
+impl fmt::Display for Method {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Method {
+    type Err = EpdError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.to_ascii_lowercase().as_str() {
+            "c-epd" | "cepd" => Ok(Method::CEpd),
+            "ru-epd" | "ruepd" => Ok(Method::RuEpd),
+            "ml-epd" | "mlepd" => Ok(Method::MlEpd),
+            _ => Err(EpdError::InvalidOption(format!(
+                "unknown method `{s}`: expected one of c-epd, ru-epd, ml-epd"
+            ))),
+        }
+    }
+}
+
+/// Options of [`estimate`], validated when built.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EstimateOptions {
+    lm: LmOptions,
+    stage_points: usize,
+}
+
+impl Default for EstimateOptions {
+    fn default() -> Self {
+        Self {
+            lm: LmOptions::default(),
+            stage_points: 8192,
+        }
+    }
+}
+
+impl EstimateOptions {
+    /// The solver options.
+    pub fn with_lm(mut self, lm: LmOptions) -> Self {
+        self.lm = lm;
+        self
+    }
+
+    /// Size of the evenly strided subsample on which the fit first converges before the
+    /// final iterations on all points; 0 fits all points from the start. At least 64
+    /// otherwise.
+    pub fn with_stage_points(mut self, n: usize) -> Result<Self, EpdError> {
+        if n != 0 && n < 64 {
+            return Err(EpdError::InvalidOption(format!(
+                "stage_points = {n}: use 0 (no subsample stage) or at least 64"
+            )));
+        }
+        self.stage_points = n;
+        Ok(self)
+    }
+}
+
+/// A 1-σ standard deviation per parameter of eq. (2) (m, rad); `None` where the data do
+/// not determine the parameter (e.g. the roll of a circular pipe).
+pub type Sigmas = [Option<f64>; N_PARAMS];
+
+/// The result of one estimate.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Estimate {
+    /// The method used.
+    pub method: Method,
+    /// The estimated β in canonical form (SPEC §3: Dmax ≥ Dmin, roll in [−90°, 90°)).
+    pub params: Params,
+    /// The data-only starting point of the solver.
+    pub initial: Params,
+    /// Why the final solver stage stopped.
+    pub status: Status,
+    /// Solver iterations over all stages.
+    pub iterations: usize,
+    /// Final cost F(β) of eq. (4) over all points (residual units squared).
+    pub cost: f64,
+    /// √(F/N): the RMS residual (m for RU-EPD and ML-EPD, dimensionless for C-EPD).
+    pub rms_residual: f64,
+    /// Points used.
+    pub n_points: usize,
+    /// Points dropped (non-finite or at the origin).
+    pub n_dropped: usize,
+    /// 1-σ of each parameter from σ̂²·(JᵀJ)⁻¹, σ̂² = F/(N − 7).
+    pub sigma: Sigmas,
+    /// Whether the roll is determined: the ovality is significant (Dmax − Dmin above
+    /// three of its standard deviations) and the roll's 1-σ is below 45°.
+    pub roll_determined: bool,
+}
+
+/// Estimate β from measured points (SCS, m) with `method`.
+///
+/// Non-finite points and points at the origin are dropped and counted. The fit starts
+/// from [`initial_guess`]; with more than `stage_points` points it first converges on a
+/// strided subsample, then iterates on all points. ML-EPD starts from the RU-EPD
+/// estimate: its cost has poles where the model axis crosses a measured ray, and started
+/// cold it can settle in a wrong basin.
+pub fn estimate<P: Copy + Into<[f64; 3]>>(
+    points: &[P],
+    method: Method,
+    options: &EstimateOptions,
+) -> Result<Estimate, EpdError> {
+    let cloud = clean(points);
+    let n = cloud.points.len();
+    if n < N_PARAMS {
+        return Err(EpdError::TooFewPoints {
+            usable: n,
+            dropped: cloud.dropped,
+            needed: N_PARAMS,
+        });
+    }
+    let init = initial_guess(&cloud.points)?;
+    let pts = &cloud.points;
+    let sub: Vec<[f64; 3]>;
+    let stage_pts: &[[f64; 3]] = if options.stage_points > 0 && n > 2 * options.stage_points {
+        let stride = n / options.stage_points;
+        sub = pts.iter().step_by(stride).copied().collect();
+        &sub
+    } else {
+        pts
+    };
+    let mut x = SVector::<f64, N_PARAMS>::from(init.to_array());
+    let mut iterations = 0;
+    // Stage 1 (subsample or all): the method's own residual, RU-EPD first for ML-EPD.
+    let mut stage_residuals = vec![method.residual()];
+    if method == Method::MlEpd {
+        stage_residuals.insert(0, Residual::ErrorBased);
+    }
+    let mut last = None;
+    for kind in stage_residuals {
+        let rep = minimize(
+            &PipeFit {
+                points: stage_pts,
+                residual: kind,
+            },
+            x,
+            &options.lm,
+        );
+        iterations += rep.iterations;
+        x = rep.x;
+        last = Some(rep);
+    }
+    // Stage 2: all points.
+    if stage_pts.len() != n {
+        let rep = minimize(
+            &PipeFit {
+                points: pts,
+                residual: method.residual(),
+            },
+            x,
+            &options.lm,
+        );
+        iterations += rep.iterations;
+        x = rep.x;
+        last = Some(rep);
+    }
+    let Some(rep) = last else {
+        return Err(EpdError::Degenerate("no solver stage ran".into()));
+    };
+    let fitted = Params::from_array(x.into());
+    let (canonical, applied) = canonical_form(&fitted);
+    let fit = PipeFit {
+        points: pts,
+        residual: method.residual(),
+    };
+    // Normal equations at the canonical β: a 180° turn only flips the signs of
+    // (pitch, yaw, δy, δz); a 90° turn re-expresses the pose, so evaluate afresh.
+    let eq = if applied.turned {
+        fit.equations_at(&canonical).unwrap_or(rep.equations)
+    } else {
+        let mut e = rep.equations;
+        if applied.flipped {
+            let s = SVector::<f64, N_PARAMS>::from([1.0, 1.0, 1.0, -1.0, -1.0, -1.0, -1.0]);
+            e.jtj = SMatrix::from_fn(|i, j| e.jtj[(i, j)] * s[i] * s[j]);
+            e.jtr = e.jtr.component_mul(&s);
+        }
+        e
+    };
+    let dof = n.saturating_sub(N_PARAMS).max(1) as f64;
+    let sigma2 = eq.cost / dof;
+    let (sigma, cov) = covariance(&eq, sigma2);
+    let roll_determined = roll_is_determined(&canonical, &sigma, cov.as_ref());
+    let mut sigma = sigma;
+    if !roll_determined {
+        sigma[2] = None;
+    }
+    Ok(Estimate {
+        method,
+        params: canonical,
+        initial: init,
+        status: rep.status,
+        iterations,
+        cost: eq.cost,
+        rms_residual: (eq.cost / n as f64).sqrt(),
+        n_points: n,
+        n_dropped: cloud.dropped,
+        sigma,
+        roll_determined,
+    })
+}
+
+fn roll_is_determined(
+    p: &Params,
+    sigma: &Sigmas,
+    cov: Option<&SMatrix<f64, N_PARAMS, N_PARAMS>>,
+) -> bool {
+    let dd = p.d_max - p.d_min;
+    let mean = 0.5 * (p.d_max + p.d_min);
+    let sd_diff = cov
+        .map(|c| (c[(0, 0)] + c[(1, 1)] - 2.0 * c[(0, 1)]).max(0.0).sqrt())
+        .unwrap_or(f64::INFINITY);
+    let roll_ok = sigma[2].is_some_and(|s| s < std::f64::consts::FRAC_PI_4);
+    dd > (1e-6 * mean).max(3.0 * sd_diff) && roll_ok
+}
+
+/// σ²·H⁻¹ for H = JᵀJ, with the parameters the data do not determine left out:
+/// a zero column of J, or a direction of H whose eigenvalue (after Jacobi scaling) is
+/// below 1e-12 of the largest. Returns the per-parameter 1-σ and, when all parameters
+/// are determined, the full covariance.
+fn covariance(
+    eq: &NormalEquations<N_PARAMS>,
+    sigma2: f64,
+) -> (Sigmas, Option<SMatrix<f64, N_PARAMS, N_PARAMS>>) {
+    let h = &eq.jtj;
+    let hmax = (0..N_PARAMS).map(|i| h[(i, i)]).fold(0.0, f64::max);
+    let mut keep: Vec<usize> = (0..N_PARAMS)
+        .filter(|&i| h[(i, i)] > 1e-300 && h[(i, i)] > 1e-24 * hmax)
+        .collect();
+    loop {
+        let k = keep.len();
+        if k == 0 {
+            return ([None; N_PARAMS], None);
+        }
+        let s: Vec<f64> = keep.iter().map(|&i| h[(i, i)].sqrt()).collect();
+        let hs = DMatrix::from_fn(k, k, |a, b| h[(keep[a], keep[b])] / (s[a] * s[b]));
+        let eig = hs.symmetric_eigen();
+        let lmax = eig.eigenvalues.max();
+        let (imin, lmin) =
+            eig.eigenvalues
+                .iter()
+                .enumerate()
+                .fold(
+                    (0, f64::INFINITY),
+                    |acc, (i, &l)| if l < acc.1 { (i, l) } else { acc },
+                );
+        if lmin > 1e-12 * lmax && lmin.is_finite() {
+            // Invert via the eigen-decomposition.
+            let mut inv = DMatrix::zeros(k, k);
+            for e in 0..k {
+                let v = eig.eigenvectors.column(e);
+                inv += v * v.transpose() / eig.eigenvalues[e];
+            }
+            let mut sig: Sigmas = [None; N_PARAMS];
+            let mut full = SMatrix::<f64, N_PARAMS, N_PARAMS>::zeros();
+            for a in 0..k {
+                for b in 0..k {
+                    full[(keep[a], keep[b])] = sigma2 * inv[(a, b)] / (s[a] * s[b]);
+                }
+                let var = full[(keep[a], keep[a])];
+                sig[keep[a]] = (var.is_finite() && var >= 0.0).then(|| var.sqrt());
+            }
+            let complete = k == N_PARAMS;
+            return (sig, complete.then_some(full));
+        }
+        // Drop the parameter that dominates the null direction, and try again.
+        let v = eig.eigenvectors.column(imin);
+        let worst = (0..k)
+            .max_by(|&a, &b| v[a].abs().total_cmp(&v[b].abs()))
+            .unwrap_or(0);
+        keep.remove(worst);
+    }
+}
+
+/// The Cramér–Rao lower bound on the 1-σ of each parameter, for range noise N(0, σ²)
+/// along each sensing line: the Fisher information is JᵀJ/σ² with J the Jacobian of the
+/// ML-EPD range residual at the true β over the noise-free points (SCS, m).
+pub fn cramer_rao_bound<P: Copy + Into<[f64; 3]>>(
+    noise_free_points: &[P],
+    truth: &Params,
+    sigma_range: f64,
+) -> Result<Sigmas, EpdError> {
+    if !(sigma_range >= 0.0 && sigma_range.is_finite()) {
+        return Err(EpdError::InvalidOption(format!(
+            "sigma_range = {sigma_range}: must be a finite number ≥ 0"
+        )));
+    }
+    let cloud = clean(noise_free_points);
+    if cloud.points.len() < N_PARAMS {
+        return Err(EpdError::TooFewPoints {
+            usable: cloud.points.len(),
+            dropped: cloud.dropped,
+            needed: N_PARAMS,
+        });
+    }
+    let fit = PipeFit {
+        points: &cloud.points,
+        residual: Residual::Range,
+    };
+    let eq = fit.equations_at(truth).ok_or_else(|| {
+        EpdError::InvalidOption("the true β puts the sensor outside the pipe".into())
+    })?;
+    Ok(covariance(&eq, sigma_range * sigma_range).0)
+}

@@ -1,0 +1,355 @@
+//! The three residual functions of the fit and their analytic gradients over β.
+//!
+//! All three share one geometry ([`Geometry`]): the rotation of eq. (3) and, for the
+//! error-based residuals, the root t of eq. (22) where the sensing line through the
+//! sensor origin x0_P and the measured point x̂_P meets the ellipse of eq. (5) in the
+//! PCS YZ plane.
+//!
+//! Notation used below, for one measured point p (SCS) and parameters β:
+//! - q = R·p, so x̂_P = q + [0, δy, δz]; (u, v) = (q_y, q_z) is the YZ projection of the
+//!   sensing line from x0_P to x̂_P, ρ = ‖(u, v)‖ its length and (ū, v̄) = (u, v)/ρ.
+//! - α = (2/Dmax)², γ = (2/Dmin)², (y0, z0) = (δy, δz).
+//! - s = t·ρ ≥ 0 is the YZ distance from x0_P to the wall along (ū, v̄): the positive
+//!   root of Ā s² + 2B̄ s + C = 0 with Ā = αū² + γv̄², B̄ = α y0 ū + γ z0 v̄,
+//!   C = α y0² + γ z0² − 1 < 0 (eq. 22 rewritten for the unit direction);
+//!   S = √(B̄² − ĀC) = Ā s + B̄ > 0.
+//! - (Y, Z) = (y0 + s ū, z0 + s v̄) is the wall point, and implicit differentiation gives
+//!   ∂s/∂α = −Y²/(2S), ∂s/∂γ = −Z²/(2S), ∂s/∂y0 = −αY/S, ∂s/∂z0 = −γZ/S,
+//!   ∂s/∂ū = −α s Y/S, ∂s/∂v̄ = −γ s Z/S.
+
+use nalgebra::Matrix3;
+
+use crate::params::{N_PARAMS, Params};
+
+/// Which residual the fit minimises (eq. 4).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Residual {
+    /// C-EPD, eq. (6): r_c = ŷ²/(Dmax/2)² + ẑ²/(Dmin/2)² − 1 (dimensionless).
+    Canonical,
+    /// RU-EPD, eqs. (20)–(23): r_d = (1 − t)·‖(ŷ − y0, ẑ − z0)‖, the signed depth error
+    /// projected on the PCS YZ plane (m), positive beyond the wall.
+    ErrorBased,
+    /// ML-EPD (ours): r_m = (1 − t)·‖x̂_P − x0_P‖, the signed range error along the
+    /// sensing line (m): the maximum-likelihood residual for noise along the ray.
+    /// Since rotations keep lengths, ‖x̂_P − x0_P‖ = ‖p‖, the measured range.
+    Range,
+}
+
+/// Per-β quantities shared by all points: the rows of R (eq. 3) that the residuals use,
+/// their derivatives over the three angles, and the ellipse coefficients.
+#[derive(Clone, Copy, Debug)]
+pub struct Geometry {
+    /// Rows Y and Z of R = Rz·Ry·Rx (SCS → PCS).
+    r_y: [f64; 3],
+    r_z: [f64; 3],
+    /// Rows Y and Z of ∂R/∂θx, ∂R/∂θy, ∂R/∂θz.
+    dr_y: [[f64; 3]; 3],
+    dr_z: [[f64; 3]; 3],
+    /// α = (2/Dmax)², γ = (2/Dmin)².
+    alpha: f64,
+    gamma: f64,
+    /// dα/dDmax = −8/Dmax³, dγ/dDmin = −8/Dmin³.
+    dalpha: f64,
+    dgamma: f64,
+    /// Sensor origin (y0, z0) = (δy, δz) in the PCS.
+    y0: f64,
+    z0: f64,
+    /// C = α y0² + γ z0² − 1 (< 0 inside the pipe).
+    c: f64,
+}
+
+/// Elementary rotation about X, Y or Z and its derivative over the angle.
+fn elementary(axis: usize, a: f64) -> (Matrix3<f64>, Matrix3<f64>) {
+    let (s, c) = a.sin_cos();
+    match axis {
+        0 => (
+            Matrix3::new(1.0, 0.0, 0.0, 0.0, c, -s, 0.0, s, c),
+            Matrix3::new(0.0, 0.0, 0.0, 0.0, -s, -c, 0.0, c, -s),
+        ),
+        1 => (
+            Matrix3::new(c, 0.0, s, 0.0, 1.0, 0.0, -s, 0.0, c),
+            Matrix3::new(-s, 0.0, c, 0.0, 0.0, 0.0, -c, 0.0, -s),
+        ),
+        _ => (
+            Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0),
+            Matrix3::new(-s, -c, 0.0, c, -s, 0.0, 0.0, 0.0, 0.0),
+        ),
+    }
+}
+
+fn row(m: &Matrix3<f64>, i: usize) -> [f64; 3] {
+    [m[(i, 0)], m[(i, 1)], m[(i, 2)]]
+}
+
+#[inline(always)]
+fn dot(a: &[f64; 3], p: &[f64; 3]) -> f64 {
+    a[0] * p[0] + a[1] * p[1] + a[2] * p[2]
+}
+
+impl Geometry {
+    /// The shared geometry at β, or `None` when β is outside the model's domain:
+    /// a non-positive or non-finite diameter, or the sensor origin not strictly inside
+    /// the ellipse (then eq. 22 has no positive root for some lines).
+    pub fn new(beta: &Params) -> Option<Self> {
+        if !beta.is_finite() || !beta.sensor_inside() {
+            return None;
+        }
+        let (rx, drx) = elementary(0, beta.roll);
+        let (ry, dry) = elementary(1, beta.pitch);
+        let (rz, drz) = elementary(2, beta.yaw);
+        let r = rz * ry * rx;
+        let d = [rz * ry * drx, rz * dry * rx, drz * ry * rx];
+        let alpha = 4.0 / (beta.d_max * beta.d_max);
+        let gamma = 4.0 / (beta.d_min * beta.d_min);
+        let (y0, z0) = (beta.dy, beta.dz);
+        Some(Self {
+            r_y: row(&r, 1),
+            r_z: row(&r, 2),
+            dr_y: [row(&d[0], 1), row(&d[1], 1), row(&d[2], 1)],
+            dr_z: [row(&d[0], 2), row(&d[1], 2), row(&d[2], 2)],
+            alpha,
+            gamma,
+            dalpha: -8.0 / beta.d_max.powi(3),
+            dgamma: -8.0 / beta.d_min.powi(3),
+            y0,
+            z0,
+            c: alpha * y0 * y0 + gamma * z0 * z0 - 1.0,
+        })
+    }
+
+    /// The residual of one measured point `p` (SCS, m) and its gradient over β in the
+    /// order of eq. (2). Always finite for a finite, non-zero `p`.
+    #[inline(always)]
+    pub fn residual_and_gradient(&self, kind: Residual, p: &[f64; 3]) -> (f64, [f64; N_PARAMS]) {
+        let u = dot(&self.r_y, p);
+        let v = dot(&self.r_z, p);
+        let du = [
+            dot(&self.dr_y[0], p),
+            dot(&self.dr_y[1], p),
+            dot(&self.dr_y[2], p),
+        ];
+        let dv = [
+            dot(&self.dr_z[0], p),
+            dot(&self.dr_z[1], p),
+            dot(&self.dr_z[2], p),
+        ];
+        // Gradient over the primitives (α, γ, y0, z0, u, v).
+        let (r, g_alpha, g_gamma, g_y0, g_z0, g_u, g_v) = match kind {
+            Residual::Canonical => {
+                // Eq. (6) with ŷ = y0 + u, ẑ = z0 + v.
+                let y = self.y0 + u;
+                let z = self.z0 + v;
+                let r = self.alpha * y * y + self.gamma * z * z - 1.0;
+                let gy = 2.0 * self.alpha * y;
+                let gz = 2.0 * self.gamma * z;
+                (r, y * y, z * z, gy, gz, gy, gz)
+            }
+            Residual::ErrorBased | Residual::Range => {
+                let rho = (u * u + v * v).sqrt();
+                let (ub, vb, inv_rho) = if rho > 0.0 {
+                    (u / rho, v / rho, 1.0 / rho)
+                } else {
+                    // A ray along the model axis: direction undefined, take +Y; the
+                    // gradient over (u, v) is then dropped.
+                    (1.0, 0.0, 0.0)
+                };
+                let a_bar = self.alpha * ub * ub + self.gamma * vb * vb;
+                let b_bar = self.alpha * self.y0 * ub + self.gamma * self.z0 * vb;
+                let disc = (b_bar * b_bar - a_bar * self.c).max(0.0);
+                let sq = disc.sqrt();
+                // Cancellation-free positive root of eq. (22) (C < 0 so both forms are > 0).
+                let s = if b_bar > 0.0 {
+                    -self.c / (b_bar + sq)
+                } else {
+                    (sq - b_bar) / a_bar
+                };
+                let big_s = a_bar * s + b_bar;
+                let inv_s = 1.0 / big_s;
+                let wy = self.y0 + s * ub;
+                let wz = self.z0 + s * vb;
+                let s_alpha = -0.5 * wy * wy * inv_s;
+                let s_gamma = -0.5 * wz * wz * inv_s;
+                let s_y0 = -self.alpha * wy * inv_s;
+                let s_z0 = -self.gamma * wz * inv_s;
+                let s_ub = s * s_y0; // −α s Y / S
+                let s_vb = s * s_z0; // −γ s Z / S
+                // Through (ū, v̄) = (u, v)/ρ only the tangential part survives:
+                // ∂s/∂u = v̄ k, ∂s/∂v = −ū k with k = (∂s/∂ū v̄ − ∂s/∂v̄ ū)/ρ.
+                let k = (s_ub * vb - s_vb * ub) * inv_rho;
+                let s_u = vb * k;
+                let s_v = -ub * k;
+                match kind {
+                    Residual::ErrorBased => {
+                        // Eq. (23): r_d = (1 − t)ρ = ρ − s.
+                        let gu = if rho > 0.0 { ub - s_u } else { 0.0 };
+                        let gv = if rho > 0.0 { vb - s_v } else { 0.0 };
+                        (rho - s, -s_alpha, -s_gamma, -s_y0, -s_z0, gu, gv)
+                    }
+                    _ => {
+                        // r_m = (1 − s/ρ)·‖p‖.
+                        let range = dot(p, p).sqrt();
+                        let rho_safe = rho.max(1e-12 * range);
+                        let w = range / rho_safe;
+                        let r = range - s * w;
+                        // ∂r/∂u = ‖p‖ (s u/ρ³ − ∂s/∂u /ρ)
+                        let gu = w * (s * ub * inv_rho - s_u);
+                        let gv = w * (s * vb * inv_rho - s_v);
+                        (r, -w * s_alpha, -w * s_gamma, -w * s_y0, -w * s_z0, gu, gv)
+                    }
+                }
+            }
+        };
+        let mut g = [0.0; N_PARAMS];
+        g[0] = g_alpha * self.dalpha;
+        g[1] = g_gamma * self.dgamma;
+        for k in 0..3 {
+            g[2 + k] = g_u * du[k] + g_v * dv[k];
+        }
+        g[5] = g_y0;
+        g[6] = g_z0;
+        (r, g)
+    }
+
+    /// The residual of one measured point `p` (SCS, m), without the gradient.
+    #[inline(always)]
+    pub fn residual(&self, kind: Residual, p: &[f64; 3]) -> f64 {
+        self.residual_and_gradient(kind, p).0
+    }
+
+    /// Where the sensing line of a measured point `p` (SCS) meets the model wall: the
+    /// parameter t of eq. (21) (1 for a point exactly on the wall).
+    pub fn line_parameter(&self, p: &[f64; 3]) -> f64 {
+        let u = dot(&self.r_y, p);
+        let v = dot(&self.r_z, p);
+        let rho = (u * u + v * v).sqrt();
+        rho / (rho - self.residual(Residual::ErrorBased, p))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Point3;
+
+    fn beta() -> Params {
+        Params {
+            d_max: 0.51,
+            d_min: 0.47,
+            roll: 0.7,
+            pitch: 0.06,
+            yaw: -0.09,
+            dy: 0.04,
+            dz: -0.03,
+        }
+    }
+
+    /// Random-ish points inside and outside the pipe, seen from the sensor.
+    fn points() -> Vec<[f64; 3]> {
+        let mut v = Vec::new();
+        for i in 0..50 {
+            let a = i as f64 * 0.61;
+            let x = 0.4 + 0.1 * i as f64;
+            let rad = 0.2 + 0.004 * (i % 17) as f64;
+            v.push([x, rad * a.cos(), rad * a.sin()]);
+        }
+        v
+    }
+
+    #[test]
+    fn gradients_match_central_differences() {
+        let b0 = beta();
+        for kind in [Residual::Canonical, Residual::ErrorBased, Residual::Range] {
+            let g0 = Geometry::new(&b0).unwrap();
+            for p in points() {
+                let (_, g) = g0.residual_and_gradient(kind, &p);
+                for k in 0..N_PARAMS {
+                    let h = 1e-6;
+                    let mut a = b0.to_array();
+                    a[k] += h;
+                    let rp = Geometry::new(&Params::from_array(a))
+                        .unwrap()
+                        .residual(kind, &p);
+                    a[k] -= 2.0 * h;
+                    let rm = Geometry::new(&Params::from_array(a))
+                        .unwrap()
+                        .residual(kind, &p);
+                    let fd = (rp - rm) / (2.0 * h);
+                    let tol = 1e-6 * (1.0 + fd.abs());
+                    assert!(
+                        (fd - g[k]).abs() < tol,
+                        "{kind:?} k={k} fd={fd} an={}",
+                        g[k]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn wall_points_have_zero_residual_and_unit_t() {
+        let b = beta();
+        let g = Geometry::new(&b).unwrap();
+        for i in 0..40 {
+            let phi = i as f64 * 0.157;
+            let wall = Point3::new(
+                0.5 + 0.1 * i as f64,
+                0.5 * b.d_max * phi.cos(),
+                0.5 * b.d_min * phi.sin(),
+            );
+            let p = b.pcs_to_scs(&wall);
+            let p = [p.x, p.y, p.z];
+            for kind in [Residual::Canonical, Residual::ErrorBased, Residual::Range] {
+                assert!(g.residual(kind, &p).abs() < 1e-13, "{kind:?}");
+            }
+            assert!((g.line_parameter(&p) - 1.0).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn range_residual_is_the_range_error() {
+        // A wall point pushed by ε along its ray: r_m = ε exactly, r_d = ε·sin φ.
+        let b = beta();
+        let g = Geometry::new(&b).unwrap();
+        let wall = b.pcs_to_scs(&Point3::new(1.7, 0.0, -0.5 * b.d_min));
+        let dir = wall.coords.normalize();
+        for eps in [-0.05, -0.01, 0.02, 0.05] {
+            let p = wall.coords + dir * eps;
+            let p = [p.x, p.y, p.z];
+            assert!((g.residual(Residual::Range, &p) - eps).abs() < 1e-13);
+            let q = b.dir_scs_to_pcs(&dir);
+            let sin_phi = (q.y * q.y + q.z * q.z).sqrt();
+            assert!((g.residual(Residual::ErrorBased, &p) - eps * sin_phi).abs() < 1e-13);
+        }
+    }
+
+    #[test]
+    fn outside_domain_is_none() {
+        let mut b = beta();
+        b.dy = 0.3;
+        assert!(Geometry::new(&b).is_none());
+        let mut b = beta();
+        b.d_min = 0.0;
+        assert!(Geometry::new(&b).is_none());
+        let mut b = beta();
+        b.roll = f64::NAN;
+        assert!(Geometry::new(&b).is_none());
+    }
+
+    #[test]
+    fn axial_ray_is_finite() {
+        let b = Params {
+            roll: 0.0,
+            pitch: 0.0,
+            yaw: 0.0,
+            ..beta()
+        };
+        let g = Geometry::new(&b).unwrap();
+        for kind in [Residual::Canonical, Residual::ErrorBased, Residual::Range] {
+            let (r, grad) = g.residual_and_gradient(kind, &[3.0, 0.0, 0.0]);
+            assert!(
+                r.is_finite() && grad.iter().all(|x| x.is_finite()),
+                "{kind:?}"
+            );
+        }
+    }
+}
