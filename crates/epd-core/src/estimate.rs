@@ -215,7 +215,7 @@ pub fn estimate<P: Copy + Into<[f64; 3]>>(
     };
     // Normal equations at the canonical β: a 180° turn only flips the signs of
     // (pitch, yaw, δy, δz); a 90° turn re-expresses the pose, so evaluate afresh.
-    let eq = if applied.turned {
+    let eq = if applied.turned || applied.reversed {
         fit.equations_at(&canonical).unwrap_or(rep.equations)
     } else {
         let mut e = rep.equations;

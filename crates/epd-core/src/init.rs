@@ -1,71 +1,64 @@
 //! The initial guess of β from the point cloud alone (no ground truth).
 //!
-//! 1. The pipe axis direction d (SCS): the principal axis of the cloud's covariance —
-//!    a ToF frame of a pipe is a tube segment far longer than wide — turned to look
-//!    forward (d·X > 0).
-//! 2. The cross-section: the points projected on the plane ⊥ d and fitted by the conic
-//!    a y² + b yz + c z² + d y + e z = 1 (linear least squares; the normalisation is
-//!    safe because the sensor, at the origin of that plane, lies inside the pipe).
-//!    Its centre, semi-axes and orientation give (δy, δz), (Dmax, Dmin) and the roll.
-//! 3. The axis is refined once: the cross-section fit is repeated on the plane ⊥ the
-//!    line through the centres of the cloud's near and far halves.
+//! An elliptic cylinder is the quadric xᵀA x + bᵀx = 1 (SCS) whose symmetric A has one
+//! zero eigenvalue (along the axis) and two positive ones (the normalisation "= 1" is
+//! safe: the sensor, at the origin, lies strictly inside, where the left side is < 1).
+//! A linear least-squares fit of the nine coefficients is exact on noise-free points and
+//! a good start on noisy ones:
+//! - the pipe axis d is the eigenvector of A with the smallest |eigenvalue|, turned to
+//!   look forward (d·X > 0);
+//! - with A = λ₁ m mᵀ + λ₂ n nᵀ on the plane ⊥ d (λ₁ ≤ λ₂), the major axis is m, the
+//!   axis passes through c = −½ A⁺ b, and the semi-axes are √(k/λ₁) ≥ √(k/λ₂) with
+//!   k = 1 + cᵀA c.
 //!
-//! The rotation with rows (d, major axis, d × major axis) maps SCS → PCS; its Z-Y-X Euler
-//! angles are the pose of eq. (3).
+//! The rotation with rows (d, m, d × m) maps SCS → PCS; its Z-Y-X Euler angles are the
+//! pose of eq. (3), and (δy, δz) = (−m·c, −(d × m)·c).
 
-use nalgebra::{Matrix2, Matrix3, Matrix5, Vector2, Vector3, Vector5};
+use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
 use crate::error::EpdError;
 use crate::params::Params;
 
-/// A fitted cross-section ellipse in a plane ⊥ the axis.
-struct Section {
-    /// Centre in SCS.
-    centre: Vector3<f64>,
-    /// Unit major-axis direction in SCS.
-    major: Vector3<f64>,
-    /// Semi-axes a ≥ b (m).
-    a: f64,
-    b: f64,
-}
+/// At most this many points (evenly strided) feed the quadric fit.
+const MAX_FIT_POINTS: usize = 20_000;
 
-/// Two unit vectors completing `d` to an orthonormal basis.
-fn plane_basis(d: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
-    let helper = if d.z.abs() < 0.9 {
-        Vector3::z()
-    } else {
-        Vector3::y()
-    };
-    let e1 = helper.cross(d).normalize();
-    let e2 = d.cross(&e1);
-    (e1, e2)
-}
-
-/// Fit the ellipse of the points projected on the plane ⊥ `d` (step 2).
-fn fit_section(points: &[[f64; 3]], d: &Vector3<f64>, stride: usize) -> Result<Section, EpdError> {
-    let (e1, e2) = plane_basis(d);
-    // Scale for conditioning: RMS distance from the axis through the origin.
-    let mut n = 0usize;
-    let mut s2 = 0.0;
+/// The initial guess (see the module doc). `points` are finite, non-zero SCS points.
+pub fn initial_guess(points: &[[f64; 3]]) -> Result<Params, EpdError> {
+    if points.len() < 9 {
+        return Err(EpdError::TooFewPoints {
+            usable: points.len(),
+            dropped: 0,
+            needed: 9,
+        });
+    }
+    let stride = (points.len() / MAX_FIT_POINTS).max(1);
+    // Scale for conditioning: RMS distance from the sensor.
+    let (mut n, mut s2) = (0usize, 0.0);
     for p in points.iter().step_by(stride) {
-        let p = Vector3::from(*p);
-        let (y, z) = (e1.dot(&p), e2.dot(&p));
-        s2 += y * y + z * z;
+        s2 += p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
         n += 1;
     }
-    let scale = (s2 / n.max(1) as f64).sqrt();
+    let scale = (s2 / n as f64).sqrt();
     if !(scale > 0.0 && scale.is_finite()) {
         return Err(EpdError::Degenerate(
-            "the points lie on a line through the sensor".into(),
+            "all points are at the sensor origin".into(),
         ));
     }
-    let mut m = Matrix5::<f64>::zeros();
-    let mut rhs = Vector5::<f64>::zeros();
+    let mut m = SMatrix::<f64, 9, 9>::zeros();
+    let mut rhs = SVector::<f64, 9>::zeros();
     for p in points.iter().step_by(stride) {
-        let p = Vector3::from(*p);
-        let y = e1.dot(&p) / scale;
-        let z = e2.dot(&p) / scale;
-        let row = Vector5::new(y * y, y * z, z * z, y, z);
+        let (x, y, z) = (p[0] / scale, p[1] / scale, p[2] / scale);
+        let row = SVector::<f64, 9>::from([
+            x * x,
+            y * y,
+            z * z,
+            2.0 * x * y,
+            2.0 * x * z,
+            2.0 * y * z,
+            x,
+            y,
+            z,
+        ]);
         m += row * row.transpose();
         rhs += row;
     }
@@ -75,138 +68,63 @@ fn fit_section(points: &[[f64; 3]], d: &Vector3<f64>, stride: usize) -> Result<S
         .filter(|c| c.iter().all(|v| v.is_finite()))
         .ok_or_else(|| {
             EpdError::Degenerate(
-                "the cross-section of the points is not a curve (a plane or a line?)".into(),
+                "the points do not determine a quadric surface (identical points, a line or a plane?)"
+                    .into(),
             )
         })?;
-    let (a, b, c, dd, e) = (coef[0], coef[1], coef[2], coef[3], coef[4]);
-    let q = Matrix2::new(a, 0.5 * b, 0.5 * b, c);
-    let centre = q
-        .try_inverse()
-        .map(|qi| -0.5 * qi * Vector2::new(dd, e))
-        .ok_or_else(|| {
-            EpdError::Degenerate("the cross-section has no centre (not an ellipse)".into())
-        })?;
-    // Constant on the right once centred: q(x') = 1 − (d yc + e zc)/2.
-    let k = 1.0 + 0.5 * (dd * centre.x + e * centre.y);
-    let eig = q.symmetric_eigen();
-    let (i_small, i_large) = if eig.eigenvalues[0] <= eig.eigenvalues[1] {
-        (0, 1)
-    } else {
-        (1, 0)
-    };
-    let (l_small, l_large) = (eig.eigenvalues[i_small], eig.eigenvalues[i_large]);
-    if !(l_small > 0.0 && k > 0.0) {
-        return Err(EpdError::NotAPipe(
-            "the cross-section of the points is not an ellipse around the sensor".into(),
+    // Reject near-singular fits, where the points lie on many quadrics (a plane, a line).
+    let eig_m = m.symmetric_eigen();
+    let (mmin, mmax) = (eig_m.eigenvalues.min(), eig_m.eigenvalues.max());
+    if !(mmin > 1e-13 * mmax) {
+        return Err(EpdError::Degenerate(
+            "the points lie on a plane, a line or a few lines, not on a cylinder".into(),
         ));
     }
-    let semi_major = (k / l_small).sqrt() * scale;
-    let semi_minor = (k / l_large).sqrt() * scale;
-    let v = eig.eigenvectors.column(i_small);
-    let major = (e1 * v[0] + e2 * v[1]).normalize();
-    Ok(Section {
-        centre: (e1 * centre.x + e2 * centre.y) * scale,
-        major,
-        a: semi_major,
-        b: semi_minor,
-    })
-}
-
-/// The initial guess (see the module doc). `points` are finite, non-zero SCS points.
-pub fn initial_guess(points: &[[f64; 3]]) -> Result<Params, EpdError> {
-    let n = points.len();
-    // Work on at most ~20 000 points: plenty for a starting point.
-    let stride = (n / 20_000).max(1);
-    let mut mean = Vector3::zeros();
-    let mut count = 0usize;
-    for p in points.iter().step_by(stride) {
-        mean += Vector3::from(*p);
-        count += 1;
+    // Back to metres: xᵀA x/s² + bᵀx/s = 1.
+    let a = Matrix3::new(
+        coef[0], coef[3], coef[4], //
+        coef[3], coef[1], coef[5], //
+        coef[4], coef[5], coef[2],
+    ) / (scale * scale);
+    let b = Vector3::new(coef[6], coef[7], coef[8]) / scale;
+    let eig = a.symmetric_eigen();
+    let mut idx = [0usize, 1, 2];
+    idx.sort_by(|&i, &j| {
+        eig.eigenvalues[i]
+            .abs()
+            .total_cmp(&eig.eigenvalues[j].abs())
+    });
+    let (i_axis, i1, i2) = (idx[0], idx[1], idx[2]);
+    let (l1, l2) = (eig.eigenvalues[i1], eig.eigenvalues[i2]);
+    if !(l1 > 0.0 && l2 > 0.0) {
+        return Err(EpdError::NotAPipe(
+            "the points do not lie on an elliptic cylinder around the sensor".into(),
+        ));
     }
-    mean /= count as f64;
-    let mut cov = Matrix3::zeros();
-    for p in points.iter().step_by(stride) {
-        let dv = Vector3::from(*p) - mean;
-        cov += dv * dv.transpose();
-    }
-    cov /= count as f64;
-    let eig = cov.symmetric_eigen();
-    let imax = eig.eigenvalues.imax();
-    let lmax = eig.eigenvalues[imax];
-    if !(lmax > 0.0) {
-        return Err(EpdError::Degenerate("all points coincide".into()));
-    }
-    let mut d: Vector3<f64> = eig.eigenvectors.column(imax).into_owned();
+    let mut d: Vector3<f64> = eig.eigenvectors.column(i_axis).into_owned();
     if d.x < 0.0 {
         d = -d;
     }
-    // Spread across the axis, relative to along: a line has none.
-    let lmin = eig.eigenvalues.min();
-    if lmin <= 1e-12 * lmax {
-        return Err(EpdError::Degenerate(
-            "the points lie on a plane or a line, not on a cylinder".into(),
-        ));
-    }
-    let mut section = fit_section(points, &d, stride)?;
-    // Step 3: refine the axis through the centres of the near and far halves.
-    let proj: Vec<f64> = points
-        .iter()
-        .step_by(stride)
-        .map(|p| d.dot(&Vector3::from(*p)))
-        .collect();
-    let mut sorted = proj.clone();
-    sorted.sort_by(f64::total_cmp);
-    let median = sorted[sorted.len() / 2];
-    let halves: Vec<Vec<[f64; 3]>> = [true, false]
-        .iter()
-        .map(|&near| {
-            points
-                .iter()
-                .step_by(stride)
-                .zip(&proj)
-                .filter(|(_, t)| (**t < median) == near)
-                .map(|(p, _)| *p)
-                .collect()
-        })
-        .collect();
-    if halves.iter().all(|h| h.len() >= 20) {
-        let near = fit_section(&halves[0], &d, 1);
-        let far = fit_section(&halves[1], &d, 1);
-        if let (Ok(near), Ok(far)) = (near, far) {
-            let tn = halves[0]
-                .iter()
-                .map(|p| d.dot(&Vector3::from(*p)))
-                .sum::<f64>()
-                / halves[0].len() as f64;
-            let tf = halves[1]
-                .iter()
-                .map(|p| d.dot(&Vector3::from(*p)))
-                .sum::<f64>()
-                / halves[1].len() as f64;
-            let axis = (far.centre + d * tf) - (near.centre + d * tn);
-            if axis.norm() > 0.0 && axis.normalize().dot(&d) > 0.9 {
-                let d2 = axis.normalize();
-                if let Ok(s2) = fit_section(points, &d2, stride) {
-                    d = d2;
-                    section = s2;
-                }
-            }
-        }
-    }
-    // Rotation SCS → PCS with rows (axis, major, axis × major).
-    let m = (section.major - d * d.dot(&section.major)).normalize();
-    let nz = d.cross(&m);
-    let r = Matrix3::from_rows(&[d.transpose(), m.transpose(), nz.transpose()]);
+    let major: Vector3<f64> = eig.eigenvectors.column(i1).into_owned();
+    let minor_dir: Vector3<f64> = eig.eigenvectors.column(i2).into_owned();
+    // Centre on the plane ⊥ d through the origin: c = −½ (b·m/λ₁ m + b·n/λ₂ n).
+    let c = -0.5 * (major * (b.dot(&major) / l1) + minor_dir * (b.dot(&minor_dir) / l2));
+    let k = 1.0 + l1 * c.dot(&major).powi(2) + l2 * c.dot(&minor_dir).powi(2);
+    let semi_major = (k / l1).sqrt();
+    let semi_minor = (k / l2).sqrt();
+    let mm = (major - d * d.dot(&major)).normalize();
+    let nz = d.cross(&mm);
+    let r = Matrix3::from_rows(&[d.transpose(), mm.transpose(), nz.transpose()]);
     let base = Params {
-        d_max: 2.0 * section.a,
-        d_min: 2.0 * section.b,
+        d_max: 2.0 * semi_major,
+        d_min: 2.0 * semi_minor,
         roll: 0.0,
         pitch: 0.0,
         yaw: 0.0,
         dy: 0.0,
         dz: 0.0,
     };
-    let guess = base.with_rotation(&r, -m.dot(&section.centre), -nz.dot(&section.centre));
+    let guess = base.with_rotation(&r, -mm.dot(&c), -nz.dot(&c));
     if !guess.is_finite() {
         return Err(EpdError::Degenerate(
             "the initial guess is not finite".into(),
@@ -214,8 +132,54 @@ pub fn initial_guess(points: &[[f64; 3]]) -> Result<Params, EpdError> {
     }
     if !guess.sensor_inside() {
         return Err(EpdError::NotAPipe(
-            "the sensor lies outside the fitted cross-section: the points are not the inside of a pipe seen from within".into(),
+            "the sensor lies outside the fitted cylinder: the points are not the inside of a pipe seen from within"
+                .into(),
         ));
     }
     Ok(guess)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::symmetry::errors_against;
+    use nalgebra::Point3;
+
+    #[test]
+    fn exact_on_noise_free_points() {
+        let truth = Params {
+            d_max: 0.50,
+            d_min: 0.47,
+            roll: 2.0,
+            pitch: 0.2,
+            yaw: -0.25,
+            dy: 0.05,
+            dz: -0.04,
+        };
+        let pts: Vec<[f64; 3]> = (0..500)
+            .map(|i| {
+                let phi = i as f64 * 0.7;
+                let w = Point3::new(
+                    0.5 + (i % 37) as f64 * 0.1,
+                    0.25 * phi.cos(),
+                    0.235 * phi.sin(),
+                );
+                let s = truth.pcs_to_scs(&w);
+                [s.x, s.y, s.z]
+            })
+            .collect();
+        let g = initial_guess(&pts).unwrap();
+        let e = errors_against(&g, &truth);
+        for v in [e.d_max, e.d_min, e.roll, e.pitch, e.yaw, e.dy, e.dz] {
+            assert!(v.abs() < 1e-8, "{e:?}");
+        }
+    }
+
+    #[test]
+    fn plane_is_degenerate() {
+        let pts: Vec<[f64; 3]> = (0..100)
+            .map(|i| [1.0 + (i % 10) as f64, (i / 10) as f64, 0.3])
+            .collect();
+        assert!(initial_guess(&pts).is_err());
+    }
 }

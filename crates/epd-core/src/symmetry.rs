@@ -39,6 +39,17 @@ pub fn turn_90(p: &Params) -> Params {
     swapped.with_rotation(&r, p.dz, -p.dy)
 }
 
+/// The end-for-end symmetry: the PCS turned by π about its Z axis, so that its X axis
+/// points the other way along the pipe: Rz(π)·Rz(θz) = Rz(θz+π) and [0, δy, δz] →
+/// [0, −δy, δz]. Canonical estimates have the PCS X axis pointing forward (cos θz > 0).
+pub fn reverse_axis(p: &Params) -> Params {
+    Params {
+        yaw: wrap_pi(p.yaw + std::f64::consts::PI),
+        dy: -p.dy,
+        ..*p
+    }
+}
+
 /// Which symmetries [`canonical_form`] applied.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub struct Applied {
@@ -46,10 +57,13 @@ pub struct Applied {
     pub turned: bool,
     /// The 180° turn.
     pub flipped: bool,
+    /// The end-for-end turn ([`reverse_axis`]).
+    pub reversed: bool,
 }
 
 /// The canonical member of the symmetry class of `p` (SPEC §3): Dmax ≥ Dmin and
-/// θx in [−90°, 90°), with the other angles in [−180°, 180°).
+/// θx in [−90°, 90°), with the PCS X axis pointing forward along the pipe (θz in
+/// [−90°, 90°); the end-for-end turn is a symmetry SPEC §3 leaves implicit).
 pub fn canonicalize(p: &Params) -> Params {
     canonical_form(p).0
 }
@@ -65,6 +79,10 @@ pub fn canonical_form(p: &Params) -> (Params, Applied) {
     };
     c.roll = wrap_pi(c.roll);
     c.yaw = wrap_pi(c.yaw);
+    if c.yaw.cos() * c.pitch.cos() < 0.0 {
+        applied.reversed = true;
+        c = reverse_axis(&c);
+    }
     if !(-std::f64::consts::FRAC_PI_2..std::f64::consts::FRAC_PI_2).contains(&c.roll) {
         applied.flipped = true;
         c = flip_180(&c);
@@ -115,14 +133,15 @@ pub struct ParamErrors {
     pub dz: f64,
 }
 
-/// Geodesic angle between two rotations (rad).
+/// Distance between two rotations: the Frobenius norm of the difference of their
+/// matrices (monotone in the geodesic angle, and free of acos rounding).
 fn rotation_distance(a: &Params, b: &Params) -> f64 {
-    a.rotation().angle_to(&b.rotation())
+    (a.rotation().matrix() - b.rotation().matrix()).norm()
 }
 
 /// Errors of `estimate` against `truth` under the symmetries (SPEC §3): the estimate is
 /// canonicalised, then compared with the member of the truth's class whose rotation is
-/// closest (geodesic angle) to the estimate's.
+/// closest to the estimate's.
 pub fn errors_against(estimate: &Params, truth: &Params) -> ParamErrors {
     let e = canonicalize(estimate);
     let t = canonicalize(truth);
@@ -196,6 +215,15 @@ mod tests {
         let e = errors_against(&back, &a);
         assert!(e.roll.abs() < 1e-12 && e.pitch.abs() < 1e-12 && e.yaw.abs() < 1e-12);
         assert!((back.dy - a.dy).abs() < 1e-15 && (back.dz - a.dz).abs() < 1e-15);
+    }
+
+    #[test]
+    fn reversed_axis_is_a_symmetry() {
+        let a = p(0.4, 0.08, -0.05);
+        let r = reverse_axis(&a);
+        same_surface(&a, &r);
+        let c = canonicalize(&r);
+        assert!((c.yaw - a.yaw).abs() < 1e-12 && (c.dy - a.dy).abs() < 1e-15);
     }
 
     #[test]
