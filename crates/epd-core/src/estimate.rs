@@ -127,6 +127,9 @@ pub struct Estimate {
     pub cost: f64,
     /// √(F/N): the RMS residual (m for RU-EPD and ML-EPD, dimensionless for C-EPD).
     pub rms_residual: f64,
+    /// RMS of the range residual r_m (ML-EPD's, m) at the estimate, whatever the
+    /// method: a fit quality in metres comparable across methods.
+    pub rms_range_residual: f64,
     /// Points used.
     pub n_points: usize,
     /// Points dropped (non-finite or at the origin).
@@ -234,7 +237,18 @@ pub fn estimate<P: Copy + Into<[f64; 3]>>(
     if !roll_determined {
         sigma[2] = None;
     }
+    let rms_range_residual = if method == Method::MlEpd {
+        (eq.cost / n as f64).sqrt()
+    } else {
+        PipeFit {
+            points: pts,
+            residual: Residual::Range,
+        }
+        .equations_at(&canonical)
+        .map_or(f64::INFINITY, |e| (e.cost / n as f64).sqrt())
+    };
     Ok(Estimate {
+        rms_range_residual,
         method,
         params: canonical,
         initial: init,

@@ -22,6 +22,9 @@ use crate::params::Params;
 /// At most this many points (evenly strided) feed the quadric fit.
 const MAX_FIT_POINTS: usize = 20_000;
 
+/// Largest |λ_axis|/λ₁ of the fitted quadric still taken for a cylinder.
+const MAX_AXIAL_CURVATURE: f64 = 0.3;
+
 /// The initial guess (see the module doc). `points` are finite, non-zero SCS points.
 pub fn initial_guess(points: &[[f64; 3]]) -> Result<Params, EpdError> {
     if points.len() < 9 {
@@ -100,6 +103,15 @@ pub fn initial_guess(points: &[[f64; 3]]) -> Result<Params, EpdError> {
         return Err(EpdError::NotAPipe(
             "the points do not lie on an elliptic cylinder around the sensor".into(),
         ));
+    }
+    // A cylinder has one (near-)zero curvature; a sphere or an ellipsoid has none.
+    let l0 = eig.eigenvalues[i_axis];
+    if l0.abs() > MAX_AXIAL_CURVATURE * l1 {
+        return Err(EpdError::NotAPipe(format!(
+            "the points curve along every direction (quadric eigenvalues {:.3e}, {:.3e}, {:.3e} 1/m²): \
+             a closed surface, not a cylinder",
+            l0, l1, l2
+        )));
     }
     let mut d: Vector3<f64> = eig.eigenvectors.column(i_axis).into_owned();
     if d.x < 0.0 {

@@ -89,6 +89,30 @@ pub enum Status {
 }
 
 impl Status {
+    /// A short machine-readable name: `converged`, `iteration_limit` or `degenerate`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Status::Converged(_) => "converged",
+            Status::IterationLimit => "iteration_limit",
+            Status::Degenerate(_) => "degenerate",
+        }
+    }
+
+    /// The reason in words, for reports.
+    pub fn reason(&self) -> &'static str {
+        match self {
+            Status::Converged(Convergence::ZeroResidual) => "the residuals are zero",
+            Status::Converged(Convergence::CostTolerance) => "the cost stopped decreasing (ftol)",
+            Status::Converged(Convergence::StepTolerance) => "the step became negligible (xtol)",
+            Status::Converged(Convergence::GradientTolerance) => "the gradient vanished (gtol)",
+            Status::IterationLimit => "the iteration limit was reached",
+            Status::Degenerate(DegenerateReason::InvalidStart) => {
+                "the problem is undefined at the start"
+            }
+            Status::Degenerate(DegenerateReason::NoDescent) => "no step lowers the cost",
+        }
+    }
+
     /// Whether a convergence test held.
     pub fn is_converged(&self) -> bool {
         matches!(self, Status::Converged(_))
