@@ -11,7 +11,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use epd_core::{EstimateOptions, Method, estimate};
+use epd_core::{EstimateOptions, Method, estimate, rms_range_residual};
 
 fn parse_args() -> anyhow::Result<(String, Method)> {
     let mut file = None;
@@ -95,7 +95,7 @@ fn run() -> anyhow::Result<()> {
         "yaw_deg": p.yaw * deg,
         "dy_mm": p.dy * mm,
         "dz_mm": p.dz * mm,
-        "rms_residual_mm": est.rms_range_residual * mm,
+        "rms_residual_mm": rms_range_residual(&points, &p).unwrap_or(f64::NAN) * mm,
         "elapsed_ms": elapsed_ms,
         "roll_determined": est.roll_determined,
         "sigma_d_max_mm": opt(s[0], mm),

@@ -127,9 +127,6 @@ pub struct Estimate {
     pub cost: f64,
     /// √(F/N): the RMS residual (m for RU-EPD and ML-EPD, dimensionless for C-EPD).
     pub rms_residual: f64,
-    /// RMS of the range residual r_m (ML-EPD's, m) at the estimate, whatever the
-    /// method: a fit quality in metres comparable across methods.
-    pub rms_range_residual: f64,
     /// Points used.
     pub n_points: usize,
     /// Points dropped (non-finite or at the origin).
@@ -237,18 +234,7 @@ pub fn estimate<P: Copy + Into<[f64; 3]>>(
     if !roll_determined {
         sigma[2] = None;
     }
-    let rms_range_residual = if method == Method::MlEpd {
-        (eq.cost / n as f64).sqrt()
-    } else {
-        PipeFit {
-            points: pts,
-            residual: Residual::Range,
-        }
-        .equations_at(&canonical)
-        .map_or(f64::INFINITY, |e| (e.cost / n as f64).sqrt())
-    };
     Ok(Estimate {
-        rms_range_residual,
         method,
         params: canonical,
         initial: init,
@@ -364,4 +350,20 @@ pub fn cramer_rao_bound<P: Copy + Into<[f64; 3]>>(
         EpdError::InvalidOption("the true β puts the sensor outside the pipe".into())
     })?;
     Ok(covariance(&eq, sigma_range * sigma_range).0)
+}
+
+/// RMS of the range residual r_m (ML-EPD's residual, m) of measured points (SCS) at β:
+/// a fit quality in metres comparable across methods. `None` when no point is usable or
+/// β puts the sensor outside the pipe.
+pub fn rms_range_residual<P: Copy + Into<[f64; 3]>>(points: &[P], beta: &Params) -> Option<f64> {
+    let cloud = clean(points);
+    if cloud.points.is_empty() {
+        return None;
+    }
+    let eq = PipeFit {
+        points: &cloud.points,
+        residual: Residual::Range,
+    }
+    .equations_at(beta)?;
+    Some((eq.cost / cloud.points.len() as f64).sqrt())
 }

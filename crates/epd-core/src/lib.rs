@@ -34,7 +34,9 @@ pub mod residual;
 pub mod symmetry;
 
 pub use error::EpdError;
-pub use estimate::{Estimate, EstimateOptions, Method, Sigmas, cramer_rao_bound, estimate};
+pub use estimate::{
+    Estimate, EstimateOptions, Method, Sigmas, cramer_rao_bound, estimate, rms_range_residual,
+};
 pub use lm::{Convergence, DegenerateReason, LmOptions, Status};
 pub use params::{N_PARAMS, PARAM_NAMES, Params};
 pub use residual::Residual;

@@ -323,8 +323,6 @@ pub fn minimize<const N: usize, P: NormalEquationsProblem<N>>(
                 }
                 continue;
             };
-            iterations += 1;
-            let x_new = x + delta;
             // Scaled step and parameter norms.
             let dnorm = (0..N)
                 .map(|i| (diag[i].sqrt() * delta[i]).powi(2))
@@ -338,6 +336,18 @@ pub fn minimize<const N: usize, P: NormalEquationsProblem<N>>(
             let hd = eq.jtj * delta;
             let predicted = delta.dot(&hd)
                 + 2.0 * lambda * (0..N).map(|i| diag[i] * delta[i] * delta[i]).sum::<f64>();
+            // Near Gauss–Newton (λ ≤ 1), a step the model says cannot lower the cost by
+            // more than ftol is not worth an evaluation: x is the minimum.
+            if lambda <= 1.0 && predicted <= options.ftol * eq.cost {
+                return done(
+                    x,
+                    eq,
+                    Status::Converged(Convergence::CostTolerance),
+                    iterations,
+                );
+            }
+            iterations += 1;
+            let x_new = x + delta;
             let trial = problem
                 .normal_equations(&x_new)
                 .filter(|e| e.cost.is_finite());

@@ -7,15 +7,14 @@
 //!
 //! Notation used below, for one measured point p (SCS) and parameters β:
 //! - q = R·p, so x̂_P = q + [0, δy, δz]; (u, v) = (q_y, q_z) is the YZ projection of the
-//!   sensing line from x0_P to x̂_P, ρ = ‖(u, v)‖ its length and (ū, v̄) = (u, v)/ρ.
+//!   sensing line from x0_P to x̂_P and ρ = ‖(u, v)‖ its length.
 //! - α = (2/Dmax)², γ = (2/Dmin)², (y0, z0) = (δy, δz).
-//! - s = t·ρ ≥ 0 is the YZ distance from x0_P to the wall along (ū, v̄): the positive
-//!   root of Ā s² + 2B̄ s + C = 0 with Ā = αū² + γv̄², B̄ = α y0 ū + γ z0 v̄,
-//!   C = α y0² + γ z0² − 1 < 0 (eq. 22 rewritten for the unit direction);
-//!   S = √(B̄² − ĀC) = Ā s + B̄ > 0.
-//! - (Y, Z) = (y0 + s ū, z0 + s v̄) is the wall point, and implicit differentiation gives
-//!   ∂s/∂α = −Y²/(2S), ∂s/∂γ = −Z²/(2S), ∂s/∂y0 = −αY/S, ∂s/∂z0 = −γZ/S,
-//!   ∂s/∂ū = −α s Y/S, ∂s/∂v̄ = −γ s Z/S.
+//! - t > 0 is the root of eq. (22): A t² + 2B t + C = 0 with A = αu² + γv²,
+//!   B = α y0 u + γ z0 v, C = α y0² + γ z0² − 1 < 0 (sensor inside);
+//!   S = √(B² − AC) = A t + B > 0.
+//! - (Y, Z) = (y0 + t u, z0 + t v) is the wall point, and implicit differentiation gives
+//!   ∂t/∂α = −Y²/(2S), ∂t/∂γ = −Z²/(2S), ∂t/∂y0 = −αY/S, ∂t/∂z0 = −γZ/S,
+//!   ∂t/∂u = −tαY/S, ∂t/∂v = −tγZ/S.
 
 use nalgebra::Matrix3;
 
@@ -145,56 +144,61 @@ impl Geometry {
                 (r, y * y, z * z, gy, gz, gy, gz)
             }
             Residual::ErrorBased | Residual::Range => {
-                let rho = (u * u + v * v).sqrt();
-                let (ub, vb, inv_rho) = if rho > 0.0 {
-                    (u / rho, v / rho, 1.0 / rho)
+                // Eq. (22) for the unnormalised direction (u, v): A t² + 2B t + C = 0 with
+                // A = αu² + γv², B = α y0 u + γ z0 v; S = √(B² − AC) = A t + B > 0.
+                let a = self.alpha * u * u + self.gamma * v * v;
+                if a <= 1e-300 {
+                    // A ray along the model axis never meets the wall: no information.
+                    return (0.0, [0.0; N_PARAMS]);
+                }
+                let b = self.alpha * self.y0 * u + self.gamma * self.z0 * v;
+                let sq = (b * b - a * self.c).max(0.0).sqrt();
+                // Cancellation-free positive root (C < 0 makes both forms positive).
+                let (num, den) = if b > 0.0 {
+                    (-self.c, b + sq)
                 } else {
-                    // A ray along the model axis: direction undefined, take +Y; the
-                    // gradient over (u, v) is then dropped.
-                    (1.0, 0.0, 0.0)
+                    (sq - b, a)
                 };
-                let a_bar = self.alpha * ub * ub + self.gamma * vb * vb;
-                let b_bar = self.alpha * self.y0 * ub + self.gamma * self.z0 * vb;
-                let disc = (b_bar * b_bar - a_bar * self.c).max(0.0);
-                let sq = disc.sqrt();
-                // Cancellation-free positive root of eq. (22) (C < 0 so both forms are > 0).
-                let s = if b_bar > 0.0 {
-                    -self.c / (b_bar + sq)
-                } else {
-                    (sq - b_bar) / a_bar
-                };
-                let big_s = a_bar * s + b_bar;
-                let inv_s = 1.0 / big_s;
-                let wy = self.y0 + s * ub;
-                let wz = self.z0 + s * vb;
-                let s_alpha = -0.5 * wy * wy * inv_s;
-                let s_gamma = -0.5 * wz * wz * inv_s;
-                let s_y0 = -self.alpha * wy * inv_s;
-                let s_z0 = -self.gamma * wz * inv_s;
-                let s_ub = s * s_y0; // −α s Y / S
-                let s_vb = s * s_z0; // −γ s Z / S
-                // Through (ū, v̄) = (u, v)/ρ only the tangential part survives:
-                // ∂s/∂u = v̄ k, ∂s/∂v = −ū k with k = (∂s/∂ū v̄ − ∂s/∂v̄ ū)/ρ.
-                let k = (s_ub * vb - s_vb * ub) * inv_rho;
-                let s_u = vb * k;
-                let s_v = -ub * k;
+                let t = num / den;
+                let inv_s = 1.0 / sq;
+                // Wall point (Y, Z) = (y0 + t u, z0 + t v) and the implicit derivatives
+                // ∂t/∂α = −Y²/(2S), ∂t/∂γ = −Z²/(2S), ∂t/∂y0 = −αY/S, ∂t/∂z0 = −γZ/S,
+                // ∂t/∂u = −tαY/S, ∂t/∂v = −tγZ/S.
+                let wy = self.y0 + t * u;
+                let wz = self.z0 + t * v;
+                let t_alpha = -0.5 * wy * wy * inv_s;
+                let t_gamma = -0.5 * wz * wz * inv_s;
+                let t_y0 = -self.alpha * wy * inv_s;
+                let t_z0 = -self.gamma * wz * inv_s;
+                let t_u = t * t_y0;
+                let t_v = t * t_z0;
                 match kind {
                     Residual::ErrorBased => {
-                        // Eq. (23): r_d = (1 − t)ρ = ρ − s.
-                        let gu = if rho > 0.0 { ub - s_u } else { 0.0 };
-                        let gv = if rho > 0.0 { vb - s_v } else { 0.0 };
-                        (rho - s, -s_alpha, -s_gamma, -s_y0, -s_z0, gu, gv)
+                        // Eq. (23): r_d = (1 − t)·ρ, ρ = ‖(u, v)‖.
+                        let rho = (u * u + v * v).sqrt();
+                        let w = (1.0 - t) / rho;
+                        (
+                            (1.0 - t) * rho,
+                            -rho * t_alpha,
+                            -rho * t_gamma,
+                            -rho * t_y0,
+                            -rho * t_z0,
+                            w * u - rho * t_u,
+                            w * v - rho * t_v,
+                        )
                     }
                     _ => {
-                        // r_m = (1 − s/ρ)·‖p‖.
+                        // r_m = (1 − t)·‖p‖ (‖p‖ does not depend on β).
                         let range = dot(p, p).sqrt();
-                        let rho_safe = rho.max(1e-12 * range);
-                        let w = range / rho_safe;
-                        let r = range - s * w;
-                        // ∂r/∂u = ‖p‖ (s u/ρ³ − ∂s/∂u /ρ)
-                        let gu = w * (s * ub * inv_rho - s_u);
-                        let gv = w * (s * vb * inv_rho - s_v);
-                        (r, -w * s_alpha, -w * s_gamma, -w * s_y0, -w * s_z0, gu, gv)
+                        (
+                            (1.0 - t) * range,
+                            -range * t_alpha,
+                            -range * t_gamma,
+                            -range * t_y0,
+                            -range * t_z0,
+                            -range * t_u,
+                            -range * t_v,
+                        )
                     }
                 }
             }
@@ -222,7 +226,7 @@ impl Geometry {
         let u = dot(&self.r_y, p);
         let v = dot(&self.r_z, p);
         let rho = (u * u + v * v).sqrt();
-        rho / (rho - self.residual(Residual::ErrorBased, p))
+        1.0 - self.residual(Residual::ErrorBased, p) / rho
     }
 }
 
@@ -302,6 +306,11 @@ mod tests {
                 assert!(g.residual(kind, &p).abs() < 1e-13, "{kind:?}");
             }
             assert!((g.line_parameter(&p) - 1.0).abs() < 1e-12);
+            // A point at twice the wall distance from x0_P along its sensing line: t = ½.
+            let q = b.scs_to_pcs(&nalgebra::Point3::from(p));
+            let o = b.sensor_origin_pcs();
+            let far = b.pcs_to_scs(&(o + (q - o) * 2.0));
+            assert!((g.line_parameter(&[far.x, far.y, far.z]) - 0.5).abs() < 1e-12);
         }
     }
 
