@@ -26,14 +26,7 @@ impl PipeFit<'_> {
     pub fn equations_at(&self, beta: &Params) -> Option<NormalEquations<N_PARAMS>> {
         let geom = Geometry::new(beta)?;
         let kind = self.residual;
-        let accumulate = |chunk: &[[f64; 3]]| {
-            let mut eq = NormalEquations::<N_PARAMS>::zero();
-            for p in chunk {
-                let (r, g) = geom.residual_and_gradient(kind, p);
-                eq.push(r, &g);
-            }
-            eq
-        };
+        let accumulate = |chunk: &[[f64; 3]]| accumulate_chunk(&geom, kind, chunk);
         let mut total = if self.points.len() <= CHUNK {
             accumulate(self.points)
         } else {
@@ -48,6 +41,85 @@ impl PipeFit<'_> {
         total.symmetrize();
         Some(total)
     }
+}
+
+/// Lanes of the SIMD kernel.
+const LANES: usize = 4;
+
+/// Σ over a chunk of r² , JᵀJ (upper triangle) and Jᵀr, `LANES` points at a time with
+/// one accumulator per lane (summed in a fixed order at the end).
+#[inline(always)]
+fn accumulate_lanes(
+    geom: &Geometry,
+    kind: Residual,
+    chunk: &[[f64; 3]],
+) -> NormalEquations<N_PARAMS> {
+    const NT: usize = N_PARAMS * (N_PARAMS + 1) / 2;
+    let mut cost = [0.0; LANES];
+    let mut jtr = [[0.0; LANES]; N_PARAMS];
+    let mut jtj = [[0.0; LANES]; NT];
+    let mut blocks = chunk.chunks_exact(LANES);
+    for block in &mut blocks {
+        let pts: &[[f64; 3]; LANES] = block.try_into().expect("chunks_exact yields LANES points");
+        let (r, g) = geom.residuals_and_gradients::<LANES>(kind, pts);
+        for l in 0..LANES {
+            cost[l] += r[l] * r[l];
+        }
+        let mut idx = 0;
+        for a in 0..N_PARAMS {
+            for l in 0..LANES {
+                jtr[a][l] += g[a][l] * r[l];
+            }
+            for b in a..N_PARAMS {
+                for l in 0..LANES {
+                    jtj[idx][l] += g[a][l] * g[b][l];
+                }
+                idx += 1;
+            }
+        }
+    }
+    let mut eq = NormalEquations::<N_PARAMS>::zero();
+    for p in blocks.remainder() {
+        let (r, g) = geom.residual_and_gradient(kind, p);
+        eq.push(r, &g);
+    }
+    for l in 0..LANES {
+        eq.cost += cost[l];
+        let mut idx = 0;
+        for a in 0..N_PARAMS {
+            eq.jtr[a] += jtr[a][l];
+            for b in a..N_PARAMS {
+                eq.jtj[(a, b)] += jtj[idx][l];
+                idx += 1;
+            }
+        }
+    }
+    eq.n_residuals = chunk.len();
+    eq
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn accumulate_avx2(
+    geom: &Geometry,
+    kind: Residual,
+    chunk: &[[f64; 3]],
+) -> NormalEquations<N_PARAMS> {
+    accumulate_lanes(geom, kind, chunk)
+}
+
+/// [`accumulate_lanes`] compiled for AVX2 + FMA when the CPU has them.
+fn accumulate_chunk(
+    geom: &Geometry,
+    kind: Residual,
+    chunk: &[[f64; 3]],
+) -> NormalEquations<N_PARAMS> {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports the features the function is compiled for.
+        return unsafe { accumulate_avx2(geom, kind, chunk) };
+    }
+    accumulate_lanes(geom, kind, chunk)
 }
 
 impl NormalEquationsProblem<N_PARAMS> for PipeFit<'_> {

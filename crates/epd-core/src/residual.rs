@@ -120,97 +120,104 @@ impl Geometry {
     /// order of eq. (2). Always finite for a finite, non-zero `p`.
     #[inline(always)]
     pub fn residual_and_gradient(&self, kind: Residual, p: &[f64; 3]) -> (f64, [f64; N_PARAMS]) {
-        let u = dot(&self.r_y, p);
-        let v = dot(&self.r_z, p);
-        let du = [
-            dot(&self.dr_y[0], p),
-            dot(&self.dr_y[1], p),
-            dot(&self.dr_y[2], p),
-        ];
-        let dv = [
-            dot(&self.dr_z[0], p),
-            dot(&self.dr_z[1], p),
-            dot(&self.dr_z[2], p),
-        ];
-        // Gradient over the primitives (α, γ, y0, z0, u, v).
-        let (r, g_alpha, g_gamma, g_y0, g_z0, g_u, g_v) = match kind {
+        let (r, g) = self.residuals_and_gradients::<1>(kind, &[*p]);
+        (r[0], g.map(|c| c[0]))
+    }
+
+    /// [`residual_and_gradient`](Self::residual_and_gradient) for `L` points at once,
+    /// lane by lane (the compiler turns the lanes into SIMD). Returns the residuals and,
+    /// per parameter, the gradient lanes.
+    #[inline(always)]
+    pub fn residuals_and_gradients<const L: usize>(
+        &self,
+        kind: Residual,
+        p: &[[f64; 3]; L],
+    ) -> ([f64; L], [[f64; L]; N_PARAMS]) {
+        let u: [f64; L] = std::array::from_fn(|l| dot(&self.r_y, &p[l]));
+        let v: [f64; L] = std::array::from_fn(|l| dot(&self.r_z, &p[l]));
+        let du: [[f64; L]; 3] =
+            std::array::from_fn(|k| std::array::from_fn(|l| dot(&self.dr_y[k], &p[l])));
+        let dv: [[f64; L]; 3] =
+            std::array::from_fn(|k| std::array::from_fn(|l| dot(&self.dr_z[k], &p[l])));
+        // Residual and gradient over the primitives (α, γ, y0, z0, u, v).
+        let mut r = [0.0; L];
+        let mut g_prim = [[0.0; L]; 6];
+        match kind {
             Residual::Canonical => {
-                // Eq. (6) with ŷ = y0 + u, ẑ = z0 + v.
-                let y = self.y0 + u;
-                let z = self.z0 + v;
-                let r = self.alpha * y * y + self.gamma * z * z - 1.0;
-                let gy = 2.0 * self.alpha * y;
-                let gz = 2.0 * self.gamma * z;
-                (r, y * y, z * z, gy, gz, gy, gz)
+                for l in 0..L {
+                    // Eq. (6) with ŷ = y0 + u, ẑ = z0 + v.
+                    let y = self.y0 + u[l];
+                    let z = self.z0 + v[l];
+                    r[l] = self.alpha * y * y + self.gamma * z * z - 1.0;
+                    let gy = 2.0 * self.alpha * y;
+                    let gz = 2.0 * self.gamma * z;
+                    let gp = [y * y, z * z, gy, gz, gy, gz];
+                    for k in 0..6 {
+                        g_prim[k][l] = gp[k];
+                    }
+                }
             }
             Residual::ErrorBased | Residual::Range => {
-                // Eq. (22) for the unnormalised direction (u, v): A t² + 2B t + C = 0 with
-                // A = αu² + γv², B = α y0 u + γ z0 v; S = √(B² − AC) = A t + B > 0.
-                let a = self.alpha * u * u + self.gamma * v * v;
-                if a <= 1e-300 {
+                for l in 0..L {
+                    let (u, v) = (u[l], v[l]);
+                    // Eq. (22) for the unnormalised direction (u, v): A t² + 2B t + C = 0
+                    // with A = αu² + γv², B = α y0 u + γ z0 v; S = √(B² − AC) = A t + B > 0.
+                    let a_raw = self.alpha * u * u + self.gamma * v * v;
                     // A ray along the model axis never meets the wall: no information.
-                    return (0.0, [0.0; N_PARAMS]);
-                }
-                let b = self.alpha * self.y0 * u + self.gamma * self.z0 * v;
-                let sq = (b * b - a * self.c).max(0.0).sqrt();
-                // Cancellation-free positive root (C < 0 makes both forms positive).
-                let (num, den) = if b > 0.0 {
-                    (-self.c, b + sq)
-                } else {
-                    (sq - b, a)
-                };
-                let t = num / den;
-                let inv_s = 1.0 / sq;
-                // Wall point (Y, Z) = (y0 + t u, z0 + t v) and the implicit derivatives
-                // ∂t/∂α = −Y²/(2S), ∂t/∂γ = −Z²/(2S), ∂t/∂y0 = −αY/S, ∂t/∂z0 = −γZ/S,
-                // ∂t/∂u = −tαY/S, ∂t/∂v = −tγZ/S.
-                let wy = self.y0 + t * u;
-                let wz = self.z0 + t * v;
-                let t_alpha = -0.5 * wy * wy * inv_s;
-                let t_gamma = -0.5 * wz * wz * inv_s;
-                let t_y0 = -self.alpha * wy * inv_s;
-                let t_z0 = -self.gamma * wz * inv_s;
-                let t_u = t * t_y0;
-                let t_v = t * t_z0;
-                match kind {
-                    Residual::ErrorBased => {
+                    let valid = a_raw > 1e-300;
+                    let a = if valid { a_raw } else { 1.0 };
+                    let b = self.alpha * self.y0 * u + self.gamma * self.z0 * v;
+                    let sq = (b * b - a * self.c).max(0.0).sqrt();
+                    // Cancellation-free positive root (C < 0 makes both forms positive).
+                    let num = if b > 0.0 { -self.c } else { sq - b };
+                    let den = if b > 0.0 { b + sq } else { a };
+                    let t = num / den;
+                    let inv_s = 1.0 / sq;
+                    // Wall point (Y, Z) = (y0 + t u, z0 + t v); implicit derivatives
+                    // ∂t/∂α = −Y²/(2S), ∂t/∂γ = −Z²/(2S), ∂t/∂y0 = −αY/S, ∂t/∂z0 = −γZ/S,
+                    // ∂t/∂u = −tαY/S, ∂t/∂v = −tγZ/S.
+                    let wy = self.y0 + t * u;
+                    let wz = self.z0 + t * v;
+                    let t_y0 = -self.alpha * wy * inv_s;
+                    let t_z0 = -self.gamma * wz * inv_s;
+                    let dt = [
+                        -0.5 * wy * wy * inv_s,
+                        -0.5 * wz * wz * inv_s,
+                        t_y0,
+                        t_z0,
+                        t * t_y0,
+                        t * t_z0,
+                    ];
+                    let (res, gp) = if kind == Residual::ErrorBased {
                         // Eq. (23): r_d = (1 − t)·ρ, ρ = ‖(u, v)‖.
                         let rho = (u * u + v * v).sqrt();
                         let w = (1.0 - t) / rho;
-                        (
-                            (1.0 - t) * rho,
-                            -rho * t_alpha,
-                            -rho * t_gamma,
-                            -rho * t_y0,
-                            -rho * t_z0,
-                            w * u - rho * t_u,
-                            w * v - rho * t_v,
-                        )
-                    }
-                    _ => {
+                        let mut gp = dt.map(|d| -rho * d);
+                        gp[4] += w * u;
+                        gp[5] += w * v;
+                        ((1.0 - t) * rho, gp)
+                    } else {
                         // r_m = (1 − t)·‖p‖ (‖p‖ does not depend on β).
-                        let range = dot(p, p).sqrt();
-                        (
-                            (1.0 - t) * range,
-                            -range * t_alpha,
-                            -range * t_gamma,
-                            -range * t_y0,
-                            -range * t_z0,
-                            -range * t_u,
-                            -range * t_v,
-                        )
+                        let range = dot(&p[l], &p[l]).sqrt();
+                        ((1.0 - t) * range, dt.map(|d| -range * d))
+                    };
+                    r[l] = if valid { res } else { 0.0 };
+                    for k in 0..6 {
+                        g_prim[k][l] = if valid { gp[k] } else { 0.0 };
                     }
                 }
             }
-        };
-        let mut g = [0.0; N_PARAMS];
-        g[0] = g_alpha * self.dalpha;
-        g[1] = g_gamma * self.dgamma;
-        for k in 0..3 {
-            g[2 + k] = g_u * du[k] + g_v * dv[k];
         }
-        g[5] = g_y0;
-        g[6] = g_z0;
+        let [g_alpha, g_gamma, g_y0, g_z0, g_u, g_v] = g_prim;
+        let g: [[f64; L]; N_PARAMS] = [
+            std::array::from_fn(|l| g_alpha[l] * self.dalpha),
+            std::array::from_fn(|l| g_gamma[l] * self.dgamma),
+            std::array::from_fn(|l| g_u[l] * du[0][l] + g_v[l] * dv[0][l]),
+            std::array::from_fn(|l| g_u[l] * du[1][l] + g_v[l] * dv[1][l]),
+            std::array::from_fn(|l| g_u[l] * du[2][l] + g_v[l] * dv[2][l]),
+            g_y0,
+            g_z0,
+        ];
         (r, g)
     }
 

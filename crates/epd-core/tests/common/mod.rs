@@ -59,16 +59,14 @@ pub fn cloud(
     let normal = Normal::new(0.0, sigma.max(0.0)).expect("sigma is finite");
     let mut pts: Vec<[f64; 3]> = Vec::new();
     for d in rays(w, h) {
-        if let Some(t) = range_to_wall(beta, &d) {
-            if t <= max_range {
-                let eps = if sigma > 0.0 {
-                    normal.sample(&mut rng)
-                } else {
-                    0.0
-                };
-                let p = d * (t + eps);
-                pts.push([p.x, p.y, p.z]);
-            }
+        if let Some(t) = range_to_wall(beta, &d).filter(|&t| t <= max_range) {
+            let eps = if sigma > 0.0 {
+                normal.sample(&mut rng)
+            } else {
+                0.0
+            };
+            let p = d * (t + eps);
+            pts.push([p.x, p.y, p.z]);
         }
     }
     if n > 0 && n < pts.len() {
