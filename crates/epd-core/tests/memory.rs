@@ -39,7 +39,10 @@ fn measure(pts: &[[f64; 3]], m: Method) -> (usize, usize) {
     let c0 = COUNT.load(Ordering::SeqCst);
     let est = estimate(pts, m, &EstimateOptions::default()).unwrap();
     assert!(est.status.is_converged());
-    (PEAK.load(Ordering::SeqCst) - base, COUNT.load(Ordering::SeqCst) - c0)
+    (
+        PEAK.load(Ordering::SeqCst) - base,
+        COUNT.load(Ordering::SeqCst) - c0,
+    )
 }
 
 #[test]
@@ -52,10 +55,16 @@ fn memory_is_bounded_and_allocations_do_not_scale_with_points() {
     for m in Method::ALL {
         let (peak_big, count_big) = measure(&big, m);
         let (_, count_small) = measure(&small, m);
-        eprintln!("{m}: 10⁶ points: peak {:.1} MB beyond the input, {count_big} allocations (10⁵: {count_small})", peak_big as f64 / 1e6);
+        eprintln!(
+            "{m}: 10⁶ points: peak {:.1} MB beyond the input, {count_big} allocations (10⁵: {count_small})",
+            peak_big as f64 / 1e6
+        );
         assert!(peak_big < 100_000_000, "{m}: peak {peak_big} B");
         // Allocations per solver pass are per chunk, not per point: 10× the points may
         // cost a few more chunk partials, never 10× the allocations.
-        assert!(count_big < 3 * count_small + 100, "{m}: {count_big} vs {count_small}");
+        assert!(
+            count_big < 3 * count_small + 100,
+            "{m}: {count_big} vs {count_small}"
+        );
     }
 }

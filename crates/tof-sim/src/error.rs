@@ -1,0 +1,51 @@
+//! Configuration errors of the simulator.
+
+/// A configuration the simulator refuses, naming the field and what is wrong.
+#[derive(Clone, Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SimError {
+    /// A field outside its valid range.
+    #[error("invalid `{field}` = {value}: {reason}")]
+    Invalid {
+        /// The field, as named in a scenario file (`sensor.fov_h_deg`, …).
+        field: &'static str,
+        /// The refused value, as text.
+        value: String,
+        /// What the field must satisfy.
+        reason: &'static str,
+    },
+    /// The pipe geometry could not be built.
+    #[error("cannot build the pipe mesh: {0}")]
+    Mesh(String),
+    /// Writing a file failed.
+    #[error("cannot write {what}: {source}")]
+    Io {
+        /// What was being written.
+        what: String,
+        /// The underlying error.
+        #[source]
+        source: std::sync::Arc<std::io::Error>,
+    },
+}
+
+impl SimError {
+    pub(crate) fn invalid(
+        field: &'static str,
+        value: impl std::fmt::Display,
+        reason: &'static str,
+    ) -> Self {
+        SimError::Invalid {
+            field,
+            value: value.to_string(),
+            reason,
+        }
+    }
+
+    /// An I/O error while writing `what`.
+    pub fn io(what: impl Into<String>, e: std::io::Error) -> Self {
+        SimError::Io {
+            what: what.into(),
+            source: std::sync::Arc::new(e),
+        }
+    }
+}

@@ -1,0 +1,37 @@
+//! A Helios2-like 3D time-of-flight camera inside an elliptic pipe: rays cast with
+//! parry3d, Gaussian depth errors along the sensing lines, reproducible to the bit.
+//!
+//! Frames (SPEC §3): the SCS (sensor: X forward, Y right, Z up) and the PCS (pipe: X
+//! along the axis, Y major axis, Z minor axis), related by eq. (3) of the RU-EPD paper
+//! through [`epd_core::Params`] — the one definition of the convention in the workspace.
+//!
+//! ```
+//! use tof_sim::{FrameSeed, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, WallModel, simulate};
+//! let sensor = Sensor::helios2();
+//! let pipe = Pipe::paper_20in();
+//! let truth = PoseRanges::default().sample(&pipe, 1, 0)?;
+//! let scene = Scene::new(&truth, WallModel::Exact, sensor.max_range)?;
+//! let frame = simulate(&sensor, &scene, &Noise::range(0.03), Subsample::Points(1000), FrameSeed::default())?;
+//! assert_eq!(frame.measured.len(), 1000);
+//! # Ok::<(), tof_sim::SimError>(())
+//! ```
+#![deny(missing_docs)]
+
+pub mod elliptic_cylinder;
+pub mod error;
+pub mod frame;
+pub mod mesh;
+pub mod noise;
+pub mod pipe;
+pub mod pose;
+pub mod scene;
+pub mod sensor;
+
+pub use elliptic_cylinder::EllipticCylinder;
+pub use error::SimError;
+pub use frame::{Frame, FrameSeed, Subsample, simulate};
+pub use noise::{Noise, NoiseModel};
+pub use pipe::Pipe;
+pub use pose::PoseRanges;
+pub use scene::{Scene, WallModel};
+pub use sensor::Sensor;
