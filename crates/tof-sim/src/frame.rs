@@ -128,29 +128,29 @@ pub fn simulate(
         })
         .collect();
     let mut hits: Vec<Hit> = rows.into_iter().flatten().collect();
-    if let Subsample::Points(n) = subsample {
-        if n < hits.len() {
-            let mut rng = stream(
-                seeds.seed,
-                seeds.trial,
-                seeds.sweep_index,
-                Stream::Subsample,
-                0,
-            );
-            let mut idx: Vec<usize> = (0..hits.len()).collect();
-            for i in 0..n {
-                let j = rng.random_range(i..idx.len());
-                idx.swap(i, j);
-            }
-            idx.truncate(n);
-            idx.sort_unstable();
-            let mut keep = vec![false; hits.len()];
-            for i in idx {
-                keep[i] = true;
-            }
-            let mut k = keep.into_iter();
-            hits.retain(|_| k.next().unwrap_or(false));
+    if let Subsample::Points(n) = subsample
+        && n < hits.len()
+    {
+        let mut rng = stream(
+            seeds.seed,
+            seeds.trial,
+            seeds.sweep_index,
+            Stream::Subsample,
+            0,
+        );
+        let mut idx: Vec<usize> = (0..hits.len()).collect();
+        for i in 0..n {
+            let j = rng.random_range(i..idx.len());
+            idx.swap(i, j);
         }
+        idx.truncate(n);
+        idx.sort_unstable();
+        let mut keep = vec![false; hits.len()];
+        for i in idx {
+            keep[i] = true;
+        }
+        let mut k = keep.into_iter();
+        hits.retain(|_| k.next().unwrap_or(false));
     }
     let arr = |v: &Vector3<f64>| [v.x, v.y, v.z];
     Ok(Frame {

@@ -50,7 +50,7 @@ impl Scene {
     /// The pipe of diameters `truth.d_max`, `truth.d_min` seen from the pose in `truth`,
     /// as the chosen wall model. A mesh spans the PCS X range [−1 m, `length`].
     pub fn new(truth: &Params, wall: WallModel, length: f64) -> Result<Self, SimError> {
-        if !truth.is_finite() || !(truth.d_max > 0.0 && truth.d_min > 0.0) {
+        if !(truth.is_finite() && truth.d_max > 0.0 && truth.d_min > 0.0) {
             return Err(SimError::invalid(
                 "pipe",
                 format!("{truth:?}"),
