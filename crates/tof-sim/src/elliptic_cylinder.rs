@@ -26,19 +26,16 @@ impl EllipticCylinder {
     }
 }
 
-impl RayCast for EllipticCylinder {
-    /// The ray o + t·d meets the wall where A t² + 2B t + C = 0 with
-    /// A = d_y²/a² + d_z²/b², B = o_y d_y/a² + o_z d_z/b², C = o_y²/a² + o_z²/b² − 1.
-    /// From inside (C < 0) the exit root is taken, t = −C/(B + √(B² − AC)) for B > 0 and
-    /// (√(B² − AC) − B)/A otherwise (no cancellation); from outside, the entry root.
-    /// `t` is in units of the ray's own direction, as parry's time of impact is.
-    /// With `solid`, a ray starting inside hits at t = 0.
-    fn cast_local_ray_and_get_normal(
-        &self,
-        ray: &Ray,
-        max_time_of_impact: Real,
-        solid: bool,
-    ) -> Option<RayIntersection> {
+impl EllipticCylinder {
+    /// The time of impact of `ray` on the wall. The ray o + t·d meets it where
+    /// A t² + 2B t + C = 0 with A = d_y²/a² + d_z²/b², B = o_y d_y/a² + o_z d_z/b²,
+    /// C = o_y²/a² + o_z²/b² − 1. From inside (C < 0) the exit root is taken,
+    /// t = −C/(B + √(B² − AC)) for B > 0 and (√(B² − AC) − B)/A otherwise (no
+    /// cancellation); from outside, the entry root. `t` is in units of the ray's own
+    /// direction, as parry's time of impact is. With `solid`, a ray starting inside hits
+    /// at t = 0.
+    #[inline]
+    pub fn time_of_impact(&self, ray: &Ray, max_time_of_impact: Real, solid: bool) -> Option<Real> {
         let (ia2, ib2) = (1.0 / (self.a * self.a), 1.0 / (self.b * self.b));
         let (o, d) = (ray.origin, ray.dir);
         let qa = d.y * d.y * ia2 + d.z * d.z * ib2;
@@ -46,11 +43,7 @@ impl RayCast for EllipticCylinder {
         let qc = o.y * o.y * ia2 + o.z * o.z * ib2 - 1.0;
         let inside = qc < 0.0;
         if inside && solid {
-            return Some(RayIntersection::new(
-                0.0,
-                -d.normalize_or_zero(),
-                FeatureId::Unknown,
-            ));
+            return Some(0.0);
         }
         if qa <= 0.0 {
             return None; // parallel to the axis: never meets the wall
@@ -78,12 +71,31 @@ impl RayCast for EllipticCylinder {
             }
             t
         };
-        if !(t <= max_time_of_impact) {
-            return None;
-        }
-        let p = o + d * t;
-        // Outward normal: the gradient of the implicit function.
-        let n = Vector::new(0.0, p.y * ia2, p.z * ib2).normalize_or_zero();
+        (t <= max_time_of_impact).then_some(t)
+    }
+}
+
+impl RayCast for EllipticCylinder {
+    #[inline]
+    fn cast_local_ray(&self, ray: &Ray, max_time_of_impact: Real, solid: bool) -> Option<Real> {
+        self.time_of_impact(ray, max_time_of_impact, solid)
+    }
+
+    /// [`EllipticCylinder::time_of_impact`] with the outward normal of the wall.
+    fn cast_local_ray_and_get_normal(
+        &self,
+        ray: &Ray,
+        max_time_of_impact: Real,
+        solid: bool,
+    ) -> Option<RayIntersection> {
+        let t = self.time_of_impact(ray, max_time_of_impact, solid)?;
+        let p = ray.origin + ray.dir * t;
+        let n = if t == 0.0 && solid {
+            -ray.dir.normalize_or_zero()
+        } else {
+            // Outward normal: the gradient of the implicit function.
+            Vector::new(0.0, p.y / (self.a * self.a), p.z / (self.b * self.b)).normalize_or_zero()
+        };
         Some(RayIntersection::new(t, n, FeatureId::Face(0)))
     }
 }

@@ -22,6 +22,7 @@ pub mod error;
 pub mod frame;
 pub mod mesh;
 pub mod noise;
+pub mod output;
 pub mod pipe;
 pub mod pose;
 pub mod scene;
@@ -29,7 +30,7 @@ pub mod sensor;
 
 pub use elliptic_cylinder::EllipticCylinder;
 pub use error::SimError;
-pub use frame::{Frame, FrameSeed, Subsample, simulate};
+pub use frame::{Frame, FrameSeed, Subsample, simulate, simulate_into};
 pub use noise::{Noise, NoiseModel};
 pub use pipe::Pipe;
 pub use pose::PoseRanges;

@@ -93,18 +93,45 @@ impl Sensor {
     /// Unit ray direction (SCS) of pixel (u, v), u to the right and v downwards:
     /// normalise([1, (u+0.5−W/2)/fx, −(v+0.5−H/2)/fy]).
     pub fn ray_direction(&self, u: u32, v: u32) -> Vector3<f64> {
+        self.rays().direction(u, v)
+    }
+
+    /// The pinhole model with its focal lengths computed once, for casting many rays.
+    pub fn rays(&self) -> Pinhole {
         let (fx, fy) = self.focal();
-        Vector3::new(
-            1.0,
-            (u as f64 + 0.5 - self.width as f64 / 2.0) / fx,
-            -(v as f64 + 0.5 - self.height as f64 / 2.0) / fy,
-        )
-        .normalize()
+        Pinhole {
+            inv_fx: 1.0 / fx,
+            inv_fy: 1.0 / fy,
+            cx: self.width as f64 / 2.0,
+            cy: self.height as f64 / 2.0,
+        }
     }
 
     /// Number of pixels W·H.
     pub fn pixel_count(&self) -> usize {
         self.width as usize * self.height as usize
+    }
+}
+
+/// The pixel → ray map of a [`Sensor`], precomputed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pinhole {
+    inv_fx: f64,
+    inv_fy: f64,
+    cx: f64,
+    cy: f64,
+}
+
+impl Pinhole {
+    /// Unit ray direction (SCS) of pixel (u, v), as [`Sensor::ray_direction`].
+    #[inline]
+    pub fn direction(&self, u: u32, v: u32) -> Vector3<f64> {
+        Vector3::new(
+            1.0,
+            (u as f64 + 0.5 - self.cx) * self.inv_fx,
+            -(v as f64 + 0.5 - self.cy) * self.inv_fy,
+        )
+        .normalize()
     }
 }
 
