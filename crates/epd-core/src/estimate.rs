@@ -145,8 +145,8 @@ pub struct Estimate {
 /// strided subsample, then iterates on all points. ML-EPD starts from the RU-EPD
 /// estimate: its cost has poles where the model axis crosses a measured ray, and started
 /// cold it can settle in a wrong basin.
-pub fn estimate<P: Copy + Into<[f64; 3]>>(
-    points: &[P],
+pub fn estimate(
+    points: &[[f64; 3]],
     method: Method,
     options: &EstimateOptions,
 ) -> Result<Estimate, EpdError> {
@@ -324,8 +324,8 @@ fn covariance(
 /// The Cramér–Rao lower bound on the 1-σ of each parameter, for range noise N(0, σ²)
 /// along each sensing line: the Fisher information is JᵀJ/σ² with J the Jacobian of the
 /// ML-EPD range residual at the true β over the noise-free points (SCS, m).
-pub fn cramer_rao_bound<P: Copy + Into<[f64; 3]>>(
-    noise_free_points: &[P],
+pub fn cramer_rao_bound(
+    noise_free_points: &[[f64; 3]],
     truth: &Params,
     sigma_range: f64,
 ) -> Result<Sigmas, EpdError> {
@@ -355,7 +355,7 @@ pub fn cramer_rao_bound<P: Copy + Into<[f64; 3]>>(
 /// RMS of the range residual r_m (ML-EPD's residual, m) of measured points (SCS) at β:
 /// a fit quality in metres comparable across methods. `None` when no point is usable or
 /// β puts the sensor outside the pipe.
-pub fn rms_range_residual<P: Copy + Into<[f64; 3]>>(points: &[P], beta: &Params) -> Option<f64> {
+pub fn rms_range_residual(points: &[[f64; 3]], beta: &Params) -> Option<f64> {
     let cloud = clean(points);
     if cloud.points.is_empty() {
         return None;
