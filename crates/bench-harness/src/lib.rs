@@ -1,0 +1,13 @@
+//! The scenario runner behind `bench-harness`: TOML scenarios (SPEC §6) that sweep one
+//! variable over simulated ToF frames, every listed estimator on the same clouds, written
+//! to `trials.csv`, `summary.csv`, metadata and PNG plots in the paper's style.
+#![deny(missing_docs)]
+
+pub mod plots;
+pub mod run;
+pub mod scenario;
+pub mod stats;
+pub mod trial;
+
+pub use run::{RunOptions, RunReport, SummaryRow, run};
+pub use scenario::{Scenario, ScenarioError};

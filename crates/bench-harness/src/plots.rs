@@ -1,0 +1,473 @@
+//! PNG plots in the paper's style: bias as line + markers, the error range (min…max) as
+//! error bars, one series per method. Text is drawn with DejaVu Sans embedded in the
+//! binary (no system fonts needed).
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use anyhow::{Context, anyhow};
+use plotters::prelude::*;
+use plotters::style::FontStyle;
+
+use crate::run::{SummaryRow, write_atomic};
+use crate::scenario::Scenario;
+
+const FONT: &str = "sans-serif";
+
+fn register_font() -> anyhow::Result<()> {
+    static DONE: OnceLock<bool> = OnceLock::new();
+    let ok = DONE.get_or_init(|| {
+        plotters::style::register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok()
+    });
+    if *ok {
+        Ok(())
+    } else {
+        Err(anyhow!("cannot load the embedded DejaVu font"))
+    }
+}
+
+fn colour(method: &str) -> RGBColor {
+    match method {
+        "c-epd" => RGBColor(214, 39, 40),
+        "ru-epd" => RGBColor(31, 119, 180),
+        "ml-epd" => RGBColor(44, 160, 44),
+        _ => RGBColor(80, 80, 80),
+    }
+}
+
+/// One series on a panel: name, colour, (x, centre, low, high) points.
+struct Series {
+    name: String,
+    colour: RGBColor,
+    points: Vec<(f64, f64, f64, f64)>,
+    bars: bool,
+    marker_triangle: bool,
+}
+
+struct Panel<'a> {
+    title: String,
+    y_label: String,
+    series: &'a [Series],
+}
+
+/// Axis transform: the data are drawn on a linear axis, as log10 when `log`.
+#[derive(Clone, Copy)]
+struct Axis {
+    log: bool,
+}
+
+impl Axis {
+    fn f(&self, v: f64) -> f64 {
+        if self.log { v.max(1e-300).log10() } else { v }
+    }
+    fn label(&self, v: f64) -> String {
+        if self.log {
+            let p = 10f64.powf(v);
+            if (v - v.round()).abs() < 1e-9 {
+                format!("1e{}", v.round())
+            } else {
+                format!("{p:.3}")
+            }
+        } else {
+            let s = format!("{v:.4}");
+            let s = s.trim_end_matches('0').trim_end_matches('.');
+            if s == "-0" { "0".into() } else { s.into() }
+        }
+    }
+}
+
+fn draw_panel(
+    area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
+    p: &Panel<'_>,
+    x_label: &str,
+    xa: Axis,
+    ya: Axis,
+) -> anyhow::Result<()> {
+    let err = |e: String| anyhow!("plot `{}`: {e}", p.title);
+    let pts: Vec<(f64, f64)> = p
+        .series
+        .iter()
+        .flat_map(|s| {
+            s.points
+                .iter()
+                .flat_map(|&(x, c, lo, hi)| [(x, c), (x, lo), (x, hi)])
+        })
+        .collect();
+    let finite: Vec<(f64, f64)> = pts
+        .iter()
+        .map(|&(x, y)| (xa.f(x), ya.f(y)))
+        .filter(|(x, y)| x.is_finite() && y.is_finite())
+        .collect();
+    if finite.is_empty() {
+        return Ok(());
+    }
+    let (mut x0, mut x1) = finite
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), &(x, _)| (a.min(x), b.max(x)));
+    let (mut y0, mut y1) = finite
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), &(_, y)| (a.min(y), b.max(y)));
+    let dx = if x1 > x0 { 0.08 * (x1 - x0) } else { 0.5 };
+    let dy = if y1 > y0 {
+        0.08 * (y1 - y0)
+    } else {
+        0.5 * y0.abs().max(1e-3)
+    };
+    x0 -= dx;
+    x1 += dx;
+    y0 -= dy;
+    y1 += dy;
+    let mut chart = ChartBuilder::on(area)
+        .caption(&p.title, (FONT, 20))
+        .margin(8)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(|e| err(e.to_string()))?;
+    chart
+        .configure_mesh()
+        .x_desc(x_label)
+        .y_desc(&p.y_label)
+        .x_label_formatter(&|v| xa.label(*v))
+        .y_label_formatter(&|v| ya.label(*v))
+        .label_style((FONT, 13))
+        .axis_desc_style((FONT, 15))
+        .light_line_style(RGBColor(235, 235, 235))
+        .draw()
+        .map_err(|e| err(e.to_string()))?;
+    // Spread the methods' error bars a little along x so they do not hide each other.
+    let n = p.series.iter().filter(|s| s.bars).count().max(1) as f64;
+    let step = 0.012 * (x1 - x0);
+    let mut bar_i = 0.0;
+    for s in p.series {
+        let shift = if s.bars {
+            let v = (bar_i - (n - 1.0) / 2.0) * step;
+            bar_i += 1.0;
+            v
+        } else {
+            0.0
+        };
+        let c = s.colour;
+        let line: Vec<(f64, f64)> = s
+            .points
+            .iter()
+            .map(|&(x, m, _, _)| (xa.f(x) + shift, ya.f(m)))
+            .filter(|(x, y)| x.is_finite() && y.is_finite())
+            .collect();
+        chart
+            .draw_series(LineSeries::new(line.clone(), c.stroke_width(2)))
+            .map_err(|e| err(e.to_string()))?
+            .label(s.name.clone())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+        if s.marker_triangle {
+            chart
+                .draw_series(line.iter().map(|&p| TriangleMarker::new(p, 5, c.filled())))
+                .map_err(|e| err(e.to_string()))?;
+        } else {
+            chart
+                .draw_series(line.iter().map(|&p| Circle::new(p, 4, c.filled())))
+                .map_err(|e| err(e.to_string()))?;
+        }
+        if s.bars {
+            chart
+                .draw_series(
+                    s.points
+                        .iter()
+                        .filter(|q| q.2.is_finite() && q.3.is_finite())
+                        .map(|&(x, m, lo, hi)| {
+                            ErrorBar::new_vertical(
+                                xa.f(x) + shift,
+                                ya.f(lo),
+                                ya.f(m),
+                                ya.f(hi),
+                                c.stroke_width(1),
+                                8,
+                            )
+                        }),
+                )
+                .map_err(|e| err(e.to_string()))?;
+        }
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font((FONT, 13))
+        .position(SeriesLabelPosition::UpperLeft)
+        .draw()
+        .map_err(|e| err(e.to_string()))?;
+    if 0.0 > y0 && 0.0 < y1 && !ya.log {
+        chart
+            .draw_series(LineSeries::new(vec![(x0, 0.0), (x1, 0.0)], BLACK.mix(0.4)))
+            .map_err(|e| err(e.to_string()))?;
+    }
+    Ok(())
+}
+
+/// A figure: panels in a grid, one x axis description shared by all.
+struct Figure<'a> {
+    path: PathBuf,
+    title: String,
+    grid: (usize, usize),
+    size: (u32, u32),
+    x_label: &'a str,
+    xa: Axis,
+    ya: Axis,
+}
+
+/// Render panels in a grid to a PNG file (written whole).
+fn render(fig: Figure<'_>, panels: &[Panel<'_>]) -> anyhow::Result<PathBuf> {
+    let Figure {
+        path,
+        title,
+        grid,
+        size,
+        x_label,
+        xa,
+        ya,
+    } = fig;
+    register_font()?;
+    let mut buf = vec![0u8; (size.0 * size.1 * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
+        let root = root
+            .titled(&title, (FONT, 22))
+            .map_err(|e| anyhow!("{e}"))?;
+        let areas = root.split_evenly(grid);
+        for (a, p) in areas.iter().zip(panels) {
+            draw_panel(a, p, x_label, xa, ya)?;
+        }
+        root.present().map_err(|e| anyhow!("{e}"))?;
+    }
+    let mut png_bytes = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut png_bytes, size.0, size.1);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut w = enc.write_header().context("PNG header")?;
+        w.write_image_data(&buf).context("PNG data")?;
+    }
+    write_atomic(&path, &png_bytes)
+}
+
+/// Numeric x of each swept value (its index when not a number).
+fn xs(values: &[String]) -> Vec<f64> {
+    let parsed: Vec<Option<f64>> = values.iter().map(|v| v.parse().ok()).collect();
+    if parsed.iter().all(Option::is_some) {
+        parsed.into_iter().flatten().collect()
+    } else {
+        (0..values.len()).map(|i| i as f64).collect()
+    }
+}
+
+/// Every plot of a scenario: diameter errors (Figs. 4, 5, 8), pose errors (Fig. 6),
+/// time (Fig. 7; log–log over `points`) and standard deviation against the Cramér–Rao
+/// bound.
+pub fn plot_all(
+    scenario: &Scenario,
+    summary: &[SummaryRow],
+    out: &Path,
+) -> anyhow::Result<Vec<PathBuf>> {
+    let values: Vec<String> = scenario.sweeps.iter().map(|(v, _)| v.clone()).collect();
+    let x = xs(&values);
+    let xv = |v: &str| values.iter().position(|s| s == v).map(|i| x[i]);
+    let methods: Vec<String> = scenario.sweeps[0]
+        .1
+        .methods
+        .iter()
+        .map(|m| m.name().to_string())
+        .collect();
+    let log_x =
+        scenario.sweep_variable == "points" && x.iter().all(|&v| v > 0.0) && values.len() > 1;
+    let xa = Axis { log: log_x };
+    let x_label = match scenario.sweep_variable.as_str() {
+        "noise.sigma_m" => "depth error σ (m)".to_string(),
+        "pipe.nominal_od_in" => "nominal pipe diameter (inch)".to_string(),
+        "points" => "input size N (points)".to_string(),
+        v => v.to_string(),
+    };
+    let select = |q: &str, m: &str| -> Vec<&SummaryRow> {
+        summary
+            .iter()
+            .filter(|r| r.quantity == q && r.method == m)
+            .collect()
+    };
+    let error_series = |q: &str| -> Vec<Series> {
+        methods
+            .iter()
+            .map(|m| Series {
+                name: format!("{} (bias, range)", m.to_uppercase()),
+                colour: colour(m),
+                points: select(q, m)
+                    .iter()
+                    .filter_map(|r| {
+                        xv(&r.sweep_value).map(|x| (x, r.stats.mean, r.stats.min, r.stats.max))
+                    })
+                    .collect(),
+                bars: true,
+                marker_triangle: false,
+            })
+            .collect()
+    };
+    let mut files = Vec::new();
+    let name = &scenario.name;
+    let d = [error_series("dmax"), error_series("dmin")];
+    files.push(render(
+        Figure {
+            path: out.join("diameter_error.png"),
+            title: format!("{name}: diameter estimation error (line: bias, bars: min…max)"),
+            grid: (1, 2),
+            size: (1400, 560),
+            x_label: &x_label,
+            xa,
+            ya: Axis { log: false },
+        },
+        &[
+            Panel {
+                title: "major axis Dmax".into(),
+                y_label: "error (mm)".into(),
+                series: &d[0],
+            },
+            Panel {
+                title: "minor axis Dmin".into(),
+                y_label: "error (mm)".into(),
+                series: &d[1],
+            },
+        ],
+    )?);
+    let pose = [
+        error_series("roll"),
+        error_series("pitch"),
+        error_series("yaw"),
+        error_series("dy"),
+        error_series("dz"),
+    ];
+    let titles = [
+        ("roll θx", "deg"),
+        ("pitch θy", "deg"),
+        ("yaw θz", "deg"),
+        ("Y displacement δy", "mm"),
+        ("Z displacement δz", "mm"),
+    ];
+    let panels: Vec<Panel<'_>> = titles
+        .iter()
+        .zip(&pose)
+        .map(|((t, u), s)| Panel {
+            title: (*t).into(),
+            y_label: format!("error ({u})"),
+            series: s,
+        })
+        .collect();
+    files.push(render(
+        Figure {
+            path: out.join("pose_error.png"),
+            title: format!("{name}: pose estimation error (line: bias, bars: min…max)"),
+            grid: (2, 3),
+            size: (1500, 900),
+            x_label: &x_label,
+            xa,
+            ya: Axis { log: false },
+        },
+        &panels,
+    )?);
+    let time: Vec<Series> = methods
+        .iter()
+        .map(|m| Series {
+            name: format!("{} (mean, min…max)", m.to_uppercase()),
+            colour: colour(m),
+            points: select("time_ms", m)
+                .iter()
+                .filter_map(|r| {
+                    xv(&r.sweep_value).map(|x| (x, r.stats.mean, r.stats.min, r.stats.max))
+                })
+                .collect(),
+            bars: true,
+            marker_triangle: false,
+        })
+        .collect();
+    files.push(render(
+        Figure {
+            path: out.join("time.png"),
+            title: format!(
+                "{name}: processing time of one estimate{}",
+                if scenario.timing {
+                    " (trials one at a time)"
+                } else {
+                    " (trials in parallel: contended)"
+                }
+            ),
+            grid: (1, 1),
+            size: (900, 600),
+            x_label: &x_label,
+            xa,
+            ya: Axis { log: log_x },
+        },
+        &[Panel {
+            title: "estimate call".into(),
+            y_label: "time (ms)".into(),
+            series: &time,
+        }],
+    )?);
+    let crb_panels = [
+        ("dmax", "Dmax", "mm"),
+        ("dmin", "Dmin", "mm"),
+        ("roll", "roll", "deg"),
+        ("dy", "δy", "mm"),
+    ];
+    let crb_series: Vec<Vec<Series>> = crb_panels
+        .iter()
+        .map(|(q, _, _)| {
+            let mut v: Vec<Series> = methods
+                .iter()
+                .map(|m| Series {
+                    name: format!("{} std", m.to_uppercase()),
+                    colour: colour(m),
+                    points: select(q, m)
+                        .iter()
+                        .filter_map(|r| {
+                            xv(&r.sweep_value).map(|x| (x, r.stats.std, f64::NAN, f64::NAN))
+                        })
+                        .collect(),
+                    bars: false,
+                    marker_triangle: false,
+                })
+                .collect();
+            if let Some(m) = methods.first() {
+                v.push(Series {
+                    name: "Cramér–Rao bound".into(),
+                    colour: RGBColor(0, 0, 0),
+                    points: select(q, m)
+                        .iter()
+                        .filter_map(|r| Some((xv(&r.sweep_value)?, r.crb_std?, f64::NAN, f64::NAN)))
+                        .collect(),
+                    bars: false,
+                    marker_triangle: true,
+                });
+            }
+            v
+        })
+        .collect();
+    let panels: Vec<Panel<'_>> = crb_panels
+        .iter()
+        .zip(&crb_series)
+        .map(|((_, t, u), s)| Panel {
+            title: (*t).into(),
+            y_label: format!("standard deviation ({u})"),
+            series: s,
+        })
+        .collect();
+    files.push(render(
+        Figure {
+            path: out.join("std_vs_crb.png"),
+            title: format!("{name}: spread of the estimates against the Cramér–Rao bound"),
+            grid: (2, 2),
+            size: (1300, 900),
+            x_label: &x_label,
+            xa,
+            ya: Axis { log: false },
+        },
+        &panels,
+    )?);
+    Ok(files)
+}

@@ -1,0 +1,593 @@
+//! Scenario files (SPEC §6): one base setting and one swept variable, checked into
+//! [`Setting`]s before anything runs.
+
+use std::path::{Path, PathBuf};
+
+use epd_core::Method;
+use serde::Deserialize;
+use tof_sim::{Noise, NoiseModel, Pipe, PoseRanges, Sensor, Subsample};
+
+/// A scenario that cannot be used, with the file and the key at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum ScenarioError {
+    /// The file cannot be read.
+    #[error("cannot read scenario `{path}`: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+    /// TOML syntax, an unknown key or a wrong type (the toml crate names the key and line).
+    #[error("scenario `{path}`: {message}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// The parser's message.
+        message: String,
+    },
+    /// A value outside its range.
+    #[error("scenario `{path}`: `{key}` {message}")]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// The dotted key.
+        key: String,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// `points = "all"` or an integer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Points {
+    /// Every point within range.
+    #[default]
+    All,
+    /// A uniform subsample of this many points.
+    N(usize),
+}
+
+impl<'de> Deserialize<'de> for Points {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Raw {
+            Int(i64),
+            Str(String),
+        }
+        match Raw::deserialize(d)? {
+            Raw::Int(n) if n >= 1 => Ok(Points::N(n as usize)),
+            Raw::Int(n) => Err(serde::de::Error::custom(format!(
+                "points = {n}: must be ≥ 1 or \"all\""
+            ))),
+            Raw::Str(s) if s == "all" => Ok(Points::All),
+            Raw::Str(s) => Err(serde::de::Error::custom(format!(
+                "points = \"{s}\": must be \"all\" or an integer ≥ 1"
+            ))),
+        }
+    }
+}
+
+impl std::fmt::Display for Points {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Points::All => f.write_str("all"),
+            Points::N(n) => write!(f, "{n}"),
+        }
+    }
+}
+
+fn default_methods() -> Vec<String> {
+    vec!["c-epd".into(), "ru-epd".into(), "ml-epd".into()]
+}
+
+/// The file as written (units of the file: mm, degrees).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct File {
+    name: String,
+    #[serde(default = "one")]
+    seed: u64,
+    #[serde(default = "hundred")]
+    trials: usize,
+    #[serde(default = "default_methods")]
+    methods: Vec<String>,
+    #[serde(default)]
+    points: Points,
+    #[serde(default)]
+    timing: bool,
+    #[serde(default)]
+    sensor: SensorFile,
+    #[serde(default)]
+    pipe: PipeFile,
+    #[serde(default)]
+    noise: NoiseFile,
+    #[serde(default)]
+    poses: PosesFile,
+    sweep: Option<SweepFile>,
+}
+
+fn one() -> u64 {
+    1
+}
+fn hundred() -> usize {
+    100
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct SensorFile {
+    width: u32,
+    height: u32,
+    fov_h_deg: f64,
+    fov_v_deg: f64,
+    min_range_m: f64,
+    max_range_m: f64,
+}
+
+impl Default for SensorFile {
+    fn default() -> Self {
+        Self {
+            width: 640,
+            height: 480,
+            fov_h_deg: 69.0,
+            fov_v_deg: 51.0,
+            min_range_m: 0.0,
+            max_range_m: 6.0,
+        }
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct PipeFile {
+    nominal_od_in: f64,
+    wall_thickness_mm: f64,
+    ovality: f64,
+}
+
+impl Default for PipeFile {
+    fn default() -> Self {
+        Self {
+            nominal_od_in: 20.0,
+            wall_thickness_mm: 12.0,
+            ovality: 0.02,
+        }
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct NoiseFile {
+    model: String,
+    sigma_m: f64,
+    outlier_fraction: f64,
+    bias_b0_m: f64,
+    bias_b1: f64,
+}
+
+impl Default for NoiseFile {
+    fn default() -> Self {
+        Self {
+            model: "range".into(),
+            sigma_m: 0.03,
+            outlier_fraction: 0.0,
+            bias_b0_m: 0.0,
+            bias_b1: 0.0,
+        }
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct PosesFile {
+    roll_deg: [f64; 2],
+    pitch_deg: [f64; 2],
+    yaw_deg: [f64; 2],
+    dy_mm: [f64; 2],
+    dz_mm: [f64; 2],
+}
+
+impl Default for PosesFile {
+    fn default() -> Self {
+        Self {
+            roll_deg: [-180.0, 180.0],
+            pitch_deg: [-5.0, 5.0],
+            yaw_deg: [-5.0, 5.0],
+            dy_mm: [-50.0, 50.0],
+            dz_mm: [-50.0, 50.0],
+        }
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SweepFile {
+    variable: String,
+    values: Vec<toml::Value>,
+}
+
+/// One fully checked setting: what a trial needs, in SI units.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Setting {
+    /// The sensor.
+    pub sensor: Sensor,
+    /// The pipe.
+    pub pipe: Pipe,
+    /// The depth errors.
+    pub noise: Noise,
+    /// The pose ranges.
+    pub poses: PoseRanges,
+    /// Points kept per frame.
+    pub points: Points,
+    /// The methods, in the order listed.
+    pub methods: Vec<Method>,
+}
+
+impl Setting {
+    /// The subsample of the frame.
+    pub fn subsample(&self) -> Subsample {
+        match self.points {
+            Points::All => Subsample::All,
+            Points::N(n) => Subsample::Points(n),
+        }
+    }
+}
+
+/// A checked scenario: its settings, one per swept value.
+#[derive(Clone, Debug)]
+pub struct Scenario {
+    /// `name`: the results go to `results/<name>/`.
+    pub name: String,
+    /// `seed`.
+    pub seed: u64,
+    /// `trials` per swept value.
+    pub trials: usize,
+    /// Whether trials run one at a time for uncontended timings (`timing = true`, or a
+    /// sweep over `points`).
+    pub timing: bool,
+    /// The swept dotted key (`"none"` without a `[sweep]`).
+    pub sweep_variable: String,
+    /// (value as text, setting) per swept value, in file order.
+    pub sweeps: Vec<(String, Setting)>,
+    /// The file's text, copied into the results.
+    pub source: String,
+    /// The file.
+    pub path: PathBuf,
+}
+
+/// Set `dotted` (e.g. `noise.sigma_m`) in a TOML table to `value`, creating sections.
+fn set_dotted(table: &mut toml::Table, dotted: &str, value: toml::Value) -> Result<(), String> {
+    let parts: Vec<&str> = dotted.split('.').collect();
+    let (last, sections) = parts.split_last().ok_or("empty key")?;
+    let mut t = table;
+    for s in sections {
+        let entry = t
+            .entry(s.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        t = entry
+            .as_table_mut()
+            .ok_or_else(|| format!("`{s}` is not a section"))?;
+    }
+    t.insert(last.to_string(), value);
+    Ok(())
+}
+
+fn value_text(v: &toml::Value) -> String {
+    match v {
+        toml::Value::String(s) => s.clone(),
+        other => other.to_string(),
+    }
+}
+
+impl Scenario {
+    /// Read and check a scenario file. Every error names the file and the key.
+    pub fn load(path: &Path) -> Result<Self, ScenarioError> {
+        let source = std::fs::read_to_string(path).map_err(|source| ScenarioError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::parse(path, &source)
+    }
+
+    /// Check a scenario given as text (`path` names it in errors).
+    pub fn parse(path: &Path, source: &str) -> Result<Self, ScenarioError> {
+        let parse_err = |e: toml::de::Error| ScenarioError::Parse {
+            path: path.to_path_buf(),
+            message: e.to_string().trim_end().to_string(),
+        };
+        let invalid = |key: &str, message: String| ScenarioError::Invalid {
+            path: path.to_path_buf(),
+            key: key.to_string(),
+            message,
+        };
+        let table: toml::Table = toml::from_str(source).map_err(parse_err)?;
+        let base: File = toml::from_str(source).map_err(parse_err)?;
+        if base.name.is_empty()
+            || base.name.contains(['/', '\\'])
+            || base.name == "."
+            || base.name == ".."
+        {
+            return Err(invalid(
+                "name",
+                format!("= \"{}\": must be a plain folder name", base.name),
+            ));
+        }
+        if base.trials == 0 {
+            return Err(invalid("trials", "= 0: must be at least 1".into()));
+        }
+        let (variable, values) = match &base.sweep {
+            Some(s) => {
+                if s.values.is_empty() {
+                    return Err(invalid(
+                        "sweep.values",
+                        "is empty: list at least one value".into(),
+                    ));
+                }
+                if s.variable.starts_with("sweep")
+                    || ["name", "seed", "trials", "methods", "timing"]
+                        .contains(&s.variable.as_str())
+                {
+                    return Err(invalid(
+                        "sweep.variable",
+                        format!("= \"{}\": cannot be swept", s.variable),
+                    ));
+                }
+                (s.variable.clone(), s.values.clone())
+            }
+            None => ("none".to_string(), vec![]),
+        };
+        let mut sweeps = Vec::new();
+        let files: Vec<(String, File)> = if values.is_empty() {
+            vec![("-".to_string(), base.clone())]
+        } else {
+            let mut v = Vec::new();
+            for value in &values {
+                let mut t = table.clone();
+                set_dotted(&mut t, &variable, value.clone())
+                    .map_err(|m| invalid("sweep.variable", m))?;
+                let f: File = t.try_into().map_err(|e: toml::de::Error| {
+                    invalid(
+                        &variable,
+                        format!(
+                            "(swept value {}): {}",
+                            value_text(value),
+                            e.to_string().trim_end()
+                        ),
+                    )
+                })?;
+                v.push((value_text(value), f));
+            }
+            v
+        };
+        for (text, f) in files {
+            let setting = to_setting(&f).map_err(|(key, msg)| {
+                let key = if values.is_empty() {
+                    key
+                } else {
+                    key.to_string()
+                };
+                invalid(
+                    &key,
+                    if values.is_empty() {
+                        msg
+                    } else {
+                        format!("{msg} (swept value {text})")
+                    },
+                )
+            })?;
+            sweeps.push((text, setting));
+        }
+        let timing = base.timing || variable == "points";
+        Ok(Self {
+            name: base.name,
+            seed: base.seed,
+            trials: base.trials,
+            timing,
+            sweep_variable: variable,
+            sweeps,
+            source: source.to_string(),
+            path: path.to_path_buf(),
+        })
+    }
+}
+
+/// File units → a checked [`Setting`], or (key, message).
+fn to_setting(f: &File) -> Result<Setting, (String, String)> {
+    let err = |key: &str, msg: String| (key.to_string(), msg);
+    let mut methods = Vec::new();
+    for m in &f.methods {
+        let method: Method = m
+            .parse()
+            .map_err(|e: epd_core::EpdError| err("methods", e.to_string()))?;
+        if !methods.contains(&method) {
+            methods.push(method);
+        }
+    }
+    if methods.is_empty() {
+        return Err(err(
+            "methods",
+            "is empty: list at least one of c-epd, ru-epd, ml-epd".into(),
+        ));
+    }
+    let sensor = Sensor {
+        width: f.sensor.width,
+        height: f.sensor.height,
+        fov_h: f.sensor.fov_h_deg.to_radians(),
+        fov_v: f.sensor.fov_v_deg.to_radians(),
+        min_range: f.sensor.min_range_m,
+        max_range: f.sensor.max_range_m,
+    };
+    let pipe = Pipe {
+        nominal_od_in: f.pipe.nominal_od_in,
+        wall_thickness: f.pipe.wall_thickness_mm * 1e-3,
+        ovality: f.pipe.ovality,
+    };
+    let model = match f.noise.model.as_str() {
+        "range" => NoiseModel::Range,
+        "isotropic" => NoiseModel::Isotropic,
+        other => {
+            return Err(err(
+                "noise.model",
+                format!("= \"{other}\": must be \"range\" or \"isotropic\""),
+            ));
+        }
+    };
+    let noise = Noise {
+        model,
+        sigma: f.noise.sigma_m,
+        outlier_fraction: f.noise.outlier_fraction,
+        bias_b0: f.noise.bias_b0_m,
+        bias_b1: f.noise.bias_b1,
+    };
+    let r = |a: [f64; 2]| (a[0].to_radians(), a[1].to_radians());
+    let mm = |a: [f64; 2]| (a[0] * 1e-3, a[1] * 1e-3);
+    let poses = PoseRanges {
+        roll: r(f.poses.roll_deg),
+        pitch: r(f.poses.pitch_deg),
+        yaw: r(f.poses.yaw_deg),
+        dy: mm(f.poses.dy_mm),
+        dz: mm(f.poses.dz_mm),
+    };
+    let sim = |e: tof_sim::SimError| match e {
+        tof_sim::SimError::Invalid {
+            field,
+            value,
+            reason,
+        } => (field.to_string(), format!("= {value}: {reason}")),
+        other => ("?".to_string(), other.to_string()),
+    };
+    sensor.validate().map_err(sim)?;
+    pipe.validate().map_err(sim)?;
+    noise.validate().map_err(sim)?;
+    poses.validate().map_err(sim)?;
+    // The largest offsets must keep the sensor inside the pipe.
+    let (a, b) = (pipe.d_max() / 2.0, pipe.d_min() / 2.0);
+    let dy = poses.dy.0.abs().max(poses.dy.1.abs());
+    let dz = poses.dz.0.abs().max(poses.dz.1.abs());
+    if (dy / a).powi(2) + (dz / b).powi(2) >= 1.0 {
+        return Err(err(
+            "poses.dy_mm",
+            format!(
+                "and poses.dz_mm reach ({:.0}, {:.0}) mm: outside the pipe (semi-axes {:.0} × {:.0} mm)",
+                dy * 1e3,
+                dz * 1e3,
+                a * 1e3,
+                b * 1e3
+            ),
+        ));
+    }
+    Ok(Setting {
+        sensor,
+        pipe,
+        noise,
+        poses,
+        points: f.points,
+        methods,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(s: &str) -> Result<Scenario, ScenarioError> {
+        Scenario::parse(Path::new("test.toml"), s)
+    }
+
+    #[test]
+    fn full_example_parses() {
+        let s = parse(
+            r#"
+name = "sigma_sweep"
+seed = 1
+trials = 100
+methods = ["c-epd", "ru-epd"]
+points = "all"
+[sensor]
+width = 640
+[pipe]
+nominal_od_in = 20.0
+[noise]
+model = "range"
+sigma_m = 0.03
+[poses]
+roll_deg = [-180.0, 180.0]
+[sweep]
+variable = "noise.sigma_m"
+values = [0.01, 0.02, 0.03]
+"#,
+        )
+        .unwrap();
+        assert_eq!(s.sweeps.len(), 3);
+        assert_eq!(s.sweeps[1].0, "0.02");
+        assert_eq!(s.sweeps[1].1.noise.sigma, 0.02);
+        assert_eq!(s.sweeps[1].1.methods, vec![Method::CEpd, Method::RuEpd]);
+        assert!(!s.timing);
+    }
+
+    #[test]
+    fn sweeps_over_points_and_integers() {
+        let s =
+            parse("name = \"n\"\n[sweep]\nvariable = \"points\"\nvalues = [100, 1000, \"all\"]\n")
+                .unwrap();
+        assert_eq!(s.sweeps[0].1.points, Points::N(100));
+        assert_eq!(s.sweeps[2].1.points, Points::All);
+        assert!(s.timing);
+        let s = parse(
+            "name = \"n\"\n[sweep]\nvariable = \"pipe.nominal_od_in\"\nvalues = [16, 18.0]\n",
+        )
+        .unwrap();
+        assert_eq!(s.sweeps[0].1.pipe.nominal_od_in, 16.0);
+    }
+
+    #[test]
+    fn errors_name_file_and_key() {
+        let e = parse("name = \"x\"\n[noise]\nsigma = 0.1\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("test.toml") && e.contains("sigma") && e.contains("line 3"),
+            "{e}"
+        );
+        let e = parse("name = \"x\"\nfoo = 1\n").unwrap_err().to_string();
+        assert!(e.contains("foo"), "{e}");
+        let e = parse("name = \"x\"\n[noise]\nsigma_m = -0.1\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("noise.sigma_m"), "{e}");
+        let e = parse("name = \"x\"\n[sweep]\nvariable = \"noise.sigma\"\nvalues = [0.1]\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("noise.sigma") && e.contains("unknown field"),
+            "{e}"
+        );
+        let e = parse("name = \"x\"\n[sweep]\nvariable = \"pipe.ovality\"\nvalues = [0.1, 1.5]\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("pipe.ovality") && e.contains("1.5"), "{e}");
+        let e = parse("name = \"x\"\nmethods = [\"d-epd\"]\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("methods") && e.contains("d-epd"), "{e}");
+        let e = parse("name = \"x\"\npoints = 0\n").unwrap_err().to_string();
+        assert!(e.contains("points"), "{e}");
+        let e = parse("name = \"x\"\n[poses]\ndy_mm = [-300.0, 300.0]\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("poses.dy_mm"), "{e}");
+        let e = parse("name = \"x\"\ntrials = 0\n").unwrap_err().to_string();
+        assert!(e.contains("trials"), "{e}");
+        let e = parse("name = \"x\"\n[sensor]\nfov_h_deg = 180.0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("sensor.fov_h_deg"), "{e}");
+        let e = parse("name = \"x\"\n[noise]\nmodel = \"gauss\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("noise.model"), "{e}");
+    }
+}

@@ -1,0 +1,196 @@
+//! One trial: a simulated frame, every method on the same cloud, errors against the truth
+//! under the symmetries, and the Cramér–Rao bound of the frame.
+
+use std::sync::Mutex;
+use std::time::Instant;
+
+use epd_core::{
+    EstimateOptions, Method, N_PARAMS, ParamErrors, Params, Sigmas, cramer_rao_bound,
+    errors_against, estimate,
+};
+use tof_sim::{Frame, FrameSeed, Scene, WallModel, simulate_into};
+
+use crate::scenario::Setting;
+
+/// The outcome of one method on one frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MethodResult {
+    /// The method.
+    pub method: Method,
+    /// `converged`, `iteration_limit`, `degenerate` or `error`.
+    pub status: String,
+    /// The reason or error message.
+    pub message: String,
+    /// Solver iterations.
+    pub iterations: usize,
+    /// Wall time of the estimate call alone (ms).
+    pub time_ms: f64,
+    /// The canonical estimate, when one was made.
+    pub estimate: Option<Params>,
+    /// Its reported 1-σ.
+    pub sigma: Sigmas,
+    /// Estimate − truth under the symmetries.
+    pub errors: Option<ParamErrors>,
+}
+
+impl MethodResult {
+    /// Whether the fit converged (the trial counts in the statistics).
+    pub fn ok(&self) -> bool {
+        self.status == "converged" && self.errors.is_some()
+    }
+}
+
+/// The outcome of one trial.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrialResult {
+    /// Trial index.
+    pub trial: usize,
+    /// Points in the cloud the methods saw.
+    pub n_points: usize,
+    /// The true β (canonical form).
+    pub truth: Params,
+    /// Cramér–Rao 1-σ per parameter for range noise of the setting's σ.
+    pub crb: Sigmas,
+    /// One result per method, in the scenario's order.
+    pub methods: Vec<MethodResult>,
+    /// Why the frame could not be made, if it could not.
+    pub error: Option<String>,
+}
+
+/// Frames kept between trials so their buffers are reused.
+#[derive(Default)]
+pub struct FramePool(Mutex<Vec<Frame>>);
+
+impl FramePool {
+    fn take(&self) -> Frame {
+        self.0
+            .lock()
+            .ok()
+            .and_then(|mut v| v.pop())
+            .unwrap_or_else(Frame::empty)
+    }
+
+    fn give(&self, f: Frame) {
+        if let Ok(mut v) = self.0.lock() {
+            v.push(f);
+        }
+    }
+}
+
+/// Run trial `trial` of `setting` (sweep index `sweep_index`, scenario seed `seed`).
+pub fn run_trial(
+    setting: &Setting,
+    seed: u64,
+    trial: usize,
+    sweep_index: usize,
+    pool: &FramePool,
+) -> TrialResult {
+    let mut frame = pool.take();
+    let r = run_with(setting, seed, trial, sweep_index, &mut frame);
+    pool.give(frame);
+    r
+}
+
+fn run_with(
+    setting: &Setting,
+    seed: u64,
+    trial: usize,
+    sweep_index: usize,
+    frame: &mut Frame,
+) -> TrialResult {
+    let fail = |truth: Params, e: String| TrialResult {
+        trial,
+        n_points: 0,
+        truth,
+        crb: [None; N_PARAMS],
+        methods: setting
+            .methods
+            .iter()
+            .map(|&m| MethodResult {
+                method: m,
+                status: "error".into(),
+                message: e.clone(),
+                iterations: 0,
+                time_ms: 0.0,
+                estimate: None,
+                sigma: [None; N_PARAMS],
+                errors: None,
+            })
+            .collect(),
+        error: Some(e),
+    };
+    let nan = Params {
+        d_max: f64::NAN,
+        d_min: f64::NAN,
+        roll: f64::NAN,
+        pitch: f64::NAN,
+        yaw: f64::NAN,
+        dy: f64::NAN,
+        dz: f64::NAN,
+    };
+    let truth = match setting.poses.sample(&setting.pipe, seed, trial as u64) {
+        Ok(t) => t,
+        Err(e) => return fail(nan, e.to_string()),
+    };
+    let scene = match Scene::new(&truth, WallModel::Exact, setting.sensor.max_range) {
+        Ok(s) => s,
+        Err(e) => return fail(truth, e.to_string()),
+    };
+    let seeds = FrameSeed {
+        seed,
+        trial: trial as u64,
+        sweep_index: sweep_index as u64,
+    };
+    if let Err(e) = simulate_into(
+        &setting.sensor,
+        &scene,
+        &setting.noise,
+        setting.subsample(),
+        seeds,
+        frame,
+    ) {
+        return fail(truth, e.to_string());
+    }
+    let crb =
+        cramer_rao_bound(&frame.exact, &truth, setting.noise.sigma).unwrap_or([None; N_PARAMS]);
+    let opts = EstimateOptions::default();
+    let methods = setting
+        .methods
+        .iter()
+        .map(|&m| {
+            let t0 = Instant::now();
+            let est = estimate(&frame.measured, m, &opts);
+            let time_ms = t0.elapsed().as_secs_f64() * 1e3;
+            match est {
+                Ok(e) => MethodResult {
+                    method: m,
+                    status: e.status.name().into(),
+                    message: e.status.reason().into(),
+                    iterations: e.iterations,
+                    time_ms,
+                    estimate: Some(e.params),
+                    sigma: e.sigma,
+                    errors: Some(errors_against(&e.params, &truth)),
+                },
+                Err(err) => MethodResult {
+                    method: m,
+                    status: "error".into(),
+                    message: err.to_string(),
+                    iterations: 0,
+                    time_ms,
+                    estimate: None,
+                    sigma: [None; N_PARAMS],
+                    errors: None,
+                },
+            }
+        })
+        .collect();
+    TrialResult {
+        trial,
+        n_points: frame.len(),
+        truth: epd_core::canonicalize(&truth),
+        crb,
+        methods,
+        error: None,
+    }
+}
