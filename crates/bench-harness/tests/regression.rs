@@ -1,0 +1,144 @@
+//! CI regression: `scenarios/ci_regression.toml` run afresh, checked (a) against the
+//! physics and (b) against the committed baseline `results/ci_regression/summary.csv`
+//! (regenerate it with `cargo run --release -p bench-harness -- scenarios/ci_regression.toml`).
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use bench_harness::{RunOptions, Scenario, SummaryRow, run};
+
+fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn temp_dir(tag: &str) -> PathBuf {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0);
+    std::env::temp_dir().join(format!("epd-{tag}-{}-{nanos}", std::process::id()))
+}
+
+type Key = (String, String, String); // (sweep value, method, quantity)
+
+fn read_summary(path: &Path) -> HashMap<Key, HashMap<String, String>> {
+    let text = std::fs::read_to_string(path)
+        .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    lines
+        .map(|l| {
+            let row: HashMap<String, String> = header
+                .iter()
+                .zip(l.split(','))
+                .map(|(h, v)| (h.to_string(), v.to_string()))
+                .collect();
+            (
+                (
+                    row["sweep_value"].clone(),
+                    row["method"].clone(),
+                    row["quantity"].clone(),
+                ),
+                row,
+            )
+        })
+        .collect()
+}
+
+fn get<'a>(s: &'a [SummaryRow], value: &str, method: &str, q: &str) -> &'a SummaryRow {
+    s.iter()
+        .find(|r| r.sweep_value == value && r.method == method && r.quantity == q)
+        .expect("row")
+}
+
+#[test]
+fn ci_regression_physics_and_drift() {
+    let scenario = Scenario::load(&workspace().join("scenarios/ci_regression.toml")).unwrap();
+    let out = temp_dir("ci-regression");
+    let report = run(
+        &scenario,
+        &RunOptions {
+            out: out.clone(),
+            trials: None,
+            progress: false,
+        },
+    )
+    .unwrap();
+    let s = &report.summary;
+    let id = 20.0 * 0.0254 - 2.0 * 0.012;
+    for (value, setting) in &scenario.sweeps {
+        let sigma = setting.noise.sigma;
+        // (a) Physics. C-EPD overestimates the mean diameter by ≈ 1.75·σ²/ID (Theorem 1).
+        let expected = 1.75 * sigma * sigma / id * 1e3;
+        let c = get(s, value, "c-epd", "dmean");
+        assert!(
+            c.stats.mean > 0.0,
+            "σ={value}: C-EPD bias {} mm",
+            c.stats.mean
+        );
+        assert!(
+            (c.stats.mean / expected - 1.0).abs() < 0.3,
+            "σ={value}: C-EPD bias {:.3} mm vs 1.75σ²/ID = {expected:.3} mm",
+            c.stats.mean
+        );
+        // RU-EPD and ML-EPD are unbiased within their standard error (Theorem 2).
+        for m in ["ru-epd", "ml-epd"] {
+            for q in ["dmax", "dmin", "dmean"] {
+                let r = get(s, value, m, q);
+                assert_eq!(r.n_failed, 0, "{m} failed fits");
+                let limit = 3.0 * r.stats.sem() + 0.05;
+                assert!(
+                    r.stats.mean.abs() < limit,
+                    "σ={value} {m} {q}: bias {:.4} mm, limit {limit:.4}",
+                    r.stats.mean
+                );
+            }
+        }
+        // Spread: ML ≤ RU ≤ C for every parameter.
+        for q in ["dmax", "dmin", "dmean", "roll", "pitch", "yaw", "dy", "dz"] {
+            let sd = |m| get(s, value, m, q).stats.std;
+            assert!(
+                sd("ml-epd") <= sd("ru-epd") && sd("ru-epd") <= sd("c-epd"),
+                "σ={value} {q}: std ml {} ru {} c {}",
+                sd("ml-epd"),
+                sd("ru-epd"),
+                sd("c-epd")
+            );
+        }
+    }
+    // (b) Drift against the committed baseline: counts exactly, statistics within
+    // 1e-4 (mm or degrees) + 1e-4 relative — far below any change of an estimator, far
+    // above rounding differences between machines.
+    let baseline = read_summary(&workspace().join("results/ci_regression/summary.csv"));
+    let fresh = read_summary(&out.join("summary.csv"));
+    assert_eq!(
+        baseline.len(),
+        fresh.len(),
+        "row count differs from the baseline"
+    );
+    let mut checked = 0;
+    for (key, b) in &baseline {
+        let f = fresh
+            .get(key)
+            .unwrap_or_else(|| panic!("row {key:?} missing"));
+        assert_eq!(b["n"], f["n"], "{key:?}: n");
+        assert_eq!(b["n_failed"], f["n_failed"], "{key:?}: n_failed");
+        if key.2 == "time_ms" {
+            continue;
+        }
+        for col in ["mean", "std", "median", "min", "max", "crb_std"] {
+            let (bv, fv) = (&b[col], &f[col]);
+            if bv.is_empty() && fv.is_empty() {
+                continue;
+            }
+            let (x, y): (f64, f64) = (bv.parse().unwrap(), fv.parse().unwrap());
+            assert!(
+                (x - y).abs() <= 1e-4 + 1e-4 * x.abs(),
+                "{key:?} {col}: baseline {x}, now {y}"
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked > 200, "only {checked} values compared");
+    let _ = std::fs::remove_dir_all(&out);
+}
