@@ -62,11 +62,15 @@ impl Axis {
     }
     fn label(&self, v: f64) -> String {
         if self.log {
-            let p = 10f64.powf(v);
-            if (v - v.round()).abs() < 1e-9 {
-                format!("1e{}", v.round())
+            // Label the decades only, in plain numbers.
+            if (v - v.round()).abs() > 1e-9 {
+                return String::new();
+            }
+            let k = v.round() as i32;
+            if (-4..=6).contains(&k) {
+                format!("{}", 10f64.powi(k))
             } else {
-                format!("{p:.3}")
+                format!("1e{k}")
             }
         } else {
             let s = format!("{v:.4}");
