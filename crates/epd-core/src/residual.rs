@@ -266,31 +266,76 @@ mod tests {
         v
     }
 
+    /// A small deterministic generator for random β (xorshift).
+    fn random_betas(n: usize) -> Vec<Params> {
+        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        let mut u = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        (0..n)
+            .map(|_| {
+                let d = 0.35 + 0.4 * u();
+                Params {
+                    d_max: d * (1.0 + 0.05 * u()),
+                    d_min: d * (1.0 - 0.05 * u()),
+                    roll: (u() - 0.5) * std::f64::consts::TAU,
+                    pitch: (u() - 0.5) * 0.5,
+                    yaw: (u() - 0.5) * 0.5,
+                    dy: (u() - 0.5) * 0.1,
+                    dz: (u() - 0.5) * 0.1,
+                }
+            })
+            .collect()
+    }
+
     #[test]
     fn gradients_match_central_differences() {
-        let b0 = beta();
+        for b0 in std::iter::once(beta()).chain(random_betas(20)) {
+            for kind in [Residual::Canonical, Residual::ErrorBased, Residual::Range] {
+                let g0 = Geometry::new(&b0).unwrap();
+                for p in points() {
+                    let (_, g) = g0.residual_and_gradient(kind, &p);
+                    for k in 0..N_PARAMS {
+                        let h = 1e-6;
+                        let mut a = b0.to_array();
+                        a[k] += h;
+                        let rp = Geometry::new(&Params::from_array(a))
+                            .unwrap()
+                            .residual(kind, &p);
+                        a[k] -= 2.0 * h;
+                        let rm = Geometry::new(&Params::from_array(a))
+                            .unwrap()
+                            .residual(kind, &p);
+                        let fd = (rp - rm) / (2.0 * h);
+                        let tol = 1e-6 * (1.0 + fd.abs());
+                        assert!(
+                            (fd - g[k]).abs() < tol,
+                            "{kind:?} k={k} fd={fd} an={} at {b0:?}",
+                            g[k]
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn lanes_equal_single_points() {
+        let g = Geometry::new(&beta()).unwrap();
+        let pts = points();
         for kind in [Residual::Canonical, Residual::ErrorBased, Residual::Range] {
-            let g0 = Geometry::new(&b0).unwrap();
-            for p in points() {
-                let (_, g) = g0.residual_and_gradient(kind, &p);
-                for k in 0..N_PARAMS {
-                    let h = 1e-6;
-                    let mut a = b0.to_array();
-                    a[k] += h;
-                    let rp = Geometry::new(&Params::from_array(a))
-                        .unwrap()
-                        .residual(kind, &p);
-                    a[k] -= 2.0 * h;
-                    let rm = Geometry::new(&Params::from_array(a))
-                        .unwrap()
-                        .residual(kind, &p);
-                    let fd = (rp - rm) / (2.0 * h);
-                    let tol = 1e-6 * (1.0 + fd.abs());
-                    assert!(
-                        (fd - g[k]).abs() < tol,
-                        "{kind:?} k={k} fd={fd} an={}",
-                        g[k]
-                    );
+            for block in pts.chunks_exact(4) {
+                let arr: [[f64; 3]; 4] = block.try_into().unwrap();
+                let (r, gl) = g.residuals_and_gradients::<4>(kind, &arr);
+                for l in 0..4 {
+                    let (r1, g1) = g.residual_and_gradient(kind, &arr[l]);
+                    assert_eq!(r[l], r1);
+                    for k in 0..N_PARAMS {
+                        assert_eq!(gl[k][l], g1[k]);
+                    }
                 }
             }
         }
