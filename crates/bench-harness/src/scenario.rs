@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use epd_core::Method;
+use epd_core::{Loss, Method};
 use serde::Deserialize;
 use tof_sim::{Noise, NoiseModel, Pipe, PoseRanges, Sensor, Subsample};
 
@@ -98,6 +98,10 @@ struct File {
     points: Points,
     #[serde(default)]
     timing: bool,
+    #[serde(default = "default_loss")]
+    loss: String,
+    #[serde(default = "default_loss_scale")]
+    loss_scale_m: f64,
     #[serde(default)]
     sensor: SensorFile,
     #[serde(default)]
@@ -107,6 +111,13 @@ struct File {
     #[serde(default)]
     poses: PosesFile,
     sweep: Option<SweepFile>,
+}
+
+fn default_loss() -> String {
+    "none".into()
+}
+fn default_loss_scale() -> f64 {
+    0.05
 }
 
 fn one() -> u64 {
@@ -224,6 +235,8 @@ pub struct Setting {
     pub points: Points,
     /// The methods, in the order listed.
     pub methods: Vec<Method>,
+    /// The robust loss of every estimate (`loss`, `loss_scale_m`).
+    pub loss: Loss,
 }
 
 impl Setting {
@@ -479,6 +492,14 @@ fn to_setting(f: &File) -> Result<Setting, (String, String)> {
             ),
         ));
     }
+    let loss = Loss::from_name(&f.loss, f.loss_scale_m).map_err(|e| {
+        let key = if f.loss_scale_m > 0.0 && f.loss_scale_m.is_finite() {
+            "loss"
+        } else {
+            "loss_scale_m"
+        };
+        err(key, e.to_string())
+    })?;
     Ok(Setting {
         sensor,
         pipe,
@@ -486,6 +507,7 @@ fn to_setting(f: &File) -> Result<Setting, (String, String)> {
         poses,
         points: f.points,
         methods,
+        loss,
     })
 }
 

@@ -153,7 +153,9 @@ fn run_with(
     }
     let crb =
         cramer_rao_bound(&frame.exact, &truth, setting.noise.sigma).unwrap_or([None; N_PARAMS]);
-    let opts = EstimateOptions::default();
+    let opts = EstimateOptions::default()
+        .with_loss(setting.loss)
+        .unwrap_or_default();
     let methods = setting
         .methods
         .iter()

@@ -10,6 +10,7 @@ use crate::cloud::clean;
 use crate::error::EpdError;
 use crate::init::initial_guess;
 use crate::lm::{LmOptions, NormalEquations, Status, minimize};
+use crate::loss::Loss;
 use crate::params::{N_PARAMS, Params};
 use crate::problem::PipeFit;
 use crate::residual::Residual;
@@ -74,6 +75,7 @@ impl FromStr for Method {
 pub struct EstimateOptions {
     lm: LmOptions,
     stage_points: usize,
+    loss: Loss,
 }
 
 impl Default for EstimateOptions {
@@ -81,6 +83,7 @@ impl Default for EstimateOptions {
         Self {
             lm: LmOptions::default(),
             stage_points: 8192,
+            loss: Loss::Squared,
         }
     }
 }
@@ -90,6 +93,20 @@ impl EstimateOptions {
     pub fn with_lm(mut self, lm: LmOptions) -> Self {
         self.lm = lm;
         self
+    }
+
+    /// A robust loss against outliers; its scale is in metres of range error (for C-EPD
+    /// it is converted to the canonical residual through r_c ≈ 2δ/R with the initial
+    /// guess's mean radius R).
+    pub fn with_loss(mut self, loss: Loss) -> Result<Self, EpdError> {
+        loss.validate()?;
+        self.loss = loss;
+        Ok(self)
+    }
+
+    /// The robust loss.
+    pub fn loss(&self) -> Loss {
+        self.loss
     }
 
     /// Size of the evenly strided subsample on which the fit first converges before the
@@ -171,6 +188,11 @@ pub fn estimate(
     };
     let mut x = SVector::<f64, N_PARAMS>::from(init.to_array());
     let mut iterations = 0;
+    // The loss scale in each residual's units.
+    let loss_for = |kind: Residual| match kind {
+        Residual::Canonical => options.loss.scaled(4.0 / (init.d_max + init.d_min)),
+        _ => options.loss,
+    };
     // Stage 1 (subsample or all): the method's own residual, RU-EPD first for ML-EPD.
     let mut stage_residuals = vec![method.residual()];
     if method == Method::MlEpd {
@@ -179,10 +201,7 @@ pub fn estimate(
     let mut last = None;
     for kind in stage_residuals {
         let rep = minimize(
-            &PipeFit {
-                points: stage_pts,
-                residual: kind,
-            },
+            &PipeFit::new(stage_pts, kind).with_loss(loss_for(kind)),
             x,
             &options.lm,
         );
@@ -193,10 +212,7 @@ pub fn estimate(
     // Stage 2: all points.
     if stage_pts.len() != n {
         let rep = minimize(
-            &PipeFit {
-                points: pts,
-                residual: method.residual(),
-            },
+            &PipeFit::new(pts, method.residual()).with_loss(loss_for(method.residual())),
             x,
             &options.lm,
         );
@@ -209,10 +225,7 @@ pub fn estimate(
     };
     let fitted = Params::from_array(x.into());
     let (canonical, applied) = canonical_form(&fitted);
-    let fit = PipeFit {
-        points: pts,
-        residual: method.residual(),
-    };
+    let fit = PipeFit::new(pts, method.residual()).with_loss(loss_for(method.residual()));
     // Normal equations at the canonical β: a 180° turn only flips the signs of
     // (pitch, yaw, δy, δz); a 90° turn re-expresses the pose, so evaluate afresh.
     let eq = if applied.turned || applied.reversed {
@@ -342,10 +355,7 @@ pub fn cramer_rao_bound(
             needed: N_PARAMS,
         });
     }
-    let fit = PipeFit {
-        points: &cloud.points,
-        residual: Residual::Range,
-    };
+    let fit = PipeFit::new(&cloud.points, Residual::Range);
     let eq = fit.equations_at(truth).ok_or_else(|| {
         EpdError::InvalidOption("the true β puts the sensor outside the pipe".into())
     })?;
@@ -360,10 +370,6 @@ pub fn rms_range_residual(points: &[[f64; 3]], beta: &Params) -> Option<f64> {
     if cloud.points.is_empty() {
         return None;
     }
-    let eq = PipeFit {
-        points: &cloud.points,
-        residual: Residual::Range,
-    }
-    .equations_at(beta)?;
+    let eq = PipeFit::new(&cloud.points, Residual::Range).equations_at(beta)?;
     Some((eq.cost / cloud.points.len() as f64).sqrt())
 }

@@ -28,6 +28,7 @@ pub mod error;
 pub mod estimate;
 pub mod init;
 pub mod lm;
+pub mod loss;
 pub mod params;
 pub mod problem;
 pub mod residual;
@@ -38,6 +39,7 @@ pub use estimate::{
     Estimate, EstimateOptions, Method, Sigmas, cramer_rao_bound, estimate, rms_range_residual,
 };
 pub use lm::{Convergence, DegenerateReason, LmOptions, Status};
+pub use loss::Loss;
 pub use params::{N_PARAMS, PARAM_NAMES, Params};
 pub use residual::Residual;
 pub use symmetry::{ParamErrors, canonicalize, errors_against};

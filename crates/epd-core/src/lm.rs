@@ -51,6 +51,20 @@ impl<const N: usize> NormalEquations<N> {
         self.n_residuals += 1;
     }
 
+    /// Add one residual r with gradient j, robust cost `cost` (2ρ(r)) and weight w.
+    #[inline(always)]
+    pub fn push_weighted(&mut self, r: f64, j: &[f64; N], cost: f64, w: f64) {
+        self.cost += cost;
+        for a in 0..N {
+            let wa = w * j[a];
+            self.jtr[a] += wa * r;
+            for b in a..N {
+                self.jtj[(a, b)] += wa * j[b];
+            }
+        }
+        self.n_residuals += 1;
+    }
+
     /// Add equations accumulated over another set of residuals.
     pub fn merge(&mut self, other: &Self) {
         self.cost += other.cost;

@@ -5,6 +5,7 @@ use nalgebra::SVector;
 use rayon::prelude::*;
 
 use crate::lm::{NormalEquations, NormalEquationsProblem};
+use crate::loss::Loss;
 use crate::params::{N_PARAMS, Params};
 use crate::residual::{Geometry, Residual};
 
@@ -19,14 +20,31 @@ pub struct PipeFit<'a> {
     pub points: &'a [[f64; 3]],
     /// The residual function.
     pub residual: Residual,
+    /// The loss applied to each residual (squared: eq. 4 itself).
+    pub loss: Loss,
 }
 
-impl PipeFit<'_> {
+impl<'a> PipeFit<'a> {
+    /// Eq. (4) over `points` with `residual` and the squared loss.
+    pub fn new(points: &'a [[f64; 3]], residual: Residual) -> Self {
+        Self {
+            points,
+            residual,
+            loss: Loss::Squared,
+        }
+    }
+
+    /// The same fit with a robust loss.
+    pub fn with_loss(self, loss: Loss) -> Self {
+        Self { loss, ..self }
+    }
+
     /// The normal equations at β, or `None` outside the model's domain.
     pub fn equations_at(&self, beta: &Params) -> Option<NormalEquations<N_PARAMS>> {
         let geom = Geometry::new(beta)?;
         let kind = self.residual;
-        let accumulate = |chunk: &[[f64; 3]]| accumulate_chunk(&geom, kind, chunk);
+        let loss = self.loss;
+        let accumulate = |chunk: &[[f64; 3]]| accumulate_chunk(&geom, kind, loss, chunk);
         let mut total = if self.points.len() <= CHUNK {
             accumulate(self.points)
         } else {
@@ -46,12 +64,13 @@ impl PipeFit<'_> {
 /// Lanes of the SIMD kernel.
 const LANES: usize = 4;
 
-/// Σ over a chunk of r² , JᵀJ (upper triangle) and Jᵀr, `LANES` points at a time with
+/// Σ over a chunk of 2ρ(r), w·JᵀJ (upper triangle) and w·Jᵀr, `LANES` points at a time with
 /// one accumulator per lane (summed in a fixed order at the end).
 #[inline(always)]
 fn accumulate_lanes(
     geom: &Geometry,
     kind: Residual,
+    loss: Loss,
     chunk: &[[f64; 3]],
 ) -> NormalEquations<N_PARAMS> {
     const NT: usize = N_PARAMS * (N_PARAMS + 1) / 2;
@@ -62,17 +81,28 @@ fn accumulate_lanes(
     for block in &mut blocks {
         let pts: &[[f64; 3]; LANES] = block.try_into().expect("chunks_exact yields LANES points");
         let (r, g) = geom.residuals_and_gradients::<LANES>(kind, pts);
-        for l in 0..LANES {
-            cost[l] += r[l] * r[l];
+        // Robust weights (all 1 for the squared loss): cost Σ 2ρ(r), H = Σ w JJᵀ, g = Σ w r J.
+        let mut w = [1.0; LANES];
+        if loss == Loss::Squared {
+            for l in 0..LANES {
+                cost[l] += r[l] * r[l];
+            }
+        } else {
+            for l in 0..LANES {
+                let (c, wl) = loss.cost_and_weight(r[l]);
+                cost[l] += c;
+                w[l] = wl;
+            }
         }
         let mut idx = 0;
         for a in 0..N_PARAMS {
+            let wg: [f64; LANES] = std::array::from_fn(|l| w[l] * g[a][l]);
             for l in 0..LANES {
-                jtr[a][l] += g[a][l] * r[l];
+                jtr[a][l] += wg[l] * r[l];
             }
             for b in a..N_PARAMS {
                 for l in 0..LANES {
-                    jtj[idx][l] += g[a][l] * g[b][l];
+                    jtj[idx][l] += wg[l] * g[b][l];
                 }
                 idx += 1;
             }
@@ -81,7 +111,8 @@ fn accumulate_lanes(
     let mut eq = NormalEquations::<N_PARAMS>::zero();
     for p in blocks.remainder() {
         let (r, g) = geom.residual_and_gradient(kind, p);
-        eq.push(r, &g);
+        let (c, w) = loss.cost_and_weight(r);
+        eq.push_weighted(r, &g, c, w);
     }
     for l in 0..LANES {
         eq.cost += cost[l];
@@ -103,23 +134,25 @@ fn accumulate_lanes(
 fn accumulate_avx2(
     geom: &Geometry,
     kind: Residual,
+    loss: Loss,
     chunk: &[[f64; 3]],
 ) -> NormalEquations<N_PARAMS> {
-    accumulate_lanes(geom, kind, chunk)
+    accumulate_lanes(geom, kind, loss, chunk)
 }
 
 /// [`accumulate_lanes`] compiled for AVX2 + FMA when the CPU has them.
 fn accumulate_chunk(
     geom: &Geometry,
     kind: Residual,
+    loss: Loss,
     chunk: &[[f64; 3]],
 ) -> NormalEquations<N_PARAMS> {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
         // SAFETY: the CPU supports the features the function is compiled for.
-        return unsafe { accumulate_avx2(geom, kind, chunk) };
+        return unsafe { accumulate_avx2(geom, kind, loss, chunk) };
     }
-    accumulate_lanes(geom, kind, chunk)
+    accumulate_lanes(geom, kind, loss, chunk)
 }
 
 impl NormalEquationsProblem<N_PARAMS> for PipeFit<'_> {

@@ -56,10 +56,7 @@ fn same_minimum_as_the_minpack_port() {
         let x0 = initial_guess(&pts).unwrap();
         for kind in [Residual::Canonical, Residual::ErrorBased, Residual::Range] {
             let ours = minimize(
-                &PipeFit {
-                    points: &pts,
-                    residual: kind,
-                },
+                &PipeFit::new(&pts, kind),
                 nalgebra::SVector::from(x0.to_array()),
                 &LmOptions::default(),
             );
