@@ -11,6 +11,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
+use epd_core::report::{Field, estimate_fields, json_object};
 use epd_core::{EstimateOptions, Method, estimate, rms_range_residual};
 
 fn parse_args() -> anyhow::Result<(String, Method)> {
@@ -67,10 +68,6 @@ fn read_csv(path: &str) -> anyhow::Result<Vec<[f64; 3]>> {
     Ok(pts)
 }
 
-fn opt(v: Option<f64>, scale: f64) -> serde_json::Value {
-    v.map_or(serde_json::Value::Null, |x| serde_json::json!(x * scale))
-}
-
 fn run() -> anyhow::Result<()> {
     let (file, method) = parse_args()?;
     let points = read_csv(&file)?;
@@ -78,34 +75,11 @@ fn run() -> anyhow::Result<()> {
     let est = estimate(&points, method, &EstimateOptions::default())
         .with_context(|| format!("cannot estimate from `{file}`"))?;
     let elapsed_ms = start.elapsed().as_secs_f64() * 1e3;
-    let p = est.params;
-    let (mm, deg) = (1e3, 180.0 / std::f64::consts::PI);
-    let s = est.sigma;
-    let json = serde_json::json!({
-        "method": method.name(),
-        "status": est.status.name(),
-        "status_reason": est.status.reason(),
-        "iterations": est.iterations,
-        "n_points": est.n_points,
-        "n_dropped": est.n_dropped,
-        "d_max_mm": p.d_max * mm,
-        "d_min_mm": p.d_min * mm,
-        "roll_deg": p.roll * deg,
-        "pitch_deg": p.pitch * deg,
-        "yaw_deg": p.yaw * deg,
-        "dy_mm": p.dy * mm,
-        "dz_mm": p.dz * mm,
-        "rms_residual_mm": rms_range_residual(&points, &p).unwrap_or(f64::NAN) * mm,
-        "elapsed_ms": elapsed_ms,
-        "roll_determined": est.roll_determined,
-        "sigma_d_max_mm": opt(s[0], mm),
-        "sigma_d_min_mm": opt(s[1], mm),
-        "sigma_roll_deg": opt(s[2], deg),
-        "sigma_pitch_deg": opt(s[3], deg),
-        "sigma_yaw_deg": opt(s[4], deg),
-        "sigma_dy_mm": opt(s[5], mm),
-        "sigma_dz_mm": opt(s[6], mm),
-    });
+    let mut fields = estimate_fields(&est);
+    let rms = rms_range_residual(&points, &est.params).map_or(Field::Null, |v| Field::Num(v * 1e3));
+    fields.push(("rms_residual_mm", rms));
+    fields.push(("elapsed_ms", Field::Num(elapsed_ms)));
+    let json = json_object(&fields);
     println!("{json}");
     Ok(())
 }

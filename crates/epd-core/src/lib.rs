@@ -31,6 +31,7 @@ pub mod lm;
 pub mod loss;
 pub mod params;
 pub mod problem;
+pub mod report;
 pub mod residual;
 pub mod symmetry;
 

@@ -1,0 +1,210 @@
+//! One result per input file, written as text, JSON (one object per line, the keys of
+//! the `estimate` example) or CSV (the same names as columns).
+
+use epd_core::Estimate;
+use epd_core::report::{Field, estimate_fields, json_object};
+
+/// What `epd estimate` found for one file.
+#[derive(Clone, Debug)]
+pub struct FileReport {
+    /// The file as given.
+    pub file: String,
+    /// The estimate and its context, or what went wrong.
+    pub outcome: Result<FileEstimate, String>,
+}
+
+/// A successful estimate of one file.
+#[derive(Clone, Debug)]
+pub struct FileEstimate {
+    /// The estimate (its `n_dropped` counts the invalid points of the file).
+    pub estimate: Estimate,
+    /// Points in the file.
+    pub n_read: usize,
+    /// Valid points outside [min-range, max-range].
+    pub n_out_of_range: usize,
+    /// RMS range residual at the estimate (mm).
+    pub rms_residual_mm: Option<f64>,
+    /// Time of the estimate call alone (ms).
+    pub elapsed_ms: f64,
+    /// Time to read and parse the file (ms).
+    pub read_ms: f64,
+    /// The robust loss and its scale (m).
+    pub loss: (String, f64),
+    /// The nominal outer diameter (mm), when given; then the wall thickness is
+    /// estimated as (OD − mean inner diameter)/2.
+    pub nominal_od_mm: Option<f64>,
+}
+
+/// The CSV columns, in order.
+pub fn columns() -> Vec<&'static str> {
+    let mut c = vec!["file"];
+    c.extend(KEYS);
+    c.extend([
+        "n_read",
+        "n_out_of_range",
+        "rms_residual_mm",
+        "elapsed_ms",
+        "read_ms",
+        "loss",
+        "loss_scale_m",
+        "nominal_od_mm",
+        "wall_thickness_est_mm",
+        "error",
+    ]);
+    c
+}
+
+/// The keys of `epd_core::report::estimate_fields`, for the CSV header of failed files.
+const KEYS: [&str; 21] = [
+    "method",
+    "status",
+    "status_reason",
+    "iterations",
+    "n_points",
+    "n_dropped",
+    "d_max_mm",
+    "d_min_mm",
+    "roll_deg",
+    "pitch_deg",
+    "yaw_deg",
+    "dy_mm",
+    "dz_mm",
+    "roll_determined",
+    "sigma_d_max_mm",
+    "sigma_d_min_mm",
+    "sigma_roll_deg",
+    "sigma_pitch_deg",
+    "sigma_yaw_deg",
+    "sigma_dy_mm",
+    "sigma_dz_mm",
+];
+
+impl FileReport {
+    /// All fields, in the order of [`columns`].
+    pub fn fields(&self) -> Vec<(&'static str, Field)> {
+        let mut f = vec![("file", Field::Text(self.file.clone()))];
+        let num = |v: f64| {
+            if v.is_finite() {
+                Field::Num(v)
+            } else {
+                Field::Null
+            }
+        };
+        match &self.outcome {
+            Ok(e) => {
+                f.extend(estimate_fields(&e.estimate));
+                let p = e.estimate.params;
+                f.push(("n_read", Field::Int(e.n_read as u64)));
+                f.push(("n_out_of_range", Field::Int(e.n_out_of_range as u64)));
+                f.push((
+                    "rms_residual_mm",
+                    e.rms_residual_mm.map_or(Field::Null, num),
+                ));
+                f.push(("elapsed_ms", num(e.elapsed_ms)));
+                f.push(("read_ms", num(e.read_ms)));
+                f.push(("loss", Field::Text(e.loss.0.clone())));
+                f.push(("loss_scale_m", num(e.loss.1)));
+                f.push(("nominal_od_mm", e.nominal_od_mm.map_or(Field::Null, num)));
+                let wall = e
+                    .nominal_od_mm
+                    .map(|od| (od - 0.5 * (p.d_max + p.d_min) * 1e3) / 2.0);
+                f.push(("wall_thickness_est_mm", wall.map_or(Field::Null, num)));
+                f.push(("error", Field::Null));
+            }
+            Err(msg) => {
+                for k in KEYS {
+                    f.push((
+                        k,
+                        if k == "status" {
+                            Field::Text("error".into())
+                        } else {
+                            Field::Null
+                        },
+                    ));
+                }
+                for k in [
+                    "n_read",
+                    "n_out_of_range",
+                    "rms_residual_mm",
+                    "elapsed_ms",
+                    "read_ms",
+                    "loss",
+                    "loss_scale_m",
+                    "nominal_od_mm",
+                    "wall_thickness_est_mm",
+                ] {
+                    f.push((k, Field::Null));
+                }
+                f.push(("error", Field::Text(msg.clone())));
+            }
+        }
+        f
+    }
+
+    /// One JSON object.
+    pub fn json(&self) -> String {
+        json_object(&self.fields())
+    }
+
+    /// One CSV row, in the order of [`columns`].
+    pub fn csv(&self) -> String {
+        self.fields()
+            .iter()
+            .map(|(_, v)| v.csv())
+            .collect::<Vec<_>>()
+            .join(",")
+    }
+
+    /// A few readable lines.
+    pub fn text(&self) -> String {
+        match &self.outcome {
+            Err(msg) => format!("{}: error: {msg}", self.file),
+            Ok(e) => {
+                let est = &e.estimate;
+                let p = est.params;
+                let s = |i: usize, k: f64| {
+                    est.sigma[i].map_or("undetermined".to_string(), |v| format!("±{:.3}", v * k))
+                };
+                let deg = 180.0 / std::f64::consts::PI;
+                let mut t = format!(
+                    "{}: {} {} after {} iterations, {} points ({} invalid dropped, {} out of range)\n  \
+                     Dmax {:.2} mm {}  Dmin {:.2} mm {}\n  \
+                     roll {:.2}° {}  pitch {:.3}° {}  yaw {:.3}° {}\n  \
+                     δy {:.2} mm {}  δz {:.2} mm {}\n  \
+                     rms range residual {} mm, estimate {:.1} ms, read {:.1} ms",
+                    self.file,
+                    est.method,
+                    est.status.name(),
+                    est.iterations,
+                    est.n_points,
+                    est.n_dropped,
+                    e.n_out_of_range,
+                    p.d_max * 1e3,
+                    s(0, 1e3),
+                    p.d_min * 1e3,
+                    s(1, 1e3),
+                    p.roll * deg,
+                    s(2, deg),
+                    p.pitch * deg,
+                    s(3, deg),
+                    p.yaw * deg,
+                    s(4, deg),
+                    p.dy * 1e3,
+                    s(5, 1e3),
+                    p.dz * 1e3,
+                    s(6, 1e3),
+                    e.rms_residual_mm.map_or("-".into(), |v| format!("{v:.2}")),
+                    e.elapsed_ms,
+                    e.read_ms,
+                );
+                if let Some(od) = e.nominal_od_mm {
+                    t.push_str(&format!(
+                        "\n  wall thickness ≈ {:.2} mm (nominal OD {od:.1} mm − mean ID)/2",
+                        (od - 0.5 * (p.d_max + p.d_min) * 1e3) / 2.0
+                    ));
+                }
+                t
+            }
+        }
+    }
+}
