@@ -16,7 +16,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use epd_cli::read::{Format, read_bytes};
+use epd_cli::read::read_path;
 use epd_cli::report::{FileEstimate, FileReport, columns};
 use epd_core::{EstimateOptions, Loss, Method, estimate, rms_range_residual};
 use indicatif::ProgressBar;
@@ -180,10 +180,7 @@ fn estimate_file(path: &Path, cfg: &EstimateConfig) -> FileReport {
     let file = path.display().to_string();
     let run = || -> Result<FileEstimate, String> {
         let t0 = Instant::now();
-        let bytes = std::fs::read(path).map_err(|e| format!("cannot read: {e}"))?;
-        let format = Format::detect(path, &bytes);
-        let cloud = read_bytes(format, &bytes).map_err(|e| e.to_string())?;
-        drop(bytes);
+        let cloud = read_path(path)?;
         let read_ms = t0.elapsed().as_secs_f64() * 1e3;
         let n_read = cloud.points.len();
         if n_read == 0 {

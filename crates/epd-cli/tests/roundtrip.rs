@@ -110,6 +110,36 @@ fn every_format_recovers_the_truth() {
 }
 
 #[test]
+fn streaming_file_reader_equals_the_in_memory_one() {
+    let frame = common::frame(4, 5000);
+    let dir = common::temp_dir("stream");
+    for (name, f, p) in [
+        (
+            "bin64.ply",
+            PlyFormat::BinaryLittleEndian,
+            PlyPrecision::F64,
+        ),
+        (
+            "bin32.ply",
+            PlyFormat::BinaryLittleEndian,
+            PlyPrecision::F32,
+        ),
+        ("ascii.ply", PlyFormat::Ascii, PlyPrecision::F64),
+    ] {
+        let mut bytes = Vec::new();
+        write_ply(&mut bytes, &frame, f, p).unwrap();
+        let path = dir.join(name);
+        std::fs::write(&path, &bytes).unwrap();
+        assert_eq!(
+            epd_cli::read::read_path(&path).unwrap(),
+            read_bytes(Format::Ply, &bytes).unwrap(),
+            "{name}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn ply_big_endian_and_other_elements() {
     // A big-endian file with a face element after the vertices and mixed types.
     let pts = [[1.0f32, 0.5, -0.25], [2.0, -0.5, 0.125]];

@@ -81,7 +81,9 @@ pub struct EstimateOptions {
 impl Default for EstimateOptions {
     fn default() -> Self {
         Self {
-            lm: LmOptions::default(),
+            // Point clouds are large samples: stop once a step is below 0.1 standard
+            // deviations of the parameters (taken without a further pass over the data).
+            lm: LmOptions::default().with_stat(0.1),
             stage_points: 8192,
             loss: Loss::Squared,
         }

@@ -51,15 +51,16 @@ impl<const N: usize> NormalEquations<N> {
         self.n_residuals += 1;
     }
 
-    /// Add one residual r with gradient j, robust cost `cost` (2ρ(r)) and weight w.
+    /// Add one residual r with gradient j under a robust loss: its cost c(r), gradient
+    /// weight `wg` (Jᵀr term) and curvature weight `wh` (JᵀJ term).
     #[inline(always)]
-    pub fn push_weighted(&mut self, r: f64, j: &[f64; N], cost: f64, w: f64) {
+    pub fn push_weighted(&mut self, r: f64, j: &[f64; N], cost: f64, wg: f64, wh: f64) {
         self.cost += cost;
         for a in 0..N {
-            let wa = w * j[a];
-            self.jtr[a] += wa * r;
+            self.jtr[a] += wg * j[a] * r;
+            let ha = wh * j[a];
             for b in a..N {
-                self.jtj[(a, b)] += wa * j[b];
+                self.jtj[(a, b)] += ha * j[b];
             }
         }
         self.n_residuals += 1;
@@ -119,6 +120,9 @@ impl Status {
             Status::Converged(Convergence::CostTolerance) => "the cost stopped decreasing (ftol)",
             Status::Converged(Convergence::StepTolerance) => "the step became negligible (xtol)",
             Status::Converged(Convergence::GradientTolerance) => "the gradient vanished (gtol)",
+            Status::Converged(Convergence::WithinUncertainty) => {
+                "the last step was below stat_tol of the parameters' standard deviations"
+            }
             Status::IterationLimit => "the iteration limit was reached",
             Status::Degenerate(DegenerateReason::InvalidStart) => {
                 "the problem is undefined at the start"
@@ -144,6 +148,9 @@ pub enum Convergence {
     StepTolerance,
     /// The residual vector is orthogonal to J's columns within `gtol`.
     GradientTolerance,
+    /// The last step was below `stat_tol` standard deviations of the parameters (taken
+    /// without a further evaluation).
+    WithinUncertainty,
 }
 
 /// Why no usable step could be found.
@@ -163,6 +170,7 @@ pub struct LmOptions {
     xtol: f64,
     gtol: f64,
     initial_lambda: f64,
+    stat_tol: f64,
 }
 
 /// A solver option outside its range.
@@ -185,6 +193,7 @@ impl Default for LmOptions {
             xtol: 1e-12,
             gtol: 1e-14,
             initial_lambda: 1e-4,
+            stat_tol: 0.0,
         }
     }
 }
@@ -231,6 +240,21 @@ impl LmOptions {
         check("initial_lambda", v, v > 0.0 && v <= 1e10, "(0, 1e10]")?;
         self.initial_lambda = v;
         Ok(self)
+    }
+
+    /// Statistical tolerance, in [0, 1): when the next step is below this many standard
+    /// deviations of the parameters, take it without evaluating and stop (0 disables
+    /// the test).
+    pub fn with_stat_tol(mut self, v: f64) -> Result<Self, OptionError> {
+        check("stat_tol", v, (0.0..1.0).contains(&v), "[0, 1)")?;
+        self.stat_tol = v;
+        Ok(self)
+    }
+
+    /// [`with_stat_tol`](Self::with_stat_tol) for a value known to be valid.
+    pub(crate) fn with_stat(mut self, v: f64) -> Self {
+        self.stat_tol = v.clamp(0.0, 0.999);
+        self
     }
 
     /// The iteration limit.
@@ -358,6 +382,23 @@ pub fn minimize<const N: usize, P: NormalEquationsProblem<N>>(
                     eq,
                     Status::Converged(Convergence::CostTolerance),
                     iterations,
+                );
+            }
+            // Statistical test: the step, measured in the parameters' standard deviations
+            // (√(δᵀHδ/σ̂²), σ̂² = F/(m − N)), is below `stat_tol`. The model is then
+            // trusted for this last small step: it is taken without a further
+            // evaluation (the equations reported are those at the previous point, which
+            // differ by a negligible amount).
+            let dof = eq.n_residuals.saturating_sub(N).max(1) as f64;
+            if lambda <= 1.0
+                && options.stat_tol > 0.0
+                && delta.dot(&hd) <= options.stat_tol * options.stat_tol * eq.cost / dof
+            {
+                return done(
+                    x + delta,
+                    eq,
+                    Status::Converged(Convergence::WithinUncertainty),
+                    iterations + 1,
                 );
             }
             iterations += 1;

@@ -81,28 +81,31 @@ fn accumulate_lanes(
     for block in &mut blocks {
         let pts: &[[f64; 3]; LANES] = block.try_into().expect("chunks_exact yields LANES points");
         let (r, g) = geom.residuals_and_gradients::<LANES>(kind, pts);
-        // Robust weights (all 1 for the squared loss): cost Σ 2ρ(r), H = Σ w JJᵀ, g = Σ w r J.
-        let mut w = [1.0; LANES];
+        // Robust weights (all 1 for the squared loss): cost Σ c(r), H = Σ w_H JJᵀ,
+        // g = Σ w_g r J (see `loss`).
+        let mut wg = [1.0; LANES];
+        let mut wh = [1.0; LANES];
         if loss == Loss::Squared {
             for l in 0..LANES {
                 cost[l] += r[l] * r[l];
             }
         } else {
             for l in 0..LANES {
-                let (c, wl) = loss.cost_and_weight(r[l]);
+                let (c, g_w, h_w) = loss.cost_and_weights(r[l]);
                 cost[l] += c;
-                w[l] = wl;
+                wg[l] = g_w;
+                wh[l] = h_w;
             }
         }
         let mut idx = 0;
         for a in 0..N_PARAMS {
-            let wg: [f64; LANES] = std::array::from_fn(|l| w[l] * g[a][l]);
             for l in 0..LANES {
-                jtr[a][l] += wg[l] * r[l];
+                jtr[a][l] += wg[l] * g[a][l] * r[l];
             }
+            let hg: [f64; LANES] = std::array::from_fn(|l| wh[l] * g[a][l]);
             for b in a..N_PARAMS {
                 for l in 0..LANES {
-                    jtj[idx][l] += wg[l] * g[b][l];
+                    jtj[idx][l] += hg[l] * g[b][l];
                 }
                 idx += 1;
             }
@@ -111,8 +114,8 @@ fn accumulate_lanes(
     let mut eq = NormalEquations::<N_PARAMS>::zero();
     for p in blocks.remainder() {
         let (r, g) = geom.residual_and_gradient(kind, p);
-        let (c, w) = loss.cost_and_weight(r);
-        eq.push_weighted(r, &g, c, w);
+        let (c, wg, wh) = loss.cost_and_weights(r);
+        eq.push_weighted(r, &g, c, wg, wh);
     }
     for l in 0..LANES {
         eq.cost += cost[l];

@@ -73,6 +73,20 @@ pub fn read_bytes(format: Format, bytes: &[u8]) -> Result<PointCloud, ReadError>
     }
 }
 
+/// Read a cloud from a file, the format from its extension or first bytes. The error
+/// says what is wrong (without the file name, which the caller adds).
+pub fn read_path(path: &Path) -> Result<PointCloud, String> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    if ext == "ply" {
+        return ply::read_path(path);
+    }
+    let bytes = std::fs::read(path).map_err(|e| format!("cannot read: {e}"))?;
+    read_bytes(Format::detect(path, &bytes), &bytes).map_err(|e| e.to_string())
+}
+
 /// Scalar types shared by PLY and PCD.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Scalar {

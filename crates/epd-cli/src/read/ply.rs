@@ -152,30 +152,17 @@ impl Body<'_> {
 /// Read a PLY file.
 pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
     let (lines, body) = split_header(bytes, |l| l == "end_header", F)?;
-    let (encoding, elements) = parse_header(&lines)?;
-    let vi = elements
-        .iter()
-        .position(|e| e.name == "vertex")
-        .ok_or_else(|| err(F, "no `vertex` element"))?;
-    let vertex = &elements[vi];
-    let find = |n: &str| {
-        vertex
-            .props
-            .iter()
-            .position(|p| matches!(p, Property::Scalar { name, .. } if name == n))
-    };
-    let (ix, iy, iz) = match (find("x"), find("y"), find("z")) {
-        (Some(x), Some(y), Some(z)) => (x, y, z),
-        _ => {
-            return Err(err(
-                F,
-                "the vertex element lacks scalar properties x, y and z",
-            ));
-        }
-    };
+    let (encoding, elements, vi, [ix, iy, iz]) = layout_of(&lines)?;
     if let (Encoding::Binary { little }, 0) = (encoding, vi)
-        && let Some(cloud) = read_binary_vertices(vertex, body, little, [ix, iy, iz])?
+        && let Some(layout) = VertexLayout::new(&elements[0], little, [ix, iy, iz])
     {
+        let need = layout
+            .count
+            .checked_mul(layout.record)
+            .filter(|&n| n <= body.len())
+            .ok_or_else(|| layout.too_short())?;
+        let mut cloud = layout.empty_cloud();
+        layout.decode(&body[..need], &mut cloud);
         return Ok(cloud);
     }
     let mut cur = Body {
@@ -266,71 +253,177 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
     Ok(cloud)
 }
 
-/// Fast path for a binary file whose vertex element comes first and has scalar
-/// properties only: fixed-size records decoded in place. `None` when it does not apply.
-fn read_binary_vertices(
-    vertex: &Element,
-    body: &[u8],
+/// The record layout of a binary vertex element with scalar properties only: the fast
+/// path, decoding fixed-size records in place.
+struct VertexLayout {
+    count: usize,
+    record: usize,
     little: bool,
-    [ix, iy, iz]: [usize; 3],
-) -> Result<Option<PointCloud>, ReadError> {
-    let mut scalars = Vec::with_capacity(vertex.props.len());
-    for p in &vertex.props {
-        match p {
-            Property::Scalar { name, ty } => scalars.push((name.as_str(), *ty)),
-            Property::List { .. } => return Ok(None),
+    xyz: [(Scalar, usize); 3],
+    extra: Vec<(String, Scalar, usize)>,
+}
+
+impl VertexLayout {
+    /// The layout of `vertex`, or `None` when it has list properties.
+    fn new(vertex: &Element, little: bool, [ix, iy, iz]: [usize; 3]) -> Option<Self> {
+        let mut record = 0;
+        let mut fields = Vec::with_capacity(vertex.props.len());
+        for p in &vertex.props {
+            match p {
+                Property::Scalar { name, ty } => {
+                    fields.push((name.clone(), *ty, record));
+                    record += ty.size();
+                }
+                Property::List { .. } => return None,
+            }
+        }
+        let xyz = [ix, iy, iz].map(|i| (fields[i].1, fields[i].2));
+        let extra = fields
+            .into_iter()
+            .enumerate()
+            .filter(|(k, _)| ![ix, iy, iz].contains(k))
+            .map(|(_, f)| f)
+            .collect();
+        Some(Self {
+            count: vertex.count,
+            record,
+            little,
+            xyz,
+            extra,
+        })
+    }
+
+    fn empty_cloud(&self) -> PointCloud {
+        PointCloud {
+            points: Vec::with_capacity(self.count),
+            extra: self
+                .extra
+                .iter()
+                .map(|(n, _, _)| (n.clone(), Vec::with_capacity(self.count)))
+                .collect(),
         }
     }
-    let mut offsets = Vec::with_capacity(scalars.len());
-    let mut record = 0;
-    for (_, t) in &scalars {
-        offsets.push(record);
-        record += t.size();
-    }
-    let need = vertex.count.checked_mul(record).filter(|&n| n <= body.len()).ok_or_else(|| {
-        err(
-            F,
-            format!(
-                "the vertex element declares {} records of {record} bytes but the file is too short (truncated?)",
-                vertex.count
-            ),
-        )
-    })?;
-    let rows = || body[..need].chunks_exact(record.max(1));
-    let (tx, ty, tz) = (scalars[ix].1, scalars[iy].1, scalars[iz].1);
-    let (ox, oy, oz) = (offsets[ix], offsets[iy], offsets[iz]);
-    let points: Vec<[f64; 3]> = match (tx, ty, tz, little) {
-        // The common layouts, decoded without a type dispatch per value.
-        (Scalar::F64, Scalar::F64, Scalar::F64, true) => {
-            let f =
-                |r: &[u8], o: usize| f64::from_le_bytes(r[o..o + 8].try_into().unwrap_or([0; 8]));
-            rows().map(|r| [f(r, ox), f(r, oy), f(r, oz)]).collect()
-        }
-        (Scalar::F32, Scalar::F32, Scalar::F32, true) => {
-            let f = |r: &[u8], o: usize| {
-                f32::from_le_bytes(r[o..o + 4].try_into().unwrap_or([0; 4])) as f64
-            };
-            rows().map(|r| [f(r, ox), f(r, oy), f(r, oz)]).collect()
-        }
-        _ => rows()
-            .map(|r| {
+
+    /// Append the whole records in `data` to `cloud`.
+    fn decode(&self, data: &[u8], cloud: &mut PointCloud) {
+        let rows = || data.chunks_exact(self.record.max(1));
+        let [(tx, ox), (ty, oy), (tz, oz)] = self.xyz;
+        let little = self.little;
+        match (tx, ty, tz, little) {
+            // The common layouts, decoded without a type dispatch per value.
+            (Scalar::F64, Scalar::F64, Scalar::F64, true) => {
+                let f = |r: &[u8], o: usize| {
+                    f64::from_le_bytes(r[o..o + 8].try_into().unwrap_or([0; 8]))
+                };
+                cloud
+                    .points
+                    .extend(rows().map(|r| [f(r, ox), f(r, oy), f(r, oz)]));
+            }
+            (Scalar::F32, Scalar::F32, Scalar::F32, true) => {
+                let f = |r: &[u8], o: usize| {
+                    f32::from_le_bytes(r[o..o + 4].try_into().unwrap_or([0; 4])) as f64
+                };
+                cloud
+                    .points
+                    .extend(rows().map(|r| [f(r, ox), f(r, oy), f(r, oz)]));
+            }
+            _ => cloud.points.extend(rows().map(|r| {
                 [
                     tx.decode(&r[ox..], little),
                     ty.decode(&r[oy..], little),
                     tz.decode(&r[oz..], little),
                 ]
-            })
-            .collect(),
+            })),
+        }
+        for (e, (_, t, o)) in self.extra.iter().enumerate() {
+            cloud.extra[e]
+                .1
+                .extend(rows().map(|r| t.decode(&r[*o..], little)));
+        }
+    }
+
+    fn too_short(&self) -> ReadError {
+        err(
+            F,
+            format!(
+                "the vertex element declares {} records of {} bytes but the file is too short (truncated?)",
+                self.count, self.record
+            ),
+        )
+    }
+}
+
+/// Header, vertex index and x, y, z indices of a PLY file.
+fn layout_of(lines: &[String]) -> Result<(Encoding, Vec<Element>, usize, [usize; 3]), ReadError> {
+    let (encoding, elements) = parse_header(lines)?;
+    let vi = elements
+        .iter()
+        .position(|e| e.name == "vertex")
+        .ok_or_else(|| err(F, "no `vertex` element"))?;
+    let vertex = &elements[vi];
+    let find = |n: &str| {
+        vertex
+            .props
+            .iter()
+            .position(|p| matches!(p, Property::Scalar { name, .. } if name == n))
     };
-    let extra = (0..scalars.len())
-        .filter(|&k| k != ix && k != iy && k != iz)
-        .map(|k| {
-            let (t, o) = (scalars[k].1, offsets[k]);
-            (
-                scalars[k].0.to_string(),
-                rows().map(|r| t.decode(&r[o..], little)).collect(),
-            )
-        })
-        .collect();
-    Ok(Some(PointCloud { points, extra }))
+    match (find("x"), find("y"), find("z")) {
+        (Some(x), Some(y), Some(z)) => Ok((encoding, elements, vi, [x, y, z])),
+        _ => Err(err(
+            F,
+            "the vertex element lacks scalar properties x, y and z",
+        )),
+    }
+}
+
+/// Read a PLY file from disk. Binary files whose vertices come first with scalar
+/// properties only are decoded as they stream in (no copy of the whole file in memory);
+/// other files are read whole and parsed by [`read`].
+pub fn read_path(path: &std::path::Path) -> Result<PointCloud, String> {
+    use std::io::{BufRead, Read};
+    let file = std::fs::File::open(path).map_err(|e| format!("cannot read: {e}"))?;
+    let mut r = std::io::BufReader::with_capacity(1 << 20, file);
+    let mut lines = Vec::new();
+    loop {
+        let mut line = Vec::new();
+        let n = r
+            .read_until(b'\n', &mut line)
+            .map_err(|e| format!("cannot read: {e}"))?;
+        if n == 0 || lines.len() > 10_000 {
+            return Err(err(F, "the header never ends (truncated file?)").to_string());
+        }
+        let text = String::from_utf8(line).map_err(|_| {
+            err(F, format!("header line {} is not text", lines.len() + 1)).to_string()
+        })?;
+        let text = text.trim_end_matches(['\n', '\r']).to_string();
+        let end = text.trim() == "end_header";
+        lines.push(text);
+        if end {
+            break;
+        }
+    }
+    let (encoding, elements, vi, xyz) = layout_of(&lines).map_err(|e| e.to_string())?;
+    let fast = match encoding {
+        Encoding::Binary { little } if vi == 0 => VertexLayout::new(&elements[0], little, xyz),
+        _ => None,
+    };
+    let Some(layout) = fast else {
+        let bytes = std::fs::read(path).map_err(|e| format!("cannot read: {e}"))?;
+        return read(&bytes).map_err(|e| e.to_string());
+    };
+    let mut cloud = layout.empty_cloud();
+    let per_chunk = ((1 << 20) / layout.record.max(1)).max(1);
+    let mut buf = vec![0u8; per_chunk * layout.record];
+    let mut left = layout.count;
+    while left > 0 {
+        let k = left.min(per_chunk);
+        let chunk = &mut buf[..k * layout.record];
+        r.read_exact(chunk).map_err(|e| match e.kind() {
+            std::io::ErrorKind::UnexpectedEof => layout.too_short().to_string(),
+            _ => format!("cannot read: {e}"),
+        })?;
+        layout.decode(chunk, &mut cloud);
+        left -= k;
+    }
+    Ok(cloud)
 }
