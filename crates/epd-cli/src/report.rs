@@ -35,26 +35,29 @@ pub struct FileEstimate {
     pub nominal_od_mm: Option<f64>,
 }
 
-/// The CSV columns, in order.
+/// The CSV columns, in order: the keys of [`FileReport::fields`].
 pub fn columns() -> Vec<&'static str> {
-    let mut c = vec!["file"];
-    c.extend(KEYS);
-    c.extend([
-        "n_read",
-        "n_out_of_range",
-        "rms_residual_mm",
-        "elapsed_ms",
-        "read_ms",
-        "loss",
-        "loss_scale_m",
-        "nominal_od_mm",
-        "wall_thickness_est_mm",
-        "error",
-    ]);
-    c
+    let failed = FileReport {
+        file: String::new(),
+        outcome: Err(String::new()),
+    };
+    failed.fields().into_iter().map(|(k, _)| k).collect()
 }
 
-/// The keys of `epd_core::report::estimate_fields`, for the CSV header of failed files.
+/// The fields after the estimate's, without the final `error`.
+const CONTEXT_KEYS: [&str; 9] = [
+    "n_read",
+    "n_out_of_range",
+    "rms_residual_mm",
+    "elapsed_ms",
+    "read_ms",
+    "loss",
+    "loss_scale_m",
+    "nominal_od_mm",
+    "wall_thickness_est_mm",
+];
+
+/// The keys of `epd_core::report::estimate_fields`, for the rows of failed files.
 const KEYS: [&str; 21] = [
     "method",
     "status",
@@ -122,17 +125,7 @@ impl FileReport {
                         },
                     ));
                 }
-                for k in [
-                    "n_read",
-                    "n_out_of_range",
-                    "rms_residual_mm",
-                    "elapsed_ms",
-                    "read_ms",
-                    "loss",
-                    "loss_scale_m",
-                    "nominal_od_mm",
-                    "wall_thickness_est_mm",
-                ] {
+                for k in CONTEXT_KEYS {
                     f.push((k, Field::Null));
                 }
                 f.push(("error", Field::Text(msg.clone())));
@@ -206,5 +199,41 @@ impl FileReport {
                 t
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A successful report and a failed one have the same columns, in the same order.
+    #[test]
+    fn success_and_failure_share_the_columns() {
+        let pts: Vec<[f64; 3]> = (0..400)
+            .map(|i| {
+                let phi = i as f64 * 0.37;
+                [
+                    0.5 + (i % 41) as f64 * 0.1,
+                    0.24 * phi.cos(),
+                    0.23 * phi.sin(),
+                ]
+            })
+            .collect();
+        let est = epd_core::estimate(&pts, epd_core::Method::RuEpd, &Default::default()).unwrap();
+        let ok = FileReport {
+            file: "a".into(),
+            outcome: Ok(FileEstimate {
+                estimate: est,
+                n_read: 400,
+                n_out_of_range: 0,
+                rms_residual_mm: None,
+                elapsed_ms: 1.0,
+                read_ms: 1.0,
+                loss: ("none".into(), f64::NAN),
+                nominal_od_mm: None,
+            }),
+        };
+        let keys: Vec<&str> = ok.fields().into_iter().map(|(k, _)| k).collect();
+        assert_eq!(keys, columns());
     }
 }

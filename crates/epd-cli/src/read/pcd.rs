@@ -11,6 +11,17 @@ struct Field {
     count: usize,
 }
 
+/// Running sums: the offset of each item given the sizes before it.
+fn offsets(sizes: impl Iterator<Item = usize>) -> Vec<usize> {
+    sizes
+        .scan(0, |acc, s| {
+            let o = *acc;
+            *acc += s;
+            Some(o)
+        })
+        .collect()
+}
+
 /// LZF decompression (the format `binary_compressed` uses), with every length checked.
 pub fn lzf_decompress(input: &[u8], out_len: usize) -> Result<Vec<u8>, ReadError> {
     let mut out = Vec::with_capacity(out_len.min(1 << 30));
@@ -188,14 +199,7 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
         "ascii" => {
             let text = std::str::from_utf8(body)
                 .map_err(|_| err(F, "DATA ascii but the body is not text"))?;
-            let first_value: Vec<usize> = fields
-                .iter()
-                .scan(0, |acc, f| {
-                    let s = *acc;
-                    *acc += f.count;
-                    Some(s)
-                })
-                .collect();
+            let first_value = offsets(fields.iter().map(|f| f.count));
             let mut rows = 0;
             for (li, line) in text.lines().enumerate() {
                 let line = line.trim();
@@ -240,14 +244,7 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
                     ),
                 ));
             }
-            let offsets: Vec<usize> = fields
-                .iter()
-                .scan(0, |acc, f| {
-                    let s = *acc;
-                    *acc += f.ty.size() * f.count;
-                    Some(s)
-                })
-                .collect();
+            let offsets = offsets(fields.iter().map(|f| f.ty.size() * f.count));
             cloud.points.reserve(n);
             for r in 0..n {
                 let rec = &body[r * record..(r + 1) * record];
@@ -279,14 +276,7 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
                 .ok_or_else(|| err(F, "binary_compressed data are truncated"))?;
             let raw = lzf_decompress(comp, usize_)?;
             // Field-major: all values of field 0, then of field 1, …
-            let starts: Vec<usize> = fields
-                .iter()
-                .scan(0, |acc, f| {
-                    let s = *acc;
-                    *acc += n * f.ty.size() * f.count;
-                    Some(s)
-                })
-                .collect();
+            let starts = offsets(fields.iter().map(|f| n * f.ty.size() * f.count));
             cloud.points.reserve(n);
             for r in 0..n {
                 push(
