@@ -297,23 +297,28 @@ pub fn plot_all(
             .filter(|r| r.quantity == q && r.method == m)
             .collect()
     };
-    let error_series = |q: &str| -> Vec<Series> {
+    // One series per method of quantity `q`: (centre, low, high) picked from each row.
+    type Pick = fn(&SummaryRow) -> Option<(f64, f64, f64)>;
+    let method_series = |q: &str, label: &str, bars: bool, pick: Pick| -> Vec<Series> {
         methods
             .iter()
             .map(|m| Series {
-                name: format!("{} (bias, range)", m.to_uppercase()),
+                name: format!("{} {label}", m.to_uppercase()),
                 colour: colour(m),
                 points: select(q, m)
                     .iter()
                     .filter_map(|r| {
-                        xv(&r.sweep_value).map(|x| (x, r.stats.mean, r.stats.min, r.stats.max))
+                        let (c, lo, hi) = pick(r)?;
+                        Some((xv(&r.sweep_value)?, c, lo, hi))
                     })
                     .collect(),
-                bars: true,
+                bars,
                 marker_triangle: false,
             })
             .collect()
     };
+    let bias_and_range: Pick = |r| Some((r.stats.mean, r.stats.min, r.stats.max));
+    let error_series = |q: &str| method_series(q, "(bias, range)", true, bias_and_range);
     let mut files = Vec::new();
     let name = &scenario.name;
     let d = [error_series("dmax"), error_series("dmin")];
@@ -375,21 +380,7 @@ pub fn plot_all(
         },
         &panels,
     )?);
-    let time: Vec<Series> = methods
-        .iter()
-        .map(|m| Series {
-            name: format!("{} (mean, min…max)", m.to_uppercase()),
-            colour: colour(m),
-            points: select("time_ms", m)
-                .iter()
-                .filter_map(|r| {
-                    xv(&r.sweep_value).map(|x| (x, r.stats.mean, r.stats.min, r.stats.max))
-                })
-                .collect(),
-            bars: true,
-            marker_triangle: false,
-        })
-        .collect();
+    let time = method_series("time_ms", "(mean, min…max)", true, bias_and_range);
     files.push(render(
         Figure {
             path: out.join("time.png"),
@@ -422,21 +413,7 @@ pub fn plot_all(
     let crb_series: Vec<Vec<Series>> = crb_panels
         .iter()
         .map(|(q, _, _)| {
-            let mut v: Vec<Series> = methods
-                .iter()
-                .map(|m| Series {
-                    name: format!("{} std", m.to_uppercase()),
-                    colour: colour(m),
-                    points: select(q, m)
-                        .iter()
-                        .filter_map(|r| {
-                            xv(&r.sweep_value).map(|x| (x, r.stats.std, f64::NAN, f64::NAN))
-                        })
-                        .collect(),
-                    bars: false,
-                    marker_triangle: false,
-                })
-                .collect();
+            let mut v = method_series(q, "std", false, |r| Some((r.stats.std, f64::NAN, f64::NAN)));
             if let Some(m) = methods.first() {
                 v.push(Series {
                     name: "Cramér–Rao bound".into(),
