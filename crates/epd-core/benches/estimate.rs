@@ -8,6 +8,8 @@ use epd_core::{EstimateOptions, Method, estimate};
 
 #[path = "../tests/common/mod.rs"]
 mod common;
+#[path = "../tests/common/crate_lm.rs"]
+mod crate_lm;
 
 fn bench(c: &mut Criterion) {
     let truth = common::random_params(&mut common::rng(11), common::id_m(20.0), 0.02, 5.0, 0.2);
@@ -25,5 +27,42 @@ fn bench(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench);
+/// The solver choice: our normal-equation LM against the `levenberg-marquardt` crate
+/// (MINPACK: full N×7 Jacobian and QR), both from the same data-only start, RU-EPD
+/// residual, all points in one stage, no statistical stop.
+fn solvers(c: &mut Criterion) {
+    use epd_core::init::initial_guess;
+    use epd_core::lm::{LmOptions, minimize};
+    use epd_core::problem::PipeFit;
+    use epd_core::residual::Residual;
+    let truth = common::random_params(&mut common::rng(11), common::id_m(20.0), 0.02, 5.0, 0.2);
+    let mut group = c.benchmark_group("solver");
+    group.sample_size(20);
+    for n in [10_000usize, 100_000] {
+        let pts = common::cloud(&truth, 640, 480, 6.0, 0.03, n, 5);
+        let x0 = initial_guess(&pts).expect("a pipe cloud");
+        group.bench_with_input(BenchmarkId::new("ours", n), &pts, |b, pts| {
+            b.iter(|| {
+                minimize(
+                    &PipeFit::new(pts, Residual::ErrorBased),
+                    nalgebra::SVector::from(x0.to_array()),
+                    &LmOptions::default(),
+                )
+            })
+        });
+        group.bench_with_input(
+            BenchmarkId::new("levenberg-marquardt", n),
+            &pts,
+            |b, pts| {
+                b.iter(|| {
+                    levenberg_marquardt::LevenbergMarquardt::new()
+                        .minimize(crate_lm::CratePipe::new(pts, Residual::ErrorBased, &x0))
+                })
+            },
+        );
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench, solvers);
 criterion_main!(benches);

@@ -2,50 +2,16 @@
 //! N×7 Jacobian) on the EPD problem: same minimum from the same start.
 
 mod common;
+#[path = "common/crate_lm.rs"]
+mod crate_lm;
 
+use crate_lm::CratePipe;
+
+use epd_core::init::initial_guess;
 use epd_core::lm::{LmOptions, minimize};
 use epd_core::problem::PipeFit;
-use epd_core::residual::{Geometry, Residual};
-use epd_core::{Params, init::initial_guess};
-use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
-use nalgebra_lm::{Dyn, OMatrix, OVector, U7, storage::Owned};
-
-struct CratePipe<'a> {
-    points: &'a [[f64; 3]],
-    kind: Residual,
-    x: OVector<f64, U7>,
-}
-
-impl LeastSquaresProblem<f64, Dyn, U7> for CratePipe<'_> {
-    type ResidualStorage = Owned<f64, Dyn>;
-    type JacobianStorage = Owned<f64, Dyn, U7>;
-    type ParameterStorage = Owned<f64, U7>;
-
-    fn set_params(&mut self, x: &OVector<f64, U7>) {
-        self.x = *x;
-    }
-    fn params(&self) -> OVector<f64, U7> {
-        self.x
-    }
-    fn residuals(&self) -> Option<OVector<f64, Dyn>> {
-        let g = Geometry::new(&Params::from_array(self.x.as_slice().try_into().ok()?))?;
-        Some(OVector::<f64, Dyn>::from_iterator(
-            self.points.len(),
-            self.points.iter().map(|p| g.residual(self.kind, p)),
-        ))
-    }
-    fn jacobian(&self) -> Option<OMatrix<f64, Dyn, U7>> {
-        let g = Geometry::new(&Params::from_array(self.x.as_slice().try_into().ok()?))?;
-        let mut j = OMatrix::<f64, Dyn, U7>::zeros(self.points.len());
-        for (i, p) in self.points.iter().enumerate() {
-            let (_, row) = g.residual_and_gradient(self.kind, p);
-            for k in 0..7 {
-                j[(i, k)] = row[k];
-            }
-        }
-        Some(j)
-    }
-}
+use epd_core::residual::Residual;
+use levenberg_marquardt::LevenbergMarquardt;
 
 #[test]
 fn same_minimum_as_the_minpack_port() {
@@ -60,11 +26,7 @@ fn same_minimum_as_the_minpack_port() {
                 nalgebra::SVector::from(x0.to_array()),
                 &LmOptions::default(),
             );
-            let problem = CratePipe {
-                points: &pts,
-                kind,
-                x: OVector::<f64, U7>::from(x0.to_array()),
-            };
+            let problem = CratePipe::new(&pts, kind, &x0);
             let (solved, report) = LevenbergMarquardt::new().minimize(problem);
             assert!(
                 report.termination.was_successful(),
