@@ -418,3 +418,46 @@ fn configuration_errors_name_the_field() {
     let outside = Params { dy: 0.5, ..truth };
     assert!(Scene::new(&outside, WallModel::Exact, 6.0).is_err());
 }
+
+/// A geometry without a closed form: a pipe with a dent (the wall pushed 2 % inwards for
+/// 1 m < x < 2 m, 0 < φ < 1 rad), as a parry TriMesh. Points in the dent lie on the
+/// dented wall, the others on the ellipse, within the tessellation error.
+#[test]
+fn dented_pipe_as_a_trimesh() {
+    let truth = Params {
+        d_max: 0.49,
+        d_min: 0.47,
+        roll: 0.0,
+        pitch: 0.0,
+        yaw: 0.0,
+        dy: 0.0,
+        dz: 0.0,
+    };
+    let in_dent = |x: f64, phi: f64| (1.0..2.0).contains(&x) && (0.0..1.0).contains(&phi);
+    let dent = |x: f64, phi: f64| if in_dent(x, phi) { 0.98 } else { 1.0 };
+    let mesh = tof_sim::mesh::tube_mesh(0.245, 0.235, -1.0, 8.0, 2048, 181, Some(&dent)).unwrap();
+    let scene = Scene::with_mesh(&truth, mesh).unwrap();
+    let f = simulate(
+        &Sensor::helios2(),
+        &scene,
+        &Noise::none(),
+        Subsample::All,
+        FrameSeed::default(),
+    )
+    .unwrap();
+    let (mut dented, mut plain) = (0, 0);
+    for p in &f.exact {
+        let q = truth.scs_to_pcs(&Point3::from(*p));
+        let phi = q.z.atan2(q.y).rem_euclid(std::f64::consts::TAU);
+        let ell = ((q.y / 0.245).powi(2) + (q.z / 0.235).powi(2)).sqrt();
+        // Away from the dent's edges, where facets bridge the step.
+        if in_dent(q.x, phi) && (1.05..1.95).contains(&q.x) && (0.05..0.95).contains(&phi) {
+            assert!((ell - 0.98).abs() < 2e-4, "in the dent: {ell}");
+            dented += 1;
+        } else if !(0.9..2.1).contains(&q.x) {
+            assert!((ell - 1.0).abs() < 2e-4, "outside the dent: {ell}");
+            plain += 1;
+        }
+    }
+    assert!(dented > 100 && plain > 100_000, "{dented} {plain}");
+}
