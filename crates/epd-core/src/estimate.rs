@@ -192,7 +192,8 @@ pub fn estimate(
     let mut iterations = 0;
     // The loss scale in each residual's units.
     let loss_for = |kind: Residual| match kind {
-        Residual::Canonical => options.loss.scaled(4.0 / (init.d_max + init.d_min)),
+        // r_c ≈ 2δ/R for a radial error δ at mean radius R = (Dmax + Dmin)/4.
+        Residual::Canonical => options.loss.scaled(8.0 / (init.d_max + init.d_min)),
         _ => options.loss,
     };
     // Stage 1 (subsample or all): the method's own residual, RU-EPD first for ML-EPD.
