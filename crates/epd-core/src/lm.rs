@@ -437,8 +437,12 @@ pub fn minimize<const N: usize, P: NormalEquationsProblem<N>>(
                 }
                 _ => {
                     // Rejected: the step left the domain or did not lower the cost.
-                    if dnorm <= options.xtol * xnorm || predicted <= options.ftol * eq.cost * 1e-2 {
-                        // The model cannot improve further at machine precision.
+                    // The model, trusted near Gauss–Newton (λ ≤ 1), cannot improve the
+                    // cost beyond rounding, or the step is negligible: x is the minimum.
+                    // (With large λ a tiny prediction only means heavy damping.)
+                    let negligible_model =
+                        lambda <= 1.0 && predicted <= options.ftol * eq.cost * 1e-2;
+                    if dnorm <= options.xtol * xnorm || negligible_model {
                         return done(
                             x,
                             eq,
