@@ -20,6 +20,31 @@ fn oracle_range(b: &Params, d: &Vector3<f64>) -> Option<f64> {
     (a > 0.0 && disc >= 0.0).then(|| (-bb + disc.sqrt()) / (2.0 * a))
 }
 
+/// A sensor on the axis of an untilted pipe of diameters `d_max`, `d_min` (m).
+fn centred(d_max: f64, d_min: f64) -> Params {
+    Params {
+        d_max,
+        d_min,
+        roll: 0.0,
+        pitch: 0.0,
+        yaw: 0.0,
+        dy: 0.0,
+        dz: 0.0,
+    }
+}
+
+/// The full noise-free Helios2 frame of `scene`.
+fn noise_free_frame(scene: &Scene) -> tof_sim::Frame {
+    simulate(
+        &Sensor::helios2(),
+        scene,
+        &Noise::none(),
+        Subsample::All,
+        FrameSeed::default(),
+    )
+    .unwrap()
+}
+
 fn random_truths(n: u64) -> Vec<Params> {
     let mut pipe = Pipe::paper_20in();
     (0..n)
@@ -41,14 +66,7 @@ fn exact_shape_matches_the_quadratic_and_points_lie_on_wall_and_ray() {
     let sensor = Sensor::helios2();
     for truth in random_truths(6) {
         let scene = Scene::new(&truth, WallModel::Exact, 6.0).unwrap();
-        let f = simulate(
-            &sensor,
-            &scene,
-            &Noise::none(),
-            Subsample::All,
-            FrameSeed::default(),
-        )
-        .unwrap();
+        let f = noise_free_frame(&scene);
         assert!(f.measured.len() > 250_000);
         for i in 0..f.exact.len() {
             let x = Vector3::from(f.exact[i]);
@@ -114,24 +132,9 @@ fn closed_form_and_parry_trimesh_agree_within_10_um() {
 /// 307 200 − 1199 ≈ 306 001 pixels are within 6 m (± the ~120-pixel rim of that ellipse).
 #[test]
 fn pixel_count_within_6m_matches_hand_derivation() {
-    let truth = Params {
-        d_max: 0.484,
-        d_min: 0.484,
-        roll: 0.0,
-        pitch: 0.0,
-        yaw: 0.0,
-        dy: 0.0,
-        dz: 0.0,
-    };
+    let truth = centred(0.484, 0.484);
     let scene = Scene::new(&truth, WallModel::Exact, 6.0).unwrap();
-    let f = simulate(
-        &Sensor::helios2(),
-        &scene,
-        &Noise::none(),
-        Subsample::All,
-        FrameSeed::default(),
-    )
-    .unwrap();
+    let f = noise_free_frame(&scene);
     let n = f.measured.len() as f64;
     eprintln!("pixels within 6 m: {n}");
     assert!((n - 306_001.0).abs() < 60.0, "{n}");
@@ -424,27 +427,12 @@ fn configuration_errors_name_the_field() {
 /// dented wall, the others on the ellipse, within the tessellation error.
 #[test]
 fn dented_pipe_as_a_trimesh() {
-    let truth = Params {
-        d_max: 0.49,
-        d_min: 0.47,
-        roll: 0.0,
-        pitch: 0.0,
-        yaw: 0.0,
-        dy: 0.0,
-        dz: 0.0,
-    };
+    let truth = centred(0.49, 0.47);
     let in_dent = |x: f64, phi: f64| (1.0..2.0).contains(&x) && (0.0..1.0).contains(&phi);
     let dent = |x: f64, phi: f64| if in_dent(x, phi) { 0.98 } else { 1.0 };
     let mesh = tof_sim::mesh::tube_mesh(0.245, 0.235, -1.0, 8.0, 2048, 181, Some(&dent)).unwrap();
     let scene = Scene::with_mesh(&truth, mesh).unwrap();
-    let f = simulate(
-        &Sensor::helios2(),
-        &scene,
-        &Noise::none(),
-        Subsample::All,
-        FrameSeed::default(),
-    )
-    .unwrap();
+    let f = noise_free_frame(&scene);
     let (mut dented, mut plain) = (0, 0);
     for p in &f.exact {
         let q = truth.scs_to_pcs(&Point3::from(*p));
