@@ -175,6 +175,7 @@ struct NoiseFile {
     model: String,
     sigma_m: f64,
     outlier_fraction: f64,
+    far_outlier_fraction: f64,
     bias_b0_m: f64,
     bias_b1: f64,
 }
@@ -185,6 +186,7 @@ impl Default for NoiseFile {
             model: "range".into(),
             sigma_m: 0.03,
             outlier_fraction: 0.0,
+            far_outlier_fraction: 0.0,
             bias_b0_m: 0.0,
             bias_b1: 0.0,
         }
@@ -199,6 +201,16 @@ struct PosesFile {
     yaw_deg: [f64; 2],
     dy_mm: [f64; 2],
     dz_mm: [f64; 2],
+    /// A fixed tilt (deg) or a range [lo, hi]; replaces pitch and yaw when set.
+    tilt_deg: Option<TiltFile>,
+}
+
+/// `poses.tilt_deg`: one angle, or a range.
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(untagged)]
+enum TiltFile {
+    Fixed(f64),
+    Range([f64; 2]),
 }
 
 impl Default for PosesFile {
@@ -209,6 +221,7 @@ impl Default for PosesFile {
             yaw_deg: [-5.0, 5.0],
             dy_mm: [-50.0, 50.0],
             dz_mm: [-50.0, 50.0],
+            tilt_deg: None,
         }
     }
 }
@@ -452,6 +465,7 @@ fn to_setting(f: &File) -> Result<Setting, (String, String)> {
         model,
         sigma: f.noise.sigma_m,
         outlier_fraction: f.noise.outlier_fraction,
+        far_outlier_fraction: f.noise.far_outlier_fraction,
         bias_b0: f.noise.bias_b0_m,
         bias_b1: f.noise.bias_b1,
     };
@@ -463,6 +477,10 @@ fn to_setting(f: &File) -> Result<Setting, (String, String)> {
         yaw: r(f.poses.yaw_deg),
         dy: mm(f.poses.dy_mm),
         dz: mm(f.poses.dz_mm),
+        tilt: f.poses.tilt_deg.map(|t| match t {
+            TiltFile::Fixed(v) => r([v, v]),
+            TiltFile::Range(a) => r(a),
+        }),
     };
     let sim = |e: tof_sim::SimError| match e {
         tof_sim::SimError::Invalid {

@@ -308,6 +308,7 @@ fn run_simulate(args: &[String]) -> anyhow::Result<ExitCode> {
         },
         sigma: f.num("sigma", 0.03, "a standard deviation in metres")?,
         outlier_fraction: f.num("outliers", 0.0, "a fraction in [0, 1]")?,
+        far_outlier_fraction: 0.0,
         bias_b0: 0.0,
         bias_b1: 0.0,
     };

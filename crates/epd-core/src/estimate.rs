@@ -9,7 +9,8 @@ use nalgebra::{DMatrix, SMatrix, SVector};
 use crate::cloud::clean;
 use crate::error::EpdError;
 use crate::init::initial_guess;
-use crate::lm::{LmOptions, NormalEquations, Status, minimize};
+use crate::check::{Diagnostics, FitStatus, assess};
+use crate::lm::{LmOptions, NormalEquations, minimize};
 use crate::loss::Loss;
 use crate::params::{N_PARAMS, Params};
 use crate::problem::PipeFit;
@@ -138,8 +139,11 @@ pub struct Estimate {
     pub params: Params,
     /// The data-only starting point of the solver.
     pub initial: Params,
-    /// Why the final solver stage stopped.
-    pub status: Status,
+    /// Why the final solver stage stopped, overruled by `implausible` when the result
+    /// disagrees with the data (see [`crate::check`]).
+    pub status: FitStatus,
+    /// How the result agrees with the points; `None` when it left the model.
+    pub diagnostics: Option<Diagnostics>,
     /// Solver iterations over all stages.
     pub iterations: usize,
     /// Final cost F(β) of eq. (4) over all points (residual units squared).
@@ -246,6 +250,10 @@ pub fn estimate(
     let sigma2 = eq.cost / dof;
     let (sigma, cov) = covariance(&eq, sigma2);
     let roll_determined = roll_is_determined(&canonical, &sigma, cov.as_ref());
+    let (diagnostics, implausible) = match assess(stage_pts, &canonical) {
+        Ok(d) => (Some(d), d.verdict(&canonical)),
+        Err(i) => (None, Some(i)),
+    };
     let mut sigma = sigma;
     if !roll_determined {
         sigma[2] = None;
@@ -254,7 +262,8 @@ pub fn estimate(
         method,
         params: canonical,
         initial: init,
-        status: rep.status,
+        status: FitStatus::from_solver(rep.status, implausible),
+        diagnostics,
         iterations,
         cost: eq.cost,
         rms_residual: (eq.cost / n as f64).sqrt(),

@@ -23,6 +23,7 @@
 //! ```
 #![deny(missing_docs)]
 
+pub mod check;
 pub mod cloud;
 pub mod error;
 pub mod estimate;
@@ -35,6 +36,7 @@ pub mod report;
 pub mod residual;
 pub mod symmetry;
 
+pub use check::{Diagnostics, FitStatus, Implausible};
 pub use error::EpdError;
 pub use estimate::{
     Estimate, EstimateOptions, Method, Sigmas, cramer_rao_bound, estimate, rms_range_residual,

@@ -38,7 +38,7 @@ fn measure(pts: &[[f64; 3]], m: Method) -> (usize, usize) {
     PEAK.store(base, Ordering::SeqCst);
     let c0 = COUNT.load(Ordering::SeqCst);
     let est = estimate(pts, m, &EstimateOptions::default()).unwrap();
-    assert!(est.status.is_converged());
+    assert!(est.status.is_converged(), "{m}: {} {:?}", est.status.reason(), est.diagnostics);
     (
         PEAK.load(Ordering::SeqCst) - base,
         COUNT.load(Ordering::SeqCst) - c0,
@@ -51,7 +51,9 @@ fn memory_is_bounded_and_allocations_do_not_scale_with_points() {
     // A full 640×480 frame within 6 m holds ~2·10⁵ points; tile noisy copies to 10⁶.
     let frame = common::cloud(&truth, 640, 480, 6.0, 0.02, 0, 9);
     let big: Vec<[f64; 3]> = frame.iter().cycle().take(1_000_000).copied().collect();
-    let small: Vec<[f64; 3]> = big[..100_000].to_vec();
+    // Every tenth point: the whole wall, as a sparser frame (a prefix would be the upper
+    // rows only, on which C-EPD diverges and is rightly reported implausible).
+    let small: Vec<[f64; 3]> = big.iter().step_by(10).copied().collect();
     for m in Method::ALL {
         let (peak_big, count_big) = measure(&big, m);
         let (_, count_small) = measure(&small, m);

@@ -152,6 +152,11 @@ pub fn simulate_into(
                 if noise.outlier_fraction > 0.0 && rng.random::<f64>() < noise.outlier_fraction {
                     r = range * rng.random_range(0.5..1.5);
                 }
+                if noise.far_outlier_fraction > 0.0
+                    && rng.random::<f64>() < noise.far_outlier_fraction
+                {
+                    r = rng.random_range(0.1..6.0);
+                }
                 let m = match noise.model {
                     NoiseModel::Range => {
                         let e: f64 = if noise.sigma > 0.0 {

@@ -26,6 +26,10 @@ pub struct Noise {
     /// Fraction of points whose range is replaced by a wrong one (flying pixels,
     /// multipath): the true range times U(0.5, 1.5). 0 by default.
     pub outlier_fraction: f64,
+    /// Fraction of points replaced by a point anywhere in the view: on the pixel's ray
+    /// at a range U(0.1 m, 6 m), whatever the wall (stray light, reflections, dust).
+    /// 0 by default.
+    pub far_outlier_fraction: f64,
     /// Range-dependent depth bias b(r) = b0 + b1·r added along the ray: b0 (m).
     pub bias_b0: f64,
     /// … and b1 (dimensionless).
@@ -39,6 +43,7 @@ impl Noise {
             model: NoiseModel::Range,
             sigma,
             outlier_fraction: 0.0,
+            far_outlier_fraction: 0.0,
             bias_b0: 0.0,
             bias_b1: 0.0,
         }
@@ -62,6 +67,13 @@ impl Noise {
             return Err(SimError::invalid(
                 "noise.outlier_fraction",
                 self.outlier_fraction,
+                "must lie in [0, 1]",
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.far_outlier_fraction) {
+            return Err(SimError::invalid(
+                "noise.far_outlier_fraction",
+                self.far_outlier_fraction,
                 "must lie in [0, 1]",
             ));
         }

@@ -20,6 +20,11 @@ pub struct PoseRanges {
     pub dy: (f64, f64),
     /// δz.
     pub dz: (f64, f64),
+    /// When set, the tilt T (the angle between the pipe axis and the sensor's X axis)
+    /// is drawn from this range with a uniform azimuth ψ, and replaces the pitch and
+    /// yaw ranges: pitch = atan(tan T·sin ψ), yaw = ±acos(cos T/cos pitch) with the
+    /// sign of cos ψ, so that cos T = cos(pitch)·cos(yaw) (the (0,0) entry of eq. 3's R).
+    pub tilt: Option<(f64, f64)>,
 }
 
 impl Default for PoseRanges {
@@ -33,6 +38,7 @@ impl Default for PoseRanges {
             yaw: (d(-5.0), d(5.0)),
             dy: (-0.05, 0.05),
             dz: (-0.05, 0.05),
+            tilt: None,
         }
     }
 }
@@ -62,6 +68,16 @@ impl PoseRanges {
         check("poses.yaw_deg", self.yaw, 0.5 * pi - 1e-6)?;
         check("poses.dy_mm", self.dy, f64::MAX)?;
         check("poses.dz_mm", self.dz, f64::MAX)?;
+        if let Some(t) = self.tilt {
+            check("poses.tilt_deg", t, 0.5 * pi - 1e-6)?;
+            if t.0 < 0.0 {
+                return Err(SimError::invalid(
+                    "poses.tilt_deg",
+                    format!("[{}, {}]", t.0, t.1),
+                    "must lie in [0°, 90°)",
+                ));
+            }
+        }
         Ok(())
     }
 
@@ -79,10 +95,17 @@ impl PoseRanges {
             }
         };
         let roll = u(self.roll);
-        let pitch = u(self.pitch);
-        let yaw = u(self.yaw);
+        let mut pitch = u(self.pitch);
+        let mut yaw = u(self.yaw);
         let dy = u(self.dy);
         let dz = u(self.dz);
+        if let Some(t) = self.tilt {
+            // Drawn after the others, so the other parameters do not depend on it.
+            let tilt = u(t);
+            let psi = u((0.0, std::f64::consts::TAU));
+            pitch = (tilt.tan() * psi.sin()).atan();
+            yaw = (tilt.cos() / pitch.cos()).clamp(-1.0, 1.0).acos() * psi.cos().signum();
+        }
         let p = Params {
             d_max: pipe.d_max(),
             d_min: pipe.d_min(),
@@ -107,5 +130,34 @@ pub fn check_inside(p: &Params) -> Result<(), SimError> {
             format!("({:.1}, {:.1}) mm", p.dy * 1e3, p.dz * 1e3),
             "puts the sensor outside the pipe: narrow the offset ranges",
         ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_set_tilt_is_the_angle_between_the_axes() {
+        let pipe = Pipe::paper_20in();
+        for t in [0.0f64, 5.0, 12.5, 20.0] {
+            let ranges = PoseRanges {
+                tilt: Some((t.to_radians(), t.to_radians())),
+                ..PoseRanges::default()
+            };
+            let mut seen = [false; 4];
+            for k in 0..200 {
+                let p = ranges.sample(&pipe, 3, k).unwrap();
+                // cos T = R[0][0], the X component of the PCS axis in the SCS.
+                let r = p.rotation();
+                let tilt = r.matrix()[(0, 0)].clamp(-1.0, 1.0).acos();
+                assert!((tilt - t.to_radians()).abs() < 1e-9, "{t}: {p:?}");
+                seen[usize::from(p.pitch > 0.0) * 2 + usize::from(p.yaw > 0.0)] = true;
+            }
+            // Every azimuth quadrant occurs.
+            if t > 0.0 {
+                assert_eq!(seen, [true; 4], "tilt {t}");
+            }
+        }
     }
 }

@@ -211,6 +211,7 @@ fn noise_statistics() {
     // Outliers: about the requested fraction lands far from the wall.
     let noise = Noise {
         outlier_fraction: 0.1,
+        far_outlier_fraction: 0.0,
         ..Noise::none()
     };
     let f = simulate(&sensor, &scene, &noise, Subsample::All, seeds).unwrap();
@@ -381,6 +382,7 @@ fn configuration_errors_name_the_field() {
                 h,
                 Noise {
                     outlier_fraction: 1.5,
+                    far_outlier_fraction: 0.0,
                     ..Noise::none()
                 },
             ),

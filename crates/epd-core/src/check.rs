@@ -1,0 +1,384 @@
+//! Whether a fitted β is consistent with the points it was fitted to.
+//!
+//! A solver's convergence test says only that the cost stopped falling. C-EPD's cost
+//! (eq. 6) is scaled by the model's own size, so it falls towards zero along a family
+//! of ever larger ellipses whose edge passes by the points: on tilted, noisy clouds the
+//! solver can walk off to diameters of 10⁹ mm and stop there "converged". Other fits
+//! settle in a wrong basin (a wrong tilt with a wrong diameter). Neither may be reported
+//! as a result. [`assess`] measures, on a subsample of the points, what any fitted pipe
+//! must satisfy, and [`Diagnostics::verdict`] turns the measures into a verdict:
+//!
+//! - the sensor lies inside the fitted pipe and the pipe runs ahead of it (the angle
+//!   between the pipe axis and the sensor's X axis below [`MAX_TILT_DEG`]);
+//! - the cloud's extent across the fitted axis matches the fitted diameters: a camera
+//!   inside a pipe sees the wall all round, so the span of the points' PCS y (z)
+//!   coordinates, between their 1 % and 99 % quantiles, lies within
+//!   [[`MIN_SPAN_RATIO`], [`MAX_SPAN_RATIO`]] of Dmax (Dmin), widened by the noise;
+//! - the range residuals r_m (ML-EPD's residual, m, whatever the method) have a robust
+//!   scale s = 1.4826·median|r_m| below [`MAX_NOISE_TO_RADIUS`] of the mean radius: a
+//!   pipe whose wall is blurred by more than that is not measured by the frame;
+//! - no region of the wall is systematically missed: around the axis, in
+//!   [`SECTORS`] sectors, the median range residual of each sector stays within
+//!   [`MAX_SECTOR_MEDIAN`]·s + 5·s/√n (n the sector's points). A fit with a wrong tilt
+//!   or in a wrong basin leaves whole sectors on one side of the wall.
+
+use crate::lm::{Convergence, DegenerateReason, Status};
+use crate::params::Params;
+use crate::residual::{Geometry, Residual};
+
+/// Largest angle between the pipe axis and the sensor's optical (X) axis for a camera
+/// looking along a pipe (deg).
+pub const MAX_TILT_DEG: f64 = 60.0;
+/// Smallest ratio of the cloud's lateral span to the fitted diameter.
+pub const MIN_SPAN_RATIO: f64 = 0.5;
+/// Largest ratio of the cloud's lateral span to the fitted diameter (plus 8 s).
+pub const MAX_SPAN_RATIO: f64 = 1.5;
+/// Largest robust scale of the range residuals, as a fraction of the mean radius.
+pub const MAX_NOISE_TO_RADIUS: f64 = 0.5;
+/// Angular sectors around the axis for the lack-of-fit test.
+pub const SECTORS: usize = 8;
+/// Largest |median residual| of a sector, in units of s (beyond the sampling term).
+pub const MAX_SECTOR_MEDIAN: f64 = 1.0;
+
+/// At most this many points (evenly strided) are assessed.
+const MAX_ASSESSED: usize = 8192;
+
+/// Measures of how a fitted β agrees with its points (see the module doc).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Diagnostics {
+    /// Angle between the fitted pipe axis and the sensor's X axis (rad).
+    pub tilt: f64,
+    /// Span of the points' PCS y between the 1 % and 99 % quantiles, over Dmax.
+    pub span_ratio_major: f64,
+    /// The same for z over Dmin.
+    pub span_ratio_minor: f64,
+    /// Robust scale of the range residuals, 1.4826·median|r_m| (m).
+    pub residual_scale: f64,
+    /// Largest |median range residual| of a sector, minus the sampling term 5·s/√n,
+    /// in units of s.
+    pub sector_misfit: f64,
+    /// Points assessed.
+    pub n_assessed: usize,
+}
+
+/// Why an estimate is not believed although the solver stopped.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
+pub enum Implausible {
+    /// A parameter is not finite, a diameter not positive, or the sensor lies outside
+    /// the fitted pipe.
+    OutsideModel,
+    /// The pipe axis is not ahead of the sensor (tilt in rad).
+    AxisNotAhead {
+        /// The angle between the fitted axis and the sensor's X axis (rad).
+        tilt: f64,
+    },
+    /// The fitted diameter does not match the cloud's extent across the axis.
+    DiameterVsExtent {
+        /// 0 for Dmax, 1 for Dmin.
+        axis: usize,
+        /// The fitted diameter (m).
+        diameter: f64,
+        /// The cloud's span (m).
+        span: f64,
+    },
+    /// The residuals' scale is too large for the fitted radius to be measured.
+    NoiseVsRadius {
+        /// Robust residual scale (m).
+        scale: f64,
+        /// Mean fitted radius (m).
+        radius: f64,
+    },
+    /// A region of the wall lies systematically off the fitted surface.
+    LackOfFit {
+        /// The worst sector's excess |median| in units of the residual scale.
+        misfit: f64,
+    },
+}
+
+impl std::fmt::Display for Implausible {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            Implausible::OutsideModel => f.write_str(
+                "the fit left the model (non-finite or non-positive diameters, or the sensor outside the fitted pipe)",
+            ),
+            Implausible::AxisNotAhead { tilt } => write!(
+                f,
+                "the fitted pipe axis is {:.1}° from the sensor's X axis (more than {MAX_TILT_DEG}°): \
+                 the camera does not look along this pipe",
+                tilt.to_degrees()
+            ),
+            Implausible::DiameterVsExtent {
+                axis,
+                diameter,
+                span,
+            } => write!(
+                f,
+                "the fitted {} {:.1} mm does not match the cloud's extent across the axis ({:.1} mm): \
+                 the fit diverged",
+                if axis == 0 { "Dmax" } else { "Dmin" },
+                diameter * 1e3,
+                span * 1e3
+            ),
+            Implausible::NoiseVsRadius { scale, radius } => write!(
+                f,
+                "the points scatter by {:.1} mm about the fitted wall, more than half its radius ({:.1} mm): \
+                 the diameters are not determined",
+                scale * 1e3,
+                radius * 1e3
+            ),
+            Implausible::LackOfFit { misfit } => write!(
+                f,
+                "a region of the wall lies systematically off the fitted surface (sector median {:.1} noise \
+                 scales beyond tolerance): the fit settled in a wrong pose",
+                misfit
+            ),
+        }
+    }
+}
+
+/// The status of an estimate: the solver's reason to stop, overruled by [`Implausible`]
+/// when the result disagrees with the data. Only [`FitStatus::Converged`] is a result.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum FitStatus {
+    /// A convergence test held and the result is consistent with the data.
+    Converged(Convergence),
+    /// The iteration limit was reached first.
+    IterationLimit,
+    /// The solver found no usable step.
+    Degenerate(DegenerateReason),
+    /// The solver stopped, but the result disagrees with the data.
+    Implausible(Implausible),
+}
+
+impl FitStatus {
+    /// The solver's status, unless the diagnostics overrule it.
+    pub fn from_solver(status: Status, implausible: Option<Implausible>) -> Self {
+        match (implausible, status) {
+            (Some(i), _) => FitStatus::Implausible(i),
+            (None, Status::Converged(c)) => FitStatus::Converged(c),
+            (None, Status::IterationLimit) => FitStatus::IterationLimit,
+            (None, Status::Degenerate(d)) => FitStatus::Degenerate(d),
+        }
+    }
+
+    /// A short machine-readable name: `converged`, `iteration_limit`, `degenerate` or
+    /// `implausible`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            FitStatus::Converged(_) => "converged",
+            FitStatus::IterationLimit => "iteration_limit",
+            FitStatus::Degenerate(_) => "degenerate",
+            FitStatus::Implausible(_) => "implausible",
+        }
+    }
+
+    /// The reason in words, for reports.
+    pub fn reason(&self) -> String {
+        match self {
+            FitStatus::Converged(c) => Status::Converged(*c).reason().into(),
+            FitStatus::IterationLimit => Status::IterationLimit.reason().into(),
+            FitStatus::Degenerate(d) => Status::Degenerate(*d).reason().into(),
+            FitStatus::Implausible(i) => i.to_string(),
+        }
+    }
+
+    /// Whether the estimate is a result: converged and consistent with the data.
+    pub fn is_converged(&self) -> bool {
+        matches!(self, FitStatus::Converged(_))
+    }
+}
+
+impl Diagnostics {
+    /// The first check that fails, or `None` when the fit is consistent with the data.
+    pub fn verdict(&self, beta: &Params) -> Option<Implausible> {
+        if self.tilt.to_degrees() > MAX_TILT_DEG {
+            return Some(Implausible::AxisNotAhead { tilt: self.tilt });
+        }
+        let s = self.residual_scale;
+        let radius = 0.25 * (beta.d_max + beta.d_min);
+        for (axis, (ratio, d)) in [
+            (self.span_ratio_major, beta.d_max),
+            (self.span_ratio_minor, beta.d_min),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let hi = MAX_SPAN_RATIO + 8.0 * s / d;
+            if !(ratio >= MIN_SPAN_RATIO && ratio <= hi) {
+                return Some(Implausible::DiameterVsExtent {
+                    axis,
+                    diameter: d,
+                    span: ratio * d,
+                });
+            }
+        }
+        if !(s <= MAX_NOISE_TO_RADIUS * radius) {
+            return Some(Implausible::NoiseVsRadius { scale: s, radius });
+        }
+        if !(self.sector_misfit <= MAX_SECTOR_MEDIAN) {
+            return Some(Implausible::LackOfFit {
+                misfit: self.sector_misfit,
+            });
+        }
+        None
+    }
+}
+
+/// Measure how β agrees with `points` (SCS, m; finite and non-zero), on at most
+/// 8192 evenly strided points. `Err` when β is outside the model.
+pub fn assess(points: &[[f64; 3]], beta: &Params) -> Result<Diagnostics, Implausible> {
+    let geom = Geometry::new(beta).ok_or(Implausible::OutsideModel)?;
+    if points.is_empty() {
+        return Err(Implausible::OutsideModel);
+    }
+    let rot = beta.rotation();
+    let m = rot.matrix();
+    // The PCS X axis in the SCS is the first row of R; its X component is cos(tilt).
+    let tilt = m[(0, 0)].abs().min(1.0).acos();
+    let stride = points.len().div_ceil(MAX_ASSESSED).max(1);
+    let n = points.len().div_ceil(stride);
+    let mut r = Vec::with_capacity(n);
+    let mut ys = Vec::with_capacity(n);
+    let mut zs = Vec::with_capacity(n);
+    let mut sector = Vec::with_capacity(n);
+    for p in points.iter().step_by(stride) {
+        let y = m[(1, 0)] * p[0] + m[(1, 1)] * p[1] + m[(1, 2)] * p[2] + beta.dy;
+        let z = m[(2, 0)] * p[0] + m[(2, 1)] * p[1] + m[(2, 2)] * p[2] + beta.dz;
+        r.push(geom.residual(Residual::Range, p));
+        ys.push(y);
+        zs.push(z);
+        let phi = z.atan2(y) + std::f64::consts::PI;
+        let k = ((phi / std::f64::consts::TAU) * SECTORS as f64) as usize;
+        sector.push(k.min(SECTORS - 1));
+    }
+    let span = |v: &mut Vec<f64>| quantile(v, 0.99) - quantile(v, 0.01);
+    let span_y = span(&mut ys);
+    let span_z = span(&mut zs);
+    let mut abs_r: Vec<f64> = r.iter().map(|v| v.abs()).collect();
+    let s = 1.4826 * quantile(&mut abs_r, 0.5);
+    // A floor for noise-free clouds, where the medians are rounding.
+    let s_eff = s.max(1e-9 * (beta.d_max + beta.d_min));
+    let mut misfit: f64 = 0.0;
+    let mut in_sector = Vec::with_capacity(n);
+    for k in 0..SECTORS {
+        in_sector.clear();
+        in_sector.extend(
+            r.iter()
+                .zip(&sector)
+                .filter(|&(_, &sk)| sk == k)
+                .map(|(&v, _)| v),
+        );
+        // Sectors with few points (the far wall seen edge-on) say little.
+        if in_sector.len() < 32 {
+            continue;
+        }
+        let med = quantile(&mut in_sector, 0.5);
+        let sampling = 5.0 / (in_sector.len() as f64).sqrt();
+        misfit = misfit.max(med.abs() / s_eff - sampling);
+    }
+    Ok(Diagnostics {
+        tilt,
+        span_ratio_major: span_y / beta.d_max,
+        span_ratio_minor: span_z / beta.d_min,
+        residual_scale: s,
+        sector_misfit: misfit.max(0.0),
+        n_assessed: n,
+    })
+}
+
+/// The q-quantile of `v` (reordered in place; nearest rank). NaN for an empty slice.
+fn quantile(v: &mut [f64], q: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let k = ((q * (v.len() - 1) as f64).round() as usize).min(v.len() - 1);
+    let (_, x, _) = v.select_nth_unstable_by(k, |a, b| a.total_cmp(b));
+    *x
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Point3;
+
+    fn truth() -> Params {
+        Params {
+            d_max: 0.49,
+            d_min: 0.48,
+            roll: 0.4,
+            pitch: 0.1,
+            yaw: -0.05,
+            dy: 0.03,
+            dz: -0.02,
+        }
+    }
+
+    fn cloud(t: &Params) -> Vec<[f64; 3]> {
+        (0..4000)
+            .map(|i| {
+                let phi = i as f64 * 0.7;
+                let x = 0.6 + (i % 53) as f64 * 0.1;
+                let w = Point3::new(x, 0.5 * t.d_max * phi.cos(), 0.5 * t.d_min * phi.sin());
+                let s = t.pcs_to_scs(&w);
+                [s.x, s.y, s.z]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_truth_is_plausible() {
+        let t = truth();
+        let d = assess(&cloud(&t), &t).unwrap();
+        assert!(d.verdict(&t).is_none(), "{d:?}");
+        assert!((d.span_ratio_major - 1.0).abs() < 0.01, "{d:?}");
+        assert!(d.residual_scale < 1e-9);
+    }
+
+    #[test]
+    fn a_huge_pipe_is_refused() {
+        let t = truth();
+        let pts = cloud(&t);
+        let big = Params {
+            d_max: 1e3,
+            d_min: 0.9e3,
+            ..t
+        };
+        let d = assess(&pts, &big).unwrap();
+        assert!(
+            matches!(d.verdict(&big), Some(Implausible::DiameterVsExtent { .. })),
+            "{d:?}"
+        );
+    }
+
+    #[test]
+    fn a_wrong_tilt_is_refused() {
+        let t = truth();
+        let pts = cloud(&t);
+        let wrong = Params {
+            pitch: t.pitch + 0.15,
+            ..t
+        };
+        let d = assess(&pts, &wrong).unwrap();
+        assert!(d.verdict(&wrong).is_some(), "{d:?}");
+    }
+
+    #[test]
+    fn a_sideways_axis_is_refused() {
+        let t = Params { yaw: 1.3, ..truth() };
+        let d = assess(&cloud(&t), &t).unwrap();
+        assert!(matches!(
+            d.verdict(&t),
+            Some(Implausible::AxisNotAhead { .. })
+        ));
+    }
+
+    #[test]
+    fn outside_the_model_is_an_error() {
+        let t = Params { dy: 0.3, ..truth() };
+        assert_eq!(
+            assess(&cloud(&truth()), &t),
+            Err(Implausible::OutsideModel)
+        );
+    }
+}
