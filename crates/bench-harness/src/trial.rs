@@ -167,7 +167,7 @@ fn run_with(
                 Ok(e) => MethodResult {
                     method: m,
                     status: e.status.name().into(),
-                    message: e.status.reason().into(),
+                    message: e.status.reason(),
                     iterations: e.iterations,
                     time_ms,
                     estimate: Some(e.params),

@@ -365,7 +365,10 @@ mod tests {
 
     #[test]
     fn a_sideways_axis_is_refused() {
-        let t = Params { yaw: 1.3, ..truth() };
+        let t = Params {
+            yaw: 1.3,
+            ..truth()
+        };
         let d = assess(&cloud(&t), &t).unwrap();
         assert!(matches!(
             d.verdict(&t),
@@ -376,9 +379,6 @@ mod tests {
     #[test]
     fn outside_the_model_is_an_error() {
         let t = Params { dy: 0.3, ..truth() };
-        assert_eq!(
-            assess(&cloud(&truth()), &t),
-            Err(Implausible::OutsideModel)
-        );
+        assert_eq!(assess(&cloud(&truth()), &t), Err(Implausible::OutsideModel));
     }
 }

@@ -6,10 +6,10 @@ use std::str::FromStr;
 
 use nalgebra::{DMatrix, SMatrix, SVector};
 
+use crate::check::{Diagnostics, FitStatus, assess};
 use crate::cloud::clean;
 use crate::error::EpdError;
 use crate::init::initial_guess;
-use crate::check::{Diagnostics, FitStatus, assess};
 use crate::lm::{LmOptions, NormalEquations, minimize};
 use crate::loss::Loss;
 use crate::params::{N_PARAMS, Params};

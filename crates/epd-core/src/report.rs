@@ -38,7 +38,7 @@ pub fn estimate_fields(est: &Estimate) -> Vec<(&'static str, Field)> {
     vec![
         ("method", Field::Text(est.method.name().into())),
         ("status", Field::Text(est.status.name().into())),
-        ("status_reason", Field::Text(est.status.reason().into())),
+        ("status_reason", Field::Text(est.status.reason())),
         ("iterations", Field::Int(est.iterations as u64)),
         ("n_points", Field::Int(est.n_points as u64)),
         ("n_dropped", Field::Int(est.n_dropped as u64)),

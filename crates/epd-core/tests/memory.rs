@@ -38,7 +38,12 @@ fn measure(pts: &[[f64; 3]], m: Method) -> (usize, usize) {
     PEAK.store(base, Ordering::SeqCst);
     let c0 = COUNT.load(Ordering::SeqCst);
     let est = estimate(pts, m, &EstimateOptions::default()).unwrap();
-    assert!(est.status.is_converged(), "{m}: {} {:?}", est.status.reason(), est.diagnostics);
+    assert!(
+        est.status.is_converged(),
+        "{m}: {} {:?}",
+        est.status.reason(),
+        est.diagnostics
+    );
     (
         PEAK.load(Ordering::SeqCst) - base,
         COUNT.load(Ordering::SeqCst) - c0,
