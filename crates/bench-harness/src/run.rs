@@ -111,6 +111,10 @@ pub struct SummaryRow {
     pub n_failed: usize,
     /// √(mean over trials of the CRB variance): the physical limit of `stats.std`.
     pub crb_std: Option<f64>,
+    /// Fraction of the converged trials whose |error| ≤ 1.96·(reported 1-σ): the
+    /// coverage of the nominal 95 % interval (parameters only; trials without a
+    /// reported 1-σ, e.g. an undetermined roll, count as not covered).
+    pub coverage95: Option<f64>,
 }
 
 /// Where and how to run.
@@ -203,6 +207,7 @@ pub const SUMMARY_COLUMNS: &[&str] = &[
     "range",
     "sem",
     "crb_std",
+    "coverage95",
 ];
 
 /// A number for CSV: shortest round-trip text, empty for NaN/None.
@@ -351,6 +356,18 @@ fn summarise(value: &str, methods: &[epd_core::Method], trials: &[TrialResult]) 
                     .collect();
                 (!vars.is_empty()).then(|| (vars.iter().sum::<f64>() / vars.len() as f64).sqrt())
             });
+            let coverage95 = q.param.filter(|_| !ok.is_empty()).map(|i| {
+                let covered = ok
+                    .iter()
+                    .filter(|(r, _)| {
+                        let (Some(e), Some(s)) = (r.errors.as_ref(), r.sigma[i]) else {
+                            return false;
+                        };
+                        ((q.error)(e)).abs() <= 1.96 * s * q.scale
+                    })
+                    .count();
+                covered as f64 / ok.len() as f64
+            });
             rows.push(SummaryRow {
                 sweep_value: value.into(),
                 method: m.name().into(),
@@ -359,6 +376,7 @@ fn summarise(value: &str, methods: &[epd_core::Method], trials: &[TrialResult]) 
                 stats: Stats::of(&v),
                 n_failed,
                 crb_std,
+                coverage95,
             });
         }
         let times: Vec<f64> = results
@@ -374,6 +392,7 @@ fn summarise(value: &str, methods: &[epd_core::Method], trials: &[TrialResult]) 
             stats: Stats::of(&times),
             n_failed,
             crb_std: None,
+            coverage95: None,
         });
     }
     rows
@@ -398,6 +417,7 @@ fn summary_line(variable: &str, r: &SummaryRow) -> String {
         num(s.range),
         num(s.sem()),
         r.crb_std.map_or(String::new(), num),
+        r.coverage95.map_or(String::new(), num),
     ]
     .join(",")
 }

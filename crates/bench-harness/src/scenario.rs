@@ -102,6 +102,12 @@ struct File {
     loss: String,
     #[serde(default = "default_loss_scale")]
     loss_scale_m: f64,
+    /// `"fixed"` (`loss_scale_m` as given) or `"auto"` (scaled to the residuals).
+    #[serde(default = "default_loss_scale_mode")]
+    loss_scale: String,
+    /// The estimator's range gate [min, max] (m) on the model range; unset: none.
+    #[serde(default)]
+    range_gate_m: Option<[f64; 2]>,
     #[serde(default)]
     sensor: SensorFile,
     #[serde(default)]
@@ -115,6 +121,9 @@ struct File {
 
 fn default_loss() -> String {
     "none".into()
+}
+fn default_loss_scale_mode() -> String {
+    "fixed".into()
 }
 fn default_loss_scale() -> f64 {
     0.05
@@ -250,6 +259,10 @@ pub struct Setting {
     pub methods: Vec<Method>,
     /// The robust loss of every estimate (`loss`, `loss_scale_m`).
     pub loss: Loss,
+    /// Whether the loss's scale is taken from the residuals (`loss_scale = "auto"`).
+    pub loss_scale_auto: bool,
+    /// The estimator's range gate (m), `range_gate_m`.
+    pub range_gate: Option<(f64, f64)>,
 }
 
 impl Setting {
@@ -510,6 +523,26 @@ fn to_setting(f: &File) -> Result<Setting, (String, String)> {
             ),
         ));
     }
+    let loss_scale_auto = match f.loss_scale.as_str() {
+        "fixed" => false,
+        "auto" => true,
+        other => {
+            return Err(err(
+                "loss_scale",
+                format!("= \"{other}\": must be \"fixed\" or \"auto\""),
+            ));
+        }
+    };
+    let range_gate = match f.range_gate_m {
+        None => None,
+        Some([lo, hi]) if lo >= 0.0 && hi > lo && hi.is_finite() => Some((lo, hi)),
+        Some([lo, hi]) => {
+            return Err(err(
+                "range_gate_m",
+                format!("= [{lo}, {hi}]: need 0 ≤ min < max, finite"),
+            ));
+        }
+    };
     let loss = Loss::from_name(&f.loss, f.loss_scale_m).map_err(|e| {
         let key = if f.loss_scale_m > 0.0 && f.loss_scale_m.is_finite() {
             "loss"
@@ -526,6 +559,8 @@ fn to_setting(f: &File) -> Result<Setting, (String, String)> {
         points: f.points,
         methods,
         loss,
+        loss_scale_auto,
+        range_gate,
     })
 }
 

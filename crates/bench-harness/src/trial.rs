@@ -5,7 +5,7 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 use epd_core::{
-    EstimateOptions, Method, N_PARAMS, ParamErrors, Params, Sigmas, cramer_rao_bound,
+    EstimateOptions, LossScale, Method, N_PARAMS, ParamErrors, Params, Sigmas, cramer_rao_bound,
     errors_against, estimate,
 };
 use tof_sim::{Frame, FrameSeed, Scene, WallModel, simulate_into};
@@ -153,9 +153,17 @@ fn run_with(
     }
     let crb =
         cramer_rao_bound(&frame.exact, &truth, setting.noise.sigma).unwrap_or([None; N_PARAMS]);
-    let opts = EstimateOptions::default()
+    let mut opts = EstimateOptions::default()
         .with_loss(setting.loss)
-        .unwrap_or_default();
+        .unwrap_or_default()
+        .with_loss_scale(if setting.loss_scale_auto {
+            LossScale::Auto
+        } else {
+            LossScale::Fixed
+        });
+    if let Some((lo, hi)) = setting.range_gate {
+        opts = opts.with_range_gate(lo, hi).unwrap_or(opts);
+    }
     let methods = setting
         .methods
         .iter()

@@ -14,7 +14,7 @@ use crate::lm::{LmOptions, NormalEquations, minimize};
 use crate::loss::Loss;
 use crate::params::{N_PARAMS, Params};
 use crate::problem::PipeFit;
-use crate::residual::Residual;
+use crate::residual::{Geometry, Residual};
 use crate::symmetry::canonical_form;
 
 /// An estimator of the paper (C-EPD, RU-EPD) or ours (ML-EPD).
@@ -77,6 +77,22 @@ pub struct EstimateOptions {
     lm: LmOptions,
     stage_points: usize,
     loss: Loss,
+    loss_scale: LossScale,
+    range_gate: Option<(f64, f64)>,
+}
+
+/// How the scale of a robust loss is set.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum LossScale {
+    /// As given, in metres of range error (for C-EPD converted to the canonical residual
+    /// through r_c ≈ 2δ/R with the initial guess's mean radius R).
+    #[default]
+    Fixed,
+    /// From the data: the loss's 95 %-efficiency constant (Huber 1.345, Cauchy 2.3849)
+    /// times the robust scale 1.4826·median|r| of the method's own residuals, measured
+    /// after a first robust pass and again before the final one. The given scale only
+    /// seeds the first pass.
+    Auto,
 }
 
 impl Default for EstimateOptions {
@@ -87,6 +103,8 @@ impl Default for EstimateOptions {
             lm: LmOptions::default().with_stat(0.1),
             stage_points: 8192,
             loss: Loss::Squared,
+            loss_scale: LossScale::Fixed,
+            range_gate: None,
         }
     }
 }
@@ -100,16 +118,38 @@ impl EstimateOptions {
 
     /// A robust loss against outliers; its scale is in metres of range error (for C-EPD
     /// it is converted to the canonical residual through r_c ≈ 2δ/R with the initial
-    /// guess's mean radius R).
+    /// guess's mean radius R), or see [`with_loss_scale`](Self::with_loss_scale).
     pub fn with_loss(mut self, loss: Loss) -> Result<Self, EpdError> {
         loss.validate()?;
         self.loss = loss;
         Ok(self)
     }
 
+    /// How the loss's scale is set: as given, or from the data.
+    pub fn with_loss_scale(mut self, scale: LossScale) -> Self {
+        self.loss_scale = scale;
+        self
+    }
+
     /// The robust loss.
     pub fn loss(&self) -> Loss {
         self.loss
+    }
+
+    /// Keep only the points whose range along their sensing line, *as the model puts
+    /// the wall* (not as measured), lies in [min, max] (m). A gate on the measured range
+    /// truncates each point's own noise (keeps the points whose error shortened them
+    /// near `max`) and biases the diameters; the model range of a ray does not depend
+    /// on its point's noise. The model is a first fit on the points whose measured
+    /// range lies in the gate; the final fit starts from it.
+    pub fn with_range_gate(mut self, min: f64, max: f64) -> Result<Self, EpdError> {
+        if !(min >= 0.0 && max > min && !max.is_nan()) {
+            return Err(EpdError::InvalidOption(format!(
+                "range gate [{min}, {max}] m: need 0 ≤ min < max"
+            )));
+        }
+        self.range_gate = Some((min, max));
+        Ok(self)
     }
 
     /// Size of the evenly strided subsample on which the fit first converges before the
@@ -146,15 +186,24 @@ pub struct Estimate {
     pub diagnostics: Option<Diagnostics>,
     /// Solver iterations over all stages.
     pub iterations: usize,
-    /// Final cost F(β) of eq. (4) over all points (residual units squared).
+    /// Final cost over all points: F(β) of eq. (4), or Σ 2ρ(rᵢ) under a robust loss
+    /// (residual units squared).
     pub cost: f64,
-    /// √(F/N): the RMS residual (m for RU-EPD and ML-EPD, dimensionless for C-EPD).
+    /// √(Σ rᵢ²/N): the RMS residual, whatever the loss (m for RU-EPD and ML-EPD,
+    /// dimensionless for C-EPD); under a robust loss taken over at most 32 768 evenly
+    /// strided points.
     pub rms_residual: f64,
     /// Points used.
     pub n_points: usize,
     /// Points dropped (non-finite or at the origin).
     pub n_dropped: usize,
-    /// 1-σ of each parameter from σ̂²·(JᵀJ)⁻¹, σ̂² = F/(N − 7).
+    /// Usable points left out by the range gate (0 without one).
+    pub n_out_of_gate: usize,
+    /// The loss as applied, its scale in the method's residual units.
+    pub loss: Loss,
+    /// 1-σ of each parameter: σ̂²·(JᵀJ)⁻¹ with σ̂² = F/(N − 7) for least squares; under
+    /// a robust loss the M-estimator's sandwich H⁻¹·B·H⁻¹·N/(N − 7) with
+    /// H = Σ w_H JᵢJᵢᵀ and B = Σ (w_g rᵢ)² JᵢJᵢᵀ (see [`crate::loss`]).
     pub sigma: Sigmas,
     /// Whether the roll is determined: the ovality is significant (Dmax − Dmin above
     /// three of its standard deviations) and the roll's 1-σ is below 45°.
@@ -167,23 +216,99 @@ pub struct Estimate {
 /// from [`initial_guess`]; with more than `stage_points` points it first converges on a
 /// strided subsample, then iterates on all points. ML-EPD starts from the RU-EPD
 /// estimate: its cost has poles where the model axis crosses a measured ray, and started
-/// cold it can settle in a wrong basin.
+/// cold it can settle in a wrong basin. With a range gate
+/// ([`EstimateOptions::with_range_gate`]) the points are selected by their model range.
+/// The status is `converged` only when the result is also consistent with the points
+/// ([`crate::check`]).
 pub fn estimate(
     points: &[[f64; 3]],
     method: Method,
     options: &EstimateOptions,
 ) -> Result<Estimate, EpdError> {
     let cloud = clean(points);
-    let n = cloud.points.len();
+    let Some((lo, hi)) = options.range_gate else {
+        return fit_cloud(&cloud.points, cloud.dropped, 0, method, options, None);
+    };
+    let range = |p: &[f64; 3]| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+    let measured: Vec<[f64; 3]> = cloud
+        .points
+        .iter()
+        .filter(|p| (lo..=hi).contains(&range(p)))
+        .copied()
+        .collect();
+    let first = fit_cloud(&measured, cloud.dropped, 0, method, options, None)?;
+    let geom = Geometry::new(&first.params).ok_or_else(|| {
+        EpdError::Degenerate("the first fit of the range gate left the model".into())
+    })?;
+    // The model range of a ray: the wall point x0 + t(x̂ − x0) is t·‖p‖ from the sensor.
+    let kept: Vec<[f64; 3]> = cloud
+        .points
+        .iter()
+        .filter(|p| (lo..=hi).contains(&(geom.line_parameter(p) * range(p))))
+        .copied()
+        .collect();
+    let gated = cloud.points.len() - kept.len();
+    fit_cloud(
+        &kept,
+        cloud.dropped,
+        gated,
+        method,
+        options,
+        Some(first.params),
+    )
+}
+
+/// Points (evenly strided) of the sandwich covariance.
+const SANDWICH_POINTS: usize = 32_768;
+
+/// The 95 %-efficiency tuning constant of a loss, in units of the residuals' scale.
+fn tuning(loss: Loss) -> f64 {
+    match loss {
+        Loss::Squared => 1.0,
+        Loss::Huber { .. } => 1.345,
+        Loss::Cauchy { .. } => 2.3849,
+    }
+}
+
+/// 1.4826·median|r| of `kind`'s residuals of `pts` at `x`, or `None` outside the model.
+fn residual_scale(pts: &[[f64; 3]], kind: Residual, x: &SVector<f64, N_PARAMS>) -> Option<f64> {
+    let geom = Geometry::new(&Params::from_array((*x).into()))?;
+    let stride = pts.len().div_ceil(8192).max(1);
+    let mut r: Vec<f64> = pts
+        .iter()
+        .step_by(stride)
+        .map(|p| geom.residual(kind, p).abs())
+        .collect();
+    if r.is_empty() {
+        return None;
+    }
+    let mid = r.len() / 2;
+    let (_, med, _) = r.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
+    let s = 1.4826 * *med;
+    (s > 0.0 && s.is_finite()).then_some(s)
+}
+
+/// The fit of clean points, from the initial guess or from `start`.
+fn fit_cloud(
+    pts: &[[f64; 3]],
+    n_dropped: usize,
+    n_out_of_gate: usize,
+    method: Method,
+    options: &EstimateOptions,
+    start: Option<Params>,
+) -> Result<Estimate, EpdError> {
+    let n = pts.len();
     if n < N_PARAMS {
         return Err(EpdError::TooFewPoints {
             usable: n,
-            dropped: cloud.dropped,
+            dropped: n_dropped,
             needed: N_PARAMS,
         });
     }
-    let init = initial_guess(&cloud.points)?;
-    let pts = &cloud.points;
+    let init = match start {
+        Some(p) => p,
+        None => initial_guess(pts)?,
+    };
     let sub: Vec<[f64; 3]>;
     let stage_pts: &[[f64; 3]] = if options.stage_points > 0 && n > 2 * options.stage_points {
         let stride = n / options.stage_points;
@@ -194,21 +319,36 @@ pub fn estimate(
     };
     let mut x = SVector::<f64, N_PARAMS>::from(init.to_array());
     let mut iterations = 0;
-    // The loss scale in each residual's units.
-    let loss_for = |kind: Residual| match kind {
+    // The loss in each residual's units.
+    let fixed_loss = |kind: Residual| match kind {
         // r_c ≈ 2δ/R for a radial error δ at mean radius R = (Dmax + Dmin)/4.
         Residual::Canonical => options.loss.scaled(8.0 / (init.d_max + init.d_min)),
         _ => options.loss,
     };
-    // Stage 1 (subsample or all): the method's own residual, RU-EPD first for ML-EPD.
-    let mut stage_residuals = vec![method.residual()];
-    if method == Method::MlEpd {
-        stage_residuals.insert(0, Residual::ErrorBased);
+    let auto = options.loss != Loss::Squared && options.loss_scale == LossScale::Auto;
+    // The loss scaled to the data at x (falls back to the fixed scale).
+    let loss_at = |kind: Residual, x: &SVector<f64, N_PARAMS>| {
+        let fixed = fixed_loss(kind);
+        if !auto {
+            return fixed;
+        }
+        residual_scale(stage_pts, kind, x)
+            .map(|s| fixed.with_scale(tuning(fixed) * s))
+            .unwrap_or(fixed)
+    };
+    // Stage 1 (subsample or all): the method's own residual, RU-EPD first for ML-EPD;
+    // skipped when starting from a previous fit.
+    let mut stage_residuals = vec![];
+    if start.is_none() {
+        if method == Method::MlEpd {
+            stage_residuals.push(Residual::ErrorBased);
+        }
+        stage_residuals.push(method.residual());
     }
     let mut last = None;
     for kind in stage_residuals {
         let rep = minimize(
-            &PipeFit::new(stage_pts, kind).with_loss(loss_for(kind)),
+            &PipeFit::new(stage_pts, kind).with_loss(fixed_loss(kind)),
             x,
             &options.lm,
         );
@@ -216,13 +356,19 @@ pub fn estimate(
         x = rep.x;
         last = Some(rep);
     }
-    // Stage 2: all points.
-    if stage_pts.len() != n {
-        let rep = minimize(
-            &PipeFit::new(pts, method.residual()).with_loss(loss_for(method.residual())),
-            x,
-            &options.lm,
-        );
+    // Stage 2: all points, with the loss scaled to the data where asked; a scale taken
+    // from a poor start is re-taken once the fit has settled.
+    let kind = method.residual();
+    let mut loss = loss_at(kind, &x);
+    let passes = if auto { 2 } else { 1 };
+    for pass in 0..passes {
+        if stage_pts.len() == n && last.is_some() && !auto {
+            break;
+        }
+        if pass > 0 {
+            loss = loss_at(kind, &x);
+        }
+        let rep = minimize(&PipeFit::new(pts, kind).with_loss(loss), x, &options.lm);
         iterations += rep.iterations;
         x = rep.x;
         last = Some(rep);
@@ -232,7 +378,7 @@ pub fn estimate(
     };
     let fitted = Params::from_array(x.into());
     let (canonical, applied) = canonical_form(&fitted);
-    let fit = PipeFit::new(pts, method.residual()).with_loss(loss_for(method.residual()));
+    let fit = PipeFit::new(pts, kind).with_loss(loss);
     // Normal equations at the canonical β: a 180° turn only flips the signs of
     // (pitch, yaw, δy, δz); a 90° turn re-expresses the pose, so evaluate afresh.
     let eq = if applied.turned || applied.reversed {
@@ -247,17 +393,42 @@ pub fn estimate(
         e
     };
     let dof = n.saturating_sub(N_PARAMS).max(1) as f64;
-    let sigma2 = eq.cost / dof;
-    let (sigma, cov) = covariance(&eq, sigma2);
-    let roll_determined = roll_is_determined(&canonical, &sigma, cov.as_ref());
-    let (diagnostics, implausible) = match assess(stage_pts, &canonical) {
-        Ok(d) => (Some(d), d.verdict(&canonical)),
-        Err(i) => (None, Some(i)),
+    let (sigma, cov, raw_cost) = if loss == Loss::Squared {
+        let (s, c) = covariance(&eq, eq.cost / dof);
+        (s, c, eq.cost)
+    } else {
+        // On at most 32 768 evenly strided points: H and B both grow with N, so
+        // H⁻¹BH⁻¹ computed on m points is the covariance of N points times N/m.
+        let stride = n.div_ceil(SANDWICH_POINTS).max(1);
+        let sampled: Vec<[f64; 3]>;
+        let on: &[[f64; 3]] = if stride > 1 {
+            sampled = pts.iter().step_by(stride).copied().collect();
+            &sampled
+        } else {
+            pts
+        };
+        let m = on.len() as f64;
+        match PipeFit::new(on, kind)
+            .with_loss(loss)
+            .sandwich_at(&canonical)
+        {
+            Some(sw) => {
+                let (s, c) =
+                    sandwich_covariance(&sw.bread, &sw.meat, (m / n as f64) * (n as f64 / dof));
+                (s, c, sw.raw_cost * n as f64 / m)
+            }
+            None => ([None; N_PARAMS], None, f64::NAN),
+        }
     };
+    let roll_determined = roll_is_determined(&canonical, &sigma, cov.as_ref());
     let mut sigma = sigma;
     if !roll_determined {
         sigma[2] = None;
     }
+    let (diagnostics, implausible) = match assess(stage_pts, &canonical) {
+        Ok(d) => (Some(d), d.verdict(&canonical)),
+        Err(i) => (None, Some(i)),
+    };
     Ok(Estimate {
         method,
         params: canonical,
@@ -266,9 +437,11 @@ pub fn estimate(
         diagnostics,
         iterations,
         cost: eq.cost,
-        rms_residual: (eq.cost / n as f64).sqrt(),
+        rms_residual: (raw_cost / n as f64).sqrt(),
         n_points: n,
-        n_dropped: cloud.dropped,
+        n_dropped,
+        n_out_of_gate,
+        loss,
         sigma,
         roll_determined,
     })
@@ -288,15 +461,40 @@ fn roll_is_determined(
     dd > (1e-6 * mean).max(3.0 * sd_diff) && roll_ok
 }
 
-/// σ²·H⁻¹ for H = JᵀJ, with the parameters the data do not determine left out:
-/// a zero column of J, or a direction of H whose eigenvalue (after Jacobi scaling) is
-/// below 1e-12 of the largest. Returns the per-parameter 1-σ and, when all parameters
-/// are determined, the full covariance.
-fn covariance(
-    eq: &NormalEquations<N_PARAMS>,
-    sigma2: f64,
-) -> (Sigmas, Option<SMatrix<f64, N_PARAMS, N_PARAMS>>) {
-    let h = &eq.jtj;
+type Mat7 = SMatrix<f64, N_PARAMS, N_PARAMS>;
+
+/// σ²·H⁻¹ for H = JᵀJ, with the parameters the data do not determine left out (see
+/// [`determined_inverse`]). Returns the per-parameter 1-σ and, when all parameters are
+/// determined, the full covariance.
+fn covariance(eq: &NormalEquations<N_PARAMS>, sigma2: f64) -> (Sigmas, Option<Mat7>) {
+    let (inv, keep) = determined_inverse(&eq.jtj);
+    sigmas_of(&(inv * sigma2), &keep)
+}
+
+/// The M-estimator's sandwich c·H⁻¹·B·H⁻¹ (H the robust Gauss–Newton matrix, B the
+/// outer product of the per-point gradients ψ(rᵢ)Jᵢ, c the small-sample factor
+/// N/(N − 7)), with the undetermined parameters left out as in [`covariance`].
+fn sandwich_covariance(bread: &Mat7, meat: &Mat7, c: f64) -> (Sigmas, Option<Mat7>) {
+    let (inv, keep) = determined_inverse(bread);
+    sigmas_of(&(inv * meat * inv * c), &keep)
+}
+
+/// 1-σ of the determined parameters and, when all are determined, the covariance.
+fn sigmas_of(cov: &Mat7, keep: &[bool; N_PARAMS]) -> (Sigmas, Option<Mat7>) {
+    let mut sig: Sigmas = [None; N_PARAMS];
+    for i in 0..N_PARAMS {
+        let var = cov[(i, i)];
+        sig[i] = (keep[i] && var.is_finite() && var >= 0.0).then(|| var.sqrt());
+    }
+    let complete = keep.iter().all(|&k| k);
+    (sig, complete.then_some(*cov))
+}
+
+/// H⁻¹ on the parameters the data determine, zero elsewhere, and which those are: a
+/// zero column of J, or a direction of H whose eigenvalue (after Jacobi scaling) is
+/// below 1e-12 of the largest, is left out (the parameter dominating the null direction
+/// is dropped, and the rest inverted again).
+fn determined_inverse(h: &Mat7) -> (Mat7, [bool; N_PARAMS]) {
     let hmax = (0..N_PARAMS).map(|i| h[(i, i)]).fold(0.0, f64::max);
     let mut keep: Vec<usize> = (0..N_PARAMS)
         .filter(|&i| h[(i, i)] > 1e-300 && h[(i, i)] > 1e-24 * hmax)
@@ -304,7 +502,7 @@ fn covariance(
     loop {
         let k = keep.len();
         if k == 0 {
-            return ([None; N_PARAMS], None);
+            return (Mat7::zeros(), [false; N_PARAMS]);
         }
         let s: Vec<f64> = keep.iter().map(|&i| h[(i, i)].sqrt()).collect();
         let hs = DMatrix::from_fn(k, k, |a, b| h[(keep[a], keep[b])] / (s[a] * s[b]));
@@ -325,17 +523,15 @@ fn covariance(
                 let v = eig.eigenvectors.column(e);
                 inv += v * v.transpose() / eig.eigenvalues[e];
             }
-            let mut sig: Sigmas = [None; N_PARAMS];
-            let mut full = SMatrix::<f64, N_PARAMS, N_PARAMS>::zeros();
+            let mut full = Mat7::zeros();
+            let mut mask = [false; N_PARAMS];
             for a in 0..k {
+                mask[keep[a]] = true;
                 for b in 0..k {
-                    full[(keep[a], keep[b])] = sigma2 * inv[(a, b)] / (s[a] * s[b]);
+                    full[(keep[a], keep[b])] = inv[(a, b)] / (s[a] * s[b]);
                 }
-                let var = full[(keep[a], keep[a])];
-                sig[keep[a]] = (var.is_finite() && var >= 0.0).then(|| var.sqrt());
             }
-            let complete = k == N_PARAMS;
-            return (sig, complete.then_some(full));
+            return (full, mask);
         }
         // Drop the parameter that dominates the null direction, and try again.
         let v = eig.eigenvectors.column(imin);

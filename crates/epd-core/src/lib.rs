@@ -39,7 +39,8 @@ pub mod symmetry;
 pub use check::{Diagnostics, FitStatus, Implausible};
 pub use error::EpdError;
 pub use estimate::{
-    Estimate, EstimateOptions, Method, Sigmas, cramer_rao_bound, estimate, rms_range_residual,
+    Estimate, EstimateOptions, LossScale, Method, Sigmas, cramer_rao_bound, estimate,
+    rms_range_residual,
 };
 pub use lm::{Convergence, DegenerateReason, LmOptions, Status};
 pub use loss::Loss;

@@ -79,6 +79,23 @@ impl Loss {
         }
     }
 
+    /// The same loss with its scale set to `scale` (residual units).
+    pub fn with_scale(&self, scale: f64) -> Self {
+        match *self {
+            Loss::Squared => Loss::Squared,
+            Loss::Huber { .. } => Loss::Huber { scale },
+            Loss::Cauchy { .. } => Loss::Cauchy { scale },
+        }
+    }
+
+    /// The scale (residual units), `None` for the squared loss.
+    pub fn scale(&self) -> Option<f64> {
+        match *self {
+            Loss::Squared => None,
+            Loss::Huber { scale } | Loss::Cauchy { scale } => Some(scale),
+        }
+    }
+
     /// (c(r), w_g(r), w_H(r)) for a residual r: the cost 2ρ(r), the gradient weight
     /// c'(r)/(2r) and the curvature weight max(c''(r)/2, 0).
     #[inline(always)]

@@ -1,7 +1,7 @@
 //! The pipe fit as a [`NormalEquationsProblem`]: eq. (4) over a point cloud with one of
 //! the three [`Residual`]s, accumulated in parallel in fixed-size chunks.
 
-use nalgebra::SVector;
+use nalgebra::{SMatrix, SVector};
 use rayon::prelude::*;
 
 use crate::lm::{NormalEquations, NormalEquationsProblem};
@@ -57,6 +57,56 @@ impl<'a> PipeFit<'a> {
             t
         };
         total.symmetrize();
+        Some(total)
+    }
+}
+
+/// What the sandwich covariance of an M-estimator needs at one β.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sandwich {
+    /// H = Σ w_H(rᵢ)·JᵢJᵢᵀ, the robust Gauss–Newton matrix.
+    pub bread: SMatrix<f64, N_PARAMS, N_PARAMS>,
+    /// B = Σ (w_g(rᵢ)·rᵢ)²·JᵢJᵢᵀ, the spread of the per-point gradients.
+    pub meat: SMatrix<f64, N_PARAMS, N_PARAMS>,
+    /// Σ rᵢ², the plain least-squares cost.
+    pub raw_cost: f64,
+}
+
+impl PipeFit<'_> {
+    /// The sandwich terms at β (one pass), or `None` outside the model's domain.
+    pub fn sandwich_at(&self, beta: &Params) -> Option<Sandwich> {
+        let geom = Geometry::new(beta)?;
+        let (kind, loss) = (self.residual, self.loss);
+        let one = |chunk: &[[f64; 3]]| {
+            let mut sw = Sandwich {
+                bread: SMatrix::zeros(),
+                meat: SMatrix::zeros(),
+                raw_cost: 0.0,
+            };
+            for p in chunk {
+                let (r, g) = geom.residual_and_gradient(kind, p);
+                let (_, wg, wh) = loss.cost_and_weights(r);
+                let j = SVector::<f64, N_PARAMS>::from(g);
+                let psi = wg * r;
+                sw.bread.syger(wh, &j, &j, 1.0);
+                sw.meat.syger(psi * psi, &j, &j, 1.0);
+                sw.raw_cost += r * r;
+            }
+            sw
+        };
+        let parts: Vec<Sandwich> = self.points.par_chunks(CHUNK).map(one).collect();
+        let mut total = Sandwich {
+            bread: SMatrix::zeros(),
+            meat: SMatrix::zeros(),
+            raw_cost: 0.0,
+        };
+        for p in &parts {
+            total.bread += p.bread;
+            total.meat += p.meat;
+            total.raw_cost += p.raw_cost;
+        }
+        total.bread.fill_upper_triangle_with_lower_triangle();
+        total.meat.fill_upper_triangle_with_lower_triangle();
         Some(total)
     }
 }
