@@ -1,15 +1,15 @@
 //! `epd`: pipe diameters and sensor pose from point-cloud files.
 //!
 //! ```text
-//! epd estimate FILE… [--method ru-epd|c-epd|ml-epd] [--min-range M] [--max-range M]
+//! epd estimate FILE… [--method ml-epd|ru-epd|c-epd] [--min-range M] [--max-range M]
 //!                    [--format text|json|csv] [--nominal-od-in X] [--loss cauchy|huber|none]
-//!                    [--loss-scale M]
+//!                    [--loss-scale M] [--units m|mm] [--frame sensor|optical]
 //! epd simulate --out DIR [--frames K] [--seed S] [--sigma M] [--od-in X] [--ovality O]
 //!              [--wall-mm T] [--points N] [--outliers F] [--noise range|isotropic]
 //!              [--ply binary|ascii] [--precision f64|f32]
 //! ```
-//! Exit codes: 0 all files estimated, 1 a file failed (the others are still reported),
-//! 2 wrong arguments.
+//! Exit codes: 0 all files estimated, 1 a file failed or its fit did not converge to a
+//! result consistent with its points (the others are still reported), 2 wrong arguments.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -18,18 +18,24 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use epd_cli::read::read_path;
 use epd_cli::report::{FileEstimate, FileReport, columns};
-use epd_core::{EstimateOptions, Loss, Method, estimate, rms_range_residual};
+use epd_core::{EstimateOptions, Loss, LossScale, Method, estimate, rms_range_residual};
 use indicatif::ProgressBar;
 use rayon::prelude::*;
 
 const USAGE: &str = "usage:
-  epd estimate FILE… [--method ru-epd|c-epd|ml-epd] [--min-range M] [--max-range M]
+  epd estimate FILE… [--method ml-epd|ru-epd|c-epd] [--min-range M] [--max-range M]
                      [--format text|json|csv] [--nominal-od-in X] [--loss cauchy|huber|none] [--loss-scale M]
+                     [--units m|mm] [--frame sensor|optical]
   epd simulate --out DIR [--frames K] [--seed S] [--sigma M] [--od-in X] [--ovality O] [--wall-mm T]
                [--points N] [--outliers F] [--noise range|isotropic] [--ply binary|ascii] [--precision f64|f32]";
 
-/// Default robust loss: Cauchy with a 0.05 m scale (see README, "Outliers").
+/// Default method: ML-EPD, unbiased across tilt for noise along the sensing line (see
+/// README, "Tilt").
+const DEFAULT_METHOD: &str = "ml-epd";
+/// Default robust loss: Cauchy, its scale taken from the residuals (2.3849 × their
+/// robust standard deviation) unless --loss-scale sets it (see README, "Outliers").
 const DEFAULT_LOSS: &str = "cauchy";
+/// The seed scale of the first robust pass (m) when --loss-scale is not given.
 const DEFAULT_LOSS_SCALE_M: f64 = 0.05;
 
 /// A usage error (exit code 2).
@@ -96,12 +102,96 @@ impl Flags {
 struct EstimateConfig {
     files: Vec<PathBuf>,
     method: Method,
-    min_range: f64,
-    max_range: f64,
     format: String,
     nominal_od_mm: Option<f64>,
     options: EstimateOptions,
-    loss: (String, f64),
+    loss: String,
+    units: Units,
+    frame: InputFrame,
+}
+
+/// The length unit of the input file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Units {
+    Metres,
+    Millimetres,
+}
+
+/// The coordinate frame of the input file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum InputFrame {
+    /// The paper's sensor frame: X forward (optical axis), Y right, Z up.
+    Sensor,
+    /// A camera's optical frame (Arena SDK, PCL, Open3D, ROS): X right, Y down, Z forward.
+    Optical,
+}
+
+/// A cloud whose median distance from the sensor exceeds this (m) is not in metres.
+const MAX_MEDIAN_RANGE_M: f64 = 30.0;
+/// A cloud whose median distance from the sensor is below this (m) is not in the unit
+/// given (e.g. metres read as millimetres).
+const MIN_MEDIAN_RANGE_M: f64 = 0.02;
+
+/// Convert the points to metres in the sensor frame, in place, and check that the
+/// unit is plausible for a camera inside a pipe: its points lie between 2 cm and 30 m
+/// (median distance) from the sensor.
+fn to_sensor_metres(
+    points: &mut [[f64; 3]],
+    units: Units,
+    frame: InputFrame,
+) -> Result<(), String> {
+    let k = match units {
+        Units::Metres => 1.0,
+        Units::Millimetres => 1e-3,
+    };
+    for p in points.iter_mut() {
+        let [x, y, z] = *p;
+        *p = match frame {
+            InputFrame::Sensor => [k * x, k * y, k * z],
+            // X_sensor = Z_optical, Y_sensor = X_optical, Z_sensor = −Y_optical (a
+            // reflection: the sensor frame is left-handed).
+            InputFrame::Optical => [k * z, k * x, -k * y],
+        };
+    }
+    let stride = points.len().div_ceil(4096).max(1);
+    let mut r: Vec<f64> = points
+        .iter()
+        .step_by(stride)
+        .filter(|p| p.iter().all(|v| v.is_finite()) && p.iter().any(|&v| v != 0.0))
+        .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
+        .collect();
+    if r.is_empty() {
+        return Ok(());
+    }
+    let mid = r.len() / 2;
+    let (_, &mut median, _) = r.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
+    if median > MAX_MEDIAN_RANGE_M {
+        return Err(match units {
+            Units::Metres => format!(
+                "the points lie a median {median:.1} m from the sensor: the cloud looks like millimetres \
+                 (the Helios2 SDK writes mm); pass --units mm"
+            ),
+            Units::Millimetres => format!(
+                "the points lie a median {median:.1} m from the sensor even read as millimetres: \
+                 not a frame from inside a pipe"
+            ),
+        });
+    }
+    if median < MIN_MEDIAN_RANGE_M {
+        return Err(match units {
+            Units::Millimetres => format!(
+                "read as millimetres, the points lie a median {:.1} mm from the sensor: the cloud looks like \
+                 metres; drop --units mm",
+                median * 1e3
+            ),
+            Units::Metres => format!(
+                "the points lie a median {:.1} mm from the sensor: the cloud is not in metres \
+                 (kilometres?) or not a frame from inside a pipe",
+                median * 1e3
+            ),
+        });
+    }
+    Ok(())
 }
 
 fn estimate_config(args: &[String]) -> anyhow::Result<EstimateConfig> {
@@ -115,6 +205,8 @@ fn estimate_config(args: &[String]) -> anyhow::Result<EstimateConfig> {
             "nominal-od-in",
             "loss",
             "loss-scale",
+            "units",
+            "frame",
         ],
     )?;
     if f.positional.is_empty() {
@@ -122,7 +214,7 @@ fn estimate_config(args: &[String]) -> anyhow::Result<EstimateConfig> {
     }
     let method: Method = f
         .get("method")
-        .unwrap_or("ru-epd")
+        .unwrap_or(DEFAULT_METHOD)
         .parse()
         .map_err(|e: epd_core::EpdError| usage(e.to_string()))?;
     let min_range = f.num("min-range", 0.0, "a range in metres")?;
@@ -153,25 +245,42 @@ fn estimate_config(args: &[String]) -> anyhow::Result<EstimateConfig> {
     let scale = f.num("loss-scale", DEFAULT_LOSS_SCALE_M, "a scale in metres")?;
     let loss = Loss::from_name(&loss_name, scale)
         .map_err(|e| usage(format!("--loss/--loss-scale: {e}")))?;
-    let options = EstimateOptions::default()
+    let mut options = EstimateOptions::default()
         .with_loss(loss)
-        .map_err(|e| usage(e.to_string()))?;
+        .map_err(|e| usage(e.to_string()))?
+        .with_loss_scale(if f.get("loss-scale").is_some() {
+            LossScale::Fixed
+        } else {
+            LossScale::Auto
+        });
+    if min_range > 0.0 || max_range.is_finite() {
+        options = options
+            .with_range_gate(min_range, max_range)
+            .map_err(|e| usage(e.to_string()))?;
+    }
+    let units = match f.get("units").unwrap_or("m") {
+        "m" => Units::Metres,
+        "mm" => Units::Millimetres,
+        other => return Err(usage(format!("--units {other}: expected m or mm"))),
+    };
+    let frame = match f.get("frame").unwrap_or("sensor") {
+        "sensor" => InputFrame::Sensor,
+        "optical" => InputFrame::Optical,
+        other => {
+            return Err(usage(format!(
+                "--frame {other}: expected sensor (X forward, Y right, Z up) or optical (X right, Y down, Z forward)"
+            )));
+        }
+    };
     Ok(EstimateConfig {
         files: f.positional.iter().map(PathBuf::from).collect(),
         method,
-        min_range,
-        max_range,
         format,
         nominal_od_mm,
         options,
-        loss: (
-            loss.name().into(),
-            if loss == Loss::Squared {
-                f64::NAN
-            } else {
-                scale
-            },
-        ),
+        loss: loss.name().into(),
+        units,
+        frame,
     })
 }
 
@@ -180,37 +289,43 @@ fn estimate_file(path: &Path, cfg: &EstimateConfig) -> FileReport {
     let file = path.display().to_string();
     let run = || -> Result<FileEstimate, String> {
         let t0 = Instant::now();
-        let cloud = read_path(path)?;
+        let mut cloud = read_path(path)?;
         let read_ms = t0.elapsed().as_secs_f64() * 1e3;
+        to_sensor_metres(&mut cloud.points, cfg.units, cfg.frame)?;
         let n_read = cloud.points.len();
         if n_read == 0 {
             return Err("the file holds no points".into());
         }
-        // Invalid pixels (NaN, inf, zeros) are dropped and counted; then the range filter.
-        let valid = |p: &[f64; 3]| p.iter().all(|v| v.is_finite()) && p.iter().any(|&v| v != 0.0);
-        let n_invalid = cloud.points.iter().filter(|p| !valid(p)).count();
-        let mut kept = cloud.points;
-        kept.retain(|p| {
-            let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-            valid(p) && r >= cfg.min_range && r <= cfg.max_range
-        });
-        let n_out_of_range = n_read - n_invalid - kept.len();
+        // Invalid pixels (NaN, inf, zeros) are dropped and counted by the estimator; the
+        // range gate keeps points by their model range (see EstimateOptions).
+        let kept = cloud.points;
         let t1 = Instant::now();
-        let mut est = estimate(&kept, cfg.method, &cfg.options).map_err(|e| {
-            format!(
-                "{e} ({n_read} points read, {n_invalid} invalid, {n_out_of_range} out of range)"
-            )
-        })?;
+        let est = estimate(&kept, cfg.method, &cfg.options)
+            .map_err(|e| format!("{e} ({n_read} points read)"))?;
         let elapsed_ms = t1.elapsed().as_secs_f64() * 1e3;
-        est.n_dropped = n_invalid;
+        let n_out_of_range = est.n_out_of_gate;
+        let loss_scale_m = match (est.method, est.loss.scale()) {
+            (_, None) => f64::NAN,
+            // C-EPD's residual r_c ≈ 2δ/R: back to metres of radial error.
+            (Method::CEpd, Some(k)) => k * (est.params.d_max + est.params.d_min) / 8.0,
+            (_, Some(k)) => k,
+        };
+        let gated: Vec<[f64; 3]>;
+        let fitted: &[[f64; 3]] = match cfg.options.range_gate() {
+            None => &kept,
+            Some((lo, hi)) => {
+                gated = epd_core::gate_by_model_range(&kept, &est.params, lo, hi);
+                &gated
+            }
+        };
         Ok(FileEstimate {
-            rms_residual_mm: rms_range_residual(&kept, &est.params).map(|v| v * 1e3),
+            loss: (cfg.loss.clone(), loss_scale_m),
+            rms_residual_mm: rms_range_residual(fitted, &est.params).map(|v| v * 1e3),
             estimate: est,
             n_read,
             n_out_of_range,
             elapsed_ms,
             read_ms,
-            loss: cfg.loss.clone(),
             nominal_od_mm: cfg.nominal_od_mm,
         })
     };
@@ -244,7 +359,7 @@ fn run_estimate(args: &[String]) -> anyhow::Result<ExitCode> {
                     "csv" => println!("{}", r.csv()),
                     _ => println!("{}", r.text()),
                 }
-                if let Err(e) = &r.outcome {
+                if let Some(e) = r.failure() {
                     failed.push(format!("{}: {e}", r.file));
                 }
             }

@@ -82,9 +82,64 @@ const KEYS: [&str; 21] = [
     "sigma_dz_mm",
 ];
 
+/// The keys whose values are results: withheld (null) unless the estimate converged.
+const RESULT_KEYS: [&str; 17] = [
+    "d_max_mm",
+    "d_min_mm",
+    "roll_deg",
+    "pitch_deg",
+    "yaw_deg",
+    "dy_mm",
+    "dz_mm",
+    "sigma_d_max_mm",
+    "sigma_d_min_mm",
+    "sigma_roll_deg",
+    "sigma_pitch_deg",
+    "sigma_yaw_deg",
+    "sigma_dy_mm",
+    "sigma_dz_mm",
+    "rms_residual_mm",
+    "wall_thickness_est_mm",
+    "roll_determined",
+];
+
 impl FileReport {
-    /// All fields, in the order of [`columns`].
+    /// Why the file gave no result: a read or estimate error, or a fit that did not
+    /// converge to something consistent with the points (`implausible`, …).
+    pub fn failure(&self) -> Option<String> {
+        match &self.outcome {
+            Err(msg) => Some(msg.clone()),
+            Ok(e) if !e.estimate.status.is_converged() => Some(format!(
+                "{} {}: {}",
+                e.estimate.method,
+                e.estimate.status.name(),
+                e.estimate.status.reason()
+            )),
+            Ok(_) => None,
+        }
+    }
+
+    /// All fields, in the order of [`columns`]. A fit that did not converge keeps its
+    /// status and counts but withholds every result (null), with the reason in `error`:
+    /// a number is printed only when it can be believed.
     pub fn fields(&self) -> Vec<(&'static str, Field)> {
+        let mut f = self.all_fields();
+        if let Ok(e) = &self.outcome
+            && !e.estimate.status.is_converged()
+        {
+            for (k, v) in f.iter_mut() {
+                if RESULT_KEYS.contains(k) {
+                    *v = Field::Null;
+                }
+                if *k == "error" {
+                    *v = Field::Text(e.estimate.status.reason());
+                }
+            }
+        }
+        f
+    }
+
+    fn all_fields(&self) -> Vec<(&'static str, Field)> {
         let mut f = vec![("file", Field::Text(self.file.clone()))];
         let num = |v: f64| {
             if v.is_finite() {
@@ -152,6 +207,15 @@ impl FileReport {
     pub fn text(&self) -> String {
         match &self.outcome {
             Err(msg) => format!("{}: error: {msg}", self.file),
+            Ok(e) if !e.estimate.status.is_converged() => format!(
+                "{}: {} {} after {} iterations, {} points: {} — no result",
+                self.file,
+                e.estimate.method,
+                e.estimate.status.name(),
+                e.estimate.iterations,
+                e.estimate.n_points,
+                e.estimate.status.reason()
+            ),
             Ok(e) => {
                 let est = &e.estimate;
                 let p = est.params;

@@ -105,7 +105,8 @@ impl std::fmt::Display for Implausible {
             Implausible::AxisNotAhead { tilt } => write!(
                 f,
                 "the fitted pipe axis is {:.1}° from the sensor's X axis (more than {MAX_TILT_DEG}°): \
-                 the camera does not look along this pipe",
+                 the camera does not look along this pipe, or the cloud is in a camera's optical frame \
+                 (Z forward) instead of the sensor frame (X forward)",
                 tilt.to_degrees()
             ),
             Implausible::DiameterVsExtent {

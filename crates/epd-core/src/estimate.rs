@@ -136,6 +136,11 @@ impl EstimateOptions {
         self.loss
     }
 
+    /// The range gate [min, max] (m), if any.
+    pub fn range_gate(&self) -> Option<(f64, f64)> {
+        self.range_gate
+    }
+
     /// Keep only the points whose range along their sensing line, *as the model puts
     /// the wall* (not as measured), lies in [min, max] (m). A gate on the measured range
     /// truncates each point's own noise (keeps the points whose error shortened them
@@ -256,6 +261,23 @@ pub fn estimate(
         options,
         Some(first.params),
     )
+}
+
+/// The points (SCS, m; finite, non-zero) whose ray meets the wall of β at a range in
+/// [lo, hi] (m): the model range of a ray, t·‖p‖ with t the line parameter of eq. (21),
+/// does not depend on the point's own range noise. Empty when β leaves the model.
+pub fn gate_by_model_range(points: &[[f64; 3]], beta: &Params, lo: f64, hi: f64) -> Vec<[f64; 3]> {
+    let Some(geom) = Geometry::new(beta) else {
+        return Vec::new();
+    };
+    points
+        .iter()
+        .filter(|p| {
+            let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+            (lo..=hi).contains(&(geom.line_parameter(p) * r))
+        })
+        .copied()
+        .collect()
 }
 
 /// Points (evenly strided) of the sandwich covariance.

@@ -40,7 +40,7 @@ pub use check::{Diagnostics, FitStatus, Implausible};
 pub use error::EpdError;
 pub use estimate::{
     Estimate, EstimateOptions, LossScale, Method, Sigmas, cramer_rao_bound, estimate,
-    rms_range_residual,
+    gate_by_model_range, rms_range_residual,
 };
 pub use lm::{Convergence, DegenerateReason, LmOptions, Status};
 pub use loss::Loss;
