@@ -27,6 +27,24 @@ fn bench(c: &mut Criterion) {
     group.finish();
 }
 
+/// The parts an estimate adds to the solver at 10⁵ points: the data-only initial guess
+/// and the plausibility check.
+fn parts(c: &mut Criterion) {
+    use epd_core::check::assess;
+    use epd_core::init::initial_guess;
+    let truth = common::random_params(&mut common::rng(11), common::id_m(20.0), 0.02, 5.0, 0.2);
+    let pts = common::cloud(&truth, 640, 480, 6.0, 0.03, 100_000, 5);
+    let mut group = c.benchmark_group("parts");
+    group.sample_size(30);
+    group.bench_function("initial_guess/100000", |b| {
+        b.iter(|| initial_guess(&pts).expect("a pipe cloud"))
+    });
+    group.bench_function("assess/100000", |b| {
+        b.iter(|| assess(&pts, &truth).expect("inside"))
+    });
+    group.finish();
+}
+
 /// The solver choice: our normal-equation LM against the `levenberg-marquardt` crate
 /// (MINPACK: full N×7 Jacobian and QR), both from the same data-only start, RU-EPD
 /// residual, all points in one stage, no statistical stop.
@@ -64,5 +82,5 @@ fn solvers(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench, solvers);
+criterion_group!(benches, bench, parts, solvers);
 criterion_main!(benches);

@@ -5,7 +5,7 @@
 //! safe: the sensor, at the origin, lies strictly inside, where the left side is < 1).
 //! The guess is made in three steps, each exact on noise-free points:
 //!
-//! 1. **Trimmed quadric fit.** Up to 16 384 evenly strided points are binned by
+//! 1. **Trimmed quadric fit.** Up to 8192 evenly strided points are binned by
 //!    direction (32 × 32 bins over the view) and each bin is represented by its point
 //!    of median range: an outlier moves a point along its own ray, so a bin's median
 //!    is a wall point unless most of the bin is outliers. A linear least-squares fit
@@ -41,7 +41,7 @@ use crate::problem::PipeFit;
 use crate::residual::{Geometry, Residual};
 
 /// At most this many points (evenly strided) are binned by direction.
-const MAX_SAMPLE: usize = 16_384;
+const MAX_SAMPLE: usize = 8192;
 
 /// Bins per side of the direction grid.
 const BINS: usize = 32;

@@ -221,10 +221,33 @@ impl Geometry {
         (r, g)
     }
 
-    /// The residual of one measured point `p` (SCS, m), without the gradient.
+    /// The residual of one measured point `p` (SCS, m), without the gradient (the same
+    /// arithmetic as [`residuals_and_gradients`](Self::residuals_and_gradients)).
     #[inline(always)]
     pub fn residual(&self, kind: Residual, p: &[f64; 3]) -> f64 {
-        self.residual_and_gradient(kind, p).0
+        let u = dot(&self.r_y, p);
+        let v = dot(&self.r_z, p);
+        if kind == Residual::Canonical {
+            let y = self.y0 + u;
+            let z = self.z0 + v;
+            return self.alpha * y * y + self.gamma * z * z - 1.0;
+        }
+        let a = self.alpha * u * u + self.gamma * v * v;
+        if a <= 1e-300 {
+            return 0.0;
+        }
+        let b = self.alpha * self.y0 * u + self.gamma * self.z0 * v;
+        let sq = (b * b - a * self.c).max(0.0).sqrt();
+        let t = if b > 0.0 {
+            -self.c / (b + sq)
+        } else {
+            (sq - b) / a
+        };
+        if kind == Residual::ErrorBased {
+            (1.0 - t) * (u * u + v * v).sqrt()
+        } else {
+            (1.0 - t) * dot(p, p).sqrt()
+        }
     }
 
     /// Where the sensing line of a measured point `p` (SCS) meets the model wall: the
@@ -240,6 +263,20 @@ impl Geometry {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn residual_alone_equals_the_kernels() {
+        let g = Geometry::new(&beta()).unwrap();
+        for kind in [Residual::Canonical, Residual::ErrorBased, Residual::Range] {
+            for p in points() {
+                let (a, b) = (g.residual(kind, &p), g.residual_and_gradient(kind, &p).0);
+                assert!(
+                    (a - b).abs() <= 1e-15 * (1.0 + b.abs()),
+                    "{kind:?} {p:?}: {a} vs {b}"
+                );
+            }
+        }
+    }
     use nalgebra::Point3;
 
     fn beta() -> Params {
