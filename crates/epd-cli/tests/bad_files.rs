@@ -358,3 +358,297 @@ fn directory() {
         "{e}"
     );
 }
+
+/// A file larger than the cap is refused from its size, before anything is read (a
+/// sparse file: no disk space taken).
+#[test]
+fn file_larger_than_the_cap() {
+    let dir = Dir::new("big");
+    let path = dir.0.join("big.ply");
+    let f = std::fs::File::create(&path).unwrap();
+    if f.set_len(epd_cli::read::MAX_INPUT_BYTES + 1).is_err() {
+        eprintln!("no sparse files here: skipped");
+        return;
+    }
+    drop(f);
+    let e = path_result(&path).unwrap_err();
+    assert!(e.contains("4294967297 bytes") && e.contains("4 GiB"), "{e}");
+}
+
+// ---------------------------------------------------------------- standard input
+
+#[test]
+fn endless_stream_stops_at_the_cap() {
+    let (r, cost) = peak_alloc::bounded(Duration::from_secs(10), || {
+        epd_cli::read::read_from(std::io::repeat(b'1'), None, 1 << 20)
+    });
+    check_cost("endless stream", &cost);
+    let e = r.unwrap_err();
+    assert!(e.contains("longer than 1 MiB"), "{e}");
+}
+
+#[test]
+fn stream_with_a_huge_ply_count() {
+    for (count, cap) in [("1000000000000", 1u64 << 32), ("100000000", 1 << 32)] {
+        let b = ply_binary(count, 36);
+        let (r, cost) = peak_alloc::bounded(Duration::from_secs(10), move || {
+            epd_cli::read::read_from(&b[..], None, cap)
+        });
+        check_cost("stream", &cost);
+        let e = r.unwrap_err();
+        assert!(e.contains(count) && e.contains("too short"), "{e}");
+    }
+}
+
+#[test]
+fn stream_formats_by_first_bytes_or_hint() {
+    let read = |b: &[u8], hint| epd_cli::read::read_from(b, hint, 1 << 20);
+    let ply = format!("ply\nformat ascii 1.0\nelement vertex 1\n{PLY_XYZ_F32}end_header\n1 2 3\n");
+    assert_eq!(read(ply.as_bytes(), None).unwrap().points, [[1., 2., 3.]]);
+    assert_eq!(read(b"1,2,3\n", None).unwrap().points, [[1., 2., 3.]]);
+    assert_eq!(
+        read(b"1,2,3\n", Some(Format::Text)).unwrap().points,
+        [[1., 2., 3.]]
+    );
+    let e = read(b"1,2,3\n", Some(Format::Pcd)).unwrap_err();
+    assert!(e.starts_with("PCD:"), "{e}");
+    let e = read(b"LASF\x00\x01", Some(Format::Ply)).unwrap_err();
+    assert!(e.contains("unsupported format: LAS"), "{e}");
+}
+
+// ---------------------------------------------------------------- byte-order marks
+
+const BOM: &[u8] = b"\xef\xbb\xbf";
+
+fn with_bom(b: &[u8]) -> Vec<u8> {
+    [BOM, b].concat()
+}
+
+#[test]
+fn utf8_bom_before_csv() {
+    // Without a header: the first row must not be taken for one.
+    expect_points(
+        "bom.csv",
+        &with_bom(b"1,2,3\n4,5,6\n"),
+        &[[1., 2., 3.], [4., 5., 6.]],
+    );
+    let c = expect_points(
+        "bom.csv",
+        &with_bom(b"\"X\",\"Y\",\"Z\",\"Intensity\"\n1,2,3,9\n"),
+        &[[1., 2., 3.]],
+    );
+    assert_eq!(c.extra, [("intensity".to_string(), vec![9.0])]);
+}
+
+#[test]
+fn utf8_bom_before_ply() {
+    let b = format!("ply\nformat ascii 1.0\nelement vertex 1\n{PLY_XYZ_F32}end_header\n1 2 3\n");
+    // Any extension: the header is recognised after the mark.
+    for name in ["bom.ply", "bom.txt", "bom"] {
+        expect_points(name, &with_bom(b.as_bytes()), &[[1., 2., 3.]]);
+    }
+    let mut bin = with_bom(&ply_binary("1", 0));
+    bin.extend([1f32, 2., 3.].iter().flat_map(|v| v.to_le_bytes()));
+    expect_points("bom_bin.ply", &bin, &[[1., 2., 3.]]);
+}
+
+#[test]
+fn utf8_bom_before_pcd() {
+    let b = with_bom(&pcd("1 1 1", 1, "ascii", b"1 2 3\n"));
+    for name in ["bom.pcd", "bom"] {
+        expect_points(name, &b, &[[1., 2., 3.]]);
+    }
+}
+
+#[test]
+fn utf16_text() {
+    let b: Vec<u8> = "\u{feff}x;y;z\r\n1;2;3\r\n"
+        .encode_utf16()
+        .flat_map(|u| u.to_le_bytes())
+        .collect();
+    expect_points("utf16.csv", &b, &[[1., 2., 3.]]);
+}
+
+// ---------------------------------------------------------------- PTS and ASC
+
+#[test]
+fn pts_count_line() {
+    expect_points(
+        "scan.pts",
+        b"3\n1 2 3\n4 5 6\n7 8 9\n",
+        &[[1., 2., 3.], [4., 5., 6.], [7., 8., 9.]],
+    );
+    // CloudCompare ASC: the count, then its header comment.
+    expect_points(
+        "scan.asc",
+        b"2\n//X Y Z\n1 2 3\n4 5 6\n",
+        &[[1., 2., 3.], [4., 5., 6.]],
+    );
+}
+
+#[test]
+fn pts_seven_columns() {
+    let c = expect_points(
+        "scan.pts",
+        b"2\n1.5 2 3 -1200 255 0 0\n4 5 6 -800 0 255 0\n",
+        &[[1.5, 2., 3.], [4., 5., 6.]],
+    );
+    let names: Vec<&str> = c.extra.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names, ["intensity", "r", "g", "b"]);
+    assert_eq!(c.extra[0].1, [-1200.0, -800.0]);
+}
+
+#[test]
+fn pts_two_scans() {
+    expect_points(
+        "two.pts",
+        b"1\n1 2 3 5\n2\n4 5 6 5\n7 8 9 5\n",
+        &[[1., 2., 3.], [4., 5., 6.], [7., 8., 9.]],
+    );
+}
+
+// ---------------------------------------------------------------- duplicated properties
+
+#[test]
+fn ply_duplicated_property() {
+    let b = "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float x\nproperty float z\nend_header\n1 2 3 4\n";
+    expect_error(
+        "dup.ply",
+        b.as_bytes(),
+        Some(Format::Ply),
+        &["`x`", "twice"],
+    );
+}
+
+#[test]
+fn pcd_duplicated_field() {
+    let b = b"VERSION 0.7\nFIELDS x y z y\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\nPOINTS 1\nDATA ascii\n1 2 3 4\n";
+    expect_error("dup.pcd", b, Some(Format::Pcd), &["`y`", "twice"]);
+    // PCL's padding fields `_` may repeat.
+    let b = b"VERSION 0.7\nFIELDS x _ y z _\nSIZE 4 4 4 4 4\nTYPE F F F F F\nCOUNT 1 1 1 1 1\nPOINTS 1\nDATA ascii\n1 0 2 3 0\n";
+    let c = expect_points("pad.pcd", b, &[[1., 2., 3.]]);
+    assert!(c.extra.is_empty());
+}
+
+#[test]
+fn csv_duplicated_column() {
+    expect_error(
+        "dup.csv",
+        b"x,y,z,X\n1,2,3,4\n",
+        Some(Format::Text),
+        &["`x`", "twice"],
+    );
+}
+
+// ---------------------------------------------------------------- formats not read
+
+#[test]
+fn las_magic() {
+    let mut b = b"LASF".to_vec();
+    b.extend([0u8; 300]);
+    for name in ["cloud.las", "cloud.csv", "cloud.ply", "cloud"] {
+        expect_error(
+            name,
+            &b,
+            None,
+            &[
+                "unsupported format: LAS (convert to PLY, PCD or CSV, e.g. with PDAL or CloudCompare)",
+            ],
+        );
+    }
+    expect_error("cloud.laz", &b, None, &["unsupported format: LAZ"]);
+}
+
+#[test]
+fn e57_magic() {
+    let mut b = b"ASTM-E57".to_vec();
+    b.extend([0u8; 100]);
+    expect_error("scan.txt", &b, None, &["unsupported format: E57"]);
+}
+
+#[test]
+fn vtk_magic() {
+    expect_error(
+        "cloud.txt",
+        b"# vtk DataFile Version 3.0\nvtk output\nASCII\nDATASET POLYDATA\nPOINTS 1 float\n1 2 3\n",
+        None,
+        &["unsupported format: VTK"],
+    );
+    expect_error(
+        "cloud.xml",
+        b"<?xml version=\"1.0\"?>\n<VTKFile type=\"PolyData\">\n",
+        None,
+        &["unsupported format: VTK (XML)"],
+    );
+}
+
+#[test]
+fn compressed_magic() {
+    expect_error(
+        "cloud.csv",
+        b"\x1f\x8b\x08\x00\x00\x00\x00\x00",
+        None,
+        &["unsupported format: gzip", "decompress"],
+    );
+    expect_error(
+        "cloud.ply",
+        b"PK\x03\x04\x14\x00\x00\x00",
+        None,
+        &["unsupported format: zip"],
+    );
+}
+
+#[test]
+fn unsupported_extensions() {
+    for (name, what) in [
+        ("mesh.obj", "OBJ"),
+        ("mesh.stl", "STL"),
+        ("scan.e57", "E57"),
+        ("cloud.vtp", "VTK"),
+        ("velodyne.bin", "raw binary"),
+        ("cloud.npy", "NumPy"),
+        ("run.bag", "ROS bag"),
+    ] {
+        expect_error(name, b"1 2 3\n", None, &["unsupported format", what]);
+    }
+}
+
+// ---------------------------------------------------------------- binary as text
+
+#[test]
+fn binary_garbage_as_csv() {
+    let mut b = b"1,2,3\n".to_vec();
+    b.extend((0..100_000u32).map(|i| (i.wrapping_mul(2654435761) >> 13) as u8));
+    for name in ["garbage.csv", "garbage.txt", "garbage.xyz", "garbage"] {
+        expect_error(
+            name,
+            &b,
+            Some(Format::Text),
+            &["not text: byte 0x", "at offset"],
+        );
+    }
+    expect_error(
+        "nul.csv",
+        b"1,2,3\n4,5\x006\n",
+        Some(Format::Text),
+        &["not text: byte 0x00 at offset 9"],
+    );
+    expect_error(
+        "latin1.csv",
+        b"x,y,z\n1,2,3 \xb5m\n",
+        Some(Format::Text),
+        &["not text: byte 0xb5 at offset 12 is not UTF-8"],
+    );
+}
+
+#[test]
+fn long_lines_are_quoted_short() {
+    let mut b = b"1,2,3\n".to_vec();
+    b.extend(std::iter::repeat_n(b'a', 1 << 20));
+    let e = bytes_result(Format::Text, &b).unwrap_err();
+    assert!(
+        e.contains("line 2") && e.len() < 200,
+        "{}",
+        &e[..e.len().min(300)]
+    );
+}
