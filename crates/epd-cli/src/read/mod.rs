@@ -93,20 +93,7 @@ pub fn detect_format(name: Option<&Path>, bytes: &[u8]) -> Result<Format, ReadEr
 
 /// The error for a format the readers do not read.
 fn unsupported(what: &str) -> ReadError {
-    let how = if [
-        "gzip",
-        "bzip2",
-        "xz",
-        "zstd",
-        "7z",
-        "zip",
-        "tar",
-        "RAR",
-        "compressed",
-    ]
-    .iter()
-    .any(|w| what.contains(w))
-    {
+    let how = if what.ends_with("-compressed data") || what.ends_with("archive") {
         "decompress it first; the readers take PLY, PCD or CSV"
     } else {
         "convert to PLY, PCD or CSV, e.g. with PDAL or CloudCompare"
