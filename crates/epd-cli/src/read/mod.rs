@@ -47,6 +47,19 @@ pub(crate) fn err(format: &'static str, message: impl Into<String>) -> ReadError
     }
 }
 
+impl PointCloud {
+    /// Reserve room for `n` more points in `points` and in every `extra` vector (`n`
+    /// already checked against the input's size), or an error if memory runs short.
+    pub(crate) fn reserve(&mut self, n: usize, format: &'static str) -> Result<(), ReadError> {
+        let short = |_| err(format, format!("not enough memory for {n} points"));
+        self.points.try_reserve_exact(n).map_err(short)?;
+        for (_, values) in &mut self.extra {
+            values.try_reserve_exact(n).map_err(short)?;
+        }
+        Ok(())
+    }
+}
+
 /// A file format.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Format {
@@ -394,7 +407,9 @@ fn read_rest(mut stream: impl BufRead, start: Vec<u8>, limit: Limit) -> Result<V
         // The file's size is known (and at most MAX_INPUT_BYTES): one allocation.
         let want = usize::try_from(n.saturating_add(1))
             .map_err(|_| format!("the file is too large ({n} bytes) for this machine"))?;
-        bytes.reserve(want.saturating_sub(bytes.len()));
+        bytes
+            .try_reserve_exact(want.saturating_sub(bytes.len()))
+            .map_err(|_| format!("not enough memory to read the file ({n} bytes)"))?;
     }
     stream.read_to_end(&mut bytes).map_err(cannot_read)?;
     if bytes.len() as u64 > limit.bytes() {

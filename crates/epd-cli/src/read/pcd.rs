@@ -37,7 +37,14 @@ fn offsets(sizes: impl Iterator<Item = usize>) -> Vec<usize> {
 /// is safe.
 pub fn lzf_decompress(input: &[u8], out_len: usize) -> Result<Vec<u8>, ReadError> {
     let bad = || err(F, "corrupt LZF data in binary_compressed");
-    let mut out = Vec::with_capacity(out_len.min(input.len().saturating_mul(LZF_MAX_RATIO)));
+    let mut out = Vec::new();
+    out.try_reserve_exact(out_len.min(input.len().saturating_mul(LZF_MAX_RATIO)))
+        .map_err(|_| {
+            err(
+                F,
+                format!("not enough memory to decompress {out_len} bytes"),
+            )
+        })?;
     let mut i = 0;
     while let Some(&ctrl) = input.get(i) {
         let ctrl = ctrl as usize;
@@ -320,10 +327,7 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
             let bytes = need(body.len())?;
             let offsets = offsets(fields.iter().map(|f| f.bytes));
             let data = body.get(..bytes).ok_or_else(|| truncated(body.len()))?;
-            cloud.points.reserve(n);
-            for (_, values) in cloud.extra.iter_mut() {
-                values.reserve(n);
-            }
+            cloud.reserve(n, F)?;
             // Field `k` of a record: `record` ≥ offsets[k] + its size.
             let value = |rec: &[u8], k: usize| {
                 rec.get(offsets[k]..)
@@ -388,10 +392,7 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
                     .and_then(|s| f.ty.decode(s, true))
                     .unwrap_or(f64::NAN)
             };
-            cloud.points.reserve(n);
-            for (_, values) in cloud.extra.iter_mut() {
-                values.reserve(n);
-            }
+            cloud.reserve(n, F)?;
             for r in 0..n {
                 cloud
                     .points

@@ -358,7 +358,7 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
     let header = Header::parse(&lines)?;
     if let Some(layout) = header.fast_layout() {
         let need = layout.need(body.len() as u64)?;
-        let mut cloud = layout.empty_cloud(layout.count);
+        let mut cloud = layout.empty_cloud(layout.count)?;
         layout.decode(body.get(..need).unwrap_or_default(), &mut cloud);
         return Ok(cloud);
     }
@@ -380,17 +380,15 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
     }
     // Checked above: count ≤ the body's length.
     let count = el.count as usize;
-    let mut cloud = PointCloud {
-        points: Vec::with_capacity(count),
-        extra: Vec::new(),
-    };
+    let mut cloud = PointCloud::default();
     for (pi, p) in el.props.iter().enumerate() {
         if let Property::Scalar { name, .. } = p
             && ![ix, iy, iz].contains(&pi)
         {
-            cloud.extra.push((name.clone(), Vec::with_capacity(count)));
+            cloud.extra.push((name.clone(), Vec::new()));
         }
     }
+    cloud.reserve(count, F)?;
     for r in 0..count {
         let what = || format!("`{}` record {}", el.name, r + 1);
         let mut xyz = [0.0; 3];
@@ -474,16 +472,17 @@ impl VertexLayout {
     }
 
     /// A cloud with room for `n` points (`n` already checked against the input's size).
-    fn empty_cloud(&self, n: u64) -> PointCloud {
-        let n = usize::try_from(n).unwrap_or(0);
-        PointCloud {
-            points: Vec::with_capacity(n),
+    fn empty_cloud(&self, n: u64) -> Result<PointCloud, ReadError> {
+        let mut cloud = PointCloud {
+            points: Vec::new(),
             extra: self
                 .extra
                 .iter()
-                .map(|(name, _, _)| (name.clone(), Vec::with_capacity(n)))
+                .map(|(name, _, _)| (name.clone(), Vec::new()))
                 .collect(),
-        }
+        };
+        cloud.reserve(usize::try_from(n).unwrap_or(usize::MAX), F)?;
+        Ok(cloud)
     }
 
     /// Append the whole records in `data` to `cloud`.
@@ -612,7 +611,9 @@ pub(crate) fn read_stream<R: BufRead>(
     let mut buf = vec![0u8; chunk_bytes];
     // A file's size is known, so the records are there (or the file shrank: an error
     // below); a stream may hold less than its limit, so the cloud grows as data arrive.
-    let mut cloud = layout.empty_cloud(if exact { layout.count } else { 0 });
+    let mut cloud = layout
+        .empty_cloud(if exact { layout.count } else { 0 })
+        .map_err(|e| e.to_string())?;
     let mut left = need;
     while left > 0 {
         let k = left.min(chunk_bytes);
