@@ -79,6 +79,24 @@ impl Format {
     }
 }
 
+impl std::str::FromStr for Format {
+    type Err = String;
+
+    /// A format by name or extension, case-insensitive: `ply`; `pcd`; `csv`, `txt`,
+    /// `xyz`, `pts`, `asc` or `text` (e.g. for a `--input-format` option with `-`).
+    fn from_str(s: &str) -> Result<Format, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "ply" => Ok(Format::Ply),
+            "pcd" => Ok(Format::Pcd),
+            "csv" | "txt" | "xyz" | "pts" | "asc" | "text" => Ok(Format::Text),
+            _ => Err(format!(
+                "unknown format `{}` (ply, pcd, csv, txt, xyz, pts or asc)",
+                quote(s)
+            )),
+        }
+    }
+}
+
 /// The format of a file from its first bytes (a `ply` or PCD header, after an optional
 /// UTF-8 byte-order mark), else from the extension of `name`, else delimited text.
 /// A format the readers do not read is an error naming it: by its magic bytes (LAS and
@@ -531,6 +549,14 @@ mod tests {
         let e = detect_format(Some(Path::new("a.LAS")), b"1 2 3\n").unwrap_err();
         assert!(e.to_string().contains("LAS"));
         assert_eq!(detect_format(None, b"1 2 3\n"), Ok(Format::Text));
+    }
+
+    #[test]
+    fn format_names() {
+        assert_eq!("PLY".parse(), Ok(Format::Ply));
+        assert_eq!("pcd".parse(), Ok(Format::Pcd));
+        assert_eq!("xyz".parse(), Ok(Format::Text));
+        assert!("las".parse::<Format>().is_err());
     }
 
     #[test]
