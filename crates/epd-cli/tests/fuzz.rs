@@ -85,8 +85,15 @@ const EXTENSIONS: [&str; 7] = ["ply", "pcd", "csv", "xyz", "pts", "txt", ""];
 
 /// Write `bytes` to a file with extension `EXTENSIONS[ext]` and read it with `read_path`.
 fn check_file(bytes: &[u8], ext: usize) -> Result<(), TestCaseError> {
+    // One file per test thread and extension, under the target directory (reused by
+    // every run, so nothing piles up in the system's temporary directory).
     thread_local! {
-        static DIR: PathBuf = common::temp_dir("fuzz");
+        static DIR: PathBuf = {
+            let test = std::thread::current().name().unwrap_or("main").replace("::", "-");
+            let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("fuzz-{test}"));
+            std::fs::create_dir_all(&d).unwrap();
+            d
+        };
     }
     let name = match EXTENSIONS[ext] {
         "" => "case".to_string(),
