@@ -1,39 +1,61 @@
 //! Point Cloud Library PCD (v0.7): `DATA ascii`, `binary` and `binary_compressed` (LZF).
-//! Fields `x`, `y`, `z` are required; the other single-count fields are kept.
+//! Fields `x`, `y`, `z` are required (each once); the other single-count fields are kept,
+//! except PCL's `_` padding fields. Sizes, counts and offsets are computed with checked
+//! arithmetic and checked against the bytes that follow the header before anything is
+//! reserved; a `binary_compressed` size is checked against what LZF can expand to.
 
-use super::{PointCloud, ReadError, Scalar, err, split_header};
+use super::{PointCloud, ReadError, Scalar, err, quote, split_header};
 
 const F: &str = "PCD";
+
+/// The most bytes LZF can decompress one input byte to: a 3-byte back reference copies
+/// up to 264 bytes.
+pub const LZF_MAX_RATIO: usize = 88;
 
 struct Field {
     name: String,
     ty: Scalar,
     count: usize,
+    /// `ty.size() × count`.
+    bytes: usize,
 }
 
-/// Running sums: the offset of each item given the sizes before it.
+/// Running sums: the offset of each item given the sizes before it (the caller checked
+/// that the total fits).
 fn offsets(sizes: impl Iterator<Item = usize>) -> Vec<usize> {
     sizes
-        .scan(0, |acc, s| {
+        .scan(0usize, |acc, s| {
             let o = *acc;
-            *acc += s;
+            *acc = acc.saturating_add(s);
             Some(o)
         })
         .collect()
 }
 
-/// LZF decompression (the format `binary_compressed` uses), with every length checked.
+/// LZF decompression (the format `binary_compressed` uses), with every length checked: the
+/// output never exceeds `out_len` bytes nor what `input` can expand to, so any `out_len`
+/// is safe.
 pub fn lzf_decompress(input: &[u8], out_len: usize) -> Result<Vec<u8>, ReadError> {
-    let mut out = Vec::with_capacity(out_len.min(1 << 30));
-    let mut i = 0;
     let bad = || err(F, "corrupt LZF data in binary_compressed");
-    while i < input.len() {
-        let ctrl = input[i] as usize;
+    let mut out = Vec::new();
+    out.try_reserve_exact(out_len.min(input.len().saturating_mul(LZF_MAX_RATIO)))
+        .map_err(|_| {
+            err(
+                F,
+                format!("not enough memory to decompress {out_len} bytes"),
+            )
+        })?;
+    let mut i = 0;
+    while let Some(&ctrl) = input.get(i) {
+        let ctrl = ctrl as usize;
         i += 1;
         if ctrl < 32 {
             // A literal run of ctrl + 1 bytes.
             let n = ctrl + 1;
             let s = input.get(i..i + n).ok_or_else(bad)?;
+            if out.len() + n > out_len {
+                return Err(bad());
+            }
             out.extend_from_slice(s);
             i += n;
         } else {
@@ -47,17 +69,15 @@ pub fn lzf_decompress(input: &[u8], out_len: usize) -> Result<Vec<u8>, ReadError
             let lo = *input.get(i).ok_or_else(bad)? as usize;
             i += 1;
             let back = ((ctrl & 0x1f) << 8) + lo + 1;
-            if back > out.len() {
+            if back > out.len() || out.len() + len > out_len {
                 return Err(bad());
             }
             let start = out.len() - back;
-            for k in 0..len {
-                let b = out[start + k];
+            for k in start..start + len {
+                // k < out.len(): out grows by one per step and back ≥ 1.
+                let b = *out.get(k).ok_or_else(bad)?;
                 out.push(b);
             }
-        }
-        if out.len() > out_len {
-            return Err(bad());
         }
     }
     if out.len() != out_len {
@@ -89,7 +109,12 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
         let mut words = line.split_whitespace();
         let key = words.next().unwrap_or("");
         let rest: Vec<&str> = words.collect();
-        let bad = |what: &str| err(F, format!("header line {}: {what}: `{line}`", i + 1));
+        let bad = |what: &str| {
+            err(
+                F,
+                format!("header line {}: {what}: `{}`", i + 1, quote(line)),
+            )
+        };
         let nums = |v: &[&str]| -> Result<Vec<usize>, ReadError> {
             v.iter()
                 .map(|w| {
@@ -131,8 +156,13 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
             "FIELDS, SIZE, TYPE and COUNT list different numbers of fields",
         ));
     }
-    let mut fields = Vec::new();
-    for k in 0..names.len() {
+    let mut fields: Vec<Field> = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    for (k, name) in names.iter().enumerate() {
+        // PCL names padding fields `_`, as many as there are.
+        if name != "_" && !seen.insert(name.as_str()) {
+            return Err(err(F, format!("FIELDS names `{}` twice", quote(name))));
+        }
         let ty = match (types[k], sizes[k]) {
             ('I', 1) => Scalar::I8,
             ('U', 1) => Scalar::U8,
@@ -149,23 +179,47 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
                     F,
                     format!(
                         "field `{}`: TYPE {t} with SIZE {s} is not supported",
-                        names[k]
+                        quote(name)
                     ),
                 ));
             }
         };
-        if counts[k] == 0 {
-            return Err(err(F, format!("field `{}` has COUNT 0", names[k])));
+        let count = counts[k];
+        if count == 0 {
+            return Err(err(F, format!("field `{}` has COUNT 0", quote(name))));
         }
+        let bytes = count.checked_mul(ty.size()).ok_or_else(|| {
+            err(
+                F,
+                format!("field `{}`: COUNT {count} is too large", quote(name)),
+            )
+        })?;
         fields.push(Field {
-            name: names[k].clone(),
+            name: name.clone(),
             ty,
-            count: counts[k],
+            count,
+            bytes,
         });
     }
+    let too_large = || {
+        err(
+            F,
+            "the COUNT values are too large (a point would take more than 2^64 bytes)",
+        )
+    };
+    let values_per_point = fields
+        .iter()
+        .try_fold(0usize, |a, f| a.checked_add(f.count))
+        .ok_or_else(too_large)?;
+    let record = fields
+        .iter()
+        .try_fold(0usize, |a, f| a.checked_add(f.bytes))
+        .ok_or_else(too_large)?;
     let n = match (points, width, height) {
         (Some(p), _, _) => p,
-        (None, Some(w), Some(h)) => w.saturating_mul(h),
+        (None, Some(w), Some(h)) => w
+            .checked_mul(h)
+            .ok_or_else(|| err(F, "WIDTH × HEIGHT is too large"))?,
         _ => {
             return Err(err(
                 F,
@@ -178,27 +232,39 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
         (Some(x), Some(y), Some(z)) => (x, y, z),
         _ => return Err(err(F, "the fields lack x, y and z")),
     };
-    // Value offsets of each field within a point (in values and in bytes).
-    let values_per_point: usize = fields.iter().map(|f| f.count).sum();
-    let record: usize = fields.iter().map(|f| f.ty.size() * f.count).sum();
-    let mut cloud = PointCloud::default();
     let extra_fields: Vec<usize> = (0..fields.len())
-        .filter(|&k| k != ix && k != iy && k != iz && fields[k].count == 1)
+        .filter(|&k| ![ix, iy, iz].contains(&k) && fields[k].count == 1 && fields[k].name != "_")
         .collect();
-    cloud.extra = extra_fields
-        .iter()
-        .map(|&k| (fields[k].name.clone(), Vec::new()))
-        .collect();
-    let push = |vals: &dyn Fn(usize) -> f64, cloud: &mut PointCloud| {
-        cloud.points.push([vals(ix), vals(iy), vals(iz)]);
-        for (e, &k) in extra_fields.iter().enumerate() {
-            cloud.extra[e].1.push(vals(k));
-        }
+    let mut cloud = PointCloud {
+        points: Vec::new(),
+        extra: extra_fields
+            .iter()
+            .map(|&k| (fields[k].name.clone(), Vec::new()))
+            .collect(),
+    };
+    let truncated = |have: usize| {
+        err(
+            F,
+            format!("{have} bytes of data for {n} points of {record} bytes (truncated?)"),
+        )
+    };
+    // The data of `n` points take `need` bytes; an error unless `have` bytes hold them.
+    let need = |have: usize| {
+        n.checked_mul(record)
+            .filter(|&b| b <= have)
+            .ok_or_else(|| truncated(have))
     };
     match data.as_str() {
         "ascii" => {
-            let text = std::str::from_utf8(body)
-                .map_err(|_| err(F, "DATA ascii but the body is not text"))?;
+            let text = std::str::from_utf8(body).map_err(|e| {
+                err(
+                    F,
+                    format!(
+                        "DATA ascii but the body is not text (byte {} after the header)",
+                        e.valid_up_to()
+                    ),
+                )
+            })?;
             let first_value = offsets(fields.iter().map(|f| f.count));
             let mut rows = 0;
             for (li, line) in text.lines().enumerate() {
@@ -210,7 +276,10 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
                     .split_whitespace()
                     .map(|w| {
                         w.parse::<f64>().map_err(|_| {
-                            err(F, format!("data line {}: `{w}` is not a number", li + 1))
+                            err(
+                                F,
+                                format!("data line {}: `{}` is not a number", li + 1, quote(w)),
+                            )
                         })
                     })
                     .collect::<Result<_, _>>()?;
@@ -224,7 +293,27 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
                         ),
                     ));
                 }
-                push(&|k| v[first_value[k]], &mut cloud);
+                if rows == n {
+                    return Err(err(
+                        F,
+                        format!(
+                            "data line {}: more data lines than the {n} points the header says",
+                            li + 1
+                        ),
+                    ));
+                }
+                // v has values_per_point values and first_value[k] < values_per_point.
+                let val = |k: usize| {
+                    first_value
+                        .get(k)
+                        .and_then(|&i| v.get(i))
+                        .copied()
+                        .unwrap_or(f64::NAN)
+                };
+                cloud.points.push([val(ix), val(iy), val(iz)]);
+                for (&k, (_, values)) in extra_fields.iter().zip(cloud.extra.iter_mut()) {
+                    values.push(val(k));
+                }
                 rows += 1;
             }
             if rows != n {
@@ -235,23 +324,23 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
             }
         }
         "binary" => {
-            if body.len() < n.saturating_mul(record) {
-                return Err(err(
-                    F,
-                    format!(
-                        "{} bytes of data for {n} points of {record} bytes (truncated?)",
-                        body.len()
-                    ),
-                ));
-            }
-            let offsets = offsets(fields.iter().map(|f| f.ty.size() * f.count));
-            cloud.points.reserve(n);
-            for r in 0..n {
-                let rec = &body[r * record..(r + 1) * record];
-                push(
-                    &|k| fields[k].ty.decode(&rec[offsets[k]..], true),
-                    &mut cloud,
-                );
+            let bytes = need(body.len())?;
+            let offsets = offsets(fields.iter().map(|f| f.bytes));
+            let data = body.get(..bytes).ok_or_else(|| truncated(body.len()))?;
+            cloud.reserve(n, F)?;
+            // Field `k` of a record: `record` ≥ offsets[k] + its size.
+            let value = |rec: &[u8], k: usize| {
+                rec.get(offsets[k]..)
+                    .and_then(|s| fields[k].ty.decode(s, true))
+                    .unwrap_or(f64::NAN)
+            };
+            for rec in data.chunks_exact(record.max(1)).take(n) {
+                cloud
+                    .points
+                    .push([value(rec, ix), value(rec, iy), value(rec, iz)]);
+                for (&k, (_, values)) in extra_fields.iter().zip(cloud.extra.iter_mut()) {
+                    values.push(value(rec, k));
+                }
             }
         }
         "binary_compressed" => {
@@ -262,36 +351,64 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
                 Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize)
             };
             let (csize, usize_) = (word(0)?, word(4)?);
-            if usize_ != n.saturating_mul(record) {
+            let expected = n.checked_mul(record);
+            if expected != Some(usize_) {
                 return Err(err(
                     F,
                     format!(
-                        "binary_compressed holds {usize_} bytes, {n} points need {}",
-                        n.saturating_mul(record)
+                        "binary_compressed holds {usize_} bytes, {n} points of {record} bytes need {}",
+                        expected.map_or("more than 2^64".to_string(), |b| b.to_string())
                     ),
                 ));
             }
-            let comp = body
-                .get(8..8 + csize)
-                .ok_or_else(|| err(F, "binary_compressed data are truncated"))?;
+            let comp = csize
+                .checked_add(8)
+                .and_then(|end| body.get(8..end))
+                .ok_or_else(|| {
+                    err(
+                        F,
+                        format!(
+                            "binary_compressed data are truncated ({csize} bytes said, {} there)",
+                            body.len().saturating_sub(8)
+                        ),
+                    )
+                })?;
+            if usize_ > csize.saturating_mul(LZF_MAX_RATIO) {
+                return Err(err(
+                    F,
+                    format!(
+                        "binary_compressed: {usize_} bytes cannot come from {csize} bytes of LZF data (at most {LZF_MAX_RATIO}×; corrupt header?)"
+                    ),
+                ));
+            }
             let raw = lzf_decompress(comp, usize_)?;
-            // Field-major: all values of field 0, then of field 1, …
-            let starts = offsets(fields.iter().map(|f| n * f.ty.size() * f.count));
-            cloud.points.reserve(n);
+            // Field-major: all values of field 0, then of field 1, … (n × record = raw.len()).
+            let starts = offsets(fields.iter().map(|f| n.saturating_mul(f.bytes)));
+            let value = |r: usize, k: usize| {
+                let f = &fields[k];
+                r.checked_mul(f.bytes)
+                    .and_then(|o| o.checked_add(starts[k]))
+                    .and_then(|o| raw.get(o..))
+                    .and_then(|s| f.ty.decode(s, true))
+                    .unwrap_or(f64::NAN)
+            };
+            cloud.reserve(n, F)?;
             for r in 0..n {
-                push(
-                    &|k| {
-                        let sz = fields[k].ty.size() * fields[k].count;
-                        fields[k].ty.decode(&raw[starts[k] + r * sz..], true)
-                    },
-                    &mut cloud,
-                );
+                cloud
+                    .points
+                    .push([value(r, ix), value(r, iy), value(r, iz)]);
+                for (&k, (_, values)) in extra_fields.iter().zip(cloud.extra.iter_mut()) {
+                    values.push(value(r, k));
+                }
             }
         }
         other => {
             return Err(err(
                 F,
-                format!("DATA `{other}` is not ascii, binary or binary_compressed"),
+                format!(
+                    "DATA `{}` is not ascii, binary or binary_compressed",
+                    quote(other)
+                ),
             ));
         }
     }

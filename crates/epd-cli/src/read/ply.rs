@@ -1,8 +1,13 @@
 //! Stanford PLY: `format ascii 1.0`, `binary_little_endian 1.0`, `binary_big_endian 1.0`.
-//! The `vertex` element must have `x`, `y`, `z` (any scalar type); its other scalar
-//! properties are kept; other elements (faces…) are read past.
+//! The `vertex` element must have `x`, `y`, `z` (any scalar type, each once); its other
+//! scalar properties are kept. Elements before it (faces…) are read past, elements after
+//! it are not read. Every element count is checked against the bytes that follow the
+//! header before anything is reserved or looped over: a binary record takes at least the
+//! sum of its property sizes, an ASCII record at least one token per property; an element
+//! without properties holds no data and is skipped whatever its count.
 
-use super::{PointCloud, ReadError, Scalar, err, split_header};
+use super::{MAX_HEADER_LINES, PointCloud, ReadError, Scalar, err, quote, split_header};
+use std::io::BufRead;
 
 const F: &str = "PLY";
 
@@ -20,16 +25,50 @@ enum Property {
     },
     /// A list (e.g. a face's vertex indices), read past.
     List {
+        name: String,
         count: Scalar,
         item: Scalar,
     },
 }
 
+impl Property {
+    fn name(&self) -> &str {
+        match self {
+            Property::Scalar { name, .. } | Property::List { name, .. } => name,
+        }
+    }
+
+    /// The fewest bytes the property takes in a binary record.
+    fn min_size(&self) -> usize {
+        match self {
+            Property::Scalar { ty, .. } => ty.size(),
+            Property::List { count, .. } => count.size(),
+        }
+    }
+}
+
 #[derive(Clone, Debug)]
 struct Element {
     name: String,
-    count: usize,
+    count: u64,
     props: Vec<Property>,
+}
+
+impl Element {
+    /// The fewest bytes a binary record takes (0 for an element without properties).
+    fn min_record(&self) -> usize {
+        self.props.iter().map(Property::min_size).sum()
+    }
+
+    fn too_short(&self) -> ReadError {
+        err(
+            F,
+            format!(
+                "element `{}` declares {} records but the file is too short for them (truncated?)",
+                self.name, self.count
+            ),
+        )
+    }
 }
 
 fn scalar(name: &str) -> Option<Scalar> {
@@ -46,62 +85,134 @@ fn scalar(name: &str) -> Option<Scalar> {
     })
 }
 
-fn parse_header(lines: &[String]) -> Result<(Encoding, Vec<Element>), ReadError> {
-    if lines.first().map(|l| l.trim()) != Some("ply") {
-        return Err(err(F, "the file does not start with `ply`"));
-    }
-    let mut encoding = None;
-    let mut elements: Vec<Element> = Vec::new();
-    for (i, line) in lines.iter().enumerate().skip(1) {
-        let words: Vec<&str> = line.split_whitespace().collect();
-        let bad = |what: &str| err(F, format!("header line {}: {what}: `{line}`", i + 1));
-        match words.as_slice() {
-            [] => {}
-            ["comment", ..] | ["obj_info", ..] | ["end_header"] => {}
-            ["format", f, _version] => {
-                encoding = Some(match *f {
-                    "ascii" => Encoding::Ascii,
-                    "binary_little_endian" => Encoding::Binary { little: true },
-                    "binary_big_endian" => Encoding::Binary { little: false },
-                    _ => return Err(bad("unknown format")),
-                })
-            }
-            ["element", name, count] => {
-                let count: usize = count
-                    .parse()
-                    .map_err(|_| bad("the element count is not a whole number"))?;
-                elements.push(Element {
-                    name: name.to_string(),
-                    count,
-                    props: Vec::new(),
-                });
-            }
-            ["property", "list", c, t, _name] => {
-                let el = elements
-                    .last_mut()
-                    .ok_or_else(|| bad("a property before any element"))?;
-                let count = scalar(c).ok_or_else(|| bad("unknown list count type"))?;
-                let item = scalar(t).ok_or_else(|| bad("unknown list item type"))?;
-                if matches!(count, Scalar::F32 | Scalar::F64) {
-                    return Err(bad("a list count must be an integer type"));
-                }
-                el.props.push(Property::List { count, item });
-            }
-            ["property", t, name] => {
-                let el = elements
-                    .last_mut()
-                    .ok_or_else(|| bad("a property before any element"))?;
-                let ty = scalar(t).ok_or_else(|| bad("unknown property type"))?;
-                el.props.push(Property::Scalar {
-                    name: name.to_string(),
-                    ty,
-                });
-            }
-            _ => return Err(bad("not a PLY header line")),
+/// A parsed header: the encoding, the elements, the index of `vertex` and those of its
+/// `x`, `y`, `z` properties.
+struct Header {
+    encoding: Encoding,
+    elements: Vec<Element>,
+    vi: usize,
+    xyz: [usize; 3],
+}
+
+impl Header {
+    fn parse(lines: &[String]) -> Result<Header, ReadError> {
+        if lines.first().map(|l| l.trim()) != Some("ply") {
+            return Err(err(F, "the file does not start with `ply`"));
         }
+        let mut encoding = None;
+        let mut elements: Vec<Element> = Vec::new();
+        for (i, line) in lines.iter().enumerate().skip(1) {
+            let words: Vec<&str> = line.split_whitespace().collect();
+            let bad = |what: &str| {
+                err(
+                    F,
+                    format!("header line {}: {what}: `{}`", i + 1, quote(line)),
+                )
+            };
+            match words.as_slice() {
+                [] => {}
+                ["comment", ..] | ["obj_info", ..] | ["end_header"] => {}
+                ["format", f, _version] => {
+                    encoding = Some(match *f {
+                        "ascii" => Encoding::Ascii,
+                        "binary_little_endian" => Encoding::Binary { little: true },
+                        "binary_big_endian" => Encoding::Binary { little: false },
+                        _ => return Err(bad("unknown format")),
+                    })
+                }
+                ["element", name, count] => {
+                    let count: u64 = count.parse().map_err(|_| {
+                        bad("the element count is not a whole number from 0 to 2^64 - 1")
+                    })?;
+                    if *name == "vertex" && elements.iter().any(|e| e.name == "vertex") {
+                        return Err(bad("a second `vertex` element"));
+                    }
+                    elements.push(Element {
+                        name: name.to_string(),
+                        count,
+                        props: Vec::new(),
+                    });
+                }
+                ["property", "list", c, t, name] => {
+                    let el = elements
+                        .last_mut()
+                        .ok_or_else(|| bad("a property before any element"))?;
+                    let count = scalar(c).ok_or_else(|| bad("unknown list count type"))?;
+                    let item = scalar(t).ok_or_else(|| bad("unknown list item type"))?;
+                    if matches!(count, Scalar::F32 | Scalar::F64) {
+                        return Err(bad("a list count must be an integer type"));
+                    }
+                    el.props.push(Property::List {
+                        name: name.to_string(),
+                        count,
+                        item,
+                    });
+                }
+                ["property", t, name] => {
+                    let el = elements
+                        .last_mut()
+                        .ok_or_else(|| bad("a property before any element"))?;
+                    let ty = scalar(t).ok_or_else(|| bad("unknown property type"))?;
+                    el.props.push(Property::Scalar {
+                        name: name.to_string(),
+                        ty,
+                    });
+                }
+                _ => return Err(bad("not a PLY header line")),
+            }
+        }
+        let encoding = encoding.ok_or_else(|| err(F, "the header has no `format` line"))?;
+        let vi = elements
+            .iter()
+            .position(|e| e.name == "vertex")
+            .ok_or_else(|| err(F, "no `vertex` element"))?;
+        let vertex = &elements[vi];
+        let mut seen = std::collections::HashSet::new();
+        for p in &vertex.props {
+            if !seen.insert(p.name()) {
+                return Err(err(
+                    F,
+                    format!(
+                        "the vertex element has property `{}` twice",
+                        quote(p.name())
+                    ),
+                ));
+            }
+        }
+        let find = |n: &str| {
+            vertex
+                .props
+                .iter()
+                .position(|p| matches!(p, Property::Scalar { name, .. } if name == n))
+        };
+        let xyz = match (find("x"), find("y"), find("z")) {
+            (Some(x), Some(y), Some(z)) => [x, y, z],
+            _ => {
+                return Err(err(
+                    F,
+                    "the vertex element lacks scalar properties x, y and z",
+                ));
+            }
+        };
+        Ok(Header {
+            encoding,
+            elements,
+            vi,
+            xyz,
+        })
     }
-    let encoding = encoding.ok_or_else(|| err(F, "the header has no `format` line"))?;
-    Ok((encoding, elements))
+
+    /// The layout for decoding the vertices in place: binary, every element before the
+    /// vertices without properties (so without data), scalar vertex properties only.
+    fn fast_layout(&self) -> Option<VertexLayout> {
+        let Encoding::Binary { little } = self.encoding else {
+            return None;
+        };
+        if self.elements[..self.vi].iter().any(|e| !e.props.is_empty()) {
+            return None;
+        }
+        VertexLayout::new(&self.elements[self.vi], little, self.xyz)
+    }
 }
 
 /// A cursor over the body.
@@ -112,143 +223,195 @@ struct Body<'a> {
 }
 
 impl Body<'_> {
-    fn token(&mut self) -> Option<&str> {
+    fn remaining(&self) -> u64 {
+        self.bytes.len().saturating_sub(self.pos) as u64
+    }
+
+    /// Whether `n` items (values, or records of `min_record` bytes) can still follow:
+    /// binary, `n × size` bytes; ASCII, `n` tokens, which take at least `2n - 1` bytes.
+    fn can_hold(&self, n: u64, size: usize) -> bool {
+        match self.encoding {
+            Encoding::Binary { .. } => n
+                .checked_mul(size as u64)
+                .is_some_and(|b| b <= self.remaining()),
+            Encoding::Ascii => n <= self.remaining().div_ceil(2),
+        }
+    }
+
+    fn token(&mut self) -> Option<&[u8]> {
         let b = self.bytes;
-        while self.pos < b.len() && b[self.pos].is_ascii_whitespace() {
+        while b.get(self.pos).is_some_and(|c| c.is_ascii_whitespace()) {
             self.pos += 1;
         }
         let start = self.pos;
-        while self.pos < b.len() && !b[self.pos].is_ascii_whitespace() {
+        while b.get(self.pos).is_some_and(|c| !c.is_ascii_whitespace()) {
             self.pos += 1;
         }
-        if start == self.pos {
-            None
-        } else {
-            std::str::from_utf8(&b[start..self.pos]).ok()
-        }
+        b.get(start..self.pos).filter(|t| !t.is_empty())
     }
 
     fn value(&mut self, ty: Scalar, what: &dyn Fn() -> String) -> Result<f64, ReadError> {
         match self.encoding {
             Encoding::Ascii => {
-                let t = self
-                    .token()
-                    .ok_or_else(|| err(F, format!("the file ends inside {}", what())))?;
-                t.parse::<f64>()
-                    .map_err(|_| err(F, format!("`{t}` in {} is not a number", what())))
-            }
-            Encoding::Binary { little } => {
-                let n = ty.size();
-                let s = self.bytes.get(self.pos..self.pos + n).ok_or_else(|| {
+                let t = self.token().ok_or_else(|| {
                     err(F, format!("the file ends inside {} (truncated?)", what()))
                 })?;
-                self.pos += n;
-                Ok(ty.decode(s, little))
+                std::str::from_utf8(t)
+                    .ok()
+                    .and_then(|s| s.parse::<f64>().ok())
+                    .ok_or_else(|| {
+                        err(
+                            F,
+                            format!(
+                                "`{}` in {} is not a number",
+                                quote(&String::from_utf8_lossy(t)),
+                                what()
+                            ),
+                        )
+                    })
+            }
+            Encoding::Binary { little } => {
+                let v = self
+                    .pos
+                    .checked_add(ty.size())
+                    .and_then(|end| self.bytes.get(self.pos..end))
+                    .and_then(|s| ty.decode(s, little))
+                    .ok_or_else(|| {
+                        err(F, format!("the file ends inside {} (truncated?)", what()))
+                    })?;
+                self.pos += ty.size();
+                Ok(v)
             }
         }
+    }
+
+    /// Read past a list property's items.
+    fn skip_list(
+        &mut self,
+        count: Scalar,
+        item: Scalar,
+        what: &dyn Fn() -> String,
+    ) -> Result<(), ReadError> {
+        let n = self.value(count, what)?;
+        if !(n >= 0.0 && n.fract() == 0.0 && self.can_hold(n as u64, item.size())) {
+            return Err(err(
+                F,
+                format!(
+                    "list length {n} in {} is beyond the end of the file",
+                    what()
+                ),
+            ));
+        }
+        let n = n as u64;
+        match self.encoding {
+            // can_hold checked that n × size bytes follow.
+            Encoding::Binary { .. } => {
+                self.pos = self
+                    .pos
+                    .saturating_add((n as usize).saturating_mul(item.size()))
+            }
+            Encoding::Ascii => {
+                for _ in 0..n {
+                    self.value(item, what)?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Read past an element before the vertices.
+    fn skip_element(&mut self, el: &Element) -> Result<(), ReadError> {
+        if el.props.is_empty() {
+            return Ok(());
+        }
+        if !self.can_hold(el.count.saturating_mul(el.props.len() as u64), 1)
+            || !self.can_hold(el.count, el.min_record())
+        {
+            return Err(el.too_short());
+        }
+        let lists = el.props.iter().any(|p| matches!(p, Property::List { .. }));
+        if let (Encoding::Binary { .. }, false) = (self.encoding, lists) {
+            // can_hold checked that count × record bytes follow.
+            self.pos = self
+                .pos
+                .saturating_add((el.count as usize).saturating_mul(el.min_record()));
+            return Ok(());
+        }
+        for r in 0..el.count {
+            let what = || format!("`{}` record {}", el.name, r + 1);
+            for p in &el.props {
+                match p {
+                    Property::Scalar { ty, .. } => {
+                        self.value(*ty, &what)?;
+                    }
+                    Property::List { count, item, .. } => self.skip_list(*count, *item, &what)?,
+                }
+            }
+        }
+        Ok(())
     }
 }
 
 /// Read a PLY file.
 pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
     let (lines, body) = split_header(bytes, |l| l == "end_header", F)?;
-    let (encoding, elements, vi, [ix, iy, iz]) = layout_of(&lines)?;
-    if let (Encoding::Binary { little }, 0) = (encoding, vi)
-        && let Some(layout) = VertexLayout::new(&elements[0], little, [ix, iy, iz])
-    {
-        let need = layout
-            .count
-            .checked_mul(layout.record)
-            .filter(|&n| n <= body.len())
-            .ok_or_else(|| layout.too_short())?;
-        let mut cloud = layout.empty_cloud();
-        layout.decode(&body[..need], &mut cloud);
+    let header = Header::parse(&lines)?;
+    if let Some(layout) = header.fast_layout() {
+        let need = layout.need(body.len() as u64)?;
+        let mut cloud = layout.empty_cloud(layout.count)?;
+        layout.decode(body.get(..need).unwrap_or_default(), &mut cloud);
         return Ok(cloud);
     }
     let mut cur = Body {
         bytes: body,
         pos: 0,
-        encoding,
+        encoding: header.encoding,
     };
+    for el in &header.elements[..header.vi] {
+        cur.skip_element(el)?;
+    }
+    let el = &header.elements[header.vi];
+    let [ix, iy, iz] = header.xyz;
+    // Every vertex property takes at least one byte (binary) or one token (ASCII).
+    if !cur.can_hold(el.count.saturating_mul(el.props.len() as u64), 1)
+        || !cur.can_hold(el.count, el.min_record())
+    {
+        return Err(el.too_short());
+    }
+    // Checked above: count ≤ the body's length.
+    let count = el.count as usize;
     let mut cloud = PointCloud::default();
-    for (ei, el) in elements.iter().enumerate() {
-        // Guard against absurd counts before reserving memory.
-        let min_record = match encoding {
-            Encoding::Binary { .. } => el
-                .props
-                .iter()
-                .map(|p| match p {
-                    Property::Scalar { ty, .. } => ty.size(),
-                    Property::List { count, .. } => count.size(),
-                })
-                .sum::<usize>(),
-            Encoding::Ascii => 2 * el.props.len(),
-        };
-        if el.count.saturating_mul(min_record) > body.len().saturating_sub(cur.pos) {
-            return Err(err(
-                F,
-                format!(
-                    "element `{}` declares {} records but the file is too short for them (truncated?)",
-                    el.name, el.count
-                ),
-            ));
+    for (pi, p) in el.props.iter().enumerate() {
+        if let Property::Scalar { name, .. } = p
+            && ![ix, iy, iz].contains(&pi)
+        {
+            cloud.extra.push((name.clone(), Vec::new()));
         }
-        let keep = ei == vi;
-        let mut extra: Vec<(String, Vec<f64>)> = Vec::new();
-        if keep {
-            cloud.points.reserve(el.count);
-            for (pi, p) in el.props.iter().enumerate() {
-                if let Property::Scalar { name, .. } = p
-                    && pi != ix
-                    && pi != iy
-                    && pi != iz
-                {
-                    extra.push((name.clone(), Vec::with_capacity(el.count)));
-                }
-            }
-        }
-        for r in 0..el.count {
-            let mut xyz = [0.0; 3];
-            let mut e = 0;
-            for (pi, p) in el.props.iter().enumerate() {
-                let what = || format!("`{}` record {}", el.name, r + 1);
-                match p {
-                    Property::Scalar { ty, .. } => {
-                        let v = cur.value(*ty, &what)?;
-                        if keep {
-                            if pi == ix {
-                                xyz[0] = v;
-                            } else if pi == iy {
-                                xyz[1] = v;
-                            } else if pi == iz {
-                                xyz[2] = v;
-                            } else {
-                                extra[e].1.push(v);
-                                e += 1;
-                            }
-                        }
-                    }
-                    Property::List { count, item, .. } => {
-                        let n = cur.value(*count, &what)?;
-                        if !(0.0..=1e6).contains(&n) {
-                            return Err(err(
-                                F,
-                                format!("list length {n} in {} is not plausible", what()),
-                            ));
-                        }
-                        for _ in 0..n as usize {
-                            cur.value(*item, &what)?;
-                        }
+    }
+    cloud.reserve(count, F)?;
+    for r in 0..count {
+        let what = || format!("`{}` record {}", el.name, r + 1);
+        let mut xyz = [0.0; 3];
+        let mut e = 0;
+        for (pi, p) in el.props.iter().enumerate() {
+            match p {
+                Property::Scalar { ty, .. } => {
+                    let v = cur.value(*ty, &what)?;
+                    if pi == ix {
+                        xyz[0] = v;
+                    } else if pi == iy {
+                        xyz[1] = v;
+                    } else if pi == iz {
+                        xyz[2] = v;
+                    } else if let Some((_, values)) = cloud.extra.get_mut(e) {
+                        values.push(v);
+                        e += 1;
                     }
                 }
-            }
-            if keep {
-                cloud.points.push(xyz);
+                Property::List { count, item, .. } => cur.skip_list(*count, *item, &what)?,
             }
         }
-        if keep {
-            cloud.extra = extra;
-        }
+        cloud.points.push(xyz);
     }
     Ok(cloud)
 }
@@ -256,7 +419,8 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
 /// The record layout of a binary vertex element with scalar properties only: the fast
 /// path, decoding fixed-size records in place.
 struct VertexLayout {
-    count: usize,
+    name: String,
+    count: u64,
     record: usize,
     little: bool,
     xyz: [(Scalar, usize); 3],
@@ -265,7 +429,7 @@ struct VertexLayout {
 
 impl VertexLayout {
     /// The layout of `vertex`, or `None` when it has list properties.
-    fn new(vertex: &Element, little: bool, [ix, iy, iz]: [usize; 3]) -> Option<Self> {
+    fn new(vertex: &Element, little: bool, xyz: [usize; 3]) -> Option<Self> {
         let mut record = 0;
         let mut fields = Vec::with_capacity(vertex.props.len());
         for p in &vertex.props {
@@ -277,31 +441,48 @@ impl VertexLayout {
                 Property::List { .. } => return None,
             }
         }
-        let xyz = [ix, iy, iz].map(|i| (fields[i].1, fields[i].2));
+        let mut at = [(Scalar::F64, 0); 3];
+        for (a, i) in at.iter_mut().zip(xyz) {
+            let (_, ty, offset) = fields.get(i)?;
+            *a = (*ty, *offset);
+        }
         let extra = fields
             .into_iter()
             .enumerate()
-            .filter(|(k, _)| ![ix, iy, iz].contains(k))
+            .filter(|(k, _)| !xyz.contains(k))
             .map(|(_, f)| f)
             .collect();
         Some(Self {
+            name: vertex.name.clone(),
             count: vertex.count,
             record,
             little,
-            xyz,
+            xyz: at,
             extra,
         })
     }
 
-    fn empty_cloud(&self) -> PointCloud {
-        PointCloud {
-            points: Vec::with_capacity(self.count),
+    /// The bytes the records take, or an error when fewer than that are `available`.
+    fn need(&self, available: u64) -> Result<usize, ReadError> {
+        self.count
+            .checked_mul(self.record as u64)
+            .filter(|&n| n <= available)
+            .and_then(|n| usize::try_from(n).ok())
+            .ok_or_else(|| self.too_short())
+    }
+
+    /// A cloud with room for `n` points (`n` already checked against the input's size).
+    fn empty_cloud(&self, n: u64) -> Result<PointCloud, ReadError> {
+        let mut cloud = PointCloud {
+            points: Vec::new(),
             extra: self
                 .extra
                 .iter()
-                .map(|(n, _, _)| (n.clone(), Vec::with_capacity(self.count)))
+                .map(|(name, _, _)| (name.clone(), Vec::new()))
                 .collect(),
-        }
+        };
+        cloud.reserve(usize::try_from(n).unwrap_or(usize::MAX), F)?;
+        Ok(cloud)
     }
 
     /// Append the whole records in `data` to `cloud`.
@@ -309,11 +490,15 @@ impl VertexLayout {
         let rows = || data.chunks_exact(self.record.max(1));
         let [(tx, ox), (ty, oy), (tz, oz)] = self.xyz;
         let little = self.little;
+        // Offsets and sizes come from the record layout, so every value is inside its
+        // record; a value that were not would read as NaN.
         match (tx, ty, tz, little) {
             // The common layouts, decoded without a type dispatch per value.
             (Scalar::F64, Scalar::F64, Scalar::F64, true) => {
                 let f = |r: &[u8], o: usize| {
-                    f64::from_le_bytes(r[o..o + 8].try_into().unwrap_or([0; 8]))
+                    r.get(o..o + 8)
+                        .and_then(|s| s.try_into().ok())
+                        .map_or(f64::NAN, f64::from_le_bytes)
                 };
                 cloud
                     .points
@@ -321,24 +506,31 @@ impl VertexLayout {
             }
             (Scalar::F32, Scalar::F32, Scalar::F32, true) => {
                 let f = |r: &[u8], o: usize| {
-                    f32::from_le_bytes(r[o..o + 4].try_into().unwrap_or([0; 4])) as f64
+                    r.get(o..o + 4)
+                        .and_then(|s| s.try_into().ok())
+                        .map_or(f64::NAN, |a| f32::from_le_bytes(a) as f64)
                 };
                 cloud
                     .points
                     .extend(rows().map(|r| [f(r, ox), f(r, oy), f(r, oz)]));
             }
-            _ => cloud.points.extend(rows().map(|r| {
-                [
-                    tx.decode(&r[ox..], little),
-                    ty.decode(&r[oy..], little),
-                    tz.decode(&r[oz..], little),
-                ]
-            })),
+            _ => {
+                let f = |t: Scalar, r: &[u8], o: usize| {
+                    r.get(o..)
+                        .and_then(|s| t.decode(s, little))
+                        .unwrap_or(f64::NAN)
+                };
+                cloud
+                    .points
+                    .extend(rows().map(|r| [f(tx, r, ox), f(ty, r, oy), f(tz, r, oz)]))
+            }
         }
-        for (e, (_, t, o)) in self.extra.iter().enumerate() {
-            cloud.extra[e]
-                .1
-                .extend(rows().map(|r| t.decode(&r[*o..], little)));
+        for ((_, t, o), (_, values)) in self.extra.iter().zip(cloud.extra.iter_mut()) {
+            values.extend(rows().map(|r| {
+                r.get(*o..)
+                    .and_then(|s| t.decode(s, little))
+                    .unwrap_or(f64::NAN)
+            }));
         }
     }
 
@@ -346,55 +538,58 @@ impl VertexLayout {
         err(
             F,
             format!(
-                "the vertex element declares {} records of {} bytes but the file is too short (truncated?)",
-                self.count, self.record
+                "element `{}` declares {} records of {} bytes but the file is too short for them (truncated?)",
+                self.name, self.count, self.record
             ),
         )
     }
 }
 
-/// Header, vertex index and x, y, z indices of a PLY file.
-fn layout_of(lines: &[String]) -> Result<(Encoding, Vec<Element>, usize, [usize; 3]), ReadError> {
-    let (encoding, elements) = parse_header(lines)?;
-    let vi = elements
-        .iter()
-        .position(|e| e.name == "vertex")
-        .ok_or_else(|| err(F, "no `vertex` element"))?;
-    let vertex = &elements[vi];
-    let find = |n: &str| {
-        vertex
-            .props
-            .iter()
-            .position(|p| matches!(p, Property::Scalar { name, .. } if name == n))
-    };
-    match (find("x"), find("y"), find("z")) {
-        (Some(x), Some(y), Some(z)) => Ok((encoding, elements, vi, [x, y, z])),
-        _ => Err(err(
-            F,
-            "the vertex element lacks scalar properties x, y and z",
-        )),
-    }
+/// What [`read_stream`] did.
+pub(crate) enum Stream {
+    /// The vertices, decoded as they streamed in.
+    Done(PointCloud),
+    /// The file cannot be streamed (ASCII, lists, data before the vertices, or a header
+    /// [`read`] should judge): the bytes read so far; the caller reads the rest and
+    /// calls [`read`] on the whole.
+    Whole(Vec<u8>),
 }
 
-/// Read a PLY file from disk. Binary files whose vertices come first with scalar
-/// properties only are decoded as they stream in (no copy of the whole file in memory);
-/// other files are read whole and parsed by [`read`].
-pub fn read_path(path: &std::path::Path) -> Result<PointCloud, String> {
-    use std::io::{BufRead, Read};
-    let file = std::fs::File::open(path).map_err(|e| format!("cannot read: {e}"))?;
-    let mut r = std::io::BufReader::with_capacity(1 << 20, file);
+/// The most bytes a streamed header may take before the whole file is read instead.
+const MAX_STREAMED_HEADER: u64 = 1 << 20;
+
+/// Read a PLY file from a stream of at most `limit` bytes (`exact`: exactly `limit`, the
+/// size of a file). Binary files whose vertices have scalar properties only, with no data
+/// before them, are decoded as they stream in (no copy of the whole file in memory); for
+/// others the header bytes are handed back.
+pub(crate) fn read_stream<R: BufRead>(
+    r: &mut R,
+    limit: u64,
+    exact: bool,
+) -> Result<Stream, String> {
+    use std::io::Read;
+    let cannot_read = |e: std::io::Error| format!("cannot read: {e}");
+    let mut raw = Vec::new();
     let mut lines = Vec::new();
     loop {
-        let mut line = Vec::new();
+        let start = raw.len();
+        let budget = MAX_STREAMED_HEADER.saturating_sub(start as u64);
         let n = r
-            .read_until(b'\n', &mut line)
-            .map_err(|e| format!("cannot read: {e}"))?;
-        if n == 0 || lines.len() > 10_000 {
-            return Err(err(F, "the header never ends (truncated file?)").to_string());
+            .by_ref()
+            .take(budget)
+            .read_until(b'\n', &mut raw)
+            .map_err(cannot_read)?;
+        let ended = raw.last() == Some(&b'\n');
+        if n == 0 || !ended || lines.len() >= MAX_HEADER_LINES {
+            return Ok(Stream::Whole(raw));
         }
-        let text = String::from_utf8(line).map_err(|_| {
-            err(F, format!("header line {} is not text", lines.len() + 1)).to_string()
-        })?;
+        let mut line = raw.get(start..).unwrap_or_default();
+        if lines.is_empty() {
+            line = super::strip_bom(line);
+        }
+        let Ok(text) = std::str::from_utf8(line) else {
+            return Ok(Stream::Whole(raw));
+        };
         let text = text.trim_end_matches(['\n', '\r']).to_string();
         let end = text.trim() == "end_header";
         lines.push(text);
@@ -402,28 +597,40 @@ pub fn read_path(path: &std::path::Path) -> Result<PointCloud, String> {
             break;
         }
     }
-    let (encoding, elements, vi, xyz) = layout_of(&lines).map_err(|e| e.to_string())?;
-    let fast = match encoding {
-        Encoding::Binary { little } if vi == 0 => VertexLayout::new(&elements[0], little, xyz),
-        _ => None,
+    let Ok(header) = Header::parse(&lines) else {
+        return Ok(Stream::Whole(raw));
     };
-    let Some(layout) = fast else {
-        let bytes = std::fs::read(path).map_err(|e| format!("cannot read: {e}"))?;
-        return read(&bytes).map_err(|e| e.to_string());
+    let Some(layout) = header.fast_layout() else {
+        return Ok(Stream::Whole(raw));
     };
-    let mut cloud = layout.empty_cloud();
-    let per_chunk = ((1 << 20) / layout.record.max(1)).max(1);
-    let mut buf = vec![0u8; per_chunk * layout.record];
-    let mut left = layout.count;
+    let available = limit.saturating_sub(raw.len() as u64);
+    let need = layout.need(available).map_err(|e| e.to_string())?;
+    // At most about 1 MiB of records per read; the cloud grows as the data arrive.
+    let per_chunk = ((1usize << 20) / layout.record.max(1)).max(1);
+    let chunk_bytes = per_chunk.saturating_mul(layout.record).min(need);
+    let mut buf = vec![0u8; chunk_bytes];
+    // A file's size is known, so the records are there (or the file shrank: an error
+    // below); a stream may hold less than its limit, so the cloud grows as data arrive.
+    let mut cloud = layout
+        .empty_cloud(if exact { layout.count } else { 0 })
+        .map_err(|e| e.to_string())?;
+    let mut left = need;
     while left > 0 {
-        let k = left.min(per_chunk);
-        let chunk = &mut buf[..k * layout.record];
+        let k = left.min(chunk_bytes);
+        let chunk = buf.get_mut(..k).unwrap_or_default();
         r.read_exact(chunk).map_err(|e| match e.kind() {
             std::io::ErrorKind::UnexpectedEof => layout.too_short().to_string(),
-            _ => format!("cannot read: {e}"),
+            _ => cannot_read(e),
         })?;
         layout.decode(chunk, &mut cloud);
         left -= k;
     }
-    Ok(cloud)
+    Ok(Stream::Done(cloud))
+}
+
+/// Read a PLY file from disk (whatever its extension). Like [`super::read_path`]: regular
+/// files only, at most [`super::MAX_INPUT_BYTES`]; binary files whose vertices come first
+/// with scalar properties only are decoded as they stream in.
+pub fn read_path(path: &std::path::Path) -> Result<PointCloud, String> {
+    super::read_path_as(path, Some(super::Format::Ply))
 }

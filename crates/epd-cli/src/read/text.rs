@@ -1,8 +1,15 @@
 //! Delimited text: `x y z` per line, separated by commas, semicolons, tabs or spaces,
 //! with an optional header. A header naming `x`, `y` and `z` picks those columns;
 //! otherwise the first three are x, y, z. Other numeric columns are kept by name.
+//!
+//! Also read: a UTF-8 byte-order mark; UTF-16 text with a byte-order mark; lines starting
+//! with `#` or `//` (comments; CloudCompare's `//X,Y,Z,…` header line names the columns);
+//! PTS and CloudCompare ASC files, whose first line is the point count (also before each
+//! further scan of a multi-scan PTS file) and whose columns after x, y, z are
+//! `intensity` (4 columns), `r g b` (6) or `intensity r g b` (7). Binary data are refused
+//! with the offset of the first byte that is not text.
 
-use super::{PointCloud, ReadError, err};
+use super::{PointCloud, ReadError, err, quote};
 
 const F: &str = "CSV";
 
@@ -12,28 +19,136 @@ fn fields(line: &str) -> Vec<&str> {
         .collect()
 }
 
+/// Whether a character code is one text files hold: not a control code other than tab,
+/// line feed, vertical tab, form feed and carriage return.
+fn is_text(c: u32) -> bool {
+    (c >= 0x20 || matches!(c, 0x09..=0x0d)) && c != 0x7f
+}
+
+/// The file as text: UTF-8 (after an optional byte-order mark) or UTF-16 with a
+/// byte-order mark; an error naming the first byte that is not text.
+fn decode(bytes: &[u8]) -> Result<std::borrow::Cow<'_, str>, ReadError> {
+    let not_text = |what: String| err(F, format!("not text: {what}"));
+    for (bom, little) in [(b"\xff\xfe", true), (b"\xfe\xff", false)] {
+        if let Some(rest) = bytes.strip_prefix(bom) {
+            let units: Vec<u16> = rest
+                .chunks(2)
+                .map(|c| match c {
+                    [a, b] if little => u16::from_le_bytes([*a, *b]),
+                    [a, b] => u16::from_be_bytes([*a, *b]),
+                    _ => 0,
+                })
+                .collect();
+            if rest.len() % 2 == 1 {
+                return Err(not_text(
+                    "UTF-16 text (it starts with a UTF-16 byte-order mark) of an odd number of bytes".into(),
+                ));
+            }
+            if let Some(k) = units.iter().position(|&u| !is_text(u as u32)) {
+                return Err(not_text(format!(
+                    "UTF-16 code 0x{:04x} at offset {} (a binary file?)",
+                    units[k],
+                    2 + 2 * k
+                )));
+            }
+            return String::from_utf16(&units)
+                .map(std::borrow::Cow::Owned)
+                .map_err(|_| not_text("invalid UTF-16 (unpaired surrogate)".into()));
+        }
+    }
+    let (skip, body) = match bytes.strip_prefix(b"\xef\xbb\xbf") {
+        Some(rest) => (3, rest),
+        None => (0, bytes),
+    };
+    // A DOS end-of-file mark (Ctrl-Z) may end the file.
+    let body = body.strip_suffix(b"\x1a").unwrap_or(body);
+    if let Some(k) = body.iter().position(|&c| !is_text(c as u32)) {
+        return Err(not_text(format!(
+            "byte 0x{:02x} at offset {} (a binary file?)",
+            body[k],
+            skip + k
+        )));
+    }
+    std::str::from_utf8(body)
+        .map(std::borrow::Cow::Borrowed)
+        .map_err(|e| {
+            let k = e.valid_up_to();
+            not_text(format!(
+                "byte 0x{:02x} at offset {} is not UTF-8 (save the file as UTF-8)",
+                body.get(k).copied().unwrap_or(0),
+                skip + k
+            ))
+        })
+}
+
+/// Column names from a header line (lowercase, quotes removed), an error when one is
+/// there twice.
+fn header_names(f: &[&str], line_no: usize) -> Result<Vec<String>, ReadError> {
+    let names: Vec<String> = f
+        .iter()
+        .map(|s| s.trim_matches('"').trim_matches('\'').to_ascii_lowercase())
+        .collect();
+    let mut seen = std::collections::HashSet::new();
+    for n in &names {
+        if !seen.insert(n.as_str()) {
+            return Err(err(
+                F,
+                format!(
+                    "line {line_no}: the header names column `{}` twice",
+                    quote(n)
+                ),
+            ));
+        }
+    }
+    Ok(names)
+}
+
 /// Read delimited text.
 pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
-    let text = std::str::from_utf8(bytes).map_err(|_| err(F, "the file is not text (UTF-8)"))?;
+    let text = decode(bytes)?;
     let mut cloud = PointCloud::default();
     let mut columns: Option<[usize; 3]> = None;
     let mut names: Vec<String> = Vec::new();
     let mut width = None;
+    // Point-count lines (PTS, ASC): the count of the current scan and its rows so far.
+    let mut scan: Option<(u64, u64)> = None;
     for (i, raw) in text.lines().enumerate() {
         let line = raw.trim();
-        if line.is_empty() || line.starts_with('#') || line.starts_with("//") {
+        if line.is_empty() || line.starts_with('#') {
             continue;
         }
         let f = fields(line);
+        if let Some(comment) = line.strip_prefix("//") {
+            // CloudCompare writes its header as a comment: `//X,Y,Z,R,G,B`.
+            let f = fields(comment);
+            if width.is_none() && names.is_empty() {
+                let n = header_names(&f, i + 1)?;
+                let pos = |c: &str| n.iter().position(|v| v == c);
+                if let (Some(x), Some(y), Some(z)) = (pos("x"), pos("y"), pos("z")) {
+                    columns = Some([x, y, z]);
+                    names = n;
+                }
+            }
+            continue;
+        }
+        if let [one] = f.as_slice()
+            && let Ok(count) = one.parse::<u64>()
+        {
+            // A point count alone on a line: at the start, or after a complete scan of a
+            // file that started with one.
+            let starts = width.is_none() && cloud.points.is_empty() && scan.is_none();
+            let next_scan = scan.is_some_and(|(n, rows)| rows == n);
+            if starts || next_scan {
+                scan = Some((count, 0));
+                continue;
+            }
+        }
         let nums: Result<Vec<f64>, _> = f.iter().map(|s| s.parse::<f64>()).collect();
         let v = match nums {
             Ok(v) => v,
             Err(_) if cloud.points.is_empty() && width.is_none() && names.is_empty() => {
                 // A header line.
-                names = f
-                    .iter()
-                    .map(|s| s.trim_matches('"').to_ascii_lowercase())
-                    .collect();
+                names = header_names(&f, i + 1)?;
                 let pos = |n: &str| names.iter().position(|c| c == n);
                 if let (Some(x), Some(y), Some(z)) = (pos("x"), pos("y"), pos("z")) {
                     columns = Some([x, y, z]);
@@ -43,7 +158,7 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
             Err(_) => {
                 return Err(err(
                     F,
-                    format!("line {}: `{line}` is not a row of numbers", i + 1),
+                    format!("line {}: `{}` is not a row of numbers", i + 1, quote(line)),
                 ));
             }
         };
@@ -62,11 +177,19 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
         match width {
             None => {
                 width = Some(v.len());
+                // PTS columns after x, y, z.
+                let pts: &[&str] = match (scan.is_some() && names.is_empty(), v.len()) {
+                    (true, 4) => &["intensity"],
+                    (true, 6) => &["r", "g", "b"],
+                    (true, 7) => &["intensity", "r", "g", "b"],
+                    _ => &[],
+                };
                 for c in 0..v.len() {
                     if c != cx && c != cy && c != cz {
                         let name = names
                             .get(c)
                             .cloned()
+                            .or_else(|| pts.get(c.wrapping_sub(3)).map(|s| s.to_string()))
                             .unwrap_or_else(|| format!("column{}", c + 1));
                         cloud.extra.push((name, Vec::new()));
                     }
@@ -80,14 +203,61 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
             }
             _ => {}
         }
+        if let Some((_, rows)) = &mut scan {
+            *rows += 1;
+        }
         cloud.points.push([v[cx], v[cy], v[cz]]);
-        let mut e = 0;
+        let mut extra = cloud.extra.iter_mut();
         for (c, val) in v.iter().enumerate() {
-            if c != cx && c != cy && c != cz {
-                cloud.extra[e].1.push(*val);
-                e += 1;
+            if c != cx
+                && c != cy
+                && c != cz
+                && let Some((_, values)) = extra.next()
+            {
+                values.push(*val);
             }
         }
     }
     Ok(cloud)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn text_encodings() {
+        let p = read(b"\xef\xbb\xbfx,y,z\n1,2,3\n").unwrap();
+        assert_eq!(p.points, [[1.0, 2.0, 3.0]]);
+        let utf16: Vec<u8> = "\u{feff}1 2 3\r\n4 5 6\r\n"
+            .encode_utf16()
+            .flat_map(|u| u.to_le_bytes())
+            .collect();
+        assert_eq!(read(&utf16).unwrap().points.len(), 2);
+        let e = read(b"1 2 3\n4 5\x006\n").unwrap_err().to_string();
+        assert_eq!(e, "CSV: not text: byte 0x00 at offset 9 (a binary file?)");
+        let e = read(b"1 2 3\n\xff").unwrap_err().to_string();
+        assert!(e.contains("byte 0xff at offset 6 is not UTF-8"), "{e}");
+        assert_eq!(read(b"1 2 3\n\x1a").unwrap().points.len(), 1);
+    }
+
+    #[test]
+    fn count_lines() {
+        // Two scans, each after its point count.
+        let c = read(b"2\n1 2 3 5\n4 5 6 7\n1\n7 8 9 1\n").unwrap();
+        assert_eq!(c.points.len(), 3);
+        assert_eq!(c.extra, [("intensity".to_string(), vec![5.0, 7.0, 1.0])]);
+        // A single value is not a count line within a scan.
+        let e = read(b"2\n1 2 3\n4\n").unwrap_err().to_string();
+        assert!(e.contains("line 3: 1 values"), "{e}");
+        let e = read(b"1\n2\n3\n").unwrap_err().to_string();
+        assert!(e.contains("line 2: 1 values"), "{e}");
+    }
+
+    #[test]
+    fn cloudcompare_header_comment() {
+        let c = read(b"//X,Y,Z,R,G,B\n1,2,3,4,5,6\n").unwrap();
+        let names: Vec<&str> = c.extra.iter().map(|(n, _)| n.as_str()).collect();
+        assert_eq!(names, ["r", "g", "b"]);
+    }
 }
