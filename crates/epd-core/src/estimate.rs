@@ -195,7 +195,7 @@ pub struct Estimate {
     /// (residual units squared).
     pub cost: f64,
     /// √(Σ rᵢ²/N): the RMS residual, whatever the loss (m for RU-EPD and ML-EPD,
-    /// dimensionless for C-EPD); under a robust loss taken over at most 32 768 evenly
+    /// dimensionless for C-EPD); under a robust loss taken over at most 16 384 evenly
     /// strided points.
     pub rms_residual: f64,
     /// Points used.
@@ -281,7 +281,7 @@ pub fn gate_by_model_range(points: &[[f64; 3]], beta: &Params, lo: f64, hi: f64)
 }
 
 /// Points (evenly strided) of the sandwich covariance.
-const SANDWICH_POINTS: usize = 32_768;
+const SANDWICH_POINTS: usize = 16_384;
 
 /// The 95 %-efficiency tuning constant of a loss, in units of the residuals' scale.
 fn tuning(loss: Loss) -> f64 {
@@ -378,18 +378,22 @@ fn fit_cloud(
         x = rep.x;
         last = Some(rep);
     }
-    // Stage 2: all points, with the loss scaled to the data where asked; a scale taken
-    // from a poor start is re-taken once the fit has settled.
+    // With the loss scaled to the data: the scale is taken at the stage-1 fit and the
+    // subsample refitted with it (a scale taken at a poor start is too wide), then
+    // taken again for the final stage. Starting from a previous fit, no refit.
     let kind = method.residual();
-    let mut loss = loss_at(kind, &x);
-    let passes = if auto { 2 } else { 1 };
-    for pass in 0..passes {
-        if stage_pts.len() == n && last.is_some() && !auto {
-            break;
-        }
-        if pass > 0 {
-            loss = loss_at(kind, &x);
-        }
+    if auto && start.is_none() && stage_pts.len() != n {
+        let rep = minimize(
+            &PipeFit::new(stage_pts, kind).with_loss(loss_at(kind, &x)),
+            x,
+            &options.lm,
+        );
+        iterations += rep.iterations;
+        x = rep.x;
+    }
+    let loss = loss_at(kind, &x);
+    // Stage 2: all points (unless stage 1 already fitted them with this loss).
+    if stage_pts.len() != n || last.is_none() || auto {
         let rep = minimize(&PipeFit::new(pts, kind).with_loss(loss), x, &options.lm);
         iterations += rep.iterations;
         x = rep.x;
@@ -419,7 +423,7 @@ fn fit_cloud(
         let (s, c) = covariance(&eq, eq.cost / dof);
         (s, c, eq.cost)
     } else {
-        // On at most 32 768 evenly strided points: H and B both grow with N, so
+        // On at most 16 384 evenly strided points: H and B both grow with N, so
         // H⁻¹BH⁻¹ computed on m points is the covariance of N points times N/m.
         let stride = n.div_ceil(SANDWICH_POINTS).max(1);
         let sampled: Vec<[f64; 3]>;
