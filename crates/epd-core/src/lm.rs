@@ -282,12 +282,16 @@ const DIAG_FLOOR: f64 = 1e-12;
 const MAX_LAMBDA: f64 = 1e16;
 
 /// Minimise F(x) = Σ rᵢ² from `x0` by Levenberg–Marquardt.
+///
+/// A short loop over [`Solver`]'s steps: at each accepted point, the tests that need no
+/// step ([`Solver::stop_at_point`]); then damped steps ([`Solver::damped_step`]) until
+/// one is accepted ([`Solver::try_step`]) or a test ends the run.
 pub fn minimize<const N: usize, P: NormalEquationsProblem<N>>(
     problem: &P,
     x0: SVector<f64, N>,
     options: &LmOptions,
 ) -> LmReport<N> {
-    let Some(mut eq) = problem.normal_equations(&x0) else {
+    let Some(mut solver) = Solver::start(problem, x0, options) else {
         return LmReport {
             x: x0,
             equations: NormalEquations::zero(),
@@ -295,176 +299,351 @@ pub fn minimize<const N: usize, P: NormalEquationsProblem<N>>(
             iterations: 0,
         };
     };
-    let mut x = x0;
-    let mut lambda = options.initial_lambda;
-    let mut nu = 2.0;
-    let mut iterations = 0;
-    let done = |x: SVector<f64, N>, eq, status, iterations| LmReport {
-        x,
-        equations: eq,
-        status,
-        iterations,
-    };
     loop {
+        if let Some(status) = solver.stop_at_point() {
+            return solver.report(status);
+        }
+        loop {
+            match solver.try_step() {
+                Trial::Accepted => break,
+                Trial::Rejected => continue,
+                Trial::Stop(status) => return solver.report(status),
+            }
+        }
+    }
+}
+
+/// What one damped step led to.
+enum Trial {
+    /// The step lowered the cost and was taken; the next point's tests follow.
+    Accepted,
+    /// The step was refused and the damping raised; try again.
+    Rejected,
+    /// A test ended the run.
+    Stop(Status),
+}
+
+/// The state of one Levenberg–Marquardt run: the current point and its normal
+/// equations, the damping λ and its growth factor ν, and the damping diagonal D.
+struct Solver<'a, const N: usize, P: NormalEquationsProblem<N>> {
+    problem: &'a P,
+    options: &'a LmOptions,
+    x: SVector<f64, N>,
+    eq: NormalEquations<N>,
+    diag: SVector<f64, N>,
+    lambda: f64,
+    nu: f64,
+    iterations: usize,
+}
+
+impl<'a, const N: usize, P: NormalEquationsProblem<N>> Solver<'a, N, P> {
+    /// The state at `x0`, or `None` when the problem is undefined there.
+    fn start(problem: &'a P, x0: SVector<f64, N>, options: &'a LmOptions) -> Option<Self> {
+        let eq = problem.normal_equations(&x0)?;
+        Some(Self {
+            problem,
+            options,
+            x: x0,
+            eq,
+            diag: SVector::zeros(),
+            lambda: options.initial_lambda,
+            nu: 2.0,
+            iterations: 0,
+        })
+    }
+
+    /// The report at the current point.
+    fn report(&self, status: Status) -> LmReport<N> {
+        LmReport {
+            x: self.x,
+            equations: self.eq,
+            status,
+            iterations: self.iterations,
+        }
+    }
+
+    /// The tests at a new point, before any step: zero residuals, no curvature at all,
+    /// a vanishing gradient (MINPACK's cosine max_i |gᵢ| / (√Dᵢᵢ·√F) ≤ gtol), the
+    /// iteration limit. Sets the damping diagonal D = diag(max(Hᵢᵢ, ε·maxⱼ Hⱼⱼ)).
+    fn stop_at_point(&mut self) -> Option<Status> {
+        let eq = &self.eq;
         let tiny_cost = f64::MIN_POSITIVE * 1e10 * eq.n_residuals.max(1) as f64;
         if eq.cost <= tiny_cost {
-            return done(
-                x,
-                eq,
-                Status::Converged(Convergence::ZeroResidual),
-                iterations,
-            );
+            return Some(Status::Converged(Convergence::ZeroResidual));
         }
-        // Damping diagonal with a relative floor.
         let hmax = (0..N).map(|i| eq.jtj[(i, i)]).fold(0.0, f64::max);
         if !(hmax > 0.0) || !hmax.is_finite() {
-            return done(
-                x,
-                eq,
-                Status::Degenerate(DegenerateReason::NoDescent),
-                iterations,
-            );
+            return Some(Status::Degenerate(DegenerateReason::NoDescent));
         }
-        let diag = SVector::<f64, N>::from_fn(|i, _| eq.jtj[(i, i)].max(DIAG_FLOOR * hmax));
-        // Gradient test: max_i |gᵢ| / (√Hᵢᵢ·√F) ≤ gtol (MINPACK's cosine).
+        self.diag = SVector::<f64, N>::from_fn(|i, _| eq.jtj[(i, i)].max(DIAG_FLOOR * hmax));
         let gnorm = (0..N)
-            .map(|i| eq.jtr[i].abs() / (diag[i].sqrt() * eq.cost.sqrt()))
+            .map(|i| eq.jtr[i].abs() / (self.diag[i].sqrt() * eq.cost.sqrt()))
             .fold(0.0, f64::max);
-        if gnorm <= options.gtol {
-            return done(
-                x,
-                eq,
-                Status::Converged(Convergence::GradientTolerance),
-                iterations,
-            );
+        if gnorm <= self.options.gtol {
+            return Some(Status::Converged(Convergence::GradientTolerance));
         }
-        if iterations >= options.max_iterations {
-            return done(x, eq, Status::IterationLimit, iterations);
+        if self.iterations >= self.options.max_iterations {
+            return Some(Status::IterationLimit);
         }
-        // Find an acceptable step.
+        None
+    }
+
+    /// Raise the damping after a failed step: λ ← λν, ν ← 2ν. `Err` once λ passes
+    /// its limit.
+    fn raise_damping(&mut self) -> Result<(), Status> {
+        self.lambda *= self.nu;
+        self.nu *= 2.0;
+        if self.lambda > MAX_LAMBDA {
+            return Err(Status::Degenerate(DegenerateReason::NoDescent));
+        }
+        Ok(())
+    }
+
+    /// The step δ of (H + λD) δ = −g, raising λ until the system is solvable.
+    fn damped_step(&mut self) -> Result<SVector<f64, N>, Status> {
         loop {
-            let mut a = eq.jtj;
+            let mut a = self.eq.jtj;
             for i in 0..N {
-                a[(i, i)] += lambda * diag[i];
+                a[(i, i)] += self.lambda * self.diag[i];
             }
-            let step = a.cholesky().map(|c| -c.solve(&eq.jtr));
-            let Some(delta) = step.filter(|d| d.iter().all(|v| v.is_finite())) else {
-                lambda *= nu;
-                nu *= 2.0;
-                if lambda > MAX_LAMBDA {
-                    return done(
-                        x,
-                        eq,
-                        Status::Degenerate(DegenerateReason::NoDescent),
-                        iterations,
-                    );
-                }
-                continue;
-            };
-            // Scaled step and parameter norms.
-            let dnorm = (0..N)
-                .map(|i| (diag[i].sqrt() * delta[i]).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            let xnorm = (0..N)
-                .map(|i| (diag[i].sqrt() * x[i]).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            // Predicted reduction of the Gauss–Newton model: δᵀHδ + 2λ δᵀDδ.
-            let hd = eq.jtj * delta;
-            let predicted = delta.dot(&hd)
-                + 2.0 * lambda * (0..N).map(|i| diag[i] * delta[i] * delta[i]).sum::<f64>();
-            // Near Gauss–Newton (λ ≤ 1), a step the model says cannot lower the cost by
-            // more than ftol is not worth an evaluation: x is the minimum.
-            if lambda <= 1.0 && predicted <= options.ftol * eq.cost {
-                return done(
-                    x,
-                    eq,
-                    Status::Converged(Convergence::CostTolerance),
-                    iterations,
-                );
-            }
-            // Statistical test: the step, measured in the parameters' standard deviations
-            // (√(δᵀHδ/σ̂²), σ̂² = F/(m − N)), is below `stat_tol`. The model is then
-            // trusted for this last small step: it is taken without a further
-            // evaluation (the equations reported are those at the previous point, which
-            // differ by a negligible amount).
-            let dof = eq.n_residuals.saturating_sub(N).max(1) as f64;
-            if lambda <= 1.0
-                && options.stat_tol > 0.0
-                && delta.dot(&hd) <= options.stat_tol * options.stat_tol * eq.cost / dof
-            {
-                return done(
-                    x + delta,
-                    eq,
-                    Status::Converged(Convergence::WithinUncertainty),
-                    iterations + 1,
-                );
-            }
-            iterations += 1;
-            let x_new = x + delta;
-            let trial = problem
-                .normal_equations(&x_new)
-                .filter(|e| e.cost.is_finite());
-            match trial {
-                Some(new_eq) if new_eq.cost < eq.cost => {
-                    let actual = eq.cost - new_eq.cost;
-                    let gain = actual / predicted.max(f64::MIN_POSITIVE);
-                    lambda *= (1.0 - (2.0 * gain - 1.0).powi(3)).max(1.0 / 3.0);
-                    lambda = lambda.max(1e-15);
-                    nu = 2.0;
-                    let rel_actual = actual / eq.cost;
-                    let rel_pred = predicted / eq.cost;
-                    x = x_new;
-                    eq = new_eq;
-                    if rel_actual <= options.ftol && rel_pred <= options.ftol {
-                        return done(
-                            x,
-                            eq,
-                            Status::Converged(Convergence::CostTolerance),
-                            iterations,
-                        );
-                    }
-                    if dnorm <= options.xtol * xnorm {
-                        return done(
-                            x,
-                            eq,
-                            Status::Converged(Convergence::StepTolerance),
-                            iterations,
-                        );
-                    }
-                    break;
-                }
-                _ => {
-                    // Rejected: the step left the domain or did not lower the cost.
-                    // The model, trusted near Gauss–Newton (λ ≤ 1), cannot improve the
-                    // cost beyond rounding, or the step is negligible: x is the minimum.
-                    // (With large λ a tiny prediction only means heavy damping.)
-                    let negligible_model =
-                        lambda <= 1.0 && predicted <= options.ftol * eq.cost * 1e-2;
-                    if dnorm <= options.xtol * xnorm || negligible_model {
-                        return done(
-                            x,
-                            eq,
-                            Status::Converged(Convergence::StepTolerance),
-                            iterations,
-                        );
-                    }
-                    lambda *= nu;
-                    nu *= 2.0;
-                    if lambda > MAX_LAMBDA {
-                        return done(
-                            x,
-                            eq,
-                            Status::Degenerate(DegenerateReason::NoDescent),
-                            iterations,
-                        );
-                    }
-                    if iterations >= options.max_iterations {
-                        return done(x, eq, Status::IterationLimit, iterations);
-                    }
-                }
+            let step = a.cholesky().map(|c| -c.solve(&self.eq.jtr));
+            match step.filter(|d| d.iter().all(|v| v.is_finite())) {
+                Some(delta) => return Ok(delta),
+                None => self.raise_damping()?,
             }
         }
+    }
+
+    /// One damped step: the tests on the model's prediction, then the evaluation at
+    /// x + δ, accepted when it lowers the cost (Nielsen's update of λ), refused
+    /// otherwise.
+    fn try_step(&mut self) -> Trial {
+        let delta = match self.damped_step() {
+            Ok(d) => d,
+            Err(status) => return Trial::Stop(status),
+        };
+        let (lambda, diag, cost) = (self.lambda, self.diag, self.eq.cost);
+        // Scaled step and parameter norms.
+        let dnorm = (0..N)
+            .map(|i| (diag[i].sqrt() * delta[i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let xnorm = (0..N)
+            .map(|i| (diag[i].sqrt() * self.x[i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        // Predicted reduction of the Gauss–Newton model: δᵀHδ + 2λ δᵀDδ.
+        let hd = self.eq.jtj * delta;
+        let predicted = delta.dot(&hd)
+            + 2.0 * lambda * (0..N).map(|i| diag[i] * delta[i] * delta[i]).sum::<f64>();
+        // Near Gauss–Newton (λ ≤ 1), a step the model says cannot lower the cost by
+        // more than ftol is not worth an evaluation: x is the minimum.
+        if lambda <= 1.0 && predicted <= self.options.ftol * cost {
+            return Trial::Stop(Status::Converged(Convergence::CostTolerance));
+        }
+        // Statistical test: the step, measured in the parameters' standard deviations
+        // (√(δᵀHδ/σ̂²), σ̂² = F/(m − N)), is below `stat_tol`. The model is then trusted
+        // for this last small step: it is taken without a further evaluation (the
+        // equations reported are those at the previous point, which differ by a
+        // negligible amount).
+        let dof = self.eq.n_residuals.saturating_sub(N).max(1) as f64;
+        let stat = self.options.stat_tol;
+        if lambda <= 1.0 && stat > 0.0 && delta.dot(&hd) <= stat * stat * cost / dof {
+            self.x += delta;
+            self.iterations += 1;
+            return Trial::Stop(Status::Converged(Convergence::WithinUncertainty));
+        }
+        self.iterations += 1;
+        let x_new = self.x + delta;
+        let trial = self
+            .problem
+            .normal_equations(&x_new)
+            .filter(|e| e.cost.is_finite() && e.cost < cost);
+        let Some(new_eq) = trial else {
+            // Refused: the step left the domain or did not lower the cost. (A refused
+            // step near Gauss–Newton whose predicted gain is below ftol cannot occur:
+            // the test above stopped before evaluating it.)
+            if dnorm <= self.options.xtol * xnorm {
+                return Trial::Stop(Status::Converged(Convergence::StepTolerance));
+            }
+            if let Err(status) = self.raise_damping() {
+                return Trial::Stop(status);
+            }
+            if self.iterations >= self.options.max_iterations {
+                return Trial::Stop(Status::IterationLimit);
+            }
+            return Trial::Rejected;
+        };
+        let actual = cost - new_eq.cost;
+        let gain = actual / predicted.max(f64::MIN_POSITIVE);
+        self.lambda = (lambda * (1.0 - (2.0 * gain - 1.0).powi(3)).max(1.0 / 3.0)).max(1e-15);
+        self.nu = 2.0;
+        self.x = x_new;
+        self.eq = new_eq;
+        if actual / cost <= self.options.ftol && predicted / cost <= self.options.ftol {
+            return Trial::Stop(Status::Converged(Convergence::CostTolerance));
+        }
+        if dnorm <= self.options.xtol * xnorm {
+            return Trial::Stop(Status::Converged(Convergence::StepTolerance));
+        }
+        Trial::Accepted
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! Every exit of the solver, each reached by a problem built for it.
+    use super::*;
+
+    /// A one-parameter problem from residuals r(x) with gradients, or `None` outside
+    /// its domain.
+    struct One<F: Fn(f64) -> Option<Vec<(f64, f64)>>>(F);
+
+    impl<F: Fn(f64) -> Option<Vec<(f64, f64)>>> NormalEquationsProblem<1> for One<F> {
+        fn normal_equations(&self, x: &SVector<f64, 1>) -> Option<NormalEquations<1>> {
+            let mut eq = NormalEquations::zero();
+            for (r, j) in (self.0)(x[0])? {
+                eq.push(r, &[j]);
+            }
+            Some(eq)
+        }
+    }
+
+    /// A problem handing the solver raw equations.
+    struct Raw(NormalEquations<1>);
+
+    impl NormalEquationsProblem<1> for Raw {
+        fn normal_equations(&self, _: &SVector<f64, 1>) -> Option<NormalEquations<1>> {
+            Some(self.0)
+        }
+    }
+
+    fn run<P: NormalEquationsProblem<1>>(p: &P, x0: f64, o: LmOptions) -> LmReport<1> {
+        minimize(p, SVector::from([x0]), &o)
+    }
+
+    /// r = (x − 1, x + 1): minimum at 0 with F = 2.
+    fn pair(x: f64) -> Option<Vec<(f64, f64)>> {
+        Some(vec![(x - 1.0, 1.0), (x + 1.0, 1.0)])
+    }
+
+    /// r = x − 90 on the domain x ≥ `lo`.
+    fn walled(lo: f64) -> impl Fn(f64) -> Option<Vec<(f64, f64)>> {
+        move |x| (x >= lo).then(|| vec![(x - 90.0, 1.0)])
+    }
+
+    #[test]
+    fn undefined_start() {
+        let r = run(&One(|_| None), 0.0, LmOptions::default());
+        assert_eq!(r.status, Status::Degenerate(DegenerateReason::InvalidStart));
+    }
+
+    #[test]
+    fn zero_residual() {
+        let r = run(
+            &One(|x| Some(vec![(x - 3.0, 1.0)])),
+            3.0,
+            LmOptions::default(),
+        );
+        assert_eq!(r.status, Status::Converged(Convergence::ZeroResidual));
+    }
+
+    #[test]
+    fn no_curvature_at_all() {
+        let r = run(&One(|_| Some(vec![(1.0, 0.0)])), 0.0, LmOptions::default());
+        assert_eq!(r.status, Status::Degenerate(DegenerateReason::NoDescent));
+    }
+
+    #[test]
+    fn vanishing_gradient() {
+        let r = run(&One(pair), 0.0, LmOptions::default());
+        assert_eq!(r.status, Status::Converged(Convergence::GradientTolerance));
+        assert_eq!(r.iterations, 0);
+    }
+
+    #[test]
+    fn iteration_limit_at_a_point() {
+        let o = LmOptions::default().with_max_iterations(1).unwrap();
+        let rosen = |x: f64| Some(vec![(10.0 * (x * x - 1.0), 20.0 * x), (1.0 - x, -1.0)]);
+        let r = run(&One(rosen), -1.2, o);
+        assert_eq!(r.status, Status::IterationLimit);
+        assert_eq!(r.iterations, 1);
+    }
+
+    #[test]
+    fn unsolvable_damped_system() {
+        let mut eq = NormalEquations::zero();
+        eq.push(1.0, &[1.0]);
+        eq.jtr[0] = f64::INFINITY;
+        let r = run(&Raw(eq), 0.0, LmOptions::default());
+        assert_eq!(r.status, Status::Degenerate(DegenerateReason::NoDescent));
+    }
+
+    #[test]
+    fn model_predicts_no_gain() {
+        // The gain 2x² is 5e-15 of F = 2: below ftol, yet representable.
+        let r = run(&One(pair), 7e-8, LmOptions::default());
+        assert_eq!(r.status, Status::Converged(Convergence::CostTolerance));
+        assert_eq!(r.iterations, 0, "stopped before evaluating");
+    }
+
+    #[test]
+    fn step_within_the_uncertainty() {
+        // 100 residuals x − yᵢ: the step to their mean is ≪ 0.5 σ of the mean.
+        let ys: Vec<f64> = (0..100)
+            .map(|i| ((i * 37) % 100) as f64 / 50.0 - 1.0)
+            .collect();
+        let mean = ys.iter().sum::<f64>() / 100.0;
+        let problem = One(move |x| Some(ys.iter().map(|y| (x - y, 1.0)).collect()));
+        let o = LmOptions::default().with_stat_tol(0.5).unwrap();
+        let r = run(&problem, mean + 1e-3, o);
+        assert_eq!(r.status, Status::Converged(Convergence::WithinUncertainty));
+        assert!((r.x[0] - mean).abs() < 1e-6);
+    }
+
+    #[test]
+    fn accepted_step_with_no_gain() {
+        // Damping λ > 1 skips the model test: the step is evaluated, accepted and its
+        // gain is below ftol.
+        let o = LmOptions::default().with_initial_lambda(2.0).unwrap();
+        let r = run(&One(pair), 7e-8, o);
+        assert_eq!(r.status, Status::Converged(Convergence::CostTolerance));
+        assert_eq!(r.iterations, 1);
+    }
+
+    #[test]
+    fn accepted_small_step() {
+        let o = LmOptions::default()
+            .with_ftol(0.0)
+            .unwrap()
+            .with_xtol(0.5)
+            .unwrap();
+        let r = run(&One(walled(f64::NEG_INFINITY)), 100.0, o);
+        assert_eq!(r.status, Status::Converged(Convergence::StepTolerance));
+        assert_eq!(r.iterations, 1);
+    }
+
+    #[test]
+    fn refused_small_step() {
+        let o = LmOptions::default().with_xtol(0.9).unwrap();
+        let r = run(&One(walled(100.0)), 100.0, o);
+        assert_eq!(r.status, Status::Converged(Convergence::StepTolerance));
+        assert_eq!(r.x[0], 100.0);
+    }
+
+    #[test]
+    fn every_step_refused() {
+        let o = LmOptions::default().with_xtol(0.0).unwrap();
+        let r = run(&One(walled(100.0)), 100.0, o);
+        assert_eq!(r.status, Status::Degenerate(DegenerateReason::NoDescent));
+        assert_eq!(r.x[0], 100.0);
+    }
+
+    #[test]
+    fn iteration_limit_while_refusing() {
+        let o = LmOptions::default().with_max_iterations(3).unwrap();
+        let r = run(&One(walled(100.0)), 100.0, o);
+        assert_eq!(r.status, Status::IterationLimit);
+        assert_eq!(r.iterations, 3);
     }
 }
