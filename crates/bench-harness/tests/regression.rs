@@ -81,12 +81,14 @@ fn ci_regression_physics_and_drift() {
             "σ={value}: C-EPD bias {:.3} mm vs 1.75σ²/ID = {expected:.3} mm",
             c.stats.mean
         );
-        // RU-EPD and ML-EPD are unbiased within their standard error (Theorem 2).
-        for m in ["ru-epd", "ml-epd"] {
+        // ML-EPD is unbiased within 3 standard errors. RU-EPD (Theorem 2) keeps a
+        // second-order bias that grows with the tilt (README "Tilt": +0.13 mm at 5° and
+        // σ = 0.05 m; the poses here reach ±5°): 3 standard errors + 0.15 mm.
+        for (m, allowance) in [("ru-epd", 0.15), ("ml-epd", 0.0)] {
             for q in ["dmax", "dmin", "dmean"] {
                 let r = get(s, value, m, q);
                 assert_eq!(r.n_failed, 0, "{m} failed fits");
-                let limit = 3.0 * r.stats.sem() + 0.05;
+                let limit = 3.0 * r.stats.sem() + allowance;
                 assert!(
                     r.stats.mean.abs() < limit,
                     "σ={value} {m} {q}: bias {:.4} mm, limit {limit:.4}",

@@ -27,17 +27,39 @@ fn c_epd_is_biased_ru_and_ml_are_not() {
             sq[i] += e.d_mean * e.d_mean;
         }
     }
-    let mean: Vec<f64> = sums.iter().map(|s| s / poses as f64 * 1e3).collect();
+    let n = poses as f64;
+    let mean: Vec<f64> = sums.iter().map(|s| s / n * 1e3).collect();
+    // Standard error of each mean from the scatter over the poses.
+    let sem: Vec<f64> = (0..3)
+        .map(|i| ((sq[i] * 1e6 / n - mean[i] * mean[i]).max(0.0) * n / (n - 1.0) / n).sqrt())
+        .collect();
+    let expected = 1.75 * sigma * sigma / id * 1e3;
     eprintln!(
-        "mean-diameter bias (mm): c-epd {:.3}, ru-epd {:.3}, ml-epd {:.3}; 1.75σ²/ID = {:.3} mm",
-        mean[0],
-        mean[1],
-        mean[2],
-        1.75 * sigma * sigma / id * 1e3
+        "mean-diameter bias (mm): c-epd {:.3} ± {:.3}, ru-epd {:.3} ± {:.3}, ml-epd {:.3} ± {:.3}; \
+         1.75σ²/ID = {expected:.3} mm",
+        mean[0], sem[0], mean[1], sem[1], mean[2], sem[2]
     );
-    assert!(mean[0] > 3.0, "C-EPD bias {} mm", mean[0]);
-    assert!(mean[1].abs() < 0.5, "RU-EPD bias {} mm", mean[1]);
-    assert!(mean[2].abs() < 0.5, "ML-EPD bias {} mm", mean[2]);
+    // C-EPD: the σ²/ID law within 30 % (its scatter is far smaller).
+    assert!(
+        (mean[0] / expected - 1.0).abs() < 0.3,
+        "C-EPD bias {} mm",
+        mean[0]
+    );
+    // ML-EPD: unbiased within 3 standard errors.
+    assert!(
+        mean[2].abs() < 3.0 * sem[2],
+        "ML-EPD bias {} ± {} mm",
+        mean[2],
+        sem[2]
+    );
+    // RU-EPD: within 3 standard errors of a second-order bias that grows with the tilt
+    // (README "Tilt"; here pitch and yaw reach ±5°): at most 0.4 mm at σ = 0.05 m.
+    assert!(
+        mean[1].abs() < 3.0 * sem[1] + 0.4,
+        "RU-EPD bias {} ± {} mm",
+        mean[1],
+        sem[1]
+    );
 }
 
 /// The reported 1-σ of RU-EPD and ML-EPD agree with the scatter over repeated noise

@@ -1,5 +1,7 @@
 //! Memory: no heap allocation per point inside the solver, and the peak for 10⁶ points
-//! stays below 100 MB beyond the input. Measured with a counting global allocator.
+//! stays below 2 MB beyond the input (measured 0.6 MB: the strided subsamples of the
+//! stages, the initial guess and the plausibility check, each ≤ 8192 points).
+//! Measured with a counting global allocator.
 
 mod common;
 
@@ -66,7 +68,7 @@ fn memory_is_bounded_and_allocations_do_not_scale_with_points() {
             "{m}: 10⁶ points: peak {:.1} MB beyond the input, {count_big} allocations (10⁵: {count_small})",
             peak_big as f64 / 1e6
         );
-        assert!(peak_big < 100_000_000, "{m}: peak {peak_big} B");
+        assert!(peak_big < 2_000_000, "{m}: peak {peak_big} B");
         // Allocations per solver pass are per chunk, not per point: 10× the points may
         // cost a few more chunk partials, never 10× the allocations.
         assert!(
