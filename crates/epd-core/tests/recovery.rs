@@ -94,3 +94,76 @@ fn circular_pipe_recovers_what_is_observable() {
         }
     }
 }
+
+/// Noisy clouds from cold starts (the data-only initial guess, never the truth): 300
+/// random poses over the promised ranges (any roll, pitch/yaw ±15°, offsets up to 25 %
+/// of the radius, 16–30", 1–6 % ovality, σ = 0.01–0.05 m range noise). RU-EPD and
+/// ML-EPD always converge, C-EPD on at least 98 % of the poses (refused, not wrong,
+/// on the others: measured 3 of 300); ML-EPD, the maximum-likelihood fit, lands within 5 reported standard
+/// deviations of the truth in every determined parameter (a diverged or wrong-basin fit
+/// is off by hundreds); its mean-diameter error over the poses is within 3 standard
+/// errors of zero.
+#[test]
+fn noisy_clouds_from_cold_starts() {
+    let mut rng = common::rng(4242);
+    let opts = EstimateOptions::default();
+    let poses = 300;
+    let mut fails = Vec::new();
+    let mut dmean = Vec::new();
+    let mut c_refused = 0;
+    for k in 0..poses {
+        let od = rng.random_range(16.0..30.0f64);
+        let ovality = rng.random_range(0.01..0.06f64);
+        let sigma = rng.random_range(0.01..0.05f64);
+        let truth = common::random_params(&mut rng, common::id_m(od), ovality, 15.0, 0.25);
+        let pts = common::cloud(&truth, 160, 120, 6.0, sigma, 0, 9000 + k as u64);
+        for method in Method::ALL {
+            let est = match estimate(&pts, method, &opts) {
+                Ok(e) => e,
+                Err(e) => {
+                    fails.push(format!("pose {k} {method}: {e}"));
+                    continue;
+                }
+            };
+            if !est.status.is_converged() {
+                // C-EPD's cost falls along ever larger ellipses and its bias grows with
+                // the tilt: a refusal is its honest answer on a few tilted, noisy poses.
+                if method == Method::CEpd {
+                    c_refused += 1;
+                } else {
+                    fails.push(format!("pose {k} {method}: {}", est.status.reason()));
+                }
+                continue;
+            }
+            if method != Method::MlEpd {
+                continue;
+            }
+            let e = errors_against(&est.params, &truth);
+            dmean.push(e.d_mean);
+            let errs = [e.d_max, e.d_min, e.roll, e.pitch, e.yaw, e.dy, e.dz];
+            for (i, err) in errs.iter().enumerate() {
+                if let Some(s) = est.sigma[i]
+                    && err.abs() > 5.0 * s
+                {
+                    fails.push(format!(
+                        "pose {k} ml-epd parameter {i}: error {err:.3e} = {:.1} σ̂",
+                        err.abs() / s
+                    ));
+                }
+            }
+        }
+    }
+    let n = dmean.len() as f64;
+    let m = dmean.iter().sum::<f64>() / n;
+    let sem = (dmean.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt();
+    eprintln!(
+        "{poses} noisy poses: {} failures, {c_refused} C-EPD fits refused; ML-EPD mean-diameter \
+         error {:.4} ± {:.4} mm",
+        fails.len(),
+        m * 1e3,
+        sem * 1e3
+    );
+    assert!(fails.is_empty(), "{}", fails.join("\n"));
+    assert!(c_refused <= poses / 50, "{c_refused} C-EPD fits refused");
+    assert!(m.abs() < 3.0 * sem, "ML-EPD bias {m} ± {sem}");
+}
