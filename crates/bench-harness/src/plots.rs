@@ -42,6 +42,8 @@ struct Series {
     points: Vec<(f64, f64, f64, f64)>,
     bars: bool,
     marker_triangle: bool,
+    /// A reference line (the Cramér–Rao bound): dashed, no markers, drawn first.
+    dashed: bool,
 }
 
 struct Panel<'a> {
@@ -58,7 +60,14 @@ struct Axis {
 
 impl Axis {
     fn f(&self, v: f64) -> f64 {
-        if self.log { v.max(1e-300).log10() } else { v }
+        // Not drawn: a missing value, or a non-positive one on a log axis.
+        if !self.log {
+            v
+        } else if v > 0.0 {
+            v.log10()
+        } else {
+            f64::NAN
+        }
     }
     fn label(&self, v: f64) -> String {
         if self.log {
@@ -120,7 +129,8 @@ fn draw_panel(
     x0 -= dx;
     x1 += dx;
     y0 -= dy;
-    y1 += dy;
+    // Headroom above the data for the legend (upper left), one line per series.
+    y1 += dy + (y1 - y0) * (0.09 * p.series.len() as f64 + 0.04);
     let mut chart = ChartBuilder::on(area)
         .caption(&p.title, (FONT, 20))
         .margin(8)
@@ -143,7 +153,13 @@ fn draw_panel(
     let n = p.series.iter().filter(|s| s.bars).count().max(1) as f64;
     let step = 0.012 * (x1 - x0);
     let mut bar_i = 0.0;
-    for s in p.series {
+    // Reference lines first, beneath the methods.
+    let ordered = p
+        .series
+        .iter()
+        .filter(|s| s.dashed)
+        .chain(p.series.iter().filter(|s| !s.dashed));
+    for s in ordered {
         let shift = if s.bars {
             let v = (bar_i - (n - 1.0) / 2.0) * step;
             bar_i += 1.0;
@@ -158,6 +174,16 @@ fn draw_panel(
             .map(|&(x, m, _, _)| (xa.f(x) + shift, ya.f(m)))
             .filter(|(x, y)| x.is_finite() && y.is_finite())
             .collect();
+        if s.dashed {
+            chart
+                .draw_series(DashedLineSeries::new(line.clone(), 7, 5, c.stroke_width(2)))
+                .map_err(|e| err(e.to_string()))?
+                .label(s.name.clone())
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 8, y)], c.stroke_width(2))
+                });
+            continue;
+        }
         chart
             .draw_series(LineSeries::new(line.clone(), c.stroke_width(2)))
             .map_err(|e| err(e.to_string()))?
@@ -265,9 +291,42 @@ fn xs(values: &[String]) -> Vec<f64> {
     }
 }
 
-/// Every plot of a scenario: diameter errors (Figs. 4, 5, 8), pose errors (Fig. 6),
-/// time (Fig. 7; log–log over `points`) and standard deviation against the Cramér–Rao
-/// bound.
+/// A reader's label for a swept scenario key.
+fn axis_label(key: &str) -> String {
+    match key {
+        "noise.sigma_m" => "depth error σ (m)".into(),
+        "noise.outlier_fraction" => "fraction of range outliers".into(),
+        "noise.far_outlier_fraction" => "fraction of far outliers".into(),
+        "noise.bias_b0_m" => "depth bias offset b0 (m)".into(),
+        "noise.bias_b1" => "depth bias slope b1".into(),
+        "pipe.nominal_od_in" => "nominal pipe diameter (inch)".into(),
+        "pipe.ovality" => "ovality (Dmax − Dmin)/ID".into(),
+        "pipe.wall_thickness_mm" => "wall thickness (mm)".into(),
+        "poses.tilt_deg" => "tilt between pipe axis and optical axis (°)".into(),
+        "points" => "input size N (points)".into(),
+        "loss_scale_m" => "robust loss scale (m)".into(),
+        "sensor.max_range_m" => "largest range kept (m)".into(),
+        "sensor.min_range_m" => "smallest range kept (m)".into(),
+        other => {
+            // `section.some_key_unit` → "some key (unit)".
+            let last = other.rsplit('.').next().unwrap_or(other);
+            let mut words: Vec<&str> = last.split('_').collect();
+            let unit = match words.last() {
+                Some(&u) if ["m", "mm", "deg", "in"].contains(&u) => {
+                    words.pop();
+                    format!(" ({u})")
+                }
+                _ => String::new(),
+            };
+            format!("{}{unit}", words.join(" "))
+        }
+    }
+}
+
+/// Every plot of a scenario: diameter errors (Figs. 4, 5, 8; a second row without
+/// C-EPD, whose bias sets the scale), the mean-diameter error, pose errors (Fig. 6),
+/// time (Fig. 7; log–log over `points`) and the standard deviation of every parameter
+/// against the Cramér–Rao bound (dashed).
 pub fn plot_all(
     scenario: &Scenario,
     summary: &[SummaryRow],
@@ -285,12 +344,7 @@ pub fn plot_all(
     let log_x =
         scenario.sweep_variable == "points" && x.iter().all(|&v| v > 0.0) && values.len() > 1;
     let xa = Axis { log: log_x };
-    let x_label = match scenario.sweep_variable.as_str() {
-        "noise.sigma_m" => "depth error σ (m)".to_string(),
-        "pipe.nominal_od_in" => "nominal pipe diameter (inch)".to_string(),
-        "points" => "input size N (points)".to_string(),
-        v => v.to_string(),
-    };
+    let x_label = axis_label(&scenario.sweep_variable);
     let select = |q: &str, m: &str| -> Vec<&SummaryRow> {
         summary
             .iter()
@@ -314,6 +368,7 @@ pub fn plot_all(
                     .collect(),
                 bars,
                 marker_triangle: false,
+                dashed: false,
             })
             .collect()
     };
@@ -321,29 +376,55 @@ pub fn plot_all(
     let error_series = |q: &str| method_series(q, "(bias, range)", true, bias_and_range);
     let mut files = Vec::new();
     let name = &scenario.name;
-    let d = [error_series("dmax"), error_series("dmin")];
-    files.push(render(
-        Figure {
-            path: out.join("diameter_error.png"),
-            title: format!("{name}: diameter estimation error (line: bias, bars: min…max)"),
-            grid: (1, 2),
-            size: (1400, 560),
-            x_label: &x_label,
-            xa,
-            ya: Axis { log: false },
-        },
-        &[
-            Panel {
-                title: "major axis Dmax".into(),
+    // Without C-EPD, whose bias sets the scale: the small biases of RU-EPD and ML-EPD.
+    let without_c = |v: Vec<Series>| -> Vec<Series> {
+        v.into_iter()
+            .filter(|s| !s.name.starts_with("C-EPD"))
+            .collect()
+    };
+    let has_c = methods.iter().any(|m| m == "c-epd") && methods.len() > 1;
+    let diameter_figure = |qs: &[(&str, &str)], file: &str, what: &str| {
+        let all: Vec<Vec<Series>> = qs.iter().map(|(q, _)| error_series(q)).collect();
+        let zoomed: Vec<Vec<Series>> = qs.iter().map(|(q, _)| without_c(error_series(q))).collect();
+        let mut panels: Vec<Panel<'_>> = qs
+            .iter()
+            .zip(&all)
+            .map(|((_, t), s)| Panel {
+                title: (*t).into(),
                 y_label: "error (mm)".into(),
-                series: &d[0],
-            },
-            Panel {
-                title: "minor axis Dmin".into(),
+                series: s,
+            })
+            .collect();
+        if has_c {
+            panels.extend(qs.iter().zip(&zoomed).map(|((_, t), s)| Panel {
+                title: format!("{t}, without C-EPD"),
                 y_label: "error (mm)".into(),
-                series: &d[1],
+                series: s,
+            }));
+        }
+        let rows = if has_c { 2 } else { 1 };
+        render(
+            Figure {
+                path: out.join(file),
+                title: format!("{name}: {what} (line: bias, bars: min…max)"),
+                grid: (rows, qs.len()),
+                size: (700 * qs.len() as u32 + 40, 520 * rows as u32 + 40),
+                x_label: &x_label,
+                xa,
+                ya: Axis { log: false },
             },
-        ],
+            &panels,
+        )
+    };
+    files.push(diameter_figure(
+        &[("dmax", "major axis Dmax"), ("dmin", "minor axis Dmin")],
+        "diameter_error.png",
+        "diameter estimation error",
+    )?);
+    files.push(diameter_figure(
+        &[("dmean", "mean diameter (Dmax + Dmin)/2")],
+        "dmean_error.png",
+        "mean-diameter error",
     )?);
     let pose = [
         error_series("roll"),
@@ -372,8 +453,8 @@ pub fn plot_all(
         Figure {
             path: out.join("pose_error.png"),
             title: format!("{name}: pose estimation error (line: bias, bars: min…max)"),
-            grid: (2, 3),
-            size: (1500, 900),
+            grid: (1, 5),
+            size: (2300, 520),
             x_label: &x_label,
             xa,
             ya: Axis { log: false },
@@ -407,14 +488,18 @@ pub fn plot_all(
     let crb_panels = [
         ("dmax", "Dmax", "mm"),
         ("dmin", "Dmin", "mm"),
-        ("roll", "roll", "deg"),
+        ("dmean", "mean diameter (no bound)", "mm"),
+        ("roll", "roll θx", "deg"),
+        ("pitch", "pitch θy", "deg"),
+        ("yaw", "yaw θz", "deg"),
         ("dy", "δy", "mm"),
+        ("dz", "δz", "mm"),
     ];
     let crb_series: Vec<Vec<Series>> = crb_panels
         .iter()
         .map(|(q, _, _)| {
             let mut v = method_series(q, "std", false, |r| Some((r.stats.std, f64::NAN, f64::NAN)));
-            if let Some(m) = methods.first() {
+            if let Some(m) = methods.first().filter(|_| *q != "dmean") {
                 v.push(Series {
                     name: "Cramér–Rao bound".into(),
                     colour: RGBColor(0, 0, 0),
@@ -423,7 +508,8 @@ pub fn plot_all(
                         .filter_map(|r| Some((xv(&r.sweep_value)?, r.crb_std?, f64::NAN, f64::NAN)))
                         .collect(),
                     bars: false,
-                    marker_triangle: true,
+                    marker_triangle: false,
+                    dashed: true,
                 });
             }
             v
@@ -441,14 +527,39 @@ pub fn plot_all(
     files.push(render(
         Figure {
             path: out.join("std_vs_crb.png"),
-            title: format!("{name}: spread of the estimates against the Cramér–Rao bound"),
-            grid: (2, 2),
-            size: (1300, 900),
+            title: format!(
+                "{name}: spread of the estimates against the Cramér–Rao bound (log scale)"
+            ),
+            grid: (2, 4),
+            size: (2200, 1000),
             x_label: &x_label,
             xa,
-            ya: Axis { log: false },
+            ya: Axis { log: true },
         },
         &panels,
     )?);
     Ok(files)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn axis_labels_are_for_people() {
+        assert_eq!(
+            axis_label("noise.outlier_fraction"),
+            "fraction of range outliers"
+        );
+        assert_eq!(axis_label("pipe.some_length_mm"), "some length (mm)");
+        assert_eq!(axis_label("seed"), "seed");
+        assert!(!axis_label("poses.tilt_deg").contains('.'));
+    }
+
+    #[test]
+    fn missing_or_non_positive_values_are_not_drawn_on_a_log_axis() {
+        let a = Axis { log: true };
+        assert!(a.f(f64::NAN).is_nan() && a.f(0.0).is_nan() && a.f(-1.0).is_nan());
+        assert_eq!(a.f(100.0), 2.0);
+    }
 }
