@@ -4,6 +4,7 @@
 //! epd estimate FILE… [--method ml-epd|ru-epd|c-epd] [--min-range M] [--max-range M]
 //!                    [--format text|json|csv] [--nominal-od-in X] [--loss cauchy|huber|none]
 //!                    [--loss-scale M] [--units m|mm] [--frame sensor|optical]
+//!                    [--input-format F] [-o FILE] [--threads N] [-q]
 //! epd simulate --out DIR [--frames K] [--seed S] [--sigma M] [--od-in X] [--ovality O]
 //!              [--wall-mm T] [--points N] [--outliers F] [--noise range|isotropic]
 //!              [--ply binary|ascii] [--precision f64|f32]
@@ -11,34 +12,223 @@
 //! Exit codes: 0 all files estimated, 1 a file failed or its fit did not converge to a
 //! result consistent with its points (the others are still reported), 2 wrong arguments.
 
+use std::io::{BufWriter, ErrorKind, Write};
+use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
-use anyhow::{Context, bail};
-use epd_cli::read::read_path;
+use anyhow::Context;
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use epd_cli::read::{Format, MAX_INPUT_BYTES, PointCloud, read_from, read_path};
 use epd_cli::report::{FileEstimate, FileReport, columns};
 use epd_core::{EstimateOptions, Loss, LossScale, Method, estimate, rms_range_residual};
 use indicatif::ProgressBar;
 use rayon::prelude::*;
 
-const USAGE: &str = "usage:
-  epd estimate FILE… [--method ml-epd|ru-epd|c-epd] [--min-range M] [--max-range M]
-                     [--format text|json|csv] [--nominal-od-in X] [--loss cauchy|huber|none] [--loss-scale M]
-                     [--units m|mm] [--frame sensor|optical]
-  epd simulate --out DIR [--frames K] [--seed S] [--sigma M] [--od-in X] [--ovality O] [--wall-mm T]
-               [--points N] [--outliers F] [--noise range|isotropic] [--ply binary|ascii] [--precision f64|f32]";
+/// Pipe diameters and sensor pose from 3D time-of-flight point clouds (RU-EPD, ML-EPD).
+#[derive(Parser, Debug)]
+#[command(
+    name = "epd",
+    version,
+    propagate_version = true,
+    subcommand_required = true,
+    arg_required_else_help = false
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
 
-/// Default method: ML-EPD, unbiased across tilt for noise along the sensing line (see
-/// README, "Tilt").
-const DEFAULT_METHOD: &str = "ml-epd";
-/// Default robust loss: Cauchy, its scale taken from the residuals (2.3849 × their
-/// robust standard deviation) unless --loss-scale sets it (see README, "Outliers").
-const DEFAULT_LOSS: &str = "cauchy";
-/// The seed scale of the first robust pass (m) when --loss-scale is not given.
-const DEFAULT_LOSS_SCALE_M: f64 = 0.05;
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Estimate the pipe and the pose from point-cloud files, one result per file.
+    Estimate(EstimateArgs),
+    /// Simulate Helios2-like frames (PLY) with their ground truth (JSON).
+    Simulate(SimulateArgs),
+}
 
-/// A usage error (exit code 2).
+/// The estimator, by its name in reports.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum MethodArg {
+    /// Range residual along the sensing line (maximum likelihood; unbiased across tilt).
+    #[value(name = "ml-epd")]
+    MlEpd,
+    /// The paper's error-based residual (eqs. 20–23).
+    #[value(name = "ru-epd")]
+    RuEpd,
+    /// The canonical-ellipse residual (eq. 6; biased under noise).
+    #[value(name = "c-epd")]
+    CEpd,
+}
+
+impl From<MethodArg> for Method {
+    fn from(m: MethodArg) -> Method {
+        match m {
+            MethodArg::MlEpd => Method::MlEpd,
+            MethodArg::RuEpd => Method::RuEpd,
+            MethodArg::CEpd => Method::CEpd,
+        }
+    }
+}
+
+/// How results are written.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum OutputFormat {
+    /// A few lines per file, for people.
+    Text,
+    /// One JSON object per file and line.
+    Json,
+    /// A header, then one row per file.
+    Csv,
+}
+
+/// The robust loss.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum LossArg {
+    /// Cauchy (far outliers weigh almost nothing).
+    Cauchy,
+    /// Huber.
+    Huber,
+    /// Plain least squares.
+    None,
+}
+
+/// The length unit of the file.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum UnitsArg {
+    /// Metres.
+    M,
+    /// Millimetres (the Helios2 SDK's unit).
+    Mm,
+}
+
+/// The coordinate frame of the file.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum FrameArg {
+    /// X forward (optical axis), Y right, Z up: the paper's frame.
+    Sensor,
+    /// X right, Y down, Z forward: camera SDKs, PCL, Open3D, ROS.
+    Optical,
+}
+
+#[derive(Args, Debug)]
+struct EstimateArgs {
+    /// Point-cloud files: PLY, PCD, CSV/XYZ/TXT/PTS; `-` reads standard input.
+    #[arg(required = true, value_name = "FILE")]
+    files: Vec<PathBuf>,
+    /// The estimator.
+    #[arg(long, value_enum, default_value_t = MethodArg::MlEpd)]
+    method: MethodArg,
+    /// Keep the points whose ray meets the fitted wall at least this far (m).
+    #[arg(long, value_name = "M", allow_negative_numbers = true)]
+    min_range: Option<f64>,
+    /// Keep the points whose ray meets the fitted wall at most this far (m).
+    #[arg(long, value_name = "M", allow_negative_numbers = true)]
+    max_range: Option<f64>,
+    /// How results are written.
+    #[arg(long, value_enum, default_value_t = OutputFormat::Text)]
+    format: OutputFormat,
+    /// Nominal outer diameter (inch): the wall thickness is estimated from it.
+    #[arg(long, value_name = "X", allow_negative_numbers = true)]
+    nominal_od_in: Option<f64>,
+    /// Robust loss against outliers.
+    #[arg(long, value_enum, default_value_t = LossArg::Cauchy)]
+    loss: LossArg,
+    /// Fixed loss scale (m of range error); without it the scale comes from the residuals.
+    #[arg(long, value_name = "M", allow_negative_numbers = true)]
+    loss_scale: Option<f64>,
+    /// Length unit of the files.
+    #[arg(long, value_enum, default_value_t = UnitsArg::M)]
+    units: UnitsArg,
+    /// Coordinate frame of the files.
+    #[arg(long, value_enum, default_value_t = FrameArg::Sensor)]
+    frame: FrameArg,
+    /// Format of standard input (ply, pcd, csv, xyz, txt, pts, asc); default: from its
+    /// first bytes.
+    #[arg(long, value_name = "FORMAT")]
+    input_format: Option<Format>,
+    /// Write the results to FILE (atomically) instead of standard output.
+    #[arg(short = 'o', long, value_name = "FILE")]
+    output: Option<PathBuf>,
+    /// Worker threads (default: all cores).
+    #[arg(long, value_name = "N")]
+    threads: Option<NonZeroUsize>,
+    /// No progress bar and no summary of failures: only the results and the exit code.
+    #[arg(short, long)]
+    quiet: bool,
+}
+
+#[derive(Args, Debug)]
+struct SimulateArgs {
+    /// Folder for frame_KKKK.ply and frame_KKKK.json.
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// Number of frames.
+    #[arg(long, default_value_t = 1)]
+    frames: u64,
+    /// Seed of the poses and the noise.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Standard deviation of the depth noise (m).
+    #[arg(long, default_value_t = 0.03, allow_negative_numbers = true)]
+    sigma: f64,
+    /// Nominal outer diameter (inch).
+    #[arg(long, default_value_t = 20.0, allow_negative_numbers = true)]
+    od_in: f64,
+    /// Ovality (Dmax − Dmin)/ID.
+    #[arg(long, default_value_t = 0.02, allow_negative_numbers = true)]
+    ovality: f64,
+    /// Wall thickness (mm).
+    #[arg(long, default_value_t = 12.0, allow_negative_numbers = true)]
+    wall_mm: f64,
+    /// Keep a uniform subsample of N points (default: all).
+    #[arg(long, value_name = "N")]
+    points: Option<NonZeroUsize>,
+    /// Fraction of range outliers.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    outliers: f64,
+    /// Noise model.
+    #[arg(long, value_enum, default_value_t = NoiseArg::Range)]
+    noise: NoiseArg,
+    /// PLY encoding.
+    #[arg(long, value_enum, default_value_t = PlyArg::Binary)]
+    ply: PlyArg,
+    /// PLY coordinate precision.
+    #[arg(long, value_enum, default_value_t = PrecisionArg::F64)]
+    precision: PrecisionArg,
+}
+
+/// Depth-noise model of `simulate`.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum NoiseArg {
+    /// Along the sensing line.
+    Range,
+    /// In no particular direction.
+    Isotropic,
+}
+
+/// PLY encoding of `simulate`.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum PlyArg {
+    /// binary_little_endian.
+    Binary,
+    /// ascii.
+    Ascii,
+}
+
+/// PLY precision of `simulate`.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum PrecisionArg {
+    /// double.
+    #[value(alias = "double")]
+    F64,
+    /// float.
+    #[value(alias = "float")]
+    F32,
+}
+
+/// A usage error found after parsing (exit code 2).
 #[derive(Debug)]
 struct Usage(String);
 
@@ -53,61 +243,18 @@ fn usage(msg: impl Into<String>) -> anyhow::Error {
     anyhow::Error::new(Usage(msg.into()))
 }
 
-/// Raw flags as (name, value) pairs plus positional arguments.
-struct Flags {
-    pairs: Vec<(String, String)>,
-    positional: Vec<String>,
-}
-
-impl Flags {
-    fn parse(args: &[String], known: &[&str]) -> anyhow::Result<Self> {
-        let mut pairs = Vec::new();
-        let mut positional = Vec::new();
-        let mut it = args.iter();
-        while let Some(a) = it.next() {
-            if let Some(name) = a.strip_prefix("--") {
-                if !known.contains(&name) {
-                    return Err(usage(format!("unknown option `{a}`")));
-                }
-                let v = it
-                    .next()
-                    .ok_or_else(|| usage(format!("{a} needs a value")))?;
-                pairs.push((name.to_string(), v.clone()));
-            } else {
-                positional.push(a.clone());
-            }
-        }
-        Ok(Self { pairs, positional })
-    }
-
-    fn get(&self, name: &str) -> Option<&str> {
-        self.pairs
-            .iter()
-            .rev()
-            .find(|(n, _)| n == name)
-            .map(|(_, v)| v.as_str())
-    }
-
-    fn num<T: std::str::FromStr>(&self, name: &str, default: T, what: &str) -> anyhow::Result<T> {
-        match self.get(name) {
-            None => Ok(default),
-            Some(v) => v
-                .parse()
-                .map_err(|_| usage(format!("--{name} {v}: expected {what}"))),
-        }
-    }
-}
+/// Seed scale of the first robust pass (m) when --loss-scale is not given.
+const DEFAULT_LOSS_SCALE_M: f64 = 0.05;
 
 /// Checked settings of `epd estimate`.
 struct EstimateConfig {
-    files: Vec<PathBuf>,
     method: Method,
-    format: String,
     nominal_od_mm: Option<f64>,
     options: EstimateOptions,
     loss: String,
     units: Units,
     frame: InputFrame,
+    input_format: Option<Format>,
 }
 
 /// The length unit of the input file.
@@ -194,94 +341,71 @@ fn to_sensor_metres(
     Ok(())
 }
 
-fn estimate_config(args: &[String]) -> anyhow::Result<EstimateConfig> {
-    let f = Flags::parse(
-        args,
-        &[
-            "method",
-            "min-range",
-            "max-range",
-            "format",
-            "nominal-od-in",
-            "loss",
-            "loss-scale",
-            "units",
-            "frame",
-        ],
-    )?;
-    if f.positional.is_empty() {
-        return Err(usage("no input file: epd estimate FILE…"));
-    }
-    let method: Method = f
-        .get("method")
-        .unwrap_or(DEFAULT_METHOD)
-        .parse()
-        .map_err(|e: epd_core::EpdError| usage(e.to_string()))?;
-    let min_range = f.num("min-range", 0.0, "a range in metres")?;
-    let max_range = f.num("max-range", f64::INFINITY, "a range in metres")?;
+fn estimate_config(a: &EstimateArgs) -> anyhow::Result<EstimateConfig> {
+    let min_range = a.min_range.unwrap_or(0.0);
+    let max_range = a.max_range.unwrap_or(f64::INFINITY);
     if !(min_range >= 0.0 && max_range > min_range) {
         return Err(usage(format!(
             "--min-range {min_range} and --max-range {max_range}: need 0 ≤ min < max"
         )));
     }
-    let format = f.get("format").unwrap_or("text").to_string();
-    if !["text", "json", "csv"].contains(&format.as_str()) {
-        return Err(usage(format!(
-            "--format {format}: expected text, json or csv"
-        )));
-    }
-    let nominal_od_mm = match f.get("nominal-od-in") {
+    let nominal_od_mm = match a.nominal_od_in {
         None => None,
-        Some(v) => match v.parse::<f64>() {
-            Ok(x) if x > 0.0 && x.is_finite() => Some(x * 25.4),
-            _ => {
-                return Err(usage(format!(
-                    "--nominal-od-in {v}: expected a diameter in inches > 0"
-                )));
-            }
-        },
+        Some(x) if x > 0.0 && x.is_finite() => Some(x * 25.4),
+        Some(x) => {
+            return Err(usage(format!(
+                "--nominal-od-in {x}: expected a diameter in inches > 0"
+            )));
+        }
     };
-    let loss_name = f.get("loss").unwrap_or(DEFAULT_LOSS).to_string();
-    let scale = f.num("loss-scale", DEFAULT_LOSS_SCALE_M, "a scale in metres")?;
-    let loss = Loss::from_name(&loss_name, scale)
+    let loss_name = match a.loss {
+        LossArg::Cauchy => "cauchy",
+        LossArg::Huber => "huber",
+        LossArg::None => "none",
+    };
+    let scale = a.loss_scale.unwrap_or(DEFAULT_LOSS_SCALE_M);
+    let loss = Loss::from_name(loss_name, scale)
         .map_err(|e| usage(format!("--loss/--loss-scale: {e}")))?;
     let mut options = EstimateOptions::default()
         .with_loss(loss)
         .map_err(|e| usage(e.to_string()))?
-        .with_loss_scale(if f.get("loss-scale").is_some() {
+        .with_loss_scale(if a.loss_scale.is_some() {
             LossScale::Fixed
         } else {
             LossScale::Auto
         });
-    if min_range > 0.0 || max_range.is_finite() {
+    if a.min_range.is_some() || a.max_range.is_some() {
         options = options
             .with_range_gate(min_range, max_range)
             .map_err(|e| usage(e.to_string()))?;
     }
-    let units = match f.get("units").unwrap_or("m") {
-        "m" => Units::Metres,
-        "mm" => Units::Millimetres,
-        other => return Err(usage(format!("--units {other}: expected m or mm"))),
-    };
-    let frame = match f.get("frame").unwrap_or("sensor") {
-        "sensor" => InputFrame::Sensor,
-        "optical" => InputFrame::Optical,
-        other => {
-            return Err(usage(format!(
-                "--frame {other}: expected sensor (X forward, Y right, Z up) or optical (X right, Y down, Z forward)"
-            )));
-        }
-    };
+    if a.files.iter().filter(|f| f.as_os_str() == "-").count() > 1 {
+        return Err(usage("standard input (`-`) may be given only once"));
+    }
     Ok(EstimateConfig {
-        files: f.positional.iter().map(PathBuf::from).collect(),
-        method,
-        format,
+        method: a.method.into(),
         nominal_od_mm,
         options,
         loss: loss.name().into(),
-        units,
-        frame,
+        units: match a.units {
+            UnitsArg::M => Units::Metres,
+            UnitsArg::Mm => Units::Millimetres,
+        },
+        frame: match a.frame {
+            FrameArg::Sensor => InputFrame::Sensor,
+            FrameArg::Optical => InputFrame::Optical,
+        },
+        input_format: a.input_format,
     })
+}
+
+/// Read one input: a file, or standard input for `-`.
+fn read_input(path: &Path, cfg: &EstimateConfig) -> Result<PointCloud, String> {
+    if path.as_os_str() == "-" {
+        read_from(std::io::stdin().lock(), cfg.input_format, MAX_INPUT_BYTES)
+    } else {
+        read_path(path)
+    }
 }
 
 /// Read, filter and estimate one file.
@@ -289,7 +413,7 @@ fn estimate_file(path: &Path, cfg: &EstimateConfig) -> FileReport {
     let file = path.display().to_string();
     let run = || -> Result<FileEstimate, String> {
         let t0 = Instant::now();
-        let mut cloud = read_path(path)?;
+        let mut cloud = read_input(path, cfg)?;
         let read_ms = t0.elapsed().as_secs_f64() * 1e3;
         to_sensor_metres(&mut cloud.points, cfg.units, cfg.frame)?;
         let n_read = cloud.points.len();
@@ -335,15 +459,112 @@ fn estimate_file(path: &Path, cfg: &EstimateConfig) -> FileReport {
     }
 }
 
-fn run_estimate(args: &[String]) -> anyhow::Result<ExitCode> {
+/// Where results go: standard output, or a temporary file in the target folder that
+/// replaces FILE when the run ends.
+enum Sink {
+    Stdout(BufWriter<std::io::StdoutLock<'static>>),
+    File(BufWriter<tempfile::NamedTempFile>, PathBuf),
+}
+
+impl Sink {
+    fn open(output: Option<&Path>) -> anyhow::Result<Self> {
+        let Some(path) = output else {
+            return Ok(Sink::Stdout(BufWriter::new(std::io::stdout().lock())));
+        };
+        let dir = match path.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        // Created exclusively, with an unpredictable name: never a planted link.
+        let mut builder = tempfile::Builder::new();
+        builder.prefix(".epd-output-");
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            // A results file for the user, not a secret: rw-r--r-- (umask applies).
+            builder.permissions(std::fs::Permissions::from_mode(0o644));
+        }
+        let tmp = builder
+            .tempfile_in(dir)
+            .with_context(|| format!("cannot create a temporary file in {}", dir.display()))?;
+        Ok(Sink::File(BufWriter::new(tmp), path.to_path_buf()))
+    }
+
+    fn name(&self) -> String {
+        match self {
+            Sink::Stdout(_) => "standard output".into(),
+            Sink::File(_, p) => p.display().to_string(),
+        }
+    }
+
+    fn line(&mut self, text: &str) -> std::io::Result<()> {
+        let w: &mut dyn Write = match self {
+            Sink::Stdout(w) => w,
+            Sink::File(w, _) => w,
+        };
+        w.write_all(text.as_bytes())?;
+        w.write_all(b"\n")
+    }
+
+    /// Flush; a file is synced and renamed over FILE (a link there is replaced, not
+    /// followed).
+    fn finish(self) -> anyhow::Result<()> {
+        match self {
+            Sink::Stdout(mut w) => w.flush().context("cannot write to standard output"),
+            Sink::File(w, path) => {
+                let name = path.display().to_string();
+                let tmp = w
+                    .into_inner()
+                    .map_err(|e| e.into_error())
+                    .with_context(|| format!("cannot write {name}"))?;
+                tmp.as_file()
+                    .sync_all()
+                    .with_context(|| format!("cannot write {name}"))?;
+                tmp.persist(&path)
+                    .map_err(|e| e.error)
+                    .with_context(|| format!("cannot write {name}"))?;
+                Ok(())
+            }
+        }
+    }
+}
+
+/// Whether an output error is a closed pipe (a reader such as `head` went away).
+fn closed_pipe(e: &std::io::Error) -> bool {
+    e.kind() == ErrorKind::BrokenPipe
+}
+
+fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
     let cfg = estimate_config(args)?;
-    let bar = ProgressBar::new(cfg.files.len() as u64);
-    if cfg.format == "csv" {
-        println!("{}", columns().join(","));
+    if let Some(n) = args.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n.get())
+            .build_global()
+            .context("cannot start the worker threads")?;
+    }
+    let bar = if args.quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(args.files.len() as u64)
+    };
+    let mut sink = Sink::open(args.output.as_deref())?;
+    let mut failed = Vec::new();
+    let write = |sink: &mut Sink, text: &str| -> anyhow::Result<bool> {
+        match sink.line(text) {
+            Ok(()) => Ok(true),
+            Err(e) if closed_pipe(&e) => Ok(false),
+            Err(e) => Err(e).with_context(|| format!("cannot write to {}", sink.name())),
+        }
+    };
+    let mut open = true;
+    if args.format == OutputFormat::Csv {
+        open = write(&mut sink, &columns().join(","))?;
     }
     let batch = 2 * rayon::current_num_threads().max(1);
-    let mut failed = Vec::new();
-    for chunk in cfg.files.chunks(batch) {
+    for chunk in args.files.chunks(batch) {
+        if !open {
+            break;
+        }
         let reports: Vec<FileReport> = chunk
             .par_iter()
             .map(|p| {
@@ -352,99 +573,88 @@ fn run_estimate(args: &[String]) -> anyhow::Result<ExitCode> {
                 r
             })
             .collect();
+        let mut result = Ok(());
         bar.suspend(|| {
             for r in &reports {
-                match cfg.format.as_str() {
-                    "json" => println!("{}", r.json()),
-                    "csv" => println!("{}", r.csv()),
-                    _ => println!("{}", r.text()),
-                }
+                let text = match args.format {
+                    OutputFormat::Json => r.json(),
+                    OutputFormat::Csv => r.csv(),
+                    OutputFormat::Text => r.text(),
+                };
                 if let Some(e) = r.failure() {
                     failed.push(format!("{}: {e}", r.file));
                 }
+                match write(&mut sink, &text) {
+                    Ok(true) => {}
+                    Ok(false) => {
+                        open = false;
+                        break;
+                    }
+                    Err(e) => {
+                        result = Err(e);
+                        break;
+                    }
+                }
             }
         });
+        result?;
     }
     bar.finish_and_clear();
+    if open {
+        if let Err(e) = sink.finish() {
+            // A reader that went away before the last flush is not an error of ours.
+            let pipe = e.downcast_ref::<std::io::Error>().is_some_and(closed_pipe);
+            if !pipe {
+                return Err(e);
+            }
+        }
+    }
     if failed.is_empty() {
-        Ok(ExitCode::SUCCESS)
-    } else {
-        eprintln!("{} of {} files failed:", failed.len(), cfg.files.len());
+        return Ok(ExitCode::SUCCESS);
+    }
+    if !args.quiet {
+        eprintln!("{} of {} files failed:", failed.len(), args.files.len());
         for f in &failed {
             eprintln!("  {f}");
         }
-        Ok(ExitCode::FAILURE)
     }
+    Ok(ExitCode::FAILURE)
 }
 
-fn run_simulate(args: &[String]) -> anyhow::Result<ExitCode> {
+fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
     use tof_sim::output::{PlyFormat, PlyPrecision, save_ply, write_file_atomic};
     use tof_sim::{
         FrameSeed, Noise, NoiseModel, Pipe, PoseRanges, Scene, Sensor, Subsample, WallModel,
         simulate_into,
     };
-    let f = Flags::parse(
-        args,
-        &[
-            "out",
-            "frames",
-            "seed",
-            "sigma",
-            "od-in",
-            "ovality",
-            "wall-mm",
-            "points",
-            "outliers",
-            "noise",
-            "ply",
-            "precision",
-        ],
-    )?;
-    if let Some(p) = f.positional.first() {
-        return Err(usage(format!("unexpected argument `{p}`")));
-    }
-    let out = PathBuf::from(f.get("out").ok_or_else(|| usage("--out DIR is required"))?);
-    let frames: u64 = f.num("frames", 1, "a whole number of frames")?;
-    let seed: u64 = f.num("seed", 1, "a whole number")?;
+    let (out, frames, seed) = (a.out.clone(), a.frames, a.seed);
     let pipe = Pipe {
-        nominal_od_in: f.num("od-in", 20.0, "a diameter in inches")?,
-        wall_thickness: f.num("wall-mm", 12.0, "a thickness in mm")? * 1e-3,
-        ovality: f.num("ovality", 0.02, "a number in [0, 1)")?,
+        nominal_od_in: a.od_in,
+        wall_thickness: a.wall_mm * 1e-3,
+        ovality: a.ovality,
     };
     let noise = Noise {
-        model: match f.get("noise").unwrap_or("range") {
-            "range" => NoiseModel::Range,
-            "isotropic" => NoiseModel::Isotropic,
-            other => {
-                return Err(usage(format!(
-                    "--noise {other}: expected range or isotropic"
-                )));
-            }
+        model: match a.noise {
+            NoiseArg::Range => NoiseModel::Range,
+            NoiseArg::Isotropic => NoiseModel::Isotropic,
         },
-        sigma: f.num("sigma", 0.03, "a standard deviation in metres")?,
-        outlier_fraction: f.num("outliers", 0.0, "a fraction in [0, 1]")?,
+        sigma: a.sigma,
+        outlier_fraction: a.outliers,
         far_outlier_fraction: 0.0,
         bias_b0: 0.0,
         bias_b1: 0.0,
     };
-    let sub = match f.get("points") {
+    let sub = match a.points {
         None => Subsample::All,
-        Some(v) => Subsample::Points(
-            v.parse()
-                .ok()
-                .filter(|&n: &usize| n > 0)
-                .ok_or_else(|| usage(format!("--points {v}: expected a whole number ≥ 1")))?,
-        ),
+        Some(n) => Subsample::Points(n.get()),
     };
-    let format = match f.get("ply").unwrap_or("binary") {
-        "binary" => PlyFormat::BinaryLittleEndian,
-        "ascii" => PlyFormat::Ascii,
-        other => return Err(usage(format!("--ply {other}: expected binary or ascii"))),
+    let format = match a.ply {
+        PlyArg::Binary => PlyFormat::BinaryLittleEndian,
+        PlyArg::Ascii => PlyFormat::Ascii,
     };
-    let precision = match f.get("precision").unwrap_or("f64") {
-        "f64" | "double" => PlyPrecision::F64,
-        "f32" | "float" => PlyPrecision::F32,
-        other => return Err(usage(format!("--precision {other}: expected f64 or f32"))),
+    let precision = match a.precision {
+        PrecisionArg::F64 => PlyPrecision::F64,
+        PrecisionArg::F32 => PlyPrecision::F32,
     };
     let sensor = Sensor::helios2();
     sensor.validate()?;
@@ -499,27 +709,24 @@ fn run_simulate(args: &[String]) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-fn run() -> anyhow::Result<ExitCode> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    match args.first().map(String::as_str) {
-        Some("estimate") => run_estimate(&args[1..]),
-        Some("simulate") => run_simulate(&args[1..]),
-        Some("-h" | "--help" | "help") => {
-            println!("{USAGE}");
-            Ok(ExitCode::SUCCESS)
-        }
-        Some(other) => bail!(Usage(format!(
-            "unknown command `{other}`: expected estimate or simulate"
-        ))),
-        None => bail!(Usage("no command given".into())),
-    }
-}
-
 fn main() -> ExitCode {
-    match run() {
+    let cli = match Cli::try_parse() {
+        Ok(c) => c,
+        // Help and version exit 0, usage errors 2 (clap's codes); a closed stdout while
+        // printing help is ignored.
+        Err(e) => {
+            let _ = e.print();
+            return ExitCode::from(u8::try_from(e.exit_code()).unwrap_or(2));
+        }
+    };
+    let result = match &cli.command {
+        Command::Estimate(a) => run_estimate(a),
+        Command::Simulate(a) => run_simulate(a),
+    };
+    match result {
         Ok(code) => code,
         Err(e) if e.downcast_ref::<Usage>().is_some() => {
-            eprintln!("error: {e}\n{USAGE}");
+            eprintln!("error: {e}\n\nFor more information, try '--help'.");
             ExitCode::from(2)
         }
         Err(e) => {

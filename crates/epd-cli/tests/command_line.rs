@@ -1,0 +1,225 @@
+//! The `epd` command line as users of other tools expect it: --help and --version,
+//! `--opt=value`, `--`, `-` for standard input, `-o FILE`, `--threads`, `-q`, exit
+//! codes, and a closed standard output.
+
+mod common;
+
+use std::io::{BufRead, BufReader, Write};
+use std::process::{Command, Stdio};
+
+fn epd() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_epd"))
+}
+
+/// A small noise-free frame as CSV (m, sensor frame).
+fn csv_file(dir: &std::path::Path) -> std::path::PathBuf {
+    let frame = common::frame(2, 3000);
+    let path = dir.join("f.csv");
+    std::fs::write(&path, common::xyz(&frame)).unwrap();
+    path
+}
+
+fn without_timings(json: &str) -> serde_json::Value {
+    let mut v: serde_json::Value = serde_json::from_str(json).unwrap();
+    for k in ["elapsed_ms", "read_ms"] {
+        v[k] = serde_json::Value::Null;
+    }
+    v
+}
+
+#[test]
+fn help_and_version() {
+    for (args, words) in [
+        (vec!["--help"], vec!["estimate", "simulate"]),
+        (
+            vec!["estimate", "--help"],
+            vec![
+                "--method",
+                "--min-range",
+                "--max-range",
+                "--format",
+                "--nominal-od-in",
+                "--loss",
+                "--loss-scale",
+                "--units",
+                "--frame",
+                "--input-format",
+                "--output",
+                "--threads",
+                "--quiet",
+            ],
+        ),
+        (
+            vec!["simulate", "-h"],
+            vec![
+                "--out",
+                "--frames",
+                "--sigma",
+                "--noise",
+                "--ply",
+                "--precision",
+            ],
+        ),
+    ] {
+        let o = epd().args(&args).output().unwrap();
+        assert_eq!(o.status.code(), Some(0), "{args:?}");
+        let text = String::from_utf8_lossy(&o.stdout);
+        for w in words {
+            assert!(text.contains(w), "{args:?} lacks {w}:\n{text}");
+        }
+    }
+    let o = epd().arg("--version").output().unwrap();
+    assert_eq!(o.status.code(), Some(0));
+    assert_eq!(
+        String::from_utf8_lossy(&o.stdout).trim(),
+        format!("epd {}", env!("CARGO_PKG_VERSION"))
+    );
+}
+
+#[test]
+fn equals_form_double_dash_and_standard_input() {
+    let dir = common::temp_dir("cmdline");
+    let file = csv_file(&dir);
+    let by_file = epd()
+        .arg("estimate")
+        .arg(&file)
+        .args(["--format", "json"])
+        .output()
+        .unwrap();
+    assert_eq!(by_file.status.code(), Some(0));
+    let reference = without_timings(String::from_utf8_lossy(&by_file.stdout).trim());
+    // --opt=value, and a file after `--`.
+    let o = epd()
+        .args(["estimate", "--format=json", "--"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0));
+    assert_eq!(
+        without_timings(String::from_utf8_lossy(&o.stdout).trim()),
+        {
+            let mut r = reference.clone();
+            r["file"] = serde_json::Value::String(file.display().to_string());
+            r
+        }
+    );
+    // `-`: standard input, with and without a format hint.
+    for hint in [vec![], vec!["--input-format", "csv"]] {
+        let mut child = epd()
+            .args(["estimate", "-", "--format", "json"])
+            .args(&hint)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .unwrap();
+        child
+            .stdin
+            .take()
+            .unwrap()
+            .write_all(&std::fs::read(&file).unwrap())
+            .unwrap();
+        let o = child.wait_with_output().unwrap();
+        assert_eq!(o.status.code(), Some(0), "{hint:?}");
+        let mut got = without_timings(String::from_utf8_lossy(&o.stdout).trim());
+        assert_eq!(got["file"], "-");
+        got["file"] = reference["file"].clone();
+        // The same points, the same estimate.
+        assert_eq!(got, reference, "{hint:?}");
+    }
+    // Standard input at most once.
+    let o = epd().args(["estimate", "-", "-"]).output().unwrap();
+    assert_eq!(o.status.code(), Some(2));
+}
+
+#[test]
+fn output_file_threads_and_quiet() {
+    let dir = common::temp_dir("cmdline_out");
+    let file = csv_file(&dir);
+    let files: Vec<_> = (0..6).map(|_| file.clone()).collect();
+    // -o FILE onto a planted link: the link is replaced, its target untouched.
+    let target = dir.join("precious.txt");
+    std::fs::write(&target, "keep").unwrap();
+    let out = dir.join("results.json");
+    std::os::unix::fs::symlink(&target, &out).unwrap();
+    let runs: Vec<String> = ["1", "2"]
+        .iter()
+        .map(|t| {
+            let o = epd()
+                .arg("estimate")
+                .args(&files)
+                .args(["--format", "json", "--threads", t, "-o"])
+                .arg(&out)
+                .output()
+                .unwrap();
+            assert_eq!(
+                o.status.code(),
+                Some(0),
+                "{}",
+                String::from_utf8_lossy(&o.stderr)
+            );
+            assert!(o.stdout.is_empty());
+            std::fs::read_to_string(&out).unwrap()
+        })
+        .collect();
+    assert_eq!(std::fs::read_to_string(&target).unwrap(), "keep");
+    assert!(
+        !std::fs::symlink_metadata(&out)
+            .unwrap()
+            .file_type()
+            .is_symlink()
+    );
+    let lines = |s: &str| -> Vec<serde_json::Value> { s.lines().map(without_timings).collect() };
+    assert_eq!(lines(&runs[0]).len(), 6);
+    assert_eq!(lines(&runs[0]), lines(&runs[1]), "--threads 1 vs 2");
+    // No temporary file left behind.
+    let left: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().starts_with(".epd-output"))
+        .collect();
+    assert!(left.is_empty());
+    // -q: a failing file gives exit 1 and nothing on stderr.
+    let o = epd()
+        .args(["estimate", "-q", "--format", "json"])
+        .arg(dir.join("missing.csv"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        o.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert_eq!(
+        without_timings(String::from_utf8_lossy(&o.stdout).trim())["status"],
+        "error"
+    );
+}
+
+#[test]
+fn a_closed_standard_output_ends_quietly() {
+    let dir = common::temp_dir("cmdline_pipe");
+    let file = csv_file(&dir);
+    let mut child = epd()
+        .arg("estimate")
+        .args(std::iter::repeat_n(&file, 60))
+        .args(["--format", "json"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    // The reader goes away (as `| head -1` does).
+    let o = child.wait_with_output().unwrap();
+    assert!(first.starts_with('{'));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(
+        matches!(o.status.code(), Some(0 | 1)),
+        "{:?}: {err}",
+        o.status
+    );
+}
