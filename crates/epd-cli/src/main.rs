@@ -50,6 +50,7 @@ enum Command {
 
 /// The estimator, by its name in reports.
 #[derive(Clone, Copy, Debug, ValueEnum)]
+#[allow(clippy::enum_variant_names)] // the paper's names
 enum MethodArg {
     /// Range residual along the sensing line (maximum likelihood; unbiased across tilt).
     #[value(name = "ml-epd")]
