@@ -601,13 +601,13 @@ fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
         result?;
     }
     bar.finish_and_clear();
-    if open {
-        if let Err(e) = sink.finish() {
-            // A reader that went away before the last flush is not an error of ours.
-            let pipe = e.downcast_ref::<std::io::Error>().is_some_and(closed_pipe);
-            if !pipe {
-                return Err(e);
-            }
+    if open && let Err(e) = sink.finish() {
+        // A reader that went away before the last flush is not an error of ours.
+        let pipe = e
+            .chain()
+            .any(|c| c.downcast_ref::<std::io::Error>().is_some_and(closed_pipe));
+        if !pipe {
+            return Err(e);
         }
     }
     if failed.is_empty() {
