@@ -9,7 +9,7 @@ use anyhow::{Context, anyhow};
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 
-use crate::run::{SummaryRow, write_atomic};
+use crate::run::{SummaryRow, write_new};
 use crate::scenario::Scenario;
 
 const FONT: &str = "sans-serif";
@@ -278,7 +278,7 @@ fn render(fig: Figure<'_>, panels: &[Panel<'_>]) -> anyhow::Result<PathBuf> {
         let mut w = enc.write_header().context("PNG header")?;
         w.write_image_data(&buf).context("PNG data")?;
     }
-    write_atomic(&path, &png_bytes)
+    write_new(&path, &png_bytes)
 }
 
 /// Numeric x of each swept value (its index when not a number).

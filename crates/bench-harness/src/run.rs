@@ -1,10 +1,21 @@
 //! Running a scenario: trials (in parallel, or one at a time for timings), rows streamed
-//! to `trials.csv`, statistics to `summary.csv`, metadata, plots. Files are written
-//! whole: into a temporary file in the output folder, then renamed.
+//! to `trials.csv`, statistics to `summary.csv`, metadata, plots.
+//!
+//! A run's files land as one set. They are written into a fresh staging folder
+//! (`.run-XXXXXX`, created exclusively with an unpredictable name beside the output
+//! folder, mode 0700, so no link can be planted in it); when every file is written the
+//! previous output folder, if any, is renamed to a fresh `.old-XXXXXX/previous`, the
+//! staging folder is renamed to the output folder, and the old one is removed. A reader
+//! sees the whole previous run or the whole new one (or, for the instant between the two
+//! renames, no folder), never a mix. The output folder must be empty, absent, or hold a
+//! previous run (its `metadata.json`): `--out ~` is refused. An interrupted run (SIGINT,
+//! SIGTERM: [`INTERRUPTED`]) or a failed one removes its staging folder and leaves the
+//! previous run untouched; after SIGKILL a `.run-*` folder remains beside the output.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::Context;
@@ -137,6 +148,8 @@ pub struct RunReport {
     pub files: Vec<PathBuf>,
     /// Wall time (s).
     pub wall_time_s: f64,
+    /// Trials or estimates that could not be made at all (status `error`).
+    pub trial_errors: usize,
 }
 
 /// `trials.csv` columns: SPEC §6's, then the truth and estimate in full, the reported
@@ -232,56 +245,121 @@ pub fn field(s: &str) -> String {
     }
 }
 
-/// A file being written under a temporary name in its final folder.
-struct AtomicFile {
-    tmp: PathBuf,
-    path: PathBuf,
-    w: BufWriter<File>,
+/// Set (by a signal handler) to stop a run at the next batch of trials.
+pub static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+/// The run was interrupted: nothing was written.
+#[derive(Debug, thiserror::Error)]
+#[error("interrupted: the previous results, if any, are untouched")]
+pub struct Interrupted;
+
+/// Create `path` (which must not exist) for writing; the error names the file.
+fn create_new(path: &Path) -> anyhow::Result<BufWriter<File>> {
+    let f = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(path)
+        .with_context(|| format!("cannot create {}", path.display()))?;
+    Ok(BufWriter::new(f))
 }
 
-impl AtomicFile {
-    fn create(path: PathBuf) -> anyhow::Result<Self> {
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let tmp = path.with_file_name(format!(".{name}.tmp{}", std::process::id()));
-        let f = File::create(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
-        Ok(Self {
-            tmp,
-            path,
-            w: BufWriter::new(f),
-        })
-    }
-
-    fn commit(mut self) -> anyhow::Result<PathBuf> {
-        self.w
-            .flush()
-            .with_context(|| format!("cannot write {}", self.tmp.display()))?;
-        self.w.get_ref().sync_all().ok();
-        std::fs::rename(&self.tmp, &self.path).with_context(|| {
-            format!(
-                "cannot rename {} to {}",
-                self.tmp.display(),
-                self.path.display()
-            )
-        })?;
-        Ok(self.path.clone())
-    }
+/// Flush and sync a file written with [`create_new`]; the error names the file.
+fn finish(w: BufWriter<File>, path: &Path) -> anyhow::Result<PathBuf> {
+    let f = w
+        .into_inner()
+        .map_err(|e| e.into_error())
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    f.sync_all()
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(path.to_path_buf())
 }
 
-impl Drop for AtomicFile {
-    fn drop(&mut self) {
-        // After a commit the temporary name no longer exists; otherwise clean up.
-        let _ = std::fs::remove_file(&self.tmp);
-    }
+/// Write `bytes` to the new file `path` (in a run's staging folder).
+pub fn write_new(path: &Path, bytes: &[u8]) -> anyhow::Result<PathBuf> {
+    let mut w = create_new(path)?;
+    w.write_all(bytes)
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    finish(w, path)
 }
 
-/// Write `bytes` to `path` whole.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<PathBuf> {
-    let mut f = AtomicFile::create(path.to_path_buf())?;
-    f.w.write_all(bytes)?;
-    f.commit()
+/// An I/O error writing `p`, naming it.
+fn wrote(p: &Path) -> impl Fn(std::io::Error) -> anyhow::Error + '_ {
+    move |e| anyhow::Error::new(e).context(format!("cannot write {}", p.display()))
+}
+
+/// The output folder may not be used (a usage error: nothing was written).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct OutputRefused(String);
+
+/// Refuse an output folder that holds something other than a previous run.
+fn check_output_folder(out: &Path) -> anyhow::Result<()> {
+    let Ok(meta) = std::fs::symlink_metadata(out) else {
+        return Ok(());
+    };
+    if !meta.is_dir() {
+        return Err(OutputRefused(format!(
+            "{} exists and is not a folder (a link is not followed): choose another --out",
+            out.display()
+        ))
+        .into());
+    }
+    let mut entries =
+        std::fs::read_dir(out).with_context(|| format!("cannot read {}", out.display()))?;
+    let empty = entries.next().is_none();
+    let previous_run = out.join("metadata.json").is_file() && out.join("scenario.toml").is_file();
+    if !(empty || previous_run) {
+        return Err(OutputRefused(format!(
+            "{} holds files that are not a bench-harness run; a run replaces its output \
+             folder as a whole: choose an empty or new --out",
+            out.display()
+        ))
+        .into());
+    }
+    Ok(())
+}
+
+/// Replace `out` by the finished staging folder (see the module doc).
+fn swap_into_place(staging: tempfile::TempDir, out: &Path, parent: &Path) -> anyhow::Result<()> {
+    let old = if out.exists() {
+        let old = tempfile::Builder::new()
+            .prefix(".old-")
+            .tempdir_in(parent)
+            .with_context(|| format!("cannot create a folder in {}", parent.display()))?;
+        let previous = old.path().join("previous");
+        std::fs::rename(out, &previous)
+            .with_context(|| format!("cannot move the previous run {} aside", out.display()))?;
+        Some((old, previous))
+    } else {
+        None
+    };
+    let staged = staging.keep();
+    if let Err(e) = std::fs::rename(&staged, out) {
+        // Put the previous run back; leave nothing behind.
+        if let Some((_, previous)) = &old {
+            let _ = std::fs::rename(previous, out);
+        }
+        let _ = std::fs::remove_dir_all(&staged);
+        return Err(e).with_context(|| format!("cannot move the results into {}", out.display()));
+    }
+    drop(old);
+    Ok(())
+}
+
+/// The workspace the binary was built from, when it is still there.
+fn workspace_root() -> Option<PathBuf> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    root.join("Cargo.toml").is_file().then_some(root)
+}
+
+/// The default output folder of a scenario: `target/results/<name>/` of the workspace
+/// (ignored by git, so the user's runs never touch the committed `results/`), or
+/// `results/<name>/` in the current folder when the binary runs outside its workspace.
+pub fn default_output(name: &str) -> PathBuf {
+    match workspace_root() {
+        Some(root) => root.join("target").join("results").join(name),
+        None => PathBuf::from("results").join(name),
+    }
 }
 
 fn trial_rows(
@@ -433,27 +511,55 @@ fn cpu_model() -> String {
         .unwrap_or_else(|| "unknown".into())
 }
 
-fn git_commit() -> Option<String> {
-    let out = std::process::Command::new("git")
-        .args(["rev-parse", "HEAD"])
-        .output()
-        .ok()?;
-    out.status
-        .success()
-        .then(|| String::from_utf8_lossy(&out.stdout).trim().to_string())
+/// The workspace's commit and whether tracked files differ from it (`None` outside a
+/// git checkout).
+fn git_provenance() -> (Option<String>, Option<bool>) {
+    let Some(root) = workspace_root() else {
+        return (None, None);
+    };
+    let git = |args: &[&str]| {
+        std::process::Command::new("git")
+            .arg("-C")
+            .arg(&root)
+            .args(args)
+            .output()
+            .ok()
+            .filter(|o| o.status.success())
+            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+    };
+    let commit = git(&["rev-parse", "HEAD"]);
+    let dirty = git(&["status", "--porcelain", "--untracked-files=no"]).map(|s| !s.is_empty());
+    (commit, dirty)
 }
 
 /// Run `scenario` into `options.out`.
 pub fn run(scenario: &Scenario, options: &RunOptions) -> anyhow::Result<RunReport> {
     let start = Instant::now();
     let trials = options.trials.unwrap_or(scenario.trials);
-    anyhow::ensure!(trials >= 1, "--trials must be at least 1");
-    std::fs::create_dir_all(&options.out)
-        .with_context(|| format!("cannot create {}", options.out.display()))?;
-    let mut trials_csv = AtomicFile::create(options.out.join("trials.csv"))?;
-    let mut summary_csv = AtomicFile::create(options.out.join("summary.csv"))?;
-    writeln!(trials_csv.w, "{}", TRIAL_COLUMNS.join(","))?;
-    writeln!(summary_csv.w, "{}", SUMMARY_COLUMNS.join(","))?;
+    anyhow::ensure!(
+        (1..=crate::scenario::MAX_TRIALS).contains(&trials),
+        "--trials {trials}: must lie in [1, {}]",
+        crate::scenario::MAX_TRIALS
+    );
+    let out = &options.out;
+    let parent = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    check_output_folder(out)?;
+    std::fs::create_dir_all(&parent)
+        .with_context(|| format!("cannot create {}", parent.display()))?;
+    let staging = tempfile::Builder::new()
+        .prefix(".run-")
+        .tempdir_in(&parent)
+        .with_context(|| format!("cannot create a staging folder in {}", parent.display()))?;
+    let dir = staging.path().to_path_buf();
+    let trials_path = dir.join("trials.csv");
+    let summary_path = dir.join("summary.csv");
+    let mut trials_csv = create_new(&trials_path)?;
+    let mut summary_csv = create_new(&summary_path)?;
+    writeln!(trials_csv, "{}", TRIAL_COLUMNS.join(",")).map_err(wrote(&trials_path))?;
+    writeln!(summary_csv, "{}", SUMMARY_COLUMNS.join(",")).map_err(wrote(&summary_path))?;
     let total = (trials * scenario.sweeps.len()) as u64;
     let bar = if options.progress {
         ProgressBar::new(total)
@@ -474,11 +580,16 @@ pub fn run(scenario: &Scenario, options: &RunOptions) -> anyhow::Result<RunRepor
         4 * rayon::current_num_threads().max(1)
     };
     let mut summary = Vec::new();
+    let mut trial_errors = 0;
     for (si, (value, setting)) in scenario.sweeps.iter().enumerate() {
         bar.set_message(format!("{} = {value}", scenario.sweep_variable));
         let mut results: Vec<TrialResult> = Vec::with_capacity(trials);
         let mut k = 0;
         while k < trials {
+            if INTERRUPTED.load(Ordering::SeqCst) {
+                bar.finish_and_clear();
+                return Err(Interrupted.into());
+            }
             let ks: Vec<usize> = (k..(k + batch).min(trials)).collect();
             let run_one = |&t: &usize| run_trial(setting, scenario.seed, t, si, &pool);
             let done: Vec<TrialResult> = if scenario.timing {
@@ -487,7 +598,10 @@ pub fn run(scenario: &Scenario, options: &RunOptions) -> anyhow::Result<RunRepor
                 ks.par_iter().map(run_one).collect()
             };
             for t in &done {
-                trial_rows(&mut trials_csv.w, &scenario.sweep_variable, value, t)?;
+                trial_rows(&mut trials_csv, &scenario.sweep_variable, value, t)
+                    .map_err(wrote(&trials_path))?;
+                trial_errors += usize::from(t.error.is_some())
+                    + t.methods.iter().filter(|m| m.status == "error").count();
             }
             bar.inc(done.len() as u64);
             results.extend(done);
@@ -495,20 +609,25 @@ pub fn run(scenario: &Scenario, options: &RunOptions) -> anyhow::Result<RunRepor
         }
         for row in summarise(value, &setting.methods, &results) {
             writeln!(
-                summary_csv.w,
+                summary_csv,
                 "{}",
                 summary_line(&scenario.sweep_variable, &row)
-            )?;
+            )
+            .map_err(wrote(&summary_path))?;
             summary.push(row);
         }
     }
     bar.finish_and_clear();
-    let mut files = vec![trials_csv.commit()?, summary_csv.commit()?];
-    files.push(write_atomic(
-        &options.out.join("scenario.toml"),
+    let mut files = vec![
+        finish(trials_csv, &trials_path)?,
+        finish(summary_csv, &summary_path)?,
+    ];
+    files.push(write_new(
+        &dir.join("scenario.toml"),
         scenario.source.as_bytes(),
     )?);
-    files.extend(crate::plots::plot_all(scenario, &summary, &options.out)?);
+    files.extend(crate::plots::plot_all(scenario, &summary, &dir)?);
+    let (git_commit, git_dirty) = git_provenance();
     let wall_time_s = start.elapsed().as_secs_f64();
     let meta = serde_json::json!({
         "scenario": scenario.name,
@@ -517,7 +636,8 @@ pub fn run(scenario: &Scenario, options: &RunOptions) -> anyhow::Result<RunRepor
         "trials_per_setting": trials,
         "seed": scenario.seed,
         "crate_version": env!("CARGO_PKG_VERSION"),
-        "git_commit": git_commit(),
+        "git_commit": git_commit,
+        "git_dirty": git_dirty,
         "threads": rayon::current_num_threads(),
         "cpu_model": cpu_model(),
         "wall_time_s": wall_time_s,
@@ -530,13 +650,22 @@ pub fn run(scenario: &Scenario, options: &RunOptions) -> anyhow::Result<RunRepor
         "crb": "crb_* and crb_std: Cramér–Rao 1-σ for range noise of the setting's σ (exact for noise.model = range)",
         "profile": if cfg!(debug_assertions) { "dev" } else { "release" },
     });
-    files.push(write_atomic(
-        &options.out.join("metadata.json"),
+    files.push(write_new(
+        &dir.join("metadata.json"),
         serde_json::to_string_pretty(&meta)?.as_bytes(),
     )?);
+    if INTERRUPTED.load(Ordering::SeqCst) {
+        return Err(Interrupted.into());
+    }
+    swap_into_place(staging, out, &parent)?;
+    let files = files
+        .iter()
+        .filter_map(|f| f.file_name().map(|n| out.join(n)))
+        .collect();
     Ok(RunReport {
         summary,
         files,
         wall_time_s,
+        trial_errors,
     })
 }

@@ -297,6 +297,17 @@ pub struct Scenario {
     pub path: PathBuf,
 }
 
+/// Most trials per setting (`trials`, `--trials`).
+pub const MAX_TRIALS: usize = 1_000_000;
+/// Most swept values (`sweep.values`).
+pub const MAX_SWEEP_VALUES: usize = 10_000;
+/// Largest sensor side (`sensor.width`, `sensor.height`), pixels.
+pub const MAX_SENSOR_SIDE: u32 = 4096;
+/// Largest subsample (`points`).
+pub const MAX_POINTS: usize = 10_000_000;
+/// Most estimates in one run: trials × swept values × methods.
+pub const MAX_ESTIMATES: usize = 100_000_000;
+
 /// Set `dotted` (e.g. `noise.sigma_m`) in a TOML table to `value`, creating sections.
 fn set_dotted(table: &mut toml::Table, dotted: &str, value: toml::Value) -> Result<(), String> {
     let parts: Vec<&str> = dotted.split('.').collect();
@@ -354,8 +365,11 @@ impl Scenario {
                 format!("= \"{}\": must be a plain folder name", base.name),
             ));
         }
-        if base.trials == 0 {
-            return Err(invalid("trials", "= 0: must be at least 1".into()));
+        if base.trials == 0 || base.trials > MAX_TRIALS {
+            return Err(invalid(
+                "trials",
+                format!("= {}: must lie in [1, {MAX_TRIALS}]", base.trials),
+            ));
         }
         let (variable, values) = match &base.sweep {
             Some(s) => {
@@ -363,6 +377,12 @@ impl Scenario {
                     return Err(invalid(
                         "sweep.values",
                         "is empty: list at least one value".into(),
+                    ));
+                }
+                if s.values.len() > MAX_SWEEP_VALUES {
+                    return Err(invalid(
+                        "sweep.values",
+                        format!("has {} values: at most {MAX_SWEEP_VALUES}", s.values.len()),
                     ));
                 }
                 if s.variable.starts_with("sweep")
@@ -378,6 +398,22 @@ impl Scenario {
             }
             None => ("none".to_string(), vec![]),
         };
+        let estimates = base
+            .trials
+            .saturating_mul(values.len().max(1))
+            .saturating_mul(base.methods.len().max(1));
+        if estimates > MAX_ESTIMATES {
+            return Err(invalid(
+                "trials",
+                format!(
+                    "× swept values × methods = {estimates} estimates: at most {MAX_ESTIMATES} in one run"
+                ),
+            ));
+        }
+        // Each swept value is set in a copy of the file without its [sweep] section, so
+        // memory stays linear in the number of values.
+        let mut table = table;
+        table.remove("sweep");
         let mut sweeps = Vec::new();
         let files: Vec<(String, File)> = if values.is_empty() {
             vec![("-".to_string(), base.clone())]
@@ -449,6 +485,25 @@ fn to_setting(f: &File) -> Result<Setting, (String, String)> {
         return Err(err(
             "methods",
             "is empty: list at least one of c-epd, ru-epd, ml-epd".into(),
+        ));
+    }
+    for (key, v) in [
+        ("sensor.width", f.sensor.width),
+        ("sensor.height", f.sensor.height),
+    ] {
+        if !(1..=MAX_SENSOR_SIDE).contains(&v) {
+            return Err(err(
+                key,
+                format!("= {v}: must lie in [1, {MAX_SENSOR_SIDE}] pixels"),
+            ));
+        }
+    }
+    if let Points::N(n) = f.points
+        && !(7..=MAX_POINTS).contains(&n)
+    {
+        return Err(err(
+            "points",
+            format!("= {n}: must lie in [7, {MAX_POINTS}] (or \"all\")"),
         ));
     }
     let sensor = Sensor {

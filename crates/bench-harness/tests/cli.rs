@@ -94,21 +94,34 @@ fn run_writes_the_spec_files_and_is_identical_for_1_and_2_threads() {
     let mut tables = Vec::new();
     for threads in ["1", "2"] {
         let out = dir.join(format!("out{threads}"));
-        // A file already in the folder is left alone.
+        // A folder holding someone else's file is refused, and the file left alone.
         std::fs::create_dir_all(&out).unwrap();
         std::fs::write(out.join("notes.txt"), "mine").unwrap();
-        let o = bin()
-            .env("RAYON_NUM_THREADS", threads)
-            .arg(&scenario)
-            .args(["--trials", "4", "--out"])
-            .arg(&out)
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let run = || {
+            bin()
+                .arg(&scenario)
+                .args(["--trials=4", "--threads", threads, "--out"])
+                .arg(&out)
+                .output()
+                .unwrap()
+        };
+        let o = run();
+        assert_eq!(
+            o.status.code(),
+            Some(2),
+            "{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
         assert_eq!(
             std::fs::read_to_string(out.join("notes.txt")).unwrap(),
             "mine"
         );
+        std::fs::remove_file(out.join("notes.txt")).unwrap();
+        // An empty folder, then a previous run, are replaced as a whole.
+        for _ in 0..2 {
+            let o = run();
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        }
         for f in [
             "trials.csv",
             "summary.csv",
@@ -124,9 +137,18 @@ fn run_writes_the_spec_files_and_is_identical_for_1_and_2_threads() {
         let leftovers: Vec<_> = std::fs::read_dir(&out)
             .unwrap()
             .flatten()
-            .filter(|e| e.file_name().to_string_lossy().contains(".tmp"))
+            .filter(|e| e.file_name().to_string_lossy().starts_with('.'))
             .collect();
         assert!(leftovers.is_empty());
+        let beside: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .flatten()
+            .filter(|e| {
+                let n = e.file_name().to_string_lossy().into_owned();
+                n.starts_with(".run-") || n.starts_with(".old-")
+            })
+            .collect();
+        assert!(beside.is_empty(), "staging folders left: {beside:?}");
         let (h, rows) = csv(&out.join("trials.csv"));
         for col in [
             "sweep_variable",
