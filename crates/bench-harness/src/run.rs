@@ -349,6 +349,7 @@ fn swap_into_place(staging: tempfile::TempDir, out: &Path, parent: &Path) -> any
 /// The workspace the binary was built from, when it is still there.
 fn workspace_root() -> Option<PathBuf> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let root = root.canonicalize().ok()?;
     root.join("Cargo.toml").is_file().then_some(root)
 }
 

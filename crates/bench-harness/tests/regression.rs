@@ -1,6 +1,7 @@
 //! CI regression: `scenarios/ci_regression.toml` run afresh, checked (a) against the
-//! physics and (b) against the committed baseline `results/ci_regression/summary.csv`
-//! (regenerate it with `cargo run --release -p bench-harness -- scenarios/ci_regression.toml`).
+//! physics and (b) against the committed baseline `crates/bench-harness/tests/baseline/ci_regression/summary.csv`
+//! (regenerate it, after a deliberate change, with
+//! `cargo run --release -p bench-harness -- scenarios/ci_regression.toml --out crates/bench-harness/tests/baseline/ci_regression`).
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -111,7 +112,9 @@ fn ci_regression_physics_and_drift() {
     // (b) Drift against the committed baseline: counts exactly, statistics within
     // 1e-4 (mm or degrees) + 1e-4 relative — far below any change of an estimator, far
     // above rounding differences between machines.
-    let baseline = read_summary(&workspace().join("results/ci_regression/summary.csv"));
+    let baseline = read_summary(
+        &workspace().join("crates/bench-harness/tests/baseline/ci_regression/summary.csv"),
+    );
     let fresh = read_summary(&out.join("summary.csv"));
     assert_eq!(
         baseline.len(),

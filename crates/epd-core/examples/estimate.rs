@@ -1,8 +1,10 @@
 //! Estimate pipe diameters and sensor pose from a CSV point cloud.
 //!
 //! ```text
-//! cargo run --release -p epd-core --example estimate -- FILE.csv [--method c-epd|ru-epd|ml-epd]
+//! cargo run --release -p epd-core --example estimate -- FILE.csv [--method ml-epd|ru-epd|c-epd]
 //! ```
+//! Exit codes: 0 converged, 1 an error or a fit that did not converge (its status is
+//! printed), 2 wrong arguments.
 //! FILE holds one point per line, `x,y,z` in metres in the sensor frame (SCS: X forward,
 //! Y right, Z up), with an optional header line; NaN, inf and all-zero rows are dropped
 //! and counted. Prints one JSON object (mm and degrees).
@@ -10,42 +12,36 @@
 use std::process::ExitCode;
 use std::time::Instant;
 
+use std::io::Write;
+
 use anyhow::{Context, bail};
 use epd_core::report::{Field, estimate_fields, json_object};
 use epd_core::{EstimateOptions, Method, estimate, rms_range_residual};
 
-fn parse_args() -> anyhow::Result<(String, Method)> {
-    let mut file = None;
-    let mut method = Method::RuEpd;
-    let mut args = std::env::args().skip(1);
-    while let Some(a) = args.next() {
-        match a.as_str() {
-            "--method" => {
-                let v = args
-                    .next()
-                    .context("--method needs a value: c-epd, ru-epd or ml-epd")?;
-                method = v.parse()?;
-            }
-            "-h" | "--help" => {
-                println!("usage: estimate FILE.csv [--method c-epd|ru-epd|ml-epd]");
-                std::process::exit(0);
-            }
-            s if s.starts_with("--") => bail!("unknown option `{s}` (expected --method)"),
-            s => {
-                if file.replace(s.to_string()).is_some() {
-                    bail!("more than one input file given; pass exactly one FILE.csv");
-                }
-            }
-        }
-    }
-    let file =
-        file.context("no input file: usage: estimate FILE.csv [--method c-epd|ru-epd|ml-epd]")?;
-    Ok((file, method))
+/// Estimate pipe diameters and sensor pose from a CSV point cloud (x,y,z in metres,
+/// sensor frame); prints one JSON object.
+#[derive(clap::Parser, Debug)]
+#[command(name = "estimate", version)]
+struct Cli {
+    /// The CSV file (`-`: standard input).
+    #[arg(value_name = "FILE.csv")]
+    file: String,
+    /// The estimator: ml-epd, ru-epd or c-epd.
+    #[arg(long, default_value = "ml-epd", value_parser = parse_method)]
+    method: Method,
+}
+
+fn parse_method(s: &str) -> Result<Method, String> {
+    s.parse().map_err(|e: epd_core::EpdError| e.to_string())
 }
 
 /// Read `x,y,z` rows; the first line may be a header.
 fn read_csv(path: &str) -> anyhow::Result<Vec<[f64; 3]>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read `{path}`"))?;
+    let text = if path == "-" {
+        std::io::read_to_string(std::io::stdin().lock()).context("cannot read standard input")?
+    } else {
+        std::fs::read_to_string(path).with_context(|| format!("cannot read `{path}`"))?
+    };
     let mut pts = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let line = line.trim();
@@ -68,8 +64,8 @@ fn read_csv(path: &str) -> anyhow::Result<Vec<[f64; 3]>> {
     Ok(pts)
 }
 
-fn run() -> anyhow::Result<()> {
-    let (file, method) = parse_args()?;
+fn run(cli: Cli) -> anyhow::Result<bool> {
+    let (file, method) = (cli.file, cli.method);
     let points = read_csv(&file)?;
     let start = Instant::now();
     let est = estimate(&points, method, &EstimateOptions::default())
@@ -80,16 +76,61 @@ fn run() -> anyhow::Result<()> {
     fields.push(("rms_residual_mm", rms));
     fields.push(("elapsed_ms", Field::Num(elapsed_ms)));
     let json = json_object(&fields);
-    println!("{json}");
-    Ok(())
+    let mut out = std::io::stdout().lock();
+    match writeln!(out, "{json}").and_then(|()| out.flush()) {
+        // A closed pipe: the reader went away; not an error of ours.
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
+            return Err(e).context("cannot write to standard output");
+        }
+        _ => {}
+    }
+    Ok(est.status.is_converged())
 }
 
 fn main() -> ExitCode {
-    match run() {
-        Ok(()) => ExitCode::SUCCESS,
+    // Usage errors exit 2, --help and --version 0 (clap's codes).
+    let cli = match <Cli as clap::Parser>::try_parse() {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = e.print();
+            return ExitCode::from(u8::try_from(e.exit_code()).unwrap_or(2));
+        }
+    };
+    match run(cli) {
+        Ok(true) => ExitCode::SUCCESS,
+        // Printed with its status and reason, but not a result: exit 1.
+        Ok(false) => ExitCode::FAILURE,
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[test]
+    fn arguments() {
+        let c = Cli::try_parse_from(["estimate", "f.csv", "--method=ru-epd"]).unwrap();
+        assert_eq!((c.file.as_str(), c.method), ("f.csv", Method::RuEpd));
+        let c = Cli::try_parse_from(["estimate", "--", "-"]).unwrap();
+        assert_eq!((c.file.as_str(), c.method), ("-", Method::MlEpd));
+        for bad in [
+            vec!["estimate"],
+            vec!["estimate", "f", "--method", "x"],
+            vec!["estimate", "a", "b"],
+        ] {
+            let e = Cli::try_parse_from(bad).unwrap_err();
+            assert_eq!(e.exit_code(), 2);
+        }
+        assert_eq!(
+            Cli::try_parse_from(["estimate", "--version"])
+                .unwrap_err()
+                .exit_code(),
+            0
+        );
     }
 }

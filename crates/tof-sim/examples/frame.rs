@@ -4,6 +4,7 @@
 //! cargo run --release -p tof-sim --example frame -- --seed S --trial K --sigma M \
 //!     --od-in X --ovality O [--points N] --out frame.csv [--ply frame.ply] [--depth-png depth.png]
 //! ```
+//! Exit codes: 0 written, 1 an error (invalid pipe or noise, I/O), 2 wrong arguments.
 //! The pose of trial K is drawn from the paper's ranges (SPEC §5) with seed S; the pipe
 //! has a 12 mm wall. `--out` gets `x,y,z` (m, sensor frame) with a header line; the true
 //! β is printed as one JSON object (mm and degrees), in the canonical form of SPEC §3
@@ -12,74 +13,46 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::{Context, bail};
 use tof_sim::output::{
     PlyFormat, PlyPrecision, save_depth_png, save_ply, write_csv, write_file_atomic,
 };
 use tof_sim::{FrameSeed, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, WallModel, simulate};
 
+/// Simulate one Helios2-like frame in a pipe (12 mm wall) and write its points; print
+/// the true β.
+#[derive(clap::Parser, Debug)]
+#[command(name = "frame", version)]
 struct Args {
+    /// Seed of the pose and the noise.
+    #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Trial index: the pose is drawn from the paper's ranges with (seed, trial).
+    #[arg(long, default_value_t = 0)]
     trial: u64,
+    /// Range-noise standard deviation (m).
+    #[arg(long, default_value_t = 0.03, allow_negative_numbers = true)]
     sigma: f64,
+    /// Nominal outer diameter (inch).
+    #[arg(long, default_value_t = 20.0, allow_negative_numbers = true)]
     od_in: f64,
+    /// Ovality (Dmax − Dmin)/ID.
+    #[arg(long, default_value_t = 0.02, allow_negative_numbers = true)]
     ovality: f64,
-    points: Option<usize>,
+    /// A uniform subsample of N points (default: all within 6 m).
+    #[arg(long, value_name = "N")]
+    points: Option<std::num::NonZeroUsize>,
+    /// The CSV file of the measured points (x,y,z in m, sensor frame).
+    #[arg(long, short = 'o', value_name = "FILE.csv")]
     out: PathBuf,
+    /// Also a binary PLY file.
+    #[arg(long, value_name = "FILE.ply")]
     ply: Option<PathBuf>,
-    png: Option<PathBuf>,
+    /// Also a depth image.
+    #[arg(long, value_name = "FILE.png")]
+    depth_png: Option<PathBuf>,
 }
 
-fn parse() -> anyhow::Result<Args> {
-    let mut a = Args {
-        seed: 1,
-        trial: 0,
-        sigma: 0.03,
-        od_in: 20.0,
-        ovality: 0.02,
-        points: None,
-        out: PathBuf::new(),
-        ply: None,
-        png: None,
-    };
-    let mut out = None;
-    let mut it = std::env::args().skip(1);
-    while let Some(flag) = it.next() {
-        let mut val = || it.next().with_context(|| format!("{flag} needs a value"));
-        match flag.as_str() {
-            "--seed" => a.seed = val()?.parse().context("--seed must be an integer ≥ 0")?,
-            "--trial" => a.trial = val()?.parse().context("--trial must be an integer ≥ 0")?,
-            "--sigma" => a.sigma = val()?.parse().context("--sigma must be a number (m)")?,
-            "--od-in" => {
-                a.od_in = val()?
-                    .parse()
-                    .context("--od-in must be a number (inches)")?
-            }
-            "--ovality" => {
-                a.ovality = val()?
-                    .parse()
-                    .context("--ovality must be a number in [0, 1)")?
-            }
-            "--points" => {
-                a.points = Some(val()?.parse().context("--points must be an integer ≥ 1")?)
-            }
-            "--out" => out = Some(PathBuf::from(val()?)),
-            "--ply" => a.ply = Some(PathBuf::from(val()?)),
-            "--depth-png" => a.png = Some(PathBuf::from(val()?)),
-            other => bail!(
-                "unknown argument `{other}`: expected --seed, --trial, --sigma, --od-in, --ovality, --points, --out, --ply, --depth-png"
-            ),
-        }
-    }
-    a.out = out.context("--out FILE.csv is required")?;
-    if a.points == Some(0) {
-        bail!("--points must be at least 1");
-    }
-    Ok(a)
-}
-
-fn run() -> anyhow::Result<()> {
-    let a = parse()?;
+fn run(a: Args) -> anyhow::Result<()> {
     let sensor = Sensor::helios2();
     let pipe = Pipe {
         nominal_od_in: a.od_in,
@@ -88,7 +61,9 @@ fn run() -> anyhow::Result<()> {
     };
     let truth = PoseRanges::default().sample(&pipe, a.seed, a.trial)?;
     let scene = Scene::new(&truth, WallModel::Exact, sensor.max_range)?;
-    let sub = a.points.map_or(Subsample::All, Subsample::Points);
+    let sub = a
+        .points
+        .map_or(Subsample::All, |n| Subsample::Points(n.get()));
     let seeds = FrameSeed {
         seed: a.seed,
         trial: a.trial,
@@ -99,7 +74,7 @@ fn run() -> anyhow::Result<()> {
     if let Some(p) = &a.ply {
         save_ply(p, &frame, PlyFormat::BinaryLittleEndian, PlyPrecision::F64)?;
     }
-    if let Some(p) = &a.png {
+    if let Some(p) = &a.depth_png {
         save_depth_png(p, &frame, sensor.max_range)?;
     }
     // The truth in canonical form (SPEC §3), comparable with an estimate as printed.
@@ -122,11 +97,39 @@ fn run() -> anyhow::Result<()> {
 }
 
 fn main() -> ExitCode {
-    match run() {
+    // Usage errors exit 2, --help and --version 0 (clap's codes).
+    let args = match <Args as clap::Parser>::try_parse() {
+        Ok(a) => a,
+        Err(e) => {
+            let _ = e.print();
+            return ExitCode::from(u8::try_from(e.exit_code()).unwrap_or(2));
+        }
+    };
+    match run(args) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[test]
+    fn arguments() {
+        let a = Args::try_parse_from(["frame", "--out=f.csv", "--sigma", "0.05", "--points", "10"])
+            .unwrap();
+        assert_eq!((a.sigma, a.points.map(|n| n.get())), (0.05, Some(10)));
+        for bad in [
+            vec!["frame"],
+            vec!["frame", "--out", "f", "--points", "0"],
+            vec!["frame", "--out", "f", "--bogus"],
+        ] {
+            assert_eq!(Args::try_parse_from(bad).unwrap_err().exit_code(), 2);
         }
     }
 }

@@ -94,22 +94,29 @@ pub fn write_file_atomic(
     path: &Path,
     write: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<()>,
 ) -> Result<(), SimError> {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.tmp{}", std::process::id()));
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    // An exclusively created temporary file with an unpredictable name (never a planted
+    // link), renamed over `path` once written and synced; removed on any error.
     let run = || -> std::io::Result<()> {
-        let mut f = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+        let mut builder = tempfile::Builder::new();
+        builder.prefix(".tof-sim-");
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            builder.permissions(std::fs::Permissions::from_mode(0o644));
+        }
+        let tmp = builder.tempfile_in(dir)?;
+        let mut f = std::io::BufWriter::new(tmp.reopen()?);
         write(&mut f)?;
         f.flush()?;
         f.into_inner().map_err(|e| e.into_error())?.sync_all()?;
-        std::fs::rename(&tmp, path)
+        tmp.persist(path).map_err(|e| e.error)?;
+        Ok(())
     };
-    run().map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        SimError::io(path.display().to_string(), e)
-    })
+    run().map_err(|e| SimError::io(path.display().to_string(), e))
 }
 
 /// A jet-like colour map: dark blue (0) → cyan → yellow → dark red (1).

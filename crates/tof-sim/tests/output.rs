@@ -103,3 +103,35 @@ fn depth_png_decodes_with_the_image_and_a_scale_bar() {
     let info = reader.info();
     assert_eq!((info.width, info.height), (640 + 90, 480));
 }
+
+#[test]
+fn atomic_writes_replace_a_planted_link_and_leave_nothing_behind() {
+    let dir = std::env::temp_dir().join(format!("tofsim-out-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let victim = dir.join("victim.txt");
+    std::fs::write(&victim, "precious").unwrap();
+    let path = dir.join("frame.csv");
+    let _ = std::fs::remove_file(&path);
+    std::os::unix::fs::symlink(&victim, &path).unwrap();
+    // The old predictable temporary name, planted too.
+    std::os::unix::fs::symlink(
+        &victim,
+        dir.join(format!(".frame.csv.tmp{}", std::process::id())),
+    )
+    .unwrap();
+    tof_sim::output::write_file_atomic(&path, |w| write_csv(w, &frame())).unwrap();
+    assert_eq!(std::fs::read_to_string(&victim).unwrap(), "precious");
+    assert!(
+        std::fs::symlink_metadata(&path)
+            .unwrap()
+            .file_type()
+            .is_file()
+    );
+    let temps = std::fs::read_dir(&dir)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().starts_with(".tof-sim-"))
+        .count();
+    assert_eq!(temps, 0);
+    let _ = std::fs::remove_dir_all(&dir);
+}
