@@ -379,7 +379,7 @@ fn trial_rows(
             t.trial.to_string(),
             m.method.name().into(),
             t.n_points.to_string(),
-            m.status.clone(),
+            m.status_name().to_string(),
             m.iterations.to_string(),
             num(m.time_ms),
             num(tr.d_max * MM),
@@ -602,7 +602,7 @@ pub fn run(scenario: &Scenario, options: &RunOptions) -> anyhow::Result<RunRepor
                 trial_rows(&mut trials_csv, &scenario.sweep_variable, value, t)
                     .map_err(wrote(&trials_path))?;
                 trial_errors += usize::from(t.error.is_some())
-                    + t.methods.iter().filter(|m| m.status == "error").count();
+                    + t.methods.iter().filter(|m| m.status.is_none()).count();
             }
             bar.inc(done.len() as u64);
             results.extend(done);

@@ -5,8 +5,8 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 use epd_core::{
-    EstimateOptions, LossScale, Method, N_PARAMS, ParamErrors, Params, Sigmas, cramer_rao_bound,
-    errors_against, estimate,
+    EstimateOptions, FitStatus, LossScale, Method, N_PARAMS, ParamErrors, Params, Sigmas,
+    cramer_rao_bound, errors_against, estimate,
 };
 use tof_sim::{Frame, FrameSeed, Scene, WallModel, simulate_into};
 
@@ -17,8 +17,8 @@ use crate::scenario::Setting;
 pub struct MethodResult {
     /// The method.
     pub method: Method,
-    /// `converged`, `iteration_limit`, `degenerate` or `error`.
-    pub status: String,
+    /// The estimate's status; `None` when no estimate could be made (written `error`).
+    pub status: Option<FitStatus>,
     /// The reason or error message.
     pub message: String,
     /// Solver iterations.
@@ -36,7 +36,12 @@ pub struct MethodResult {
 impl MethodResult {
     /// Whether the fit converged (the trial counts in the statistics).
     pub fn ok(&self) -> bool {
-        self.status == "converged" && self.errors.is_some()
+        self.status.is_some_and(|s| s.is_converged()) && self.errors.is_some()
+    }
+
+    /// The status as written in `trials.csv`: the estimate's, or `error`.
+    pub fn status_name(&self) -> &'static str {
+        self.status.map_or("error", |s| s.name())
     }
 }
 
@@ -108,7 +113,7 @@ fn run_with(
             .iter()
             .map(|&m| MethodResult {
                 method: m,
-                status: "error".into(),
+                status: None,
                 message: e.clone(),
                 iterations: 0,
                 time_ms: 0.0,
@@ -174,7 +179,7 @@ fn run_with(
             match est {
                 Ok(e) => MethodResult {
                     method: m,
-                    status: e.status.name().into(),
+                    status: Some(e.status),
                     message: e.status.reason(),
                     iterations: e.iterations,
                     time_ms,
@@ -184,7 +189,7 @@ fn run_with(
                 },
                 Err(err) => MethodResult {
                     method: m,
-                    status: "error".into(),
+                    status: None,
                     message: err.to_string(),
                     iterations: 0,
                     time_ms,
