@@ -3,22 +3,13 @@
 //! (regenerate it, after a deliberate change, with
 //! `cargo run --release -p bench-harness -- scenarios/ci_regression.toml --out crates/bench-harness/tests/baseline/ci_regression`).
 
+mod common;
+
+use common::{temp_dir, workspace};
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use bench_harness::{RunOptions, Scenario, SummaryRow, run};
-
-fn workspace() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-fn temp_dir(tag: &str) -> PathBuf {
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_nanos())
-        .unwrap_or(0);
-    std::env::temp_dir().join(format!("epd-{tag}-{}-{nanos}", std::process::id()))
-}
 
 type Key = (String, String, String); // (sweep value, method, quantity)
 

@@ -6,21 +6,12 @@
 //!   "converged" at 10⁹ mm): every row reported converged lies within a sane distance
 //!   of the truth, whatever the method.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::{temp_dir, workspace};
+use std::path::Path;
 
 use bench_harness::{RunOptions, Scenario, run};
-
-fn workspace() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-fn temp_dir(tag: &str) -> PathBuf {
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_nanos())
-        .unwrap_or(0);
-    std::env::temp_dir().join(format!("epd-{tag}-{}-{nanos}", std::process::id()))
-}
 
 #[test]
 fn every_hard_pipe_is_found() {

@@ -1,25 +1,14 @@
 //! Results folders an attacker or an interruption cannot corrupt, limits checked when
 //! the scenario is loaded, and the command line users expect.
 
+mod common;
+
+use common::{bin, temp_dir};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use bench_harness::Scenario;
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_bench-harness"))
-}
-
-fn temp_dir(tag: &str) -> PathBuf {
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_nanos())
-        .unwrap_or(0);
-    let d = std::env::temp_dir().join(format!("epd-{tag}-{}-{nanos}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 fn scenario(dir: &Path, trials: usize, points: usize) -> PathBuf {
     let p = dir.join("s.toml");
