@@ -21,11 +21,11 @@ use clap::Parser;
 #[derive(Parser, Debug)]
 #[command(name = "bench-harness", version)]
 struct Cli {
-    /// The scenario file (TOML).
+    /// The scenario file (TOML); `-` reads it from standard input.
     #[arg(value_name = "SCENARIO")]
     scenario: PathBuf,
     /// Output folder (default: target/results/<name>/ of the workspace, ignored by git).
-    #[arg(long, value_name = "DIR")]
+    #[arg(short = 'o', long, alias = "output", value_name = "DIR")]
     out: Option<PathBuf>,
     /// Trials per setting, overriding the scenario's (at most 1 000 000).
     #[arg(long, value_name = "N")]
@@ -54,7 +54,18 @@ fn main() -> ExitCode {
         );
         return ExitCode::from(2);
     }
-    let scenario = match Scenario::load(&cli.scenario) {
+    let loaded = if cli.scenario.as_os_str() == "-" {
+        match std::io::read_to_string(std::io::stdin().lock()) {
+            Ok(text) => Scenario::parse(std::path::Path::new("<stdin>"), &text),
+            Err(e) => {
+                eprintln!("error: cannot read the scenario from standard input: {e}");
+                return ExitCode::from(2);
+            }
+        }
+    } else {
+        Scenario::load(&cli.scenario)
+    };
+    let scenario = match loaded {
         Ok(s) => s,
         Err(e) => {
             eprintln!("error: {e}");
