@@ -8,18 +8,34 @@
 //! 130 interrupted (SIGINT or SIGTERM: nothing is written, the previous results stay).
 
 use std::num::NonZeroUsize;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::Ordering;
 
 use bench_harness::run::{INTERRUPTED, Interrupted, OutputRefused, default_output};
-use bench_harness::{RunOptions, Scenario, run};
+use bench_harness::{RunOptions, Scenario, ScenarioError, run};
 use clap::Parser;
+
+/// The end of `--help`: the output folder and the exit codes.
+const AFTER_HELP: &str = "\
+The output folder is replaced as a whole: the run is written into a new hidden folder
+beside it (.run-XXXXXX) that takes its place only once every file is written. It must
+be new, empty, or hold a previous run (nothing but bench-harness's files); anything
+else is refused.
+
+Exit codes:
+  0    done; estimates that did not converge (e.g. C-EPD `implausible` at high tilt)
+       are results: rows with their status in trials.csv, counted in n_failed
+  1    the run failed (an I/O error, naming the file: nothing is written, the
+       previous run stays), or a trial could not be made at all (status `error` in
+       trials.csv: the frame or an estimate returned an error; the run is written)
+  2    bad arguments, scenario (a limit passed) or output folder: nothing is written
+  130  interrupted (SIGINT, SIGTERM): nothing is written, the previous run stays";
 
 /// Run a scenario of simulated ToF frames through the EPD estimators: trials.csv,
 /// summary.csv, metadata.json and PNG plots in one folder, replaced as a whole.
 #[derive(Parser, Debug)]
-#[command(name = "bench-harness", version)]
+#[command(name = "bench-harness", version, after_help = AFTER_HELP)]
 struct Cli {
     /// The scenario file (TOML); `-` reads it from standard input.
     #[arg(value_name = "SCENARIO")]
@@ -27,10 +43,11 @@ struct Cli {
     /// Output folder (default: target/results/<name>/ of the workspace, ignored by git).
     #[arg(short = 'o', long, alias = "output", value_name = "DIR")]
     out: Option<PathBuf>,
-    /// Trials per setting, overriding the scenario's (at most 1 000 000).
+    /// Trials per setting, overriding the scenario's (at most 1 000 000, and at most 10^8
+    /// estimates: trials × swept values × methods).
     #[arg(long, value_name = "N")]
     trials: Option<NonZeroUsize>,
-    /// Worker threads (default: all cores).
+    /// Worker threads, N ≥ 1 (default: all cores); the results do not depend on it.
     #[arg(long, value_name = "N")]
     threads: Option<NonZeroUsize>,
     /// No progress bar and no summary line: only errors on stderr.
@@ -47,21 +64,8 @@ fn main() -> ExitCode {
         }
     };
     let trials = cli.trials.map(NonZeroUsize::get);
-    if let Some(t) = trials.filter(|&t| t > bench_harness::scenario::MAX_TRIALS) {
-        eprintln!(
-            "error: --trials {t}: at most {}",
-            bench_harness::scenario::MAX_TRIALS
-        );
-        return ExitCode::from(2);
-    }
     let loaded = if cli.scenario.as_os_str() == "-" {
-        match std::io::read_to_string(std::io::stdin().lock()) {
-            Ok(text) => Scenario::parse(std::path::Path::new("<stdin>"), &text),
-            Err(e) => {
-                eprintln!("error: cannot read the scenario from standard input: {e}");
-                return ExitCode::from(2);
-            }
-        }
+        Scenario::from_reader(Path::new("<stdin>"), std::io::stdin().lock())
     } else {
         Scenario::load(&cli.scenario)
     };
@@ -72,6 +76,12 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
+    if let Some(t) = trials
+        && let Err(e) = scenario.check_trials("--trials", t)
+    {
+        eprintln!("error: {e}");
+        return ExitCode::from(2);
+    }
     if let Some(n) = cli.threads
         && let Err(e) = rayon::ThreadPoolBuilder::new()
             .num_threads(n.get())
@@ -112,7 +122,10 @@ fn main() -> ExitCode {
             }
             ExitCode::SUCCESS
         }
-        Err(e) if e.downcast_ref::<OutputRefused>().is_some() => {
+        Err(e)
+            if e.downcast_ref::<OutputRefused>().is_some()
+                || e.downcast_ref::<ScenarioError>().is_some() =>
+        {
             eprintln!("error: {e}");
             ExitCode::from(2)
         }

@@ -51,23 +51,113 @@ pub enum Points {
 
 impl<'de> Deserialize<'de> for Points {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        #[derive(Deserialize)]
-        #[serde(untagged)]
-        enum Raw {
-            Int(i64),
-            Str(String),
-        }
-        match Raw::deserialize(d)? {
-            Raw::Int(n) if n >= 1 => Ok(Points::N(n as usize)),
-            Raw::Int(n) => Err(serde::de::Error::custom(format!(
-                "points = {n}: must be ≥ 1 or \"all\""
-            ))),
-            Raw::Str(s) if s == "all" => Ok(Points::All),
-            Raw::Str(s) => Err(serde::de::Error::custom(format!(
-                "points = \"{s}\": must be \"all\" or an integer ≥ 1"
-            ))),
+        d.deserialize_any(Bounded {
+            key: "points",
+            lo: MIN_POINTS as u64,
+            hi: MAX_POINTS as u64,
+            all: true,
+        })
+        .map(|n| n.map_or(Points::All, |n| Points::N(n as usize)))
+    }
+}
+
+/// A number as the file wrote it, for error messages (`1e18`, not eighteen zeros).
+fn float_text(v: f64) -> String {
+    if v.is_finite() && v.abs() < 1e15 {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
+}
+
+/// Reads an integer key and checks it against its limits as it is read, so a bad value
+/// (too large, negative, a float such as `1e18`, a string) is one clear message naming
+/// the key, the value and the limits; `Ok(None)` is `"all"` where that is allowed.
+struct Bounded {
+    key: &'static str,
+    lo: u64,
+    hi: u64,
+    /// Whether `"all"` is accepted (`points`).
+    all: bool,
+}
+
+impl Bounded {
+    fn expected(&self) -> String {
+        let all = if self.all { "\"all\" or " } else { "" };
+        format!("must be {all}an integer in [{}, {}]", self.lo, self.hi)
+    }
+
+    fn error<E: serde::de::Error>(&self, value: impl std::fmt::Display) -> E {
+        E::custom(format!("`{}` = {value}: {}", self.key, self.expected()))
+    }
+}
+
+impl<'de> serde::de::Visitor<'de> for Bounded {
+    type Value = Option<u64>;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "`{}`: {}", self.key, self.expected())
+    }
+
+    fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<Self::Value, E> {
+        if (self.lo..=self.hi).contains(&v) {
+            Ok(Some(v))
+        } else {
+            Err(self.error(v))
         }
     }
+
+    fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<Self::Value, E> {
+        match u64::try_from(v) {
+            Ok(v) => self.visit_u64(v),
+            Err(_) => Err(self.error(v)),
+        }
+    }
+
+    fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<Self::Value, E> {
+        Err(self.error(format!("{} (a float)", float_text(v))))
+    }
+
+    fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<Self::Value, E> {
+        if self.all && v == "all" {
+            Ok(None)
+        } else {
+            Err(self.error(format!("{v:?}")))
+        }
+    }
+
+    fn visit_bool<E: serde::de::Error>(self, v: bool) -> Result<Self::Value, E> {
+        Err(self.error(v))
+    }
+}
+
+/// An integer key with limits; `"all"` is not accepted.
+fn bounded<'de, D: serde::Deserializer<'de>>(
+    d: D,
+    key: &'static str,
+    lo: u64,
+    hi: u64,
+) -> Result<u64, D::Error> {
+    let v = d.deserialize_any(Bounded {
+        key,
+        lo,
+        hi,
+        all: false,
+    })?;
+    // Unreachable with `all: false`; kept as an error rather than a panic.
+    v.ok_or_else(|| serde::de::Error::custom(format!("`{key}`: \"all\" is not allowed")))
+}
+
+fn trials_key<'de, D: serde::Deserializer<'de>>(d: D) -> Result<usize, D::Error> {
+    bounded(d, "trials", 1, MAX_TRIALS as u64).map(|v| v as usize)
+}
+
+fn width_key<'de, D: serde::Deserializer<'de>>(d: D) -> Result<u32, D::Error> {
+    bounded(d, "sensor.width", 1, u64::from(MAX_SENSOR_SIDE)).map(|v| v as u32)
+}
+
+fn height_key<'de, D: serde::Deserializer<'de>>(d: D) -> Result<u32, D::Error> {
+    bounded(d, "sensor.height", 1, u64::from(MAX_SENSOR_SIDE)).map(|v| v as u32)
 }
 
 impl std::fmt::Display for Points {
@@ -90,7 +180,7 @@ struct File {
     name: String,
     #[serde(default = "one")]
     seed: u64,
-    #[serde(default = "hundred")]
+    #[serde(default = "hundred", deserialize_with = "trials_key")]
     trials: usize,
     #[serde(default = "default_methods")]
     methods: Vec<String>,
@@ -139,7 +229,9 @@ fn hundred() -> usize {
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 struct SensorFile {
+    #[serde(deserialize_with = "width_key")]
     width: u32,
+    #[serde(deserialize_with = "height_key")]
     height: u32,
     fov_h_deg: f64,
     fov_v_deg: f64,
@@ -305,6 +397,10 @@ pub const MAX_SWEEP_VALUES: usize = 10_000;
 pub const MAX_SENSOR_SIDE: u32 = 4096;
 /// Largest subsample (`points`).
 pub const MAX_POINTS: usize = 10_000_000;
+/// Smallest subsample (`points`): the seven parameters need seven points.
+pub const MIN_POINTS: usize = 7;
+/// Largest scenario file (bytes): a 10 000-value sweep takes about 60 KB.
+pub const MAX_SCENARIO_BYTES: u64 = 16 << 20;
 /// Most estimates in one run: trials × swept values × methods.
 pub const MAX_ESTIMATES: usize = 100_000_000;
 
@@ -335,11 +431,44 @@ fn value_text(v: &toml::Value) -> String {
 impl Scenario {
     /// Read and check a scenario file. Every error names the file and the key.
     pub fn load(path: &Path) -> Result<Self, ScenarioError> {
-        let source = std::fs::read_to_string(path).map_err(|source| ScenarioError::Read {
+        let read_err = |source| ScenarioError::Read {
             path: path.to_path_buf(),
             source,
-        })?;
+        };
+        let file = std::fs::File::open(path).map_err(read_err)?;
+        Self::from_reader(path, file)
+    }
+
+    /// Read and check a scenario from `reader` (standard input, say); `path` names it in
+    /// errors. At most [`MAX_SCENARIO_BYTES`] are read, so `/dev/zero` is an error, not
+    /// a machine out of memory.
+    pub fn from_reader(path: &Path, reader: impl std::io::Read) -> Result<Self, ScenarioError> {
+        use std::io::Read;
+        let read_err = |source| ScenarioError::Read {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut source = String::new();
+        reader
+            .take(MAX_SCENARIO_BYTES + 1)
+            .read_to_string(&mut source)
+            .map_err(read_err)?;
+        if source.len() as u64 > MAX_SCENARIO_BYTES {
+            return Err(ScenarioError::Invalid {
+                path: path.to_path_buf(),
+                key: "(the file)".into(),
+                message: format!("is larger than {MAX_SCENARIO_BYTES} bytes"),
+            });
+        }
         Self::parse(path, &source)
+    }
+
+    /// Check `trials` trials per setting against the limits: at most [`MAX_TRIALS`], and
+    /// at most [`MAX_ESTIMATES`] estimates (trials × swept values × methods) in the run.
+    /// `key` names where the number came from (`trials`, `--trials`).
+    pub fn check_trials(&self, key: &str, trials: usize) -> Result<(), ScenarioError> {
+        let methods = self.sweeps.first().map_or(1, |(_, s)| s.methods.len());
+        check_work(&self.path, key, trials, self.sweeps.len(), methods)
     }
 
     /// Check a scenario given as text (`path` names it in errors).
@@ -365,12 +494,7 @@ impl Scenario {
                 format!("= \"{}\": must be a plain folder name", base.name),
             ));
         }
-        if base.trials == 0 || base.trials > MAX_TRIALS {
-            return Err(invalid(
-                "trials",
-                format!("= {}: must lie in [1, {MAX_TRIALS}]", base.trials),
-            ));
-        }
+        // `trials` was checked against [1, MAX_TRIALS] as it was read.
         let (variable, values) = match &base.sweep {
             Some(s) => {
                 if s.values.is_empty() {
@@ -398,61 +522,37 @@ impl Scenario {
             }
             None => ("none".to_string(), vec![]),
         };
-        let estimates = base
-            .trials
-            .saturating_mul(values.len().max(1))
-            .saturating_mul(base.methods.len().max(1));
-        if estimates > MAX_ESTIMATES {
-            return Err(invalid(
-                "trials",
-                format!(
-                    "× swept values × methods = {estimates} estimates: at most {MAX_ESTIMATES} in one run"
-                ),
-            ));
-        }
-        // Each swept value is set in a copy of the file without its [sweep] section, so
-        // memory stays linear in the number of values.
+        let methods = {
+            let mut m = base.methods.clone();
+            m.sort();
+            m.dedup();
+            m.len()
+        };
+        check_work(path, "trials", base.trials, values.len().max(1), methods)?;
+        // Each swept value is set in a copy of the file without its [sweep] section, and
+        // turned into a [`Setting`] at once, so memory stays linear in the number of
+        // values (a copy of the whole file, values included, per value was quadratic:
+        // > 3 GB for 10 000 values).
         let mut table = table;
         table.remove("sweep");
-        let mut sweeps = Vec::new();
-        let files: Vec<(String, File)> = if values.is_empty() {
-            vec![("-".to_string(), base.clone())]
-        } else {
-            let mut v = Vec::new();
-            for value in &values {
-                let mut t = table.clone();
-                set_dotted(&mut t, &variable, value.clone())
-                    .map_err(|m| invalid("sweep.variable", m))?;
-                let f: File = t.try_into().map_err(|e: toml::de::Error| {
-                    invalid(
-                        &variable,
-                        format!(
-                            "(swept value {}): {}",
-                            value_text(value),
-                            e.to_string().trim_end()
-                        ),
-                    )
-                })?;
-                v.push((value_text(value), f));
-            }
-            v
-        };
-        for (text, f) in files {
-            let setting = to_setting(&f).map_err(|(key, msg)| {
-                let key = if values.is_empty() {
-                    key
-                } else {
-                    key.to_string()
-                };
+        let mut sweeps = Vec::with_capacity(values.len().max(1));
+        if values.is_empty() {
+            let setting = to_setting(&base).map_err(|(key, msg)| invalid(&key, msg))?;
+            sweeps.push(("-".to_string(), setting));
+        }
+        for value in &values {
+            let text = value_text(value);
+            let mut t = table.clone();
+            set_dotted(&mut t, &variable, value.clone())
+                .map_err(|m| invalid("sweep.variable", m))?;
+            let f: File = t.try_into().map_err(|e: toml::de::Error| {
                 invalid(
-                    &key,
-                    if values.is_empty() {
-                        msg
-                    } else {
-                        format!("{msg} (swept value {text})")
-                    },
+                    &variable,
+                    format!("(swept value {text}): {}", e.to_string().trim_end()),
                 )
             })?;
+            let setting = to_setting(&f)
+                .map_err(|(key, msg)| invalid(&key, format!("{msg} (swept value {text})")))?;
             sweeps.push((text, setting));
         }
         let timing = base.timing || variable == "points";
@@ -467,6 +567,37 @@ impl Scenario {
             path: path.to_path_buf(),
         })
     }
+}
+
+/// The limits on one run's work: `trials` ≤ [`MAX_TRIALS`] and trials × swept values ×
+/// methods ≤ [`MAX_ESTIMATES`]; `key` names where `trials` came from.
+fn check_work(
+    path: &Path,
+    key: &str,
+    trials: usize,
+    values: usize,
+    methods: usize,
+) -> Result<(), ScenarioError> {
+    let invalid = |message: String| ScenarioError::Invalid {
+        path: path.to_path_buf(),
+        key: key.to_string(),
+        message,
+    };
+    if !(1..=MAX_TRIALS).contains(&trials) {
+        return Err(invalid(format!(
+            "= {trials}: must be an integer in [1, {MAX_TRIALS}]"
+        )));
+    }
+    let estimates = trials
+        .saturating_mul(values.max(1))
+        .saturating_mul(methods.max(1));
+    if estimates > MAX_ESTIMATES {
+        return Err(invalid(format!(
+            "= {trials}: {trials} trials × {values} swept values × {methods} methods = \
+             {estimates} estimates, at most {MAX_ESTIMATES} in one run"
+        )));
+    }
+    Ok(())
 }
 
 /// File units → a checked [`Setting`], or (key, message).
@@ -499,11 +630,11 @@ fn to_setting(f: &File) -> Result<Setting, (String, String)> {
         }
     }
     if let Points::N(n) = f.points
-        && !(7..=MAX_POINTS).contains(&n)
+        && !(MIN_POINTS..=MAX_POINTS).contains(&n)
     {
         return Err(err(
             "points",
-            format!("= {n}: must lie in [7, {MAX_POINTS}] (or \"all\")"),
+            format!("= {n}: must be \"all\" or an integer in [{MIN_POINTS}, {MAX_POINTS}]"),
         ));
     }
     let sensor = Sensor {
