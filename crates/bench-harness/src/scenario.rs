@@ -27,6 +27,12 @@ pub enum ScenarioError {
         /// The parser's message.
         message: String,
     },
+    /// The file is larger than [`MAX_SCENARIO_BYTES`].
+    #[error("scenario `{path}` is larger than {MAX_SCENARIO_BYTES} bytes: not a scenario file")]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+    },
     /// A value outside its range.
     #[error("scenario `{path}`: `{key}` {message}")]
     Invalid {
@@ -454,10 +460,8 @@ impl Scenario {
             .read_to_string(&mut source)
             .map_err(read_err)?;
         if source.len() as u64 > MAX_SCENARIO_BYTES {
-            return Err(ScenarioError::Invalid {
+            return Err(ScenarioError::TooLarge {
                 path: path.to_path_buf(),
-                key: "(the file)".into(),
-                message: format!("is larger than {MAX_SCENARIO_BYTES} bytes"),
             });
         }
         Self::parse(path, &source)
