@@ -334,7 +334,13 @@ pub fn plot_all(
 ) -> anyhow::Result<Vec<PathBuf>> {
     let values: Vec<String> = scenario.sweeps.iter().map(|(v, _)| v.clone()).collect();
     let x = xs(&values);
-    let xv = |v: &str| values.iter().position(|s| s == v).map(|i| x[i]);
+    // The x of each swept value, looked up in constant time (10 000 values × every row
+    // of the summary would otherwise be quadratic); a repeated value keeps its first x.
+    let mut x_of = std::collections::HashMap::new();
+    for (v, &xi) in values.iter().zip(&x) {
+        x_of.entry(v.as_str()).or_insert(xi);
+    }
+    let xv = |v: &str| x_of.get(v).copied();
     let methods: Vec<String> = scenario.sweeps[0]
         .1
         .methods
