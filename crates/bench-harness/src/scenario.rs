@@ -70,7 +70,12 @@ impl<'de> Deserialize<'de> for Points {
 /// A number as the file wrote it, for error messages (`1e18`, not eighteen zeros).
 fn float_text(v: f64) -> String {
     if v.is_finite() && v.abs() < 1e15 {
-        format!("{v}")
+        // `1e7` is shown as `10000000.0`: a float, as the message then says.
+        if v.fract() == 0.0 {
+            format!("{v:.1}")
+        } else {
+            format!("{v}")
+        }
     } else {
         format!("{v:e}")
     }
@@ -854,5 +859,52 @@ values = [0.01, 0.02, 0.03]
             .unwrap_err()
             .to_string();
         assert!(e.contains("noise.model"), "{e}");
+    }
+
+    #[test]
+    fn limits_name_the_key_the_value_and_the_limit() {
+        for (src, needles) in [
+            (
+                "trials = 1e18",
+                &["`trials` = 1e18 (a float)", "[1, 1000000]"][..],
+            ),
+            ("trials = 1000001", &["`trials` = 1000001", "[1, 1000000]"]),
+            ("trials = \"10\"", &["`trials` = \"10\""]),
+            ("trials = true", &["`trials` = true"]),
+            (
+                "[sensor]\nwidth = 4097",
+                &["`sensor.width` = 4097", "[1, 4096]"],
+            ),
+            ("[sensor]\nheight = -1", &["`sensor.height` = -1"]),
+            ("points = 6", &["`points` = 6", "[7, 10000000]"]),
+            ("points = 1e7", &["`points` = 10000000.0 (a float)"]),
+        ] {
+            let e = parse(&format!("name = \"x\"\n{src}\n"))
+                .unwrap_err()
+                .to_string();
+            for n in needles {
+                assert!(e.contains(n), "{src}: `{n}` not in {e}");
+            }
+        }
+        let s =
+            parse("name = \"x\"\ntrials = 1000000\npoints = 7\n[sensor]\nwidth = 4096\n").unwrap();
+        assert_eq!(s.trials, MAX_TRIALS);
+        assert!(s.check_trials("--trials", 100).is_ok());
+        let e = s
+            .check_trials("--trials", MAX_TRIALS + 1)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`--trials` = 1000001"), "{e}");
+        // Three methods by default: 3 × 10^6 estimates is within 10^8, 40 values not.
+        let values = vec!["0.01"; 40].join(", ");
+        let e = parse(&format!(
+            "name = \"x\"\ntrials = 1000000\n[sweep]\nvariable = \"noise.sigma_m\"\nvalues = [{values}]\n"
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("120000000 estimates") && e.contains("100000000"),
+            "{e}"
+        );
     }
 }
