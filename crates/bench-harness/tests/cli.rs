@@ -122,6 +122,25 @@ fn run_writes_the_spec_files_and_is_identical_for_1_and_2_threads() {
         ] {
             assert!(out.join(f).is_file(), "{f} missing");
         }
+        // Exactly the run's files: what a later run may replace.
+        let mut names: Vec<String> = std::fs::read_dir(&out)
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        let mut expected: Vec<&str> = bench_harness::run::RUN_FILES.to_vec();
+        expected.sort();
+        assert_eq!(names, expected);
+        // A file of the user's put beside a previous run: refused, not deleted.
+        std::fs::write(out.join("notes.txt"), "mine").unwrap();
+        let o = run();
+        assert_eq!(o.status.code(), Some(2));
+        assert_eq!(
+            std::fs::read_to_string(out.join("notes.txt")).unwrap(),
+            "mine"
+        );
+        std::fs::remove_file(out.join("notes.txt")).unwrap();
         let leftovers: Vec<_> = std::fs::read_dir(&out)
             .unwrap()
             .flatten()
