@@ -180,6 +180,7 @@ fn help_version_equals_form_double_dash_and_quiet() {
         assert_eq!(o.status.code(), Some(2), "{bad:?}");
     }
     assert!(!dir.join("out3").exists() && !dir.join("out4").exists());
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -260,6 +261,7 @@ fn planted_links_never_redirect_a_write() {
         .filter(|n| std::fs::symlink_metadata(dir.join(n)).is_ok_and(|m| m.is_dir()))
         .collect();
     assert!(staging.is_empty(), "{staging:?}");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -294,6 +296,7 @@ fn folders_that_are_not_a_run_are_refused() {
         assert_eq!(snapshot(&out), before, "{files:?} touched");
     }
     assert!(hidden(&dir).is_empty(), "{:?}", hidden(&dir));
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -324,6 +327,7 @@ fn an_interrupted_run_leaves_the_previous_one_whole() {
         assert_eq!(snapshot(&out), before, "{signal}: the previous run changed");
         assert!(hidden(&dir).is_empty(), "{signal}: left {:?}", hidden(&dir));
     }
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -379,6 +383,7 @@ fn a_killed_run_is_cleaned_up_by_the_next_but_a_live_one_is_not() {
     let o = live.wait_with_output().unwrap();
     assert_eq!(o.status.code(), Some(130), "{}", stderr(&o));
     assert!(!live_staging.exists());
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -408,6 +413,7 @@ fn a_full_disk_is_an_error_naming_the_file_and_the_previous_run_stays() {
     );
     assert_eq!(snapshot(&out), before);
     assert!(hidden(&dir).is_empty(), "{:?}", hidden(&dir));
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -436,6 +442,7 @@ fn a_trial_that_cannot_be_made_exits_1_with_the_results_written() {
         "{trials}"
     );
     assert!(out.join("metadata.json").is_file());
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -540,6 +547,7 @@ fn limits_are_checked_before_anything_is_written() {
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("larger than"), "{}", stderr(&o));
     assert!(hidden(&dir).is_empty());
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// 10 000 swept values load in linear time and memory (they used to take the square:
