@@ -16,6 +16,9 @@ use bench_harness::run::{INTERRUPTED, Interrupted, OutputRefused, default_output
 use bench_harness::{RunOptions, Scenario, ScenarioError, run};
 use clap::Parser;
 
+/// Most worker threads (`--threads`).
+const MAX_THREADS: usize = 1024;
+
 /// The end of `--help`: the output folder and the exit codes.
 const AFTER_HELP: &str = "\
 The output folder is replaced as a whole: the run is written into a new hidden folder
@@ -47,7 +50,7 @@ struct Cli {
     /// estimates: trials × swept values × methods).
     #[arg(long, value_name = "N")]
     trials: Option<NonZeroUsize>,
-    /// Worker threads, N ≥ 1 (default: all cores); the results do not depend on it.
+    /// Worker threads, 1 ≤ N ≤ 1024 (default: all cores); the results do not depend on it.
     #[arg(long, value_name = "N")]
     threads: Option<NonZeroUsize>,
     /// No progress bar and no summary line: only errors on stderr.
@@ -80,6 +83,10 @@ fn main() -> ExitCode {
         && let Err(e) = scenario.check_trials("--trials", t)
     {
         eprintln!("error: {e}");
+        return ExitCode::from(2);
+    }
+    if let Some(n) = cli.threads.filter(|n| n.get() > MAX_THREADS) {
+        eprintln!("error: --threads {n}: at most {MAX_THREADS}");
         return ExitCode::from(2);
     }
     if let Some(n) = cli.threads

@@ -374,6 +374,13 @@ fn foreign_entries(dir: &Path) -> anyhow::Result<Option<Vec<String>>> {
 /// a previous run: a run replaces its output folder as a whole (`--out ~` must not
 /// delete a home).
 fn check_output_folder(out: &Path) -> anyhow::Result<()> {
+    if out.file_name().is_none() {
+        return Err(OutputRefused(format!(
+            "--out {}: name a folder (not `.`, `..` or `/`): it is replaced as a whole",
+            out.display()
+        ))
+        .into());
+    }
     let meta = match std::fs::symlink_metadata(out) {
         Ok(m) => m,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),

@@ -172,6 +172,7 @@ fn help_version_equals_form_double_dash_and_quiet() {
     assert_eq!(o.status.code(), Some(2));
     for bad in [
         &["--threads", "0"][..],
+        &["--threads", "5000"],
         &["--threads=x"],
         &["--trials", "-3"],
         &["--trials=1e3"],
@@ -295,6 +296,19 @@ fn folders_that_are_not_a_run_are_refused() {
         );
         assert_eq!(snapshot(&out), before, "{files:?} touched");
     }
+    // `.` and `..` name no folder that could be replaced.
+    let empty = dir.join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    for out in [".", ".."] {
+        let o = bin()
+            .current_dir(&empty)
+            .arg(&s)
+            .args(["--out", out])
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(2), "{out}: {}", stderr(&o));
+    }
+    assert_eq!(std::fs::read_dir(&empty).unwrap().count(), 0);
     assert!(hidden(&dir).is_empty(), "{:?}", hidden(&dir));
     let _ = std::fs::remove_dir_all(&dir);
 }
