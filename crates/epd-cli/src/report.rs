@@ -82,26 +82,12 @@ const KEYS: [&str; 21] = [
     "sigma_dz_mm",
 ];
 
-/// The keys whose values are results: withheld (null) unless the estimate converged.
-const RESULT_KEYS: [&str; 17] = [
-    "d_max_mm",
-    "d_min_mm",
-    "roll_deg",
-    "pitch_deg",
-    "yaw_deg",
-    "dy_mm",
-    "dz_mm",
-    "sigma_d_max_mm",
-    "sigma_d_min_mm",
-    "sigma_roll_deg",
-    "sigma_pitch_deg",
-    "sigma_yaw_deg",
-    "sigma_dy_mm",
-    "sigma_dz_mm",
-    "rms_residual_mm",
-    "wall_thickness_est_mm",
-    "roll_determined",
-];
+/// Whether a key's value is a result, withheld (null) unless the estimate converged:
+/// the estimate's keys from `d_max_mm` on (diameters, pose, `roll_determined`, the 1-σ),
+/// the RMS residual and the wall thickness.
+fn is_result(key: &str) -> bool {
+    KEYS[6..].contains(&key) || ["rms_residual_mm", "wall_thickness_est_mm"].contains(&key)
+}
 
 impl FileReport {
     /// Why the file gave no result: a read or estimate error, or a fit that did not
@@ -128,7 +114,7 @@ impl FileReport {
             && !e.estimate.status.is_converged()
         {
             for (k, v) in f.iter_mut() {
-                if RESULT_KEYS.contains(k) {
+                if is_result(k) {
                     *v = Field::Null;
                 }
                 if *k == "error" {
@@ -269,6 +255,31 @@ impl FileReport {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The withheld results start at the diameters and take in every 1-σ.
+    #[test]
+    fn results_are_the_diameters_pose_and_uncertainties() {
+        assert_eq!(KEYS[6], "d_max_mm");
+        for k in [
+            "d_max_mm",
+            "dz_mm",
+            "sigma_dz_mm",
+            "roll_determined",
+            "wall_thickness_est_mm",
+        ] {
+            assert!(is_result(k), "{k}");
+        }
+        for k in [
+            "method",
+            "status",
+            "status_reason",
+            "n_points",
+            "n_dropped",
+            "error",
+        ] {
+            assert!(!is_result(k), "{k}");
+        }
+    }
 
     /// A successful report and a failed one have the same columns, in the same order.
     #[test]
