@@ -293,7 +293,7 @@ fn octant(y: f64, z: f64) -> usize {
 }
 
 /// The q-quantile of `v` (reordered in place; nearest rank). NaN for an empty slice.
-fn quantile(v: &mut [f64], q: f64) -> f64 {
+pub(crate) fn quantile(v: &mut [f64], q: f64) -> f64 {
     if v.is_empty() {
         return f64::NAN;
     }

@@ -301,12 +301,7 @@ fn residual_scale(pts: &[[f64; 3]], kind: Residual, x: &SVector<f64, N_PARAMS>) 
         .step_by(stride)
         .map(|p| geom.residual(kind, p).abs())
         .collect();
-    if r.is_empty() {
-        return None;
-    }
-    let mid = r.len() / 2;
-    let (_, med, _) = r.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
-    let s = 1.4826 * *med;
+    let s = 1.4826 * crate::check::quantile(&mut r, 0.5);
     (s > 0.0 && s.is_finite()).then_some(s)
 }
 
