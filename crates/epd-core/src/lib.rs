@@ -23,6 +23,7 @@
 //! ```
 #![deny(missing_docs)]
 
+pub mod calibration;
 pub mod check;
 pub mod cloud;
 pub mod error;
@@ -36,6 +37,7 @@ pub mod report;
 pub mod residual;
 pub mod symmetry;
 
+pub use calibration::{DepthTable, Observation, TableBins};
 pub use check::{Diagnostics, FitStatus, Implausible};
 pub use error::EpdError;
 pub use estimate::{

@@ -1,0 +1,602 @@
+//! Depth calibration by lookup table (the paper's §4.2, its ref. 27).
+//!
+//! A ToF camera's systematic range error (wiggling, an amplitude-dependent offset,
+//! multipath) depends mostly on the measured range r and the return's intensity I. In a
+//! pipe of known diameter the pose of each frame is fitted with the diameters held at
+//! their known values; every point then gives one observation of the error along its
+//! sensing line,
+//!
+//!   δᵢ = ‖x̂ᵢ‖ − t(x̂ᵢ)·‖x̂ᵢ‖  (measured range − model range, m),
+//!
+//! with t the line parameter of eq. (21) at the fitted β ([`offsets`]). A [`DepthTable`]
+//! stores, per (range × log-intensity) bin, the robust mean of δ over many frames (the
+//! random error averages out) and its robust spread (the random error's σ there).
+//! [`DepthTable::correct`] moves each measured point of a new frame along its own ray by
+//! −T(r, I), interpolated between bin centres.
+//!
+//! Binning uses the *model* range of each observation: binned by measured range, a
+//! bin would collect the points whose noise pushed them in, and store that noise's
+//! conditional mean along with the systematic error. A new frame has no model, so the
+//! lookup uses the measured range; the table is smooth on the scale of the noise.
+
+use crate::error::EpdError;
+use crate::params::Params;
+use crate::residual::Geometry;
+
+/// One observation of the systematic range error: a point of a calibration frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Observation {
+    /// Range where the point's sensing line meets the known wall (m).
+    pub model_range_m: f64,
+    /// The point's intensity (camera units).
+    pub intensity: f64,
+    /// Measured range − model range (m): positive when the camera reads long.
+    pub offset_m: f64,
+}
+
+/// The observations of one calibration frame: every finite, non-zero point with a finite
+/// positive intensity whose model range at `beta` (the frame's fit with the diameters
+/// held at the known values) lies in `gate` (m).
+pub fn offsets(
+    points: &[[f64; 3]],
+    intensity: &[f64],
+    beta: &Params,
+    gate: (f64, f64),
+) -> Result<Vec<Observation>, EpdError> {
+    if points.len() != intensity.len() {
+        return Err(EpdError::InvalidOption(format!(
+            "{} points but {} intensities: one intensity per point is needed",
+            points.len(),
+            intensity.len()
+        )));
+    }
+    let geom = Geometry::new(beta).ok_or_else(|| {
+        EpdError::InvalidOption("the fitted β puts the sensor outside the pipe".into())
+    })?;
+    Ok(points
+        .iter()
+        .zip(intensity)
+        .filter(|(p, i)| usable(p) && i.is_finite() && **i > 0.0)
+        .filter_map(|(p, &i)| {
+            let r = norm(p);
+            let model = geom.line_parameter(p) * r;
+            ((gate.0..=gate.1).contains(&model) && model.is_finite()).then_some(Observation {
+                model_range_m: model,
+                intensity: i,
+                offset_m: r - model,
+            })
+        })
+        .collect())
+}
+
+/// An axis of the table: `n` equal bins over [lo, hi] of a coordinate (the range in m,
+/// or the natural log of the intensity).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Axis {
+    /// Lower edge of the first bin.
+    pub lo: f64,
+    /// Upper edge of the last bin.
+    pub hi: f64,
+    /// Number of bins (≥ 1).
+    pub n: usize,
+}
+
+impl Axis {
+    fn validate(&self, name: &str) -> Result<(), EpdError> {
+        if !(self.lo.is_finite() && self.hi.is_finite() && self.hi > self.lo && self.n >= 1) {
+            return Err(EpdError::InvalidOption(format!(
+                "{name} axis [{}, {}] with {} bins: need finite lo < hi and at least one bin",
+                self.lo, self.hi, self.n
+            )));
+        }
+        Ok(())
+    }
+
+    fn width(&self) -> f64 {
+        (self.hi - self.lo) / self.n as f64
+    }
+
+    /// The bin holding x (clamped to the axis).
+    fn bin(&self, x: f64) -> usize {
+        let k = ((x - self.lo) / self.width()).floor();
+        if k.is_nan() || k < 0.0 {
+            0
+        } else {
+            (k as usize).min(self.n - 1)
+        }
+    }
+
+    /// The two bins whose centres bracket x and the weight of the second: linear
+    /// interpolation between centres, constant beyond the outer centres.
+    fn bracket(&self, x: f64) -> (usize, usize, f64) {
+        let f = (x - self.lo) / self.width() - 0.5;
+        let last = (self.n - 1) as f64;
+        if f.is_nan() || f <= 0.0 {
+            return (0, 0, 0.0);
+        }
+        if f >= last {
+            return (self.n - 1, self.n - 1, 0.0);
+        }
+        let k = f.floor();
+        (k as usize, k as usize + 1, f - k)
+    }
+}
+
+/// The bins of a table to be built.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TableBins {
+    /// Measured range (m).
+    pub range: Axis,
+    /// Natural log of the intensity.
+    pub log_intensity: Axis,
+    /// Bins with fewer observations are empty (filled from a neighbour, see
+    /// [`DepthTable::build`]).
+    pub min_count: usize,
+}
+
+impl TableBins {
+    /// Bins spanning the observations: the range and the log-intensity from their 0.1 %
+    /// to 99.9 % quantiles, `n_range` × `n_intensity` bins, at least 30 observations
+    /// each.
+    pub fn spanning(
+        obs: &[Observation],
+        n_range: usize,
+        n_intensity: usize,
+    ) -> Result<Self, EpdError> {
+        if obs.is_empty() {
+            return Err(EpdError::InvalidOption(
+                "no calibration observations: no point of the frames lies in the range gate".into(),
+            ));
+        }
+        let stride = obs.len().div_ceil(200_000).max(1);
+        let mut r: Vec<f64> = obs
+            .iter()
+            .step_by(stride)
+            .map(|o| o.model_range_m)
+            .collect();
+        let mut li: Vec<f64> = obs
+            .iter()
+            .step_by(stride)
+            .map(|o| o.intensity.ln())
+            .collect();
+        let span = |v: &mut Vec<f64>| {
+            let lo = crate::check::quantile(v, 0.001);
+            let hi = crate::check::quantile(v, 0.999);
+            if hi > lo {
+                (lo, hi)
+            } else {
+                (lo - 0.5, lo + 0.5)
+            }
+        };
+        let (r0, r1) = span(&mut r);
+        let (i0, i1) = span(&mut li);
+        Ok(Self {
+            range: Axis {
+                lo: r0,
+                hi: r1,
+                n: n_range,
+            },
+            log_intensity: Axis {
+                lo: i0,
+                hi: i1,
+                n: n_intensity,
+            },
+            min_count: 30,
+        })
+    }
+}
+
+/// A lookup table of the systematic range error over measured range × log-intensity.
+/// Bins are stored row by row: bin (i, j) of range bin i and intensity bin j is entry
+/// `i·n_intensity + j`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DepthTable {
+    /// The range axis (m).
+    pub range: Axis,
+    /// The log-intensity axis.
+    pub log_intensity: Axis,
+    /// Robust mean of measured − model range per bin (m); an empty bin holds its
+    /// nearest filled bin's value.
+    pub offset_m: Vec<f64>,
+    /// Robust spread 1.4826·MAD of the offsets per bin (m): the random range error's σ
+    /// there; an empty bin holds its nearest filled bin's value.
+    pub spread_m: Vec<f64>,
+    /// Observations behind each bin (below `min_count` the bin counts as empty: 0).
+    pub count: Vec<u64>,
+}
+
+impl DepthTable {
+    /// The table from calibration observations.
+    ///
+    /// Per bin (by model range and log-intensity): the median m and MAD of the offsets,
+    /// then the mean of the offsets within m ± 4·1.4826·MAD (a clipped mean: as
+    /// efficient as the mean for Gaussian noise, deaf to flying pixels). A bin with
+    /// fewer than `min_count` observations is empty and takes the values of the nearest
+    /// filled bin (Euclidean distance in bin indices; ties go to the lower range, then
+    /// the lower intensity), so that the table is defined everywhere and never
+    /// extrapolates a trend it has not seen. Fails when no bin is filled.
+    pub fn build(obs: &[Observation], bins: &TableBins) -> Result<Self, EpdError> {
+        bins.range.validate("range")?;
+        bins.log_intensity.validate("log-intensity")?;
+        let (nr, ni) = (bins.range.n, bins.log_intensity.n);
+        let cells = nr
+            .checked_mul(ni)
+            .filter(|&c| c <= 1 << 20)
+            .ok_or_else(|| {
+                EpdError::InvalidOption(format!("{nr} × {ni} bins: at most 2²⁰ bins"))
+            })?;
+        let mut per_bin: Vec<Vec<f64>> = vec![Vec::new(); cells];
+        for o in obs {
+            if !(o.model_range_m.is_finite()
+                && o.offset_m.is_finite()
+                && o.intensity.is_finite()
+                && o.intensity > 0.0)
+            {
+                continue;
+            }
+            let (lo, hi) = (bins.range.lo, bins.range.hi);
+            let li = o.intensity.ln();
+            if !(lo..=hi).contains(&o.model_range_m)
+                || !(bins.log_intensity.lo..=bins.log_intensity.hi).contains(&li)
+            {
+                continue;
+            }
+            let k = bins.range.bin(o.model_range_m) * ni + bins.log_intensity.bin(li);
+            per_bin[k].push(o.offset_m);
+        }
+        let mut offset_m = vec![f64::NAN; cells];
+        let mut spread_m = vec![f64::NAN; cells];
+        let mut count = vec![0u64; cells];
+        for (k, v) in per_bin.iter_mut().enumerate() {
+            if v.len() < bins.min_count.max(1) {
+                continue;
+            }
+            let (mean, spread) = clipped_mean(v);
+            offset_m[k] = mean;
+            spread_m[k] = spread;
+            count[k] = v.len() as u64;
+        }
+        let filled: Vec<usize> = (0..cells).filter(|&k| count[k] > 0).collect();
+        if filled.is_empty() {
+            return Err(EpdError::InvalidOption(format!(
+                "no bin of the depth table holds {} observations: record more frames or use \
+                 fewer bins",
+                bins.min_count.max(1)
+            )));
+        }
+        for k in 0..cells {
+            if count[k] > 0 {
+                continue;
+            }
+            let (i, j) = ((k / ni) as i64, (k % ni) as i64);
+            let nearest = filled
+                .iter()
+                .copied()
+                .min_by_key(|&f| {
+                    let (fi, fj) = ((f / ni) as i64, (f % ni) as i64);
+                    ((fi - i).pow(2) + (fj - j).pow(2), f)
+                })
+                .unwrap_or(filled[0]);
+            offset_m[k] = offset_m[nearest];
+            spread_m[k] = spread_m[nearest];
+        }
+        Ok(Self {
+            range: bins.range,
+            log_intensity: bins.log_intensity,
+            offset_m,
+            spread_m,
+            count,
+        })
+    }
+
+    /// Check a table read from elsewhere: axes valid, one finite value per bin.
+    pub fn validate(&self) -> Result<(), EpdError> {
+        self.range.validate("range")?;
+        self.log_intensity.validate("log-intensity")?;
+        let cells = self.range.n.checked_mul(self.log_intensity.n);
+        let ok = |len: usize| Some(len) == cells;
+        if !(ok(self.offset_m.len()) && ok(self.spread_m.len()) && ok(self.count.len())) {
+            return Err(EpdError::InvalidOption(format!(
+                "depth table: {} × {} bins but {} offsets, {} spreads and {} counts",
+                self.range.n,
+                self.log_intensity.n,
+                self.offset_m.len(),
+                self.spread_m.len(),
+                self.count.len()
+            )));
+        }
+        if let Some(k) = self.offset_m.iter().position(|v| !v.is_finite()) {
+            return Err(EpdError::InvalidOption(format!(
+                "depth table: offset of bin {k} is not a finite number"
+            )));
+        }
+        if let Some(k) = self
+            .spread_m
+            .iter()
+            .position(|v| !(v.is_finite() && *v >= 0.0))
+        {
+            return Err(EpdError::InvalidOption(format!(
+                "depth table: spread of bin {k} is not a finite number ≥ 0"
+            )));
+        }
+        Ok(())
+    }
+
+    /// Bilinear interpolation of `values` between bin centres at (range, intensity);
+    /// constant beyond the outer centres. A non-positive or non-finite intensity reads
+    /// as the lowest intensity bin.
+    fn interpolate(&self, values: &[f64], range_m: f64, intensity: f64) -> f64 {
+        let li = if intensity > 0.0 && intensity.is_finite() {
+            intensity.ln()
+        } else {
+            f64::NEG_INFINITY
+        };
+        let (i0, i1, fi) = self.range.bracket(range_m);
+        let (j0, j1, fj) = self.log_intensity.bracket(li);
+        let ni = self.log_intensity.n;
+        let at = |i: usize, j: usize| values[i * ni + j];
+        let a = at(i0, j0) * (1.0 - fj) + at(i0, j1) * fj;
+        let b = at(i1, j0) * (1.0 - fj) + at(i1, j1) * fj;
+        a * (1.0 - fi) + b * fi
+    }
+
+    /// The systematic range error T(r, I) at measured range r (m) and intensity I (camera units).
+    pub fn offset_at(&self, range_m: f64, intensity: f64) -> f64 {
+        self.interpolate(&self.offset_m, range_m, intensity)
+    }
+
+    /// The random range error's σ at measured range r (m) and intensity I (camera units).
+    pub fn sigma_at(&self, range_m: f64, intensity: f64) -> f64 {
+        self.interpolate(&self.spread_m, range_m, intensity)
+    }
+
+    /// Move each measured point (SCS, m) along its own sensing line by −T(r, I):
+    /// x̂ ← x̂·(r − T)/r. Zero and non-finite points (invalid pixels) are left as they
+    /// are, and so is a point the correction would carry through the sensor. Returns
+    /// how many points were moved.
+    pub fn correct(&self, points: &mut [[f64; 3]], intensity: &[f64]) -> Result<usize, EpdError> {
+        if points.len() != intensity.len() {
+            return Err(EpdError::InvalidOption(format!(
+                "{} points but {} intensities: one intensity per point is needed",
+                points.len(),
+                intensity.len()
+            )));
+        }
+        let mut moved = 0;
+        for (p, &i) in points.iter_mut().zip(intensity) {
+            if !usable(p) {
+                continue;
+            }
+            let r = norm(p);
+            let k = (r - self.offset_at(r, i)) / r;
+            if k > 0.0 && k.is_finite() {
+                *p = [p[0] * k, p[1] * k, p[2] * k];
+                moved += 1;
+            }
+        }
+        Ok(moved)
+    }
+
+    /// The random range error's σ of each point (m) from the table (NaN for invalid
+    /// points): the per-point scale of a weighted fit.
+    pub fn sigmas(&self, points: &[[f64; 3]], intensity: &[f64]) -> Vec<f64> {
+        points
+            .iter()
+            .zip(intensity)
+            .map(|(p, &i)| {
+                if usable(p) {
+                    self.sigma_at(norm(p), i)
+                } else {
+                    f64::NAN
+                }
+            })
+            .collect()
+    }
+}
+
+/// The clipped mean of `v` (mean within median ± 4·1.4826·MAD) and 1.4826·MAD. `v` is
+/// reordered.
+fn clipped_mean(v: &mut [f64]) -> (f64, f64) {
+    let med = crate::check::quantile(v, 0.5);
+    let mut dev: Vec<f64> = v.iter().map(|x| (x - med).abs()).collect();
+    let spread = 1.4826 * crate::check::quantile(&mut dev, 0.5);
+    let cut = 4.0 * spread;
+    let (mut s, mut n) = (0.0, 0usize);
+    for &x in v.iter() {
+        if (x - med).abs() <= cut {
+            s += x;
+            n += 1;
+        }
+    }
+    if n == 0 {
+        (med, spread)
+    } else {
+        (s / n as f64, spread)
+    }
+}
+
+fn usable(p: &[f64; 3]) -> bool {
+    p.iter().all(|v| v.is_finite()) && p.iter().any(|&v| v != 0.0)
+}
+
+fn norm(p: &[f64; 3]) -> f64 {
+    (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn bins(nr: usize, ni: usize) -> TableBins {
+        TableBins {
+            range: Axis {
+                lo: 0.5,
+                hi: 2.0,
+                n: nr,
+            },
+            log_intensity: Axis {
+                lo: 0.0,
+                hi: 6.0,
+                n: ni,
+            },
+            min_count: 10,
+        }
+    }
+
+    /// A smooth known error: the table reproduces it at the bin centres exactly and in
+    /// between to the interpolation error of a linear function (zero).
+    #[test]
+    fn linear_error_is_reproduced_everywhere() {
+        let f = |r: f64, li: f64| 0.004 * r - 0.001 * li + 0.002;
+        let mut obs = vec![];
+        for a in 0..300 {
+            for b in 0..60 {
+                let r = 0.5 + 1.5 * (a as f64 + 0.5) / 300.0;
+                let li = 6.0 * (b as f64 + 0.5) / 60.0;
+                obs.push(Observation {
+                    model_range_m: r,
+                    intensity: li.exp(),
+                    offset_m: f(r, li),
+                });
+            }
+        }
+        let t = DepthTable::build(&obs, &bins(15, 6)).unwrap();
+        assert!(t.count.iter().all(|&c| c > 0));
+        // Within the outer centres the bilinear interpolation of a linear function is
+        // exact up to the mean within a bin (also exact: the bins sample it evenly).
+        for (r, li) in [(0.6, 0.6), (1.23, 2.7), (1.9, 5.4)] {
+            let got = t.offset_at(r, f64::exp(li));
+            assert!(
+                (got - f(r, li)).abs() < 1e-9,
+                "{r} {li}: {got} vs {}",
+                f(r, li)
+            );
+        }
+        // Beyond the outer centres the table is constant.
+        assert_eq!(t.offset_at(0.1, 1.0), t.offset_at(0.5, 1.0));
+        assert_eq!(t.offset_at(9.0, 1e9), t.offset_at(2.0, 6f64.exp()));
+    }
+
+    #[test]
+    fn robust_mean_ignores_flying_pixels_and_spread_is_sigma() {
+        // Deterministic "noise": a symmetric comb of ±σ·z values, plus 5 % gross errors.
+        let mut v: Vec<f64> = (0..2000)
+            .map(|k| {
+                let z = (k as f64 + 0.5) / 2000.0;
+                0.003 + 0.01 * inverse_normal(z)
+            })
+            .collect();
+        v.extend(std::iter::repeat_n(1.0, 100));
+        let (m, s) = clipped_mean(&mut v);
+        assert!((m - 0.003).abs() < 2e-4, "{m}");
+        // The MAD is not deaf to 5 % one-sided contamination: its median moves into the
+        // tail, ≈ +6 % here (without the gross errors it is exact to 0.2 %).
+        assert!((s - 0.01).abs() < 8e-4, "{s}");
+        let mut clean: Vec<f64> = v[..].iter().copied().filter(|x| *x < 0.5).collect();
+        let (_, s0) = clipped_mean(&mut clean);
+        assert!((s0 - 0.01).abs() < 2e-5, "{s0}");
+    }
+
+    /// Acklam-free inverse normal by bisection of erf (test only).
+    fn inverse_normal(p: f64) -> f64 {
+        let cdf = |x: f64| 0.5 * (1.0 + erf(x / std::f64::consts::SQRT_2));
+        let (mut lo, mut hi) = (-10.0, 10.0);
+        for _ in 0..100 {
+            let mid = 0.5 * (lo + hi);
+            if cdf(mid) < p { lo = mid } else { hi = mid }
+        }
+        0.5 * (lo + hi)
+    }
+
+    fn erf(x: f64) -> f64 {
+        // Abramowitz & Stegun 7.1.26 is too coarse for a test oracle; integrate instead.
+        let n = 2000;
+        let h = x / n as f64;
+        let f = |t: f64| (-t * t).exp();
+        let mut s = f(0.0) + f(x);
+        for k in 1..n {
+            s += f(k as f64 * h) * if k % 2 == 1 { 4.0 } else { 2.0 };
+        }
+        s * h / 3.0 * 2.0 / std::f64::consts::PI.sqrt()
+    }
+
+    #[test]
+    fn empty_bins_take_the_nearest_filled_bin() {
+        // Observations only in range bin 0 (intensity bin 0) and range bin 3 (bin 1).
+        let mut obs = vec![];
+        for _ in 0..20 {
+            obs.push(Observation {
+                model_range_m: 0.6,
+                intensity: 1.5,
+                offset_m: 0.01,
+            });
+            obs.push(Observation {
+                model_range_m: 1.9,
+                intensity: 3f64.exp(),
+                offset_m: -0.02,
+            });
+        }
+        let t = DepthTable::build(&obs, &bins(4, 2)).unwrap();
+        assert_eq!(t.count, vec![20, 0, 0, 0, 0, 0, 0, 20]);
+        // Bins (0, 1) and (1, 0) are next to (0, 0); bins (2, 1) and (3, 0) next to (3, 1).
+        let (a, b) = (t.offset_m[0], t.offset_m[7]);
+        assert!((a - 0.01).abs() < 1e-15 && (b + 0.02).abs() < 1e-15);
+        assert_eq!([t.offset_m[1], t.offset_m[2]], [a, a]);
+        assert_eq!([t.offset_m[5], t.offset_m[6]], [b, b]);
+        assert!(t.validate().is_ok());
+        // No observation at all: refused with a reason.
+        let e = DepthTable::build(&[], &bins(4, 2)).unwrap_err().to_string();
+        assert!(e.contains("no bin"), "{e}");
+    }
+
+    #[test]
+    fn correction_moves_points_along_their_ray() {
+        let obs: Vec<Observation> = (0..100)
+            .map(|k| Observation {
+                model_range_m: 0.5 + 1.5 * k as f64 / 100.0,
+                intensity: 10.0,
+                offset_m: 0.02,
+            })
+            .collect();
+        let b = TableBins {
+            min_count: 1,
+            ..bins(1, 1)
+        };
+        let t = DepthTable::build(&obs, &b).unwrap();
+        let mut pts = [[1.0, 0.2, -0.1], [0.0, 0.0, 0.0], [f64::NAN, 1.0, 1.0]];
+        let before = pts;
+        let moved = t.correct(&mut pts, &[10.0, 10.0, 10.0]).unwrap();
+        assert_eq!(moved, 1);
+        let r0 = norm(&before[0]);
+        assert!((norm(&pts[0]) - (r0 - 0.02)).abs() < 1e-12);
+        // Same direction.
+        let c = (0..3).map(|k| pts[0][k] * before[0][k]).sum::<f64>() / (norm(&pts[0]) * r0);
+        assert!((c - 1.0).abs() < 1e-12);
+        assert_eq!(pts[1], [0.0; 3]);
+        assert!(pts[2][0].is_nan());
+        assert!(t.correct(&mut pts, &[1.0]).is_err());
+    }
+
+    #[test]
+    fn corrupt_tables_are_refused() {
+        let obs: Vec<Observation> = (0..100)
+            .map(|k| Observation {
+                model_range_m: 0.5 + 1.5 * k as f64 / 100.0,
+                intensity: 10.0,
+                offset_m: 0.0,
+            })
+            .collect();
+        let mut t = DepthTable::build(
+            &obs,
+            &TableBins {
+                min_count: 1,
+                ..bins(2, 1)
+            },
+        )
+        .unwrap();
+        t.offset_m.pop();
+        assert!(t.validate().unwrap_err().to_string().contains("offsets"));
+        t.offset_m.push(f64::NAN);
+        assert!(t.validate().unwrap_err().to_string().contains("finite"));
+    }
+}
