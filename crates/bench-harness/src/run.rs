@@ -272,7 +272,7 @@ pub static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 pub struct Interrupted;
 
 /// Create `path` (which must not exist) for writing; the error names the file.
-fn create_new(path: &Path) -> anyhow::Result<BufWriter<File>> {
+pub(crate) fn create_new(path: &Path) -> anyhow::Result<BufWriter<File>> {
     let f = std::fs::OpenOptions::new()
         .write(true)
         .create_new(true)
@@ -282,7 +282,7 @@ fn create_new(path: &Path) -> anyhow::Result<BufWriter<File>> {
 }
 
 /// Flush and sync a file written with [`create_new`]; the error names the file.
-fn finish(w: BufWriter<File>, path: &Path) -> anyhow::Result<PathBuf> {
+pub(crate) fn finish(w: BufWriter<File>, path: &Path) -> anyhow::Result<PathBuf> {
     let f = w
         .into_inner()
         .map_err(|e| e.into_error())
@@ -301,7 +301,7 @@ pub fn write_new(path: &Path, bytes: &[u8]) -> anyhow::Result<PathBuf> {
 }
 
 /// An I/O error writing `p`, naming it.
-fn wrote(p: &Path) -> impl Fn(std::io::Error) -> anyhow::Error + '_ {
+pub(crate) fn wrote(p: &Path) -> impl Fn(std::io::Error) -> anyhow::Error + '_ {
     move |e| anyhow::Error::new(e).context(format!("cannot write {}", p.display()))
 }
 
@@ -322,6 +322,14 @@ pub const RUN_FILES: &[&str] = &[
     "pose_error.png",
     "time.png",
     "std_vs_crb.png",
+    // The pipeline run (`crate::pipeline`).
+    "profile.csv",
+    "sections.csv",
+    "depth_table.json",
+    "diameters.png",
+    "section_errors.png",
+    "profile.png",
+    "weights.png",
 ];
 
 /// Whether `name` is a file a run writes, or a temporary file an earlier version left
@@ -743,7 +751,7 @@ fn summary_line(variable: &str, r: &SummaryRow) -> String {
     .join(",")
 }
 
-fn cpu_model() -> String {
+pub(crate) fn cpu_model() -> String {
     std::fs::read_to_string("/proc/cpuinfo")
         .ok()
         .and_then(|s| {
@@ -756,7 +764,7 @@ fn cpu_model() -> String {
 
 /// The workspace's commit and whether tracked files differ from it (`None` outside a
 /// git checkout).
-fn git_provenance() -> (Option<String>, Option<bool>) {
+pub(crate) fn git_provenance() -> (Option<String>, Option<bool>) {
     let Some(root) = workspace_root() else {
         return (None, None);
     };
@@ -785,7 +793,36 @@ pub fn run(scenario: &Scenario, options: &RunOptions) -> anyhow::Result<RunRepor
         "trials"
     };
     scenario.check_trials(key, trials)?;
-    let out = &options.out;
+    let staged = write_run(&options.out, |dir| {
+        stage(scenario, options.progress, trials, dir, start)
+    })?;
+    Ok(RunReport {
+        summary: staged.summary,
+        files: staged.files,
+        wall_time_s: staged.wall_time_s,
+        trial_errors: staged.trial_errors,
+    })
+}
+
+/// What a staging function hands back: the files it wrote (in the staging folder).
+pub trait StagedFiles {
+    /// The files written, as paths in the staging folder.
+    fn files_mut(&mut self) -> &mut Vec<PathBuf>;
+}
+
+impl StagedFiles for Staged {
+    fn files_mut(&mut self) -> &mut Vec<PathBuf> {
+        &mut self.files
+    }
+}
+
+/// Write a run into `out` through a staging folder (see the module doc): `stage`
+/// writes every file into the folder it is given, and the folder then replaces `out`
+/// as a whole. The returned files are renamed to their place in `out`.
+pub fn write_run<T: StagedFiles>(
+    out: &Path,
+    stage: impl FnOnce(&Path) -> anyhow::Result<T>,
+) -> anyhow::Result<T> {
     let parent = match out.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
@@ -800,7 +837,7 @@ pub fn run(scenario: &Scenario, options: &RunOptions) -> anyhow::Result<RunRepor
         .with_context(|| format!("cannot create a staging folder in {}", parent.display()))?;
     // Held until the run ends: the next runs know this staging folder is alive.
     let _lock = lock_dir(staging.path())?;
-    let staged = match stage(scenario, options.progress, trials, staging.path(), start) {
+    let mut staged = match stage(staging.path()) {
         Ok(s) => s,
         Err(e) if e.is::<Interrupted>() => return Err(e),
         Err(e) => {
@@ -814,17 +851,12 @@ pub fn run(scenario: &Scenario, options: &RunOptions) -> anyhow::Result<RunRepor
         return Err(Interrupted.into());
     }
     swap_into_place(staging, out, &parent)?;
-    let files = staged
-        .files
+    let files = staged.files_mut();
+    *files = files
         .iter()
         .filter_map(|f| f.file_name().map(|n| out.join(n)))
         .collect();
-    Ok(RunReport {
-        summary: staged.summary,
-        files,
-        wall_time_s: staged.wall_time_s,
-        trial_errors: staged.trial_errors,
-    })
+    Ok(staged)
 }
 
 /// A run written into its staging folder, not yet in place.
