@@ -676,6 +676,7 @@ fn to_setting(f: &File) -> Result<Setting, (String, String)> {
         far_outlier_fraction: f.noise.far_outlier_fraction,
         bias_b0: f.noise.bias_b0_m,
         bias_b1: f.noise.bias_b1,
+        physics: None,
     };
     let r = |a: [f64; 2]| (a[0].to_radians(), a[1].to_radians());
     let mm = |a: [f64; 2]| (a[0] * 1e-3, a[1] * 1e-3);

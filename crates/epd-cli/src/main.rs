@@ -644,6 +644,7 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         far_outlier_fraction: 0.0,
         bias_b0: 0.0,
         bias_b1: 0.0,
+        physics: None,
     };
     let sub = match a.points {
         None => Subsample::All,

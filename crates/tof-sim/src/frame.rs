@@ -8,6 +8,7 @@ use rayon::prelude::*;
 
 use crate::error::SimError;
 use crate::noise::{Noise, NoiseModel, Stream, stream};
+use crate::physics::ToFPhysics;
 use crate::scene::Scene;
 use crate::sensor::Sensor;
 
@@ -25,6 +26,12 @@ pub struct FrameSeed {
 
 /// A simulated frame. All vectors are in the SCS (m); entry i of each list belongs to
 /// the same pixel.
+///
+/// With a physical sensor model ([`Noise::physics`]), invalid pixels (too dark,
+/// saturated, or no wall within reach) are kept as cameras write them: measured point
+/// [0, 0, 0], intensity 0, σ NaN, whatever the sensor's range filter; their `exact` is
+/// the wall point, or NaN when the ray meets no wall. [`Frame::retain_valid`] drops them.
+/// The frame's `PartialEq` sees NaN ≠ NaN: compare frames bit by bit.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Frame {
     /// Measured points x̂ (with depth errors).
@@ -35,6 +42,14 @@ pub struct Frame {
     pub pixels: Vec<[u32; 2]>,
     /// Unit ray direction of each point's pixel.
     pub directions: Vec<[f64; 3]>,
+    /// Intensity of each point in camera counts (`ToFPhysics::intensity_scale` ·
+    /// measured amplitude, multipath included); 0 for invalid pixels. NaN for every point
+    /// of the plain model (`physics: None`), which has no amplitude.
+    pub intensity: Vec<f32>,
+    /// The true standard deviation σ (m) of the random range error drawn for each point:
+    /// σ(A) of the physical model, the constant `Noise::sigma` of the plain one (the
+    /// total rms for the isotropic model); NaN for invalid pixels.
+    pub sigma: Vec<f64>,
     /// The true β.
     pub truth: Params,
     /// Image size (W, H) the pixels index.
@@ -59,6 +74,8 @@ impl Frame {
             exact: Vec::new(),
             pixels: Vec::new(),
             directions: Vec::new(),
+            intensity: Vec::new(),
+            sigma: Vec::new(),
             truth: Params {
                 d_max: 0.0,
                 d_min: 0.0,
@@ -80,6 +97,86 @@ impl Frame {
     /// Whether the frame holds no point.
     pub fn is_empty(&self) -> bool {
         self.measured.is_empty()
+    }
+
+    /// Whether point i is a valid depth: invalid pixels of the physical model are written
+    /// as the point [0, 0, 0].
+    pub fn is_valid(&self, i: usize) -> bool {
+        self.measured[i] != [0.0; 3]
+    }
+
+    /// Drop the invalid points ([`Frame::is_valid`]), keeping the others in order.
+    pub fn retain_valid(&mut self) {
+        let mut k = 0;
+        for i in 0..self.measured.len() {
+            if self.is_valid(i) {
+                self.move_point(i, k);
+                k += 1;
+            }
+        }
+        self.truncate(k);
+    }
+
+    /// Copy point `from` over point `to`, in every list.
+    fn move_point(&mut self, from: usize, to: usize) {
+        self.measured[to] = self.measured[from];
+        self.exact[to] = self.exact[from];
+        self.pixels[to] = self.pixels[from];
+        self.directions[to] = self.directions[from];
+        self.intensity[to] = self.intensity[from];
+        self.sigma[to] = self.sigma[from];
+    }
+
+    /// Keep the first `n` points, in every list.
+    fn truncate(&mut self, n: usize) {
+        self.measured.truncate(n);
+        self.exact.truncate(n);
+        self.pixels.truncate(n);
+        self.directions.truncate(n);
+        self.intensity.truncate(n);
+        self.sigma.truncate(n);
+    }
+}
+
+/// The outliers and the random error of one point: `r` is the range with its systematic
+/// errors, `sigma` the standard deviation of the random error (`Noise::sigma` or σ(A) of
+/// the physical model). Draws, in this order: the outlier test (and its range), the far
+/// outlier test (and its range), the Gaussian error(s).
+#[inline]
+fn displace(
+    noise: &Noise,
+    sigma: f64,
+    dir: &Vector3<f64>,
+    range: f64,
+    mut r: f64,
+    rng: &mut rand_pcg::Pcg64,
+) -> Vector3<f64> {
+    if noise.outlier_fraction > 0.0 && rng.random::<f64>() < noise.outlier_fraction {
+        r = range * rng.random_range(0.5..1.5);
+    }
+    if noise.far_outlier_fraction > 0.0 && rng.random::<f64>() < noise.far_outlier_fraction {
+        r = rng.random_range(0.1..6.0);
+    }
+    match noise.model {
+        NoiseModel::Range => {
+            let e: f64 = if sigma > 0.0 {
+                StandardNormal.sample(rng)
+            } else {
+                0.0
+            };
+            dir * (r + sigma * e)
+        }
+        NoiseModel::Isotropic => {
+            let s = sigma / 3f64.sqrt();
+            let mut e = Vector3::zeros();
+            if sigma > 0.0 {
+                for c in 0..3 {
+                    let n: f64 = StandardNormal.sample(rng);
+                    e[c] = s * n;
+                }
+            }
+            dir * r + e
+        }
     }
 }
 
@@ -104,6 +201,14 @@ pub fn simulate(
 /// index, row), so the frame does not depend on the number of threads. The subsample is
 /// Knuth's selection sampling (Algorithm S): N distinct points, uniformly, kept in pixel
 /// order, from the stream (seed, trial, sweep index, subsample).
+///
+/// With a physical model ([`ToFPhysics`]) each pixel goes: true range r and incidence
+/// cos θ (ray cast with the wall normal) → direct amplitude A = ρ cos θ/r² → multipath
+/// phasor sum (range shift, measured amplitude A_m) → invalid if A_m is outside
+/// [min_amplitude, saturation_amplitude] (written as zeros, kept, no random draw) →
+/// r + wiggle(r) + offset(A_m) + multipath shift → outliers → + σ(A_m)·ε from the row's
+/// stream → range filter. Without it, the plain model: r + b0 + b1·r → outliers →
+/// + σ·ε → range filter.
 pub fn simulate_into(
     sensor: &Sensor,
     scene: &Scene,
@@ -114,8 +219,13 @@ pub fn simulate_into(
 ) -> Result<(), SimError> {
     sensor.validate()?;
     noise.validate()?;
-    // Cast far enough that noise may bring a point back into range.
-    let cast_limit = sensor.max_range * 2.0 + 10.0 * noise.sigma + 1.0;
+    let physics = noise.physics;
+    // Cast far enough that noise may bring a point back into range; with the physical
+    // model, also as far as a pixel may be valid.
+    let cast_limit = match &physics {
+        None => sensor.max_range * 2.0 + 10.0 * noise.sigma + 1.0,
+        Some(p) => (sensor.max_range * 2.0 + 1.0).max(p.max_valid_range()),
+    };
     let pinhole = sensor.rays();
     let w = sensor.width as usize;
     let n_pix = sensor.pixel_count();
@@ -123,6 +233,8 @@ pub fn simulate_into(
     frame.exact.resize(n_pix, [0.0; 3]);
     frame.pixels.resize(n_pix, [0; 2]);
     frame.directions.resize(n_pix, [0.0; 3]);
+    frame.intensity.resize(n_pix, 0.0);
+    frame.sigma.resize(n_pix, 0.0);
     // Each row writes its in-range points at the start of its own slice of the buffers.
     let counts: Vec<usize> = frame
         .measured
@@ -130,8 +242,10 @@ pub fn simulate_into(
         .zip(frame.exact.par_chunks_mut(w))
         .zip(frame.pixels.par_chunks_mut(w))
         .zip(frame.directions.par_chunks_mut(w))
+        .zip(frame.intensity.par_chunks_mut(w))
+        .zip(frame.sigma.par_chunks_mut(w))
         .enumerate()
-        .map(|(v, (((meas, exact), pixels), dirs))| {
+        .map(|(v, (((((meas, exact), pixels), dirs), inten), sig))| {
             let v = v as u32;
             let mut rng = stream(
                 seeds.seed,
@@ -143,47 +257,39 @@ pub fn simulate_into(
             let mut k = 0;
             for u in 0..sensor.width {
                 let dir = pinhole.direction(u, v);
-                let Some(range) = scene.cast(&dir, cast_limit) else {
-                    continue;
-                };
-                let x = dir * range;
-                // Depth bias and outliers act on the range along the ray.
-                let mut r = range + noise.bias_b0 + noise.bias_b1 * range;
-                if noise.outlier_fraction > 0.0 && rng.random::<f64>() < noise.outlier_fraction {
-                    r = range * rng.random_range(0.5..1.5);
-                }
-                if noise.far_outlier_fraction > 0.0
-                    && rng.random::<f64>() < noise.far_outlier_fraction
-                {
-                    r = rng.random_range(0.1..6.0);
-                }
-                let m = match noise.model {
-                    NoiseModel::Range => {
-                        let e: f64 = if noise.sigma > 0.0 {
-                            StandardNormal.sample(&mut rng)
-                        } else {
-                            0.0
+                let (m, x, intensity, sigma) = match &physics {
+                    None => {
+                        let Some(range) = scene.cast(&dir, cast_limit) else {
+                            continue;
                         };
-                        dir * (r + noise.sigma * e)
+                        // Depth bias and outliers act on the range along the ray.
+                        let r = range + noise.bias_b0 + noise.bias_b1 * range;
+                        let m = displace(noise, noise.sigma, &dir, range, r, &mut rng);
+                        (Some(m), dir * range, f32::NAN, noise.sigma)
                     }
-                    NoiseModel::Isotropic => {
-                        let s = noise.sigma / 3f64.sqrt();
-                        let mut e = Vector3::zeros();
-                        if noise.sigma > 0.0 {
-                            for c in 0..3 {
-                                let n: f64 = StandardNormal.sample(&mut rng);
-                                e[c] = s * n;
-                            }
-                        }
-                        dir * r + e
+                    Some(p) => {
+                        let hit = scene.cast_with_normal(&dir, cast_limit);
+                        let q = physical_point(p, noise, &dir, hit, &mut rng);
+                        let intensity = (p.intensity_scale * q.amplitude) as f32;
+                        (q.measured, q.exact, intensity, q.sigma)
                     }
                 };
-                let mr = m.norm();
-                if mr >= sensor.min_range && mr <= sensor.max_range {
+                let keep = match &m {
+                    // Invalid pixels are kept as zeros, whatever the range filter.
+                    None => true,
+                    Some(m) => {
+                        let mr = m.norm();
+                        mr >= sensor.min_range && mr <= sensor.max_range
+                    }
+                };
+                if keep {
+                    let m = m.unwrap_or_else(Vector3::zeros);
                     meas[k] = [m.x, m.y, m.z];
                     exact[k] = [x.x, x.y, x.z];
                     pixels[k] = [u, v];
                     dirs[k] = [dir.x, dir.y, dir.z];
+                    inten[k] = intensity;
+                    sig[k] = sigma;
                     k += 1;
                 }
             }
@@ -199,6 +305,8 @@ pub fn simulate_into(
             frame.exact.copy_within(from..from + k, at);
             frame.pixels.copy_within(from..from + k, at);
             frame.directions.copy_within(from..from + k, at);
+            frame.intensity.copy_within(from..from + k, at);
+            frame.sigma.copy_within(from..from + k, at);
         }
         at += k;
     }
@@ -218,10 +326,7 @@ pub fn simulate_into(
         for i in 0..total {
             // Keep item i with probability (still needed)/(still available).
             if (rng.random::<f64>() * (total - i) as f64) < (n - chosen) as f64 {
-                frame.measured[chosen] = frame.measured[i];
-                frame.exact[chosen] = frame.exact[i];
-                frame.pixels[chosen] = frame.pixels[i];
-                frame.directions[chosen] = frame.directions[i];
+                frame.move_point(i, chosen);
                 chosen += 1;
                 if chosen == n {
                     break;
@@ -230,11 +335,55 @@ pub fn simulate_into(
         }
         keep_n = chosen;
     }
-    frame.measured.truncate(keep_n);
-    frame.exact.truncate(keep_n);
-    frame.pixels.truncate(keep_n);
-    frame.directions.truncate(keep_n);
+    frame.truncate(keep_n);
     frame.truth = *scene.truth();
     frame.image_size = [sensor.width, sensor.height];
     Ok(())
+}
+
+/// One pixel under the physical model.
+struct PhysicalPixel {
+    /// The measured point; `None` if the pixel is invalid.
+    measured: Option<Vector3<f64>>,
+    /// The exact wall point; NaN if the ray meets no wall.
+    exact: Vector3<f64>,
+    /// The measured amplitude; 0 if invalid.
+    amplitude: f64,
+    /// σ of the random range error; NaN if invalid.
+    sigma: f64,
+}
+
+/// One pixel under the physical model, from its ray cast `hit` (range, cos θ), `None`
+/// when the ray meets no wall within reach.
+#[inline]
+fn physical_point(
+    p: &ToFPhysics,
+    noise: &Noise,
+    dir: &Vector3<f64>,
+    hit: Option<(f64, f64)>,
+    rng: &mut rand_pcg::Pcg64,
+) -> PhysicalPixel {
+    let invalid = |exact| PhysicalPixel {
+        measured: None,
+        exact,
+        amplitude: 0.0,
+        sigma: f64::NAN,
+    };
+    let Some((range, cos_incidence)) = hit else {
+        return invalid(Vector3::repeat(f64::NAN));
+    };
+    let x = dir * range;
+    let a = p.amplitude(range, cos_incidence);
+    let (shift, a_m) = p.multipath(range, a);
+    if !p.is_valid(a_m) {
+        return invalid(x);
+    }
+    let r = range + p.wiggle(range) + p.amplitude_offset(a_m) + shift;
+    let s = p.sigma_at(a_m);
+    PhysicalPixel {
+        measured: Some(displace(noise, s, dir, range, r, rng)),
+        exact: x,
+        amplitude: a_m,
+        sigma: s,
+    }
 }

@@ -5,6 +5,10 @@
 //! along the axis, Y major axis, Z minor axis), related by eq. (3) of the RU-EPD paper
 //! through [`epd_core::Params`] — the one definition of the convention in the workspace.
 //!
+//! [`ToFPhysics`] (optional, `Noise::physics`) adds a physical sensor model: amplitude
+//! ρ·cos θ/r², Lange's amplitude-dependent range noise, dark and saturated pixels written
+//! as zeros, wiggling, intensity-related offset and multipath, and a per-point intensity.
+//!
 //! ```
 //! use tof_sim::{FrameSeed, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, WallModel, simulate};
 //! let sensor = Sensor::helios2();
@@ -23,6 +27,7 @@ pub mod frame;
 pub mod mesh;
 pub mod noise;
 pub mod output;
+pub mod physics;
 pub mod pipe;
 pub mod pose;
 pub mod scene;
@@ -32,6 +37,7 @@ pub use elliptic_cylinder::EllipticCylinder;
 pub use error::SimError;
 pub use frame::{Frame, FrameSeed, Subsample, simulate, simulate_into};
 pub use noise::{Noise, NoiseModel};
+pub use physics::ToFPhysics;
 pub use pipe::Pipe;
 pub use pose::PoseRanges;
 pub use scene::{Scene, WallModel};

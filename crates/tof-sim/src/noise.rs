@@ -4,6 +4,7 @@ use rand::SeedableRng;
 use rand_pcg::Pcg64;
 
 use crate::error::SimError;
+use crate::physics::ToFPhysics;
 
 /// How the random depth error displaces a point.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -34,6 +35,12 @@ pub struct Noise {
     pub bias_b0: f64,
     /// … and b1 (dimensionless).
     pub bias_b1: f64,
+    /// The physical sensor model, or `None` (the default) for the plain model above.
+    /// When `Some`, it replaces `sigma` (σ then depends on each pixel's amplitude) and
+    /// `bias_b0`, `bias_b1` (its systematic errors take their place), marks dark and
+    /// saturated pixels invalid and gives each point an intensity; `model` still chooses
+    /// the direction of the random error and the outlier fractions still apply afterwards.
+    pub physics: Option<ToFPhysics>,
 }
 
 impl Noise {
@@ -46,6 +53,7 @@ impl Noise {
             far_outlier_fraction: 0.0,
             bias_b0: 0.0,
             bias_b1: 0.0,
+            physics: None,
         }
     }
 
@@ -90,6 +98,9 @@ impl Noise {
                 self.bias_b1,
                 "must be finite and > −1",
             ));
+        }
+        if let Some(p) = &self.physics {
+            p.validate()?;
         }
         Ok(())
     }

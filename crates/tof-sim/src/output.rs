@@ -25,7 +25,10 @@ pub enum PlyPrecision {
     F64,
 }
 
-/// Write `frame`'s measured points (SCS, m) with their pixel (u, v) as PLY.
+/// Write `frame`'s measured points (SCS, m) with their pixel (u, v) as PLY, plus a
+/// `property float intensity` (camera counts) after v when the frame has any finite
+/// intensity (the physical sensor model; the plain model's intensities are NaN and are
+/// not written). Invalid pixels are written as they are held: x = y = z = 0, intensity 0.
 pub fn write_ply<W: Write>(
     w: &mut W,
     frame: &Frame,
@@ -41,11 +44,13 @@ pub fn write_ply<W: Write>(
         PlyPrecision::F64 => "double",
     };
     let t = &frame.truth;
+    let with_intensity = frame.intensity.len() == frame.measured.len()
+        && frame.intensity.iter().any(|i| i.is_finite());
     write!(
         w,
         "ply\nformat {fmt} 1.0\ncomment tof-sim frame: measured points in the sensor frame (m; X forward, Y right, Z up)\n\
          comment truth d_max_m {} d_min_m {} roll_rad {} pitch_rad {} yaw_rad {} dy_m {} dz_m {}\n\
-         element vertex {}\nproperty {ty} x\nproperty {ty} y\nproperty {ty} z\nproperty uint u\nproperty uint v\nend_header\n",
+         element vertex {}\nproperty {ty} x\nproperty {ty} y\nproperty {ty} z\nproperty uint u\nproperty uint v\n{}end_header\n",
         t.d_max,
         t.d_min,
         t.roll,
@@ -53,14 +58,19 @@ pub fn write_ply<W: Write>(
         t.yaw,
         t.dy,
         t.dz,
-        frame.measured.len()
+        frame.measured.len(),
+        if with_intensity {
+            "property float intensity\n"
+        } else {
+            ""
+        }
     )?;
-    for (p, px) in frame.measured.iter().zip(&frame.pixels) {
+    for (i, (p, px)) in frame.measured.iter().zip(&frame.pixels).enumerate() {
         match (format, precision) {
             (PlyFormat::Ascii, PlyPrecision::F64) => {
-                writeln!(w, "{} {} {} {} {}", p[0], p[1], p[2], px[0], px[1])?
+                write!(w, "{} {} {} {} {}", p[0], p[1], p[2], px[0], px[1])?
             }
-            (PlyFormat::Ascii, PlyPrecision::F32) => writeln!(
+            (PlyFormat::Ascii, PlyPrecision::F32) => write!(
                 w,
                 "{} {} {} {} {}",
                 p[0] as f32, p[1] as f32, p[2] as f32, px[0], px[1]
@@ -75,6 +85,14 @@ pub fn write_ply<W: Write>(
                 w.write_all(&px[0].to_le_bytes())?;
                 w.write_all(&px[1].to_le_bytes())?;
             }
+        }
+        match format {
+            PlyFormat::Ascii if with_intensity => writeln!(w, " {}", frame.intensity[i])?,
+            PlyFormat::Ascii => writeln!(w)?,
+            PlyFormat::BinaryLittleEndian if with_intensity => {
+                w.write_all(&frame.intensity[i].to_le_bytes())?
+            }
+            PlyFormat::BinaryLittleEndian => {}
         }
     }
     Ok(())
@@ -193,7 +211,7 @@ impl Canvas {
 }
 
 /// Render the measured ranges of `frame` as a depth image (near = blue, far = red,
-/// no return = black) with a vertical colour scale bar labelled in metres on the right,
+/// no return or invalid pixel = black) with a vertical colour scale bar labelled in metres on the right,
 /// as the paper's Fig. 10. `max_range` sets the top of the scale.
 pub fn depth_png<W: Write>(w: W, frame: &Frame, max_range: f64) -> Result<(), SimError> {
     let [iw, ih] = frame.image_size.map(|v| v as usize);
@@ -205,6 +223,9 @@ pub fn depth_png<W: Write>(w: W, frame: &Frame, max_range: f64) -> Result<(), Si
     };
     for (p, px) in frame.measured.iter().zip(&frame.pixels) {
         let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+        if r == 0.0 {
+            continue; // an invalid pixel, written as zeros
+        }
         c.set(px[0] as usize, px[1] as usize, colormap(r / max_range));
     }
     // The scale bar: 16 px wide, from max_range (top) to 0 (bottom), with 5 labels.

@@ -98,4 +98,19 @@ impl Scene {
             Wall::Mesh(m) => m.cast_ray(&self.pose, &ray, max_range, false),
         }
     }
+
+    /// [`Scene::cast`] with the wall normal, through parry's `cast_ray_and_get_normal`:
+    /// the range (m) and the cosine of the incidence angle θ between the ray and the wall
+    /// normal, cos θ = |d·n| ∈ [0, 1] (the gradient normal of the exact cylinder, the hit
+    /// triangle's normal for a mesh).
+    pub fn cast_with_normal(&self, dir: &Vector3<f64>, max_range: f64) -> Option<(f64, f64)> {
+        let d = to_glam(dir);
+        let ray = Ray::new(DVec3::ZERO, d);
+        let hit = match &self.wall {
+            Wall::Exact(c) => c.cast_ray_and_get_normal(&self.pose, &ray, max_range, false),
+            Wall::Mesh(m) => m.cast_ray_and_get_normal(&self.pose, &ray, max_range, false),
+        }?;
+        let cos = (hit.normal.dot(d) / d.length()).abs().min(1.0);
+        Some((hit.time_of_impact, cos))
+    }
 }
