@@ -32,6 +32,35 @@ pub fn clean(points: &[[f64; 3]]) -> CleanCloud<'_> {
     }
 }
 
+/// Measured points with their per-point range noise σᵢ, the unusable pairs removed.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CleanWeighted {
+    /// Finite points away from the origin whose σᵢ is usable.
+    pub points: Vec<[f64; 3]>,
+    /// σᵢ of each kept point (m): finite and > 0, aligned with `points`.
+    pub sigma: Vec<f64>,
+    /// How many input pairs were dropped (unusable point or σᵢ).
+    pub dropped: usize,
+}
+
+/// Keep the pairs (x̂ᵢ, σᵢ) whose point is usable (as in [`clean`]) and whose σᵢ is
+/// finite and > 0, in their order; count the others. Pairs by index: `points` and
+/// `sigma` should have the same length (the pairs beyond the shorter are dropped and
+/// counted).
+pub fn clean_weighted(points: &[[f64; 3]], sigma: &[f64]) -> CleanWeighted {
+    let (kept_points, kept_sigma): (Vec<[f64; 3]>, Vec<f64>) = points
+        .iter()
+        .zip(sigma)
+        .filter(|(p, s)| usable(p) && s.is_finite() && **s > 0.0)
+        .map(|(p, s)| (*p, *s))
+        .unzip();
+    CleanWeighted {
+        dropped: points.len().max(sigma.len()) - kept_points.len(),
+        points: kept_points,
+        sigma: kept_sigma,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -50,5 +79,22 @@ mod tests {
         assert_eq!(c.dropped, 3);
         let good = [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0]];
         assert!(matches!(clean(&good).points, Cow::Borrowed(_)));
+    }
+
+    #[test]
+    fn drops_pairs_together() {
+        let pts = [
+            [1.0, 0.0, 0.0],
+            [f64::NAN, 0.0, 1.0],
+            [0.0, 0.5, 0.0],
+            [0.0, 0.0, 0.7],
+            [0.5, 0.2, -0.1],
+            [0.0, 0.0, 0.0],
+        ];
+        let sigma = [0.01, 0.02, f64::NAN, 0.0, 0.05, 0.03];
+        let c = clean_weighted(&pts, &sigma);
+        assert_eq!(c.points, vec![[1.0, 0.0, 0.0], [0.5, 0.2, -0.1]]);
+        assert_eq!(c.sigma, vec![0.01, 0.05]);
+        assert_eq!(c.dropped, 4);
     }
 }

@@ -7,7 +7,7 @@ use std::str::FromStr;
 use nalgebra::{DMatrix, SMatrix, SVector};
 
 use crate::check::{Diagnostics, FitStatus, assess};
-use crate::cloud::clean;
+use crate::cloud::{CleanWeighted, clean, clean_weighted};
 use crate::error::EpdError;
 use crate::init::initial_guess;
 use crate::lm::{LmOptions, NormalEquations, minimize};
@@ -15,7 +15,7 @@ use crate::loss::Loss;
 use crate::params::{N_PARAMS, Params};
 use crate::problem::PipeFit;
 use crate::residual::{Geometry, Residual};
-use crate::symmetry::canonical_form;
+use crate::symmetry::{canonical_form, canonicalize};
 
 /// An estimator of the paper (C-EPD, RU-EPD) or ours (ML-EPD).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -79,6 +79,7 @@ pub struct EstimateOptions {
     loss: Loss,
     loss_scale: LossScale,
     range_gate: Option<(f64, f64)>,
+    fixed_diameters: Option<(f64, f64)>,
 }
 
 /// How the scale of a robust loss is set.
@@ -105,6 +106,7 @@ impl Default for EstimateOptions {
             loss: Loss::Squared,
             loss_scale: LossScale::Fixed,
             range_gate: None,
+            fixed_diameters: None,
         }
     }
 }
@@ -155,6 +157,34 @@ impl EstimateOptions {
         }
         self.range_gate = Some((min, max));
         Ok(self)
+    }
+
+    /// Hold the diameters at (Dmax, Dmin) (m) and fit only the pose (θx, θy, θz, δy, δz)
+    /// of eq. (2): for a pipe of known diameter (depth calibration). The initial guess's
+    /// diameters are replaced by these (after putting the guess in canonical form, so
+    /// that its roll names the major axis), the solver's step in them is exactly zero,
+    /// and the estimate reports them bit for bit with no standard deviation. Both must be
+    /// finite and > 0, with Dmax ≥ Dmin.
+    pub fn with_fixed_diameters(mut self, d_max: f64, d_min: f64) -> Result<Self, EpdError> {
+        if !(d_max.is_finite() && d_min.is_finite() && d_min > 0.0 && d_max >= d_min) {
+            return Err(EpdError::InvalidOption(format!(
+                "fixed diameters Dmax = {d_max} m, Dmin = {d_min} m: need finite \
+                 Dmax ≥ Dmin > 0"
+            )));
+        }
+        self.fixed_diameters = Some((d_max, d_min));
+        Ok(self)
+    }
+
+    /// The held diameters (Dmax, Dmin) (m), if any.
+    pub fn fixed_diameters(&self) -> Option<(f64, f64)> {
+        self.fixed_diameters
+    }
+
+    /// Which parameters of eq. (2) the solver holds.
+    fn fixed_mask(&self) -> [bool; N_PARAMS] {
+        let held = self.fixed_diameters.is_some();
+        [held, held, false, false, false, false, false]
     }
 
     /// Size of the evenly strided subsample on which the fit first converges before the
@@ -223,39 +253,149 @@ pub struct Estimate {
 /// estimate: its cost has poles where the model axis crosses a measured ray, and started
 /// cold it can settle in a wrong basin. With a range gate
 /// ([`EstimateOptions::with_range_gate`]) the points are selected by their model range.
-/// The status is `converged` only when the result is also consistent with the points
-/// ([`crate::check`]).
+/// With held diameters ([`EstimateOptions::with_fixed_diameters`]) only the pose is
+/// fitted. The status is `converged` only when the result is also consistent with the
+/// points ([`crate::check`]).
 pub fn estimate(
     points: &[[f64; 3]],
     method: Method,
     options: &EstimateOptions,
 ) -> Result<Estimate, EpdError> {
     let cloud = clean(points);
+    let view = View {
+        points: &cloud.points,
+        scales: None,
+    };
+    estimate_view(view, cloud.dropped, method, options)
+}
+
+/// [`estimate`] with a range-noise standard deviation σᵢ (m) per point: the
+/// heteroscedastic weighted fit.
+///
+/// Each residual rᵢ and its gradient gᵢ enter eq. (4) as sᵢ·rᵢ and sᵢ·gᵢ with
+/// sᵢ = σ̃/σᵢ, σ̃ the median σᵢ of the points used, so F = Σ (sᵢrᵢ)² keeps the residual
+/// units (m for RU/ML-EPD) and a robust loss's scale keeps its meaning. For ML-EPD,
+/// whose residual is the range error along the ray, this is the maximum likelihood
+/// under independent N(0, σᵢ²) range noise; RU-EPD and C-EPD weight their own residuals
+/// the same way. The weights travel with the points through the cleaning, the range
+/// gate, the subsample stage, the data-scaled loss (1.4826·median|sᵢrᵢ|) and the
+/// covariance: σ̂²·(J̃ᵀJ̃)⁻¹ with J̃ the scaled Jacobian and σ̂² = F̃/(N − p), p the
+/// fitted parameters (the plausibility check of [`crate::check`] is unweighted).
+/// Equal σᵢ give exactly [`estimate`]'s result.
+///
+/// Points whose σᵢ is not finite or not > 0 are dropped with the point and counted in
+/// `n_dropped`. `sigma.len() != points.len()` is an [`EpdError::InvalidOption`].
+pub fn estimate_weighted(
+    points: &[[f64; 3]],
+    sigma: &[f64],
+    method: Method,
+    options: &EstimateOptions,
+) -> Result<Estimate, EpdError> {
+    if sigma.len() != points.len() {
+        return Err(EpdError::InvalidOption(format!(
+            "{} range standard deviations for {} points: need one per point",
+            sigma.len(),
+            points.len()
+        )));
+    }
+    let (cloud, scales, _) = weighted_cloud(points, sigma);
+    let view = View {
+        points: &cloud.points,
+        scales: Some(&scales),
+    };
+    estimate_view(view, cloud.dropped, method, options)
+}
+
+/// The usable pairs of `points` and `sigma` and their scales sᵢ = σ̃/σᵢ with σ̃ the
+/// median of the kept σᵢ (returned beside them).
+fn weighted_cloud(points: &[[f64; 3]], sigma: &[f64]) -> (CleanWeighted, Vec<f64>, f64) {
+    let cloud = clean_weighted(points, sigma);
+    let mut sorted = cloud.sigma.clone();
+    let typical = crate::check::quantile(&mut sorted, 0.5);
+    let scales = cloud.sigma.iter().map(|s| typical / s).collect();
+    (cloud, scales, typical)
+}
+
+/// Points (SCS, m; finite, non-zero) with their optional scales sᵢ (one per point).
+#[derive(Clone, Copy, Debug)]
+struct View<'a> {
+    points: &'a [[f64; 3]],
+    scales: Option<&'a [f64]>,
+}
+
+/// An owned selection of a [`View`], kept aligned.
+#[derive(Clone, Debug)]
+struct Selection {
+    points: Vec<[f64; 3]>,
+    scales: Option<Vec<f64>>,
+}
+
+impl Selection {
+    fn view(&self) -> View<'_> {
+        View {
+            points: &self.points,
+            scales: self.scales.as_deref(),
+        }
+    }
+}
+
+impl<'a> View<'a> {
+    fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// The scale of point `i` (1 without scales).
+    fn scale(&self, i: usize) -> f64 {
+        self.scales.map_or(1.0, |s| s[i])
+    }
+
+    /// The points for which `keep` holds, with their scales.
+    fn select(&self, keep: impl Fn(&[f64; 3]) -> bool) -> Selection {
+        let idx: Vec<usize> = (0..self.len()).filter(|&i| keep(&self.points[i])).collect();
+        Selection {
+            points: idx.iter().map(|&i| self.points[i]).collect(),
+            scales: self.scales.map(|s| idx.iter().map(|&i| s[i]).collect()),
+        }
+    }
+
+    /// Every `stride`-th point from the first, with its scale.
+    fn strided(&self, stride: usize) -> Selection {
+        Selection {
+            points: self.points.iter().step_by(stride).copied().collect(),
+            scales: self
+                .scales
+                .map(|s| s.iter().step_by(stride).copied().collect()),
+        }
+    }
+
+    /// Eq. (4) over these points with `kind`, scaled.
+    fn fit(&self, kind: Residual) -> PipeFit<'a> {
+        PipeFit::new(self.points, kind).with_scales(self.scales)
+    }
+}
+
+/// [`estimate`] on clean points with optional scales: the range gate, then the fit.
+fn estimate_view(
+    cloud: View<'_>,
+    n_dropped: usize,
+    method: Method,
+    options: &EstimateOptions,
+) -> Result<Estimate, EpdError> {
     let Some((lo, hi)) = options.range_gate else {
-        return fit_cloud(&cloud.points, cloud.dropped, 0, method, options, None);
+        return fit_cloud(cloud, n_dropped, 0, method, options, None);
     };
     let range = |p: &[f64; 3]| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-    let measured: Vec<[f64; 3]> = cloud
-        .points
-        .iter()
-        .filter(|p| (lo..=hi).contains(&range(p)))
-        .copied()
-        .collect();
-    let first = fit_cloud(&measured, cloud.dropped, 0, method, options, None)?;
+    let measured = cloud.select(|p| (lo..=hi).contains(&range(p)));
+    let first = fit_cloud(measured.view(), n_dropped, 0, method, options, None)?;
     let geom = Geometry::new(&first.params).ok_or_else(|| {
         EpdError::Degenerate("the first fit of the range gate left the model".into())
     })?;
     // The model range of a ray: the wall point x0 + t(x̂ − x0) is t·‖p‖ from the sensor.
-    let kept: Vec<[f64; 3]> = cloud
-        .points
-        .iter()
-        .filter(|p| (lo..=hi).contains(&(geom.line_parameter(p) * range(p))))
-        .copied()
-        .collect();
-    let gated = cloud.points.len() - kept.len();
+    let kept = cloud.select(|p| (lo..=hi).contains(&(geom.line_parameter(p) * range(p))));
+    let gated = cloud.len() - kept.points.len();
     fit_cloud(
-        &kept,
-        cloud.dropped,
+        kept.view(),
+        n_dropped,
         gated,
         method,
         options,
@@ -292,28 +432,30 @@ fn tuning(loss: Loss) -> f64 {
     }
 }
 
-/// 1.4826·median|r| of `kind`'s residuals of `pts` at `x`, or `None` outside the model.
-fn residual_scale(pts: &[[f64; 3]], kind: Residual, x: &SVector<f64, N_PARAMS>) -> Option<f64> {
+/// 1.4826·median|sᵢrᵢ| of `kind`'s (scaled) residuals of `pts` at `x`, or `None`
+/// outside the model.
+fn residual_scale(pts: View<'_>, kind: Residual, x: &SVector<f64, N_PARAMS>) -> Option<f64> {
     let geom = Geometry::new(&Params::from_array((*x).into()))?;
     let stride = pts.len().div_ceil(8192).max(1);
-    let mut r: Vec<f64> = pts
-        .iter()
+    let mut r: Vec<f64> = (0..pts.len())
         .step_by(stride)
-        .map(|p| geom.residual(kind, p).abs())
+        .map(|i| (pts.scale(i) * geom.residual(kind, &pts.points[i])).abs())
         .collect();
     let s = 1.4826 * crate::check::quantile(&mut r, 0.5);
     (s > 0.0 && s.is_finite()).then_some(s)
 }
 
-/// The fit of clean points, from the initial guess or from `start`.
+/// The fit of clean points (with their scales, if any), from the initial guess or from
+/// `start`.
 fn fit_cloud(
-    pts: &[[f64; 3]],
+    cloud: View<'_>,
     n_dropped: usize,
     n_out_of_gate: usize,
     method: Method,
     options: &EstimateOptions,
     start: Option<Params>,
 ) -> Result<Estimate, EpdError> {
+    let pts = cloud.points;
     let n = pts.len();
     if n < N_PARAMS {
         return Err(EpdError::TooFewPoints {
@@ -322,18 +464,35 @@ fn fit_cloud(
             needed: N_PARAMS,
         });
     }
-    let init = match start {
-        Some(p) => p,
-        None => initial_guess(pts)?,
+    let fixed = options.fixed_mask();
+    let init = match (start, options.fixed_diameters) {
+        (Some(p), _) => p,
+        (None, None) => initial_guess(pts)?,
+        // The guess in canonical form (its roll names the major axis), with the held
+        // diameters.
+        (None, Some((d_max, d_min))) => Params {
+            d_max,
+            d_min,
+            ..canonicalize(&initial_guess(pts)?)
+        },
     };
-    let sub: Vec<[f64; 3]>;
-    let stage_pts: &[[f64; 3]] = if options.stage_points > 0 && n > 2 * options.stage_points {
+    let sub: Selection;
+    let stage_pts: View<'_> = if options.stage_points > 0 && n > 2 * options.stage_points {
         let stride = n / options.stage_points;
-        sub = pts.iter().step_by(stride).copied().collect();
-        &sub
+        sub = cloud.strided(stride);
+        sub.view()
     } else {
-        pts
+        cloud
     };
+    // Eq. (4) over `on` with `kind` and `loss`, the held parameters held.
+    fn problem<'v>(
+        on: View<'v>,
+        kind: Residual,
+        loss: Loss,
+        fixed: [bool; N_PARAMS],
+    ) -> PipeFit<'v> {
+        on.fit(kind).with_loss(loss).with_fixed(fixed)
+    }
     let mut x = SVector::<f64, N_PARAMS>::from(init.to_array());
     let mut iterations = 0;
     // The loss in each residual's units.
@@ -365,7 +524,7 @@ fn fit_cloud(
     let mut last = None;
     for kind in stage_residuals {
         let rep = minimize(
-            &PipeFit::new(stage_pts, kind).with_loss(fixed_loss(kind)),
+            &problem(stage_pts, kind, fixed_loss(kind), fixed),
             x,
             &options.lm,
         );
@@ -379,7 +538,7 @@ fn fit_cloud(
     let kind = method.residual();
     if auto && start.is_none() && stage_pts.len() != n {
         let rep = minimize(
-            &PipeFit::new(stage_pts, kind).with_loss(loss_at(kind, &x)),
+            &problem(stage_pts, kind, loss_at(kind, &x), fixed),
             x,
             &options.lm,
         );
@@ -389,7 +548,7 @@ fn fit_cloud(
     let loss = loss_at(kind, &x);
     // Stage 2: all points (unless stage 1 already fitted them with this loss).
     if stage_pts.len() != n || last.is_none() || auto {
-        let rep = minimize(&PipeFit::new(pts, kind).with_loss(loss), x, &options.lm);
+        let rep = minimize(&problem(cloud, kind, loss, fixed), x, &options.lm);
         iterations += rep.iterations;
         x = rep.x;
         last = Some(rep);
@@ -398,8 +557,16 @@ fn fit_cloud(
         return Err(EpdError::Degenerate("no solver stage ran".into()));
     };
     let fitted = Params::from_array(x.into());
-    let (canonical, applied) = canonical_form(&fitted);
-    let fit = PipeFit::new(pts, kind).with_loss(loss);
+    let (mut canonical, applied) = canonical_form(&fitted);
+    if let Some((d_max, d_min)) = options.fixed_diameters {
+        // The solver's steps in held diameters are exactly zero, and Dmax ≥ Dmin, so the
+        // 90° turn (which swaps them) is never applied and the flip and the end-for-end
+        // turn keep them: this only states what already holds bit for bit.
+        debug_assert!(!applied.turned && fitted.d_max == d_max && fitted.d_min == d_min);
+        canonical.d_max = d_max;
+        canonical.d_min = d_min;
+    }
+    let fit = problem(cloud, kind, loss, fixed);
     // Normal equations at the canonical β: a 180° turn only flips the signs of
     // (pitch, yaw, δy, δz); a 90° turn re-expresses the pose, so evaluate afresh.
     let eq = if applied.turned || applied.reversed {
@@ -413,7 +580,9 @@ fn fit_cloud(
         }
         e
     };
-    let dof = n.saturating_sub(N_PARAMS).max(1) as f64;
+    // Degrees of freedom: N minus the fitted parameters.
+    let n_free = fixed.iter().filter(|&&f| !f).count();
+    let dof = n.saturating_sub(n_free).max(1) as f64;
     let (sigma, cov, raw_cost) = if loss == Loss::Squared {
         let (s, c) = covariance(&eq, eq.cost / dof);
         (s, c, eq.cost)
@@ -421,18 +590,15 @@ fn fit_cloud(
         // On at most 16 384 evenly strided points: H and B both grow with N, so
         // H⁻¹BH⁻¹ computed on m points is the covariance of N points times N/m.
         let stride = n.div_ceil(SANDWICH_POINTS).max(1);
-        let sampled: Vec<[f64; 3]>;
-        let on: &[[f64; 3]] = if stride > 1 {
-            sampled = pts.iter().step_by(stride).copied().collect();
-            &sampled
+        let sampled: Selection;
+        let on: View<'_> = if stride > 1 {
+            sampled = cloud.strided(stride);
+            sampled.view()
         } else {
-            pts
+            cloud
         };
         let m = on.len() as f64;
-        match PipeFit::new(on, kind)
-            .with_loss(loss)
-            .sandwich_at(&canonical)
-        {
+        match problem(on, kind, loss, fixed).sandwich_at(&canonical) {
             Some(sw) => {
                 let (s, c) =
                     sandwich_covariance(&sw.bread, &sw.meat, (m / n as f64) * (n as f64 / dof));
@@ -441,12 +607,17 @@ fn fit_cloud(
             None => ([None; N_PARAMS], None, f64::NAN),
         }
     };
-    let roll_determined = roll_is_determined(&canonical, &sigma, cov.as_ref());
+    let roll_determined = roll_is_determined(
+        &canonical,
+        &sigma,
+        cov.as_ref(),
+        options.fixed_diameters.is_some(),
+    );
     let mut sigma = sigma;
     if !roll_determined {
         sigma[2] = None;
     }
-    let (diagnostics, implausible) = match assess(stage_pts, &canonical) {
+    let (diagnostics, implausible) = match assess(stage_pts.points, &canonical) {
         Ok(d) => (Some(d), d.verdict(&canonical)),
         Err(i) => (None, Some(i)),
     };
@@ -468,16 +639,22 @@ fn fit_cloud(
     })
 }
 
+/// Whether the roll is determined (see [`Estimate::roll_determined`]); held diameters
+/// have an exactly known ovality.
 fn roll_is_determined(
     p: &Params,
     sigma: &Sigmas,
     cov: Option<&SMatrix<f64, N_PARAMS, N_PARAMS>>,
+    diameters_held: bool,
 ) -> bool {
     let dd = p.d_max - p.d_min;
     let mean = 0.5 * (p.d_max + p.d_min);
-    let sd_diff = cov
-        .map(|c| (c[(0, 0)] + c[(1, 1)] - 2.0 * c[(0, 1)]).max(0.0).sqrt())
-        .unwrap_or(f64::INFINITY);
+    let sd_diff = if diameters_held {
+        0.0
+    } else {
+        cov.map(|c| (c[(0, 0)] + c[(1, 1)] - 2.0 * c[(0, 1)]).max(0.0).sqrt())
+            .unwrap_or(f64::INFINITY)
+    };
     let roll_ok = sigma[2].is_some_and(|s| s < std::f64::consts::FRAC_PI_4);
     dd > (1e-6 * mean).max(3.0 * sd_diff) && roll_ok
 }
@@ -565,7 +742,8 @@ fn determined_inverse(h: &Mat7) -> (Mat7, [bool; N_PARAMS]) {
 
 /// The Cramér–Rao lower bound on the 1-σ of each parameter, for range noise N(0, σ²)
 /// along each sensing line: the Fisher information is JᵀJ/σ² with J the Jacobian of the
-/// ML-EPD range residual at the true β over the noise-free points (SCS, m).
+/// ML-EPD range residual at the true β over the noise-free points (SCS, m). The case
+/// σᵢ = σ of [`cramer_rao_bound_weighted`].
 pub fn cramer_rao_bound(
     noise_free_points: &[[f64; 3]],
     truth: &Params,
@@ -577,18 +755,62 @@ pub fn cramer_rao_bound(
         )));
     }
     let cloud = clean(noise_free_points);
-    if cloud.points.len() < N_PARAMS {
+    let view = View {
+        points: &cloud.points,
+        scales: None,
+    };
+    fisher_bound(view, cloud.dropped, truth, sigma_range * sigma_range)
+}
+
+/// The Cramér–Rao lower bound on the 1-σ of each parameter for independent range noise
+/// N(0, σᵢ²) along each sensing line, σᵢ (m) per point: the Fisher information is
+/// Σ gᵢgᵢᵀ/σᵢ² with gᵢ the gradient of the ML-EPD range residual at the true β of the
+/// noise-free point i (SCS, m); the bound of [`estimate_weighted`] with ML-EPD.
+/// Computed as σ̃²·(Σ sᵢ²gᵢgᵢᵀ)⁻¹ with sᵢ = σ̃/σᵢ, σ̃ the median σᵢ. Points (with their
+/// σᵢ) are dropped as in [`estimate_weighted`]; `sigma.len() != points.len()` is an
+/// [`EpdError::InvalidOption`].
+pub fn cramer_rao_bound_weighted(
+    noise_free_points: &[[f64; 3]],
+    sigma: &[f64],
+    truth: &Params,
+) -> Result<Sigmas, EpdError> {
+    if sigma.len() != noise_free_points.len() {
+        return Err(EpdError::InvalidOption(format!(
+            "{} range standard deviations for {} points: need one per point",
+            sigma.len(),
+            noise_free_points.len()
+        )));
+    }
+    let (cloud, scales, typical) = weighted_cloud(noise_free_points, sigma);
+    let view = View {
+        points: &cloud.points,
+        scales: Some(&scales),
+    };
+    fisher_bound(view, cloud.dropped, truth, typical * typical)
+}
+
+/// σ̃²·(J̃ᵀJ̃)⁻¹ on the determined parameters, J̃ the scaled Jacobian of the range residual
+/// of `cloud` at `truth`.
+fn fisher_bound(
+    cloud: View<'_>,
+    n_dropped: usize,
+    truth: &Params,
+    sigma2: f64,
+) -> Result<Sigmas, EpdError> {
+    if cloud.len() < N_PARAMS {
         return Err(EpdError::TooFewPoints {
-            usable: cloud.points.len(),
-            dropped: cloud.dropped,
+            usable: cloud.len(),
+            dropped: n_dropped,
             needed: N_PARAMS,
         });
     }
-    let fit = PipeFit::new(&cloud.points, Residual::Range);
-    let eq = fit.equations_at(truth).ok_or_else(|| {
-        EpdError::InvalidOption("the true β puts the sensor outside the pipe".into())
-    })?;
-    Ok(covariance(&eq, sigma_range * sigma_range).0)
+    let eq = cloud
+        .fit(Residual::Range)
+        .equations_at(truth)
+        .ok_or_else(|| {
+            EpdError::InvalidOption("the true β puts the sensor outside the pipe".into())
+        })?;
+    Ok(covariance(&eq, sigma2).0)
 }
 
 /// RMS of the range residual r_m (ML-EPD's residual, m) of measured points (SCS) at β:

@@ -41,8 +41,9 @@ pub use calibration::{DepthTable, Observation, TableBins};
 pub use check::{Diagnostics, FitStatus, Implausible};
 pub use error::EpdError;
 pub use estimate::{
-    Estimate, EstimateOptions, LossScale, Method, Sigmas, cramer_rao_bound, estimate,
-    gate_by_model_range, rms_range_residual,
+    Estimate, EstimateOptions, LossScale, Method, Sigmas, cramer_rao_bound,
+    cramer_rao_bound_weighted, estimate, estimate_weighted, gate_by_model_range,
+    rms_range_residual,
 };
 pub use lm::{Convergence, DegenerateReason, LmOptions, Status};
 pub use loss::Loss;
