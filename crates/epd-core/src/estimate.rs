@@ -225,20 +225,24 @@ pub struct Estimate {
     /// (residual units squared).
     pub cost: f64,
     /// √(Σ rᵢ²/N): the RMS residual, whatever the loss (m for RU-EPD and ML-EPD,
-    /// dimensionless for C-EPD); under a robust loss taken over at most 16 384 evenly
+    /// dimensionless for C-EPD; of the scaled residuals sᵢrᵢ for
+    /// [`estimate_weighted`]); under a robust loss taken over at most 16 384 evenly
     /// strided points.
     pub rms_residual: f64,
     /// Points used.
     pub n_points: usize,
-    /// Points dropped (non-finite or at the origin).
+    /// Points dropped (non-finite or at the origin; for [`estimate_weighted`] also those
+    /// whose σᵢ is not finite or not > 0).
     pub n_dropped: usize,
     /// Usable points left out by the range gate (0 without one).
     pub n_out_of_gate: usize,
     /// The loss as applied, its scale in the method's residual units.
     pub loss: Loss,
-    /// 1-σ of each parameter: σ̂²·(JᵀJ)⁻¹ with σ̂² = F/(N − 7) for least squares; under
-    /// a robust loss the M-estimator's sandwich H⁻¹·B·H⁻¹·N/(N − 7) with
-    /// H = Σ w_H JᵢJᵢᵀ and B = Σ (w_g rᵢ)² JᵢJᵢᵀ (see [`crate::loss`]).
+    /// 1-σ of each parameter: σ̂²·(JᵀJ)⁻¹ with σ̂² = F/(N − p) for least squares (p the
+    /// fitted parameters: 7, or 5 with the diameters held); under a robust loss the
+    /// M-estimator's sandwich H⁻¹·B·H⁻¹·N/(N − p) with H = Σ w_H JᵢJᵢᵀ and
+    /// B = Σ (w_g rᵢ)² JᵢJᵢᵀ (see [`crate::loss`]). With weights, of the scaled rᵢ and
+    /// Jᵢ. `None` for held diameters.
     pub sigma: Sigmas,
     /// Whether the roll is determined: the ovality is significant (Dmax − Dmin above
     /// three of its standard deviations) and the roll's 1-σ is below 45°.

@@ -8,6 +8,10 @@
 //! - [`Method::MlEpd`]: the range error along the sensing line — maximum likelihood
 //!   for noise along the ray.
 //!
+//! [`estimate_weighted`] takes a range-noise σᵢ per point (heteroscedastic ML for
+//! ML-EPD); [`EstimateOptions::with_fixed_diameters`] fits the pose of a pipe of known
+//! diameters.
+//!
 //! Equation numbers refer to the RU-EPD paper (see `SPEC.md`).
 //!
 //! ```
