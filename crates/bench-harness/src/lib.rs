@@ -3,6 +3,7 @@
 //! to `trials.csv`, `summary.csv`, metadata and PNG plots in the paper's style.
 #![deny(missing_docs)]
 
+pub mod pipeline;
 pub mod plots;
 pub mod run;
 pub mod scenario;

@@ -12,7 +12,9 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::Ordering;
 
+use bench_harness::pipeline::{PipelineScenario, is_pipeline, run_pipeline};
 use bench_harness::run::{INTERRUPTED, Interrupted, OutputRefused, default_output};
+use bench_harness::scenario::MAX_SCENARIO_BYTES;
 use bench_harness::{RunOptions, Scenario, ScenarioError, run};
 use clap::Parser;
 
@@ -58,6 +60,105 @@ struct Cli {
     quiet: bool,
 }
 
+/// The scenario's text, at most [`MAX_SCENARIO_BYTES`] of it.
+fn read_scenario(path: &Path, reader: impl std::io::Read) -> Result<String, ScenarioError> {
+    use std::io::Read;
+    let mut source = String::new();
+    reader
+        .take(MAX_SCENARIO_BYTES + 1)
+        .read_to_string(&mut source)
+        .map_err(|source| ScenarioError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    if source.len() as u64 > MAX_SCENARIO_BYTES {
+        return Err(ScenarioError::TooLarge {
+            path: path.to_path_buf(),
+        });
+    }
+    Ok(source)
+}
+
+/// Set up the worker threads and the interrupt handler; `Err` is the exit code.
+fn start_workers(threads: Option<NonZeroUsize>) -> Result<(), ExitCode> {
+    if let Some(n) = threads.filter(|n| n.get() > MAX_THREADS) {
+        eprintln!("error: --threads {n}: at most {MAX_THREADS}");
+        return Err(ExitCode::from(2));
+    }
+    if let Some(n) = threads
+        && let Err(e) = rayon::ThreadPoolBuilder::new()
+            .num_threads(n.get())
+            .build_global()
+    {
+        eprintln!("error: cannot start {n} worker threads: {e}");
+        return Err(ExitCode::FAILURE);
+    }
+    // SIGINT and SIGTERM stop the run at the next batch of trials; the staging folder
+    // is removed on the way out.
+    if let Err(e) = ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst)) {
+        eprintln!("warning: no interrupt handler: {e}");
+    }
+    Ok(())
+}
+
+/// A pipeline run (a scenario with a `[pipeline]` table).
+fn run_pipeline_main(cli: &Cli, path: &Path, text: &str) -> ExitCode {
+    let scenario = match PipelineScenario::parse(path, text) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    if cli.trials.is_some() {
+        eprintln!(
+            "error: --trials does not apply to a pipeline run (set pipeline.frames_per_section)"
+        );
+        return ExitCode::from(2);
+    }
+    if let Err(code) = start_workers(cli.threads) {
+        return code;
+    }
+    let out = cli
+        .out
+        .clone()
+        .unwrap_or_else(|| default_output(&scenario.name));
+    match run_pipeline(&scenario, &out, !cli.quiet) {
+        Ok(report) => {
+            if !cli.quiet {
+                eprintln!(
+                    "{}: {} sections × {} frames in {:.1} s → {}",
+                    scenario.name,
+                    scenario.sections.len(),
+                    scenario.frames_per_section,
+                    report.wall_time_s,
+                    out.display()
+                );
+            }
+            if report.errors > 0 {
+                eprintln!(
+                    "{} estimates returned an error (status `error` in profile.csv)",
+                    report.errors
+                );
+                return ExitCode::FAILURE;
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) if e.downcast_ref::<OutputRefused>().is_some() => {
+            eprintln!("error: {e}");
+            ExitCode::from(2)
+        }
+        Err(e) if e.downcast_ref::<Interrupted>().is_some() => {
+            eprintln!("{}: {e}", scenario.name);
+            ExitCode::from(130)
+        }
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
 fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(c) => c,
@@ -67,12 +168,32 @@ fn main() -> ExitCode {
         }
     };
     let trials = cli.trials.map(NonZeroUsize::get);
-    let loaded = if cli.scenario.as_os_str() == "-" {
-        Scenario::from_reader(Path::new("<stdin>"), std::io::stdin().lock())
+    let path = if cli.scenario.as_os_str() == "-" {
+        PathBuf::from("<stdin>")
     } else {
-        Scenario::load(&cli.scenario)
+        cli.scenario.clone()
     };
-    let scenario = match loaded {
+    let text = if cli.scenario.as_os_str() == "-" {
+        read_scenario(&path, std::io::stdin().lock())
+    } else {
+        std::fs::File::open(&path)
+            .map_err(|source| ScenarioError::Read {
+                path: path.clone(),
+                source,
+            })
+            .and_then(|f| read_scenario(&path, f))
+    };
+    let text = match text {
+        Ok(t) => t,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    if is_pipeline(&text) {
+        return run_pipeline_main(&cli, &path, &text);
+    }
+    let scenario = match Scenario::parse(&path, &text) {
         Ok(s) => s,
         Err(e) => {
             eprintln!("error: {e}");
@@ -85,22 +206,8 @@ fn main() -> ExitCode {
         eprintln!("error: {e}");
         return ExitCode::from(2);
     }
-    if let Some(n) = cli.threads.filter(|n| n.get() > MAX_THREADS) {
-        eprintln!("error: --threads {n}: at most {MAX_THREADS}");
-        return ExitCode::from(2);
-    }
-    if let Some(n) = cli.threads
-        && let Err(e) = rayon::ThreadPoolBuilder::new()
-            .num_threads(n.get())
-            .build_global()
-    {
-        eprintln!("error: cannot start {n} worker threads: {e}");
-        return ExitCode::FAILURE;
-    }
-    // SIGINT and SIGTERM stop the run at the next batch of trials; the staging folder
-    // is removed on the way out.
-    if let Err(e) = ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst)) {
-        eprintln!("warning: no interrupt handler: {e}");
+    if let Err(code) = start_workers(cli.threads) {
+        return code;
     }
     let out = cli.out.unwrap_or_else(|| default_output(&scenario.name));
     let options = RunOptions {

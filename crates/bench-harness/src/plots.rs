@@ -547,6 +547,308 @@ pub fn plot_all(
     Ok(files)
 }
 
+/// The figures of a pipeline run (see [`crate::pipeline`]): `diameters.png` (Fig. 11:
+/// per-frame Dmax and Dmin against the nominal and the truth, with the depth table),
+/// `section_errors.png` (Fig. 12: bias and error range per section, method and
+/// calibration), `profile.png` (mean diameter and ovality along the distance) and
+/// `weights.png` (spread of each method against the heteroscedastic Cramér–Rao bound).
+pub fn plot_pipeline(
+    s: &crate::pipeline::PipelineScenario,
+    points: &[crate::pipeline::ProfilePoint],
+    sections: &[crate::pipeline::SectionRow],
+    out: &Path,
+) -> anyhow::Result<Vec<PathBuf>> {
+    use crate::pipeline::METHODS;
+    let name = &s.name;
+    let mut files = Vec::new();
+    let pick = |si: usize, m: &'static str, cal: bool| {
+        points
+            .iter()
+            .filter(move |p| p.section == si && p.method == m && p.calibrated == cal)
+    };
+    let reference = |label: &str, xs: (f64, f64), y: f64, colour: RGBColor| Series {
+        name: label.into(),
+        colour,
+        points: vec![(xs.0, y, y, y), (xs.1, y, y, y)],
+        bars: false,
+        marker_triangle: false,
+        dashed: true,
+    };
+    let grey = RGBColor(90, 90, 90);
+    // Fig. 11: rows = sections, columns = Dmax, Dmin; calibrated estimates.
+    let mut fig11: Vec<Vec<Series>> = Vec::new();
+    let mut titles = Vec::new();
+    for (si, sec) in s.sections.iter().enumerate() {
+        let n = s.frames_per_section as f64 - 1.0;
+        for (which, label) in [(0usize, "Dmax"), (1, "Dmin")] {
+            let truth = 1e3
+                * if which == 0 {
+                    sec.pipe.d_max()
+                } else {
+                    sec.pipe.d_min()
+                };
+            let mut v = vec![
+                reference(
+                    "nominal ID",
+                    (0.0, n),
+                    sec.pipe.inner_diameter() * 1e3,
+                    grey,
+                ),
+                reference(&format!("true {label}"), (0.0, n), truth, RGBColor(0, 0, 0)),
+            ];
+            for m in METHODS {
+                v.push(Series {
+                    name: m.to_uppercase(),
+                    colour: colour(m),
+                    points: pick(si, m, true)
+                        .filter_map(|p| {
+                            let d = p.d_mm?;
+                            let y = if which == 0 { d.0 } else { d.1 };
+                            Some((p.frame as f64, y, y, y))
+                        })
+                        .collect(),
+                    bars: false,
+                    marker_triangle: m == "ml-epd-w",
+                    dashed: false,
+                });
+            }
+            fig11.push(v);
+            titles.push(format!("{}: {label} (with the depth table)", sec.name));
+        }
+    }
+    let panels: Vec<Panel<'_>> = fig11
+        .iter()
+        .zip(&titles)
+        .map(|(v, t)| Panel {
+            title: t.clone(),
+            y_label: "diameter (mm)".into(),
+            series: v,
+        })
+        .collect();
+    files.push(render(
+        Figure {
+            path: out.join("diameters.png"),
+            title: format!("{name}: per-frame diameters (Fig. 11)"),
+            grid: (s.sections.len(), 2),
+            size: (1440, 480 * s.sections.len() as u32 + 40),
+            x_label: "frame",
+            xa: Axis { log: false },
+            ya: Axis { log: false },
+        },
+        &panels,
+    )?);
+    // Fig. 12: rows = Dmax, Dmin, mean diameter; columns = without / with the table;
+    // x = the section's nominal wall (mm).
+    let mut fig12: Vec<Vec<Series>> = Vec::new();
+    let mut titles = Vec::new();
+    type Q = fn(&crate::pipeline::SectionRow) -> &crate::stats::Stats;
+    let qs: [(&str, Q); 3] = [
+        ("Dmax error", |r| &r.dmax),
+        ("Dmin error", |r| &r.dmin),
+        ("mean-diameter error", |r| &r.dmean),
+    ];
+    for (label, q) in qs {
+        for cal in [false, true] {
+            fig12.push(
+                METHODS
+                    .iter()
+                    .map(|m| Series {
+                        name: format!("{} (bias, range)", m.to_uppercase()),
+                        colour: colour(m),
+                        points: sections
+                            .iter()
+                            .filter(|r| r.method == *m && r.calibrated == cal)
+                            .map(|r| {
+                                let st = q(r);
+                                (r.wall_true_mm, st.mean, st.min, st.max)
+                            })
+                            .collect(),
+                        bars: true,
+                        marker_triangle: *m == "ml-epd-w",
+                        dashed: false,
+                    })
+                    .collect(),
+            );
+            titles.push(format!(
+                "{label}, {}",
+                if cal {
+                    "with the depth table"
+                } else {
+                    "uncalibrated"
+                }
+            ));
+        }
+    }
+    let panels: Vec<Panel<'_>> = fig12
+        .iter()
+        .zip(&titles)
+        .map(|(v, t)| Panel {
+            title: t.clone(),
+            y_label: "error (mm)".into(),
+            series: v,
+        })
+        .collect();
+    files.push(render(
+        Figure {
+            path: out.join("section_errors.png"),
+            title: format!("{name}: errors per section (Fig. 12; line: bias, bars: min…max)"),
+            grid: (3, 2),
+            size: (1440, 1480),
+            x_label: "nominal wall thickness of the section (mm)",
+            xa: Axis { log: false },
+            ya: Axis { log: false },
+        },
+        &panels,
+    )?);
+    // Profile along the distance: mean diameter and ovality, with the table.
+    let nominal: Vec<Series> = s
+        .sections
+        .iter()
+        .map(|sec| {
+            let x1 = sec.start_m + (s.frames_per_section as f64 - 1.0) * s.frame_spacing_m;
+            let y = sec.pipe.inner_diameter() * 1e3;
+            Series {
+                name: format!("nominal ID {}", sec.name),
+                colour: grey,
+                points: vec![(sec.start_m, y, y, y), (x1, y, y, y)],
+                bars: false,
+                marker_triangle: false,
+                dashed: true,
+            }
+        })
+        .collect();
+    let along = |m: &str, f: fn((f64, f64)) -> f64| -> Vec<(f64, f64, f64, f64)> {
+        points
+            .iter()
+            .filter(|p| p.method == m && p.calibrated)
+            .filter_map(|p| {
+                let y = f(p.d_mm?);
+                Some((p.distance_m, y, y, y))
+            })
+            .collect()
+    };
+    let mut dmean = nominal;
+    let mut oval = Vec::new();
+    for m in METHODS {
+        dmean.push(Series {
+            name: m.to_uppercase(),
+            colour: colour(m),
+            points: along(m, |d| 0.5 * (d.0 + d.1)),
+            bars: false,
+            marker_triangle: m == "ml-epd-w",
+            dashed: false,
+        });
+        oval.push(Series {
+            name: m.to_uppercase(),
+            colour: colour(m),
+            points: along(m, |d| 100.0 * (d.0 - d.1) / (0.5 * (d.0 + d.1))),
+            bars: false,
+            marker_triangle: m == "ml-epd-w",
+            dashed: false,
+        });
+    }
+    files.push(render(
+        Figure {
+            path: out.join("profile.png"),
+            title: format!("{name}: pipe tally along the run (with the depth table)"),
+            grid: (2, 1),
+            size: (1440, 1000),
+            x_label: "odometer distance (m)",
+            xa: Axis { log: false },
+            ya: Axis { log: false },
+        },
+        &[
+            Panel {
+                title: "mean inner diameter".into(),
+                y_label: "mm".into(),
+                series: &dmean,
+            },
+            Panel {
+                title: "ovality (Dmax − Dmin)/D".into(),
+                y_label: "%".into(),
+                series: &oval,
+            },
+        ],
+    )?);
+    // Spread against the heteroscedastic Cramér–Rao bound.
+    let mut spread: Vec<Vec<Series>> = Vec::new();
+    let mut titles = Vec::new();
+    type S = fn(&crate::pipeline::SectionRow) -> (f64, f64);
+    let ss: [(&str, S); 2] = [
+        ("Dmax", |r| (r.dmax.std, r.crb.0)),
+        ("Dmin", |r| (r.dmin.std, r.crb.1)),
+    ];
+    for (label, f) in ss {
+        for cal in [false, true] {
+            let rows: Vec<&crate::pipeline::SectionRow> =
+                sections.iter().filter(|r| r.calibrated == cal).collect();
+            let mut v = vec![Series {
+                name: "Cramér–Rao bound".into(),
+                colour: RGBColor(0, 0, 0),
+                points: rows
+                    .iter()
+                    .filter(|r| r.method == "ml-epd")
+                    .map(|r| {
+                        let c = f(r).1;
+                        (r.wall_true_mm, c, c, c)
+                    })
+                    .collect(),
+                bars: false,
+                marker_triangle: false,
+                dashed: true,
+            }];
+            for m in METHODS {
+                v.push(Series {
+                    name: m.to_uppercase(),
+                    colour: colour(m),
+                    points: rows
+                        .iter()
+                        .filter(|r| r.method == m)
+                        .map(|r| {
+                            let c = f(r).0;
+                            (r.wall_true_mm, c, c, c)
+                        })
+                        .collect(),
+                    bars: false,
+                    marker_triangle: m == "ml-epd-w",
+                    dashed: false,
+                });
+            }
+            spread.push(v);
+            titles.push(format!(
+                "std of {label} over the frames, {}",
+                if cal {
+                    "with the depth table"
+                } else {
+                    "uncalibrated"
+                }
+            ));
+        }
+    }
+    let panels: Vec<Panel<'_>> = spread
+        .iter()
+        .zip(&titles)
+        .map(|(v, t)| Panel {
+            title: t.clone(),
+            y_label: "std (mm, log)".into(),
+            series: v,
+        })
+        .collect();
+    files.push(render(
+        Figure {
+            path: out.join("weights.png"),
+            title: format!("{name}: spread per section against the Cramér–Rao bound"),
+            grid: (2, 2),
+            size: (1440, 1040),
+            x_label: "nominal wall thickness of the section (mm)",
+            xa: Axis { log: false },
+            ya: Axis { log: true },
+        },
+        &panels,
+    )?);
+    Ok(files)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

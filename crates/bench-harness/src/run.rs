@@ -310,8 +310,9 @@ pub(crate) fn wrote(p: &Path) -> impl Fn(std::io::Error) -> anyhow::Error + '_ {
 #[error("{0}")]
 pub struct OutputRefused(String);
 
-/// The files a run writes, and the only names an output folder holding a previous run
-/// may contain (with the temporary files of earlier versions, `.trials.csv.tmp<PID>`).
+/// The files a sweep run writes; with [`PIPELINE_FILES`], the only names an output folder
+/// holding a previous run may contain (with the temporary files of earlier versions,
+/// `.trials.csv.tmp<PID>`).
 pub const RUN_FILES: &[&str] = &[
     "trials.csv",
     "summary.csv",
@@ -322,7 +323,12 @@ pub const RUN_FILES: &[&str] = &[
     "pose_error.png",
     "time.png",
     "std_vs_crb.png",
-    // The pipeline run (`crate::pipeline`).
+];
+
+/// The files of a pipeline run (`crate::pipeline`).
+pub const PIPELINE_FILES: &[&str] = &[
+    "scenario.toml",
+    "metadata.json",
     "profile.csv",
     "sections.csv",
     "depth_table.json",
@@ -336,6 +342,7 @@ pub const RUN_FILES: &[&str] = &[
 /// (`.<file>.tmp<PID>`).
 fn is_run_file(name: &str) -> bool {
     RUN_FILES.contains(&name)
+        || PIPELINE_FILES.contains(&name)
         || name.strip_prefix('.').is_some_and(|rest| {
             RUN_FILES.iter().any(|f| {
                 rest.strip_prefix(f)

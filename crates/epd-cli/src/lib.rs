@@ -4,5 +4,6 @@
 
 pub mod read;
 pub mod report;
+pub mod table;
 
 pub use read::{Format, PointCloud, ReadError, read_bytes};

@@ -4,13 +4,19 @@
 //! epd estimate FILE… [--method ml-epd|ru-epd|c-epd] [--min-range M] [--max-range M]
 //!                    [--format text|json|csv] [--nominal-od-in X] [--loss cauchy|huber|none]
 //!                    [--loss-scale M] [--units m|mm] [--frame sensor|optical]
-//!                    [--input-format F] [-o FILE] [--threads N] [-q]
+//!                    [--input-format F] [--calibration LUT.json [--unweighted]]
+//!                    [-o FILE] [--threads N] [-q]
+//! epd calibrate FILE… --known-id-mm D [--known-dmin-mm D2] --out LUT.json
+//!               [--min-range M] [--max-range M] [--range-bins N] [--intensity-bins N]
+//!               [--min-count N] [--passes N] [--units m|mm] [--frame sensor|optical] [--threads N] [-q]
 //! epd simulate --out DIR [--frames K] [--seed S] [--sigma M] [--od-in X] [--ovality O]
 //!              [--wall-mm T] [--points N] [--outliers F] [--noise range|isotropic]
 //!              [--ply binary|ascii] [--precision f64|f32]
 //! ```
 //! Exit codes: 0 all files estimated, 1 a file failed or its fit did not converge to a
 //! result consistent with its points (the others are still reported), 2 wrong arguments.
+//! `calibrate` exits 1 when a frame was skipped (the table is written from the others)
+//! or none could be used (no table written).
 
 use std::io::{BufWriter, ErrorKind, Write};
 use std::num::NonZeroUsize;
@@ -22,7 +28,11 @@ use anyhow::Context;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use epd_cli::read::{Format, MAX_INPUT_BYTES, PointCloud, read_from, read_path};
 use epd_cli::report::{FileEstimate, FileReport, columns};
-use epd_core::{EstimateOptions, Loss, LossScale, Method, estimate, rms_range_residual};
+use epd_cli::table::CalibrationTable;
+use epd_core::calibration::{CalibrationFrame, CalibrationSettings, calibrate};
+use epd_core::{
+    EstimateOptions, Loss, LossScale, Method, estimate, estimate_weighted, rms_range_residual,
+};
 use indicatif::ProgressBar;
 use rayon::prelude::*;
 
@@ -44,6 +54,8 @@ struct Cli {
 enum Command {
     /// Estimate the pipe and the pose from point-cloud files, one result per file.
     Estimate(EstimateArgs),
+    /// Build a depth-calibration table from frames recorded in a pipe of known diameter.
+    Calibrate(CalibrateArgs),
     /// Simulate Helios2-like frames (PLY) with their ground truth (JSON).
     Simulate(SimulateArgs),
 }
@@ -139,6 +151,31 @@ struct EstimateArgs {
     /// Fixed loss scale (m of range error); without it the scale comes from the residuals.
     #[arg(long, value_name = "M", allow_negative_numbers = true)]
     loss_scale: Option<f64>,
+    #[command(flatten)]
+    input: InputArgs,
+    /// Depth-calibration table (JSON from `epd calibrate`): each point is moved along
+    /// its ray by the table's offset at its range and intensity before the fit (the
+    /// files need a per-point `intensity`).
+    #[arg(long, value_name = "LUT.json")]
+    calibration: Option<PathBuf>,
+    /// With --calibration, do not weight each residual by 1/σᵢ (σᵢ: the table's spread
+    /// at the point's range and intensity).
+    #[arg(long)]
+    unweighted: bool,
+    /// Write the results to FILE (atomically) instead of standard output.
+    #[arg(short = 'o', long, value_name = "FILE")]
+    output: Option<PathBuf>,
+    /// Worker threads (default: all cores).
+    #[arg(long, value_name = "N")]
+    threads: Option<NonZeroUsize>,
+    /// No progress bar and no summary of failures: only the results and the exit code.
+    #[arg(short, long)]
+    quiet: bool,
+}
+
+/// How the files are read.
+#[derive(Args, Debug)]
+struct InputArgs {
     /// Length unit of the files.
     #[arg(long, value_enum, default_value_t = UnitsArg::M)]
     units: UnitsArg,
@@ -149,13 +186,58 @@ struct EstimateArgs {
     /// first bytes.
     #[arg(long, value_name = "FORMAT")]
     input_format: Option<Format>,
-    /// Write the results to FILE (atomically) instead of standard output.
-    #[arg(short = 'o', long, value_name = "FILE")]
-    output: Option<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+struct CalibrateArgs {
+    /// Frames recorded in a pipe of known diameter (PLY, PCD, CSV… with a per-point
+    /// `intensity`).
+    #[arg(required = true, value_name = "FILE")]
+    files: Vec<PathBuf>,
+    /// The known inner diameter (mm); the major one when --known-dmin-mm is given.
+    #[arg(long, value_name = "D", allow_negative_numbers = true)]
+    known_id_mm: f64,
+    /// The known minor inner diameter (mm) of an oval pipe.
+    #[arg(long, value_name = "D2", allow_negative_numbers = true)]
+    known_dmin_mm: Option<f64>,
+    /// Where the table is written (JSON, atomically).
+    #[arg(long, value_name = "LUT.json")]
+    out: PathBuf,
+    /// Use the points whose ray meets the known wall at least this far (m).
+    #[arg(
+        long,
+        value_name = "M",
+        default_value_t = 0.5,
+        allow_negative_numbers = true
+    )]
+    min_range: f64,
+    /// Use the points whose ray meets the known wall at most this far (m).
+    #[arg(
+        long,
+        value_name = "M",
+        default_value_t = 2.0,
+        allow_negative_numbers = true
+    )]
+    max_range: f64,
+    /// Range bins of the table.
+    #[arg(long, value_name = "N", default_value_t = 30)]
+    range_bins: usize,
+    /// Intensity bins of the table (even in log-intensity).
+    #[arg(long, value_name = "N", default_value_t = 12)]
+    intensity_bins: usize,
+    /// A bin with fewer points is empty and takes the nearest filled bin's values.
+    #[arg(long, value_name = "N", default_value_t = 30)]
+    min_count: usize,
+    /// Passes of the alternating refinement of the poses and the table (1: the poses
+    /// fitted once on the raw points).
+    #[arg(long, value_name = "N", default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=20))]
+    passes: u32,
+    #[command(flatten)]
+    input: InputArgs,
     /// Worker threads (default: all cores).
     #[arg(long, value_name = "N")]
     threads: Option<NonZeroUsize>,
-    /// No progress bar and no summary of failures: only the results and the exit code.
+    /// Only errors.
     #[arg(short, long)]
     quiet: bool,
 }
@@ -192,6 +274,12 @@ struct SimulateArgs {
     /// Noise model.
     #[arg(long, value_enum, default_value_t = NoiseArg::Range)]
     noise: NoiseArg,
+    /// Error model of the camera: `plain` (range noise of --sigma) or `helios2` (the
+    /// realistic model: amplitude-dependent noise, invalid pixels written as zeros,
+    /// wiggling, intensity offset, multipath; the PLY gets an `intensity` property;
+    /// --sigma and --noise do not apply).
+    #[arg(long, value_enum, default_value_t = SensorArg::Plain)]
+    sensor: SensorArg,
     /// PLY encoding.
     #[arg(long, value_enum, default_value_t = PlyArg::Binary)]
     ply: PlyArg,
@@ -207,6 +295,15 @@ enum NoiseArg {
     Range,
     /// In no particular direction.
     Isotropic,
+}
+
+/// Camera error model of `simulate`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum SensorArg {
+    /// Range noise of constant σ.
+    Plain,
+    /// tof_sim's realistic Helios2 (6 m mode) model.
+    Helios2,
 }
 
 /// PLY encoding of `simulate`.
@@ -253,9 +350,33 @@ struct EstimateConfig {
     nominal_od_mm: Option<f64>,
     options: EstimateOptions,
     loss: String,
+    input: InputConfig,
+    calibration: Option<CalibrationTable>,
+    weighted: bool,
+}
+
+/// How the files are read, checked.
+#[derive(Clone, Copy, Debug)]
+struct InputConfig {
     units: Units,
     frame: InputFrame,
-    input_format: Option<Format>,
+    format: Option<Format>,
+}
+
+impl From<&InputArgs> for InputConfig {
+    fn from(a: &InputArgs) -> Self {
+        Self {
+            units: match a.units {
+                UnitsArg::M => Units::Metres,
+                UnitsArg::Mm => Units::Millimetres,
+            },
+            frame: match a.frame {
+                FrameArg::Sensor => InputFrame::Sensor,
+                FrameArg::Optical => InputFrame::Optical,
+            },
+            format: a.input_format,
+        }
+    }
 }
 
 /// The length unit of the input file.
@@ -383,30 +504,58 @@ fn estimate_config(a: &EstimateArgs) -> anyhow::Result<EstimateConfig> {
     if a.files.iter().filter(|f| f.as_os_str() == "-").count() > 1 {
         return Err(usage("standard input (`-`) may be given only once"));
     }
+    if a.unweighted && a.calibration.is_none() {
+        return Err(usage(
+            "--unweighted applies to --calibration (without a table every point weighs the same)",
+        ));
+    }
+    let calibration = match &a.calibration {
+        None => None,
+        Some(p) => {
+            Some(CalibrationTable::read(p).map_err(|e| usage(format!("--calibration {e}")))?)
+        }
+    };
     Ok(EstimateConfig {
         method: a.method.into(),
         nominal_od_mm,
         options,
         loss: loss.name().into(),
-        units: match a.units {
-            UnitsArg::M => Units::Metres,
-            UnitsArg::Mm => Units::Millimetres,
-        },
-        frame: match a.frame {
-            FrameArg::Sensor => InputFrame::Sensor,
-            FrameArg::Optical => InputFrame::Optical,
-        },
-        input_format: a.input_format,
+        input: (&a.input).into(),
+        weighted: calibration.is_some() && !a.unweighted,
+        calibration,
     })
 }
 
-/// Read one input: a file, or standard input for `-`.
-fn read_input(path: &Path, cfg: &EstimateConfig) -> Result<PointCloud, String> {
-    if path.as_os_str() == "-" {
-        read_from(std::io::stdin().lock(), cfg.input_format, MAX_INPUT_BYTES)
+/// Read one input (a file, or standard input for `-`) and convert its points to metres
+/// in the sensor frame.
+fn read_input(path: &Path, input: &InputConfig) -> Result<PointCloud, String> {
+    let mut cloud = if path.as_os_str() == "-" {
+        read_from(std::io::stdin().lock(), input.format, MAX_INPUT_BYTES)?
     } else {
-        read_path(path)
-    }
+        read_path(path)?
+    };
+    to_sensor_metres(&mut cloud.points, input.units, input.frame)?;
+    Ok(cloud)
+}
+
+/// The per-point `intensity` of a cloud (any case), or why there is none.
+fn intensity(cloud: &PointCloud, why: &str) -> Result<Vec<f64>, String> {
+    cloud
+        .extra
+        .iter()
+        .find(|(name, _)| name.eq_ignore_ascii_case("intensity"))
+        .map(|(_, v)| v.clone())
+        .ok_or_else(|| {
+            let have: Vec<&str> = cloud.extra.iter().map(|(n, _)| n.as_str()).collect();
+            format!(
+                "no per-point `intensity` in the file ({}); {why}",
+                if have.is_empty() {
+                    "it holds x, y, z only".to_string()
+                } else {
+                    format!("it holds x, y, z, {}", have.join(", "))
+                }
+            )
+        })
 }
 
 /// Read, filter and estimate one file.
@@ -414,19 +563,35 @@ fn estimate_file(path: &Path, cfg: &EstimateConfig) -> FileReport {
     let file = path.display().to_string();
     let run = || -> Result<FileEstimate, String> {
         let t0 = Instant::now();
-        let mut cloud = read_input(path, cfg)?;
+        let mut cloud = read_input(path, &cfg.input)?;
         let read_ms = t0.elapsed().as_secs_f64() * 1e3;
-        to_sensor_metres(&mut cloud.points, cfg.units, cfg.frame)?;
         let n_read = cloud.points.len();
         if n_read == 0 {
             return Err("the file holds no points".into());
         }
+        let t1 = Instant::now();
+        // The calibration moves each point along its ray; its spread gives each point's σ.
+        let mut n_calibrated = None;
+        let mut sigmas = None;
+        if let Some(cal) = &cfg.calibration {
+            let i = intensity(&cloud, "--calibration needs one per point")?;
+            let moved = cal
+                .table
+                .correct(&mut cloud.points, &i)
+                .map_err(|e| e.to_string())?;
+            n_calibrated = Some(moved);
+            if cfg.weighted {
+                sigmas = Some(cal.table.sigmas(&cloud.points, &i));
+            }
+        }
         // Invalid pixels (NaN, inf, zeros) are dropped and counted by the estimator; the
         // range gate keeps points by their model range (see EstimateOptions).
         let kept = cloud.points;
-        let t1 = Instant::now();
-        let est = estimate(&kept, cfg.method, &cfg.options)
-            .map_err(|e| format!("{e} ({n_read} points read)"))?;
+        let est = match &sigmas {
+            None => estimate(&kept, cfg.method, &cfg.options),
+            Some(s) => estimate_weighted(&kept, s, cfg.method, &cfg.options),
+        }
+        .map_err(|e| format!("{e} ({n_read} points read)"))?;
         let elapsed_ms = t1.elapsed().as_secs_f64() * 1e3;
         let n_out_of_range = est.n_out_of_gate;
         let loss_scale_m = match (est.method, est.loss.scale()) {
@@ -452,6 +617,8 @@ fn estimate_file(path: &Path, cfg: &EstimateConfig) -> FileReport {
             elapsed_ms,
             read_ms,
             nominal_od_mm: cfg.nominal_od_mm,
+            n_calibrated,
+            weighted: sigmas.is_some(),
         })
     };
     FileReport {
@@ -622,6 +789,163 @@ fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::FAILURE)
 }
 
+fn run_calibrate(a: &CalibrateArgs) -> anyhow::Result<ExitCode> {
+    let d_max = a.known_id_mm * 1e-3;
+    let d_min = a.known_dmin_mm.unwrap_or(a.known_id_mm) * 1e-3;
+    if !(a.known_id_mm > 0.0 && a.known_id_mm.is_finite()) {
+        return Err(usage(format!(
+            "--known-id-mm {}: expected the pipe's inner diameter in mm (> 0)",
+            a.known_id_mm
+        )));
+    }
+    if !(d_min > 0.0 && d_min <= d_max) {
+        return Err(usage(format!(
+            "--known-dmin-mm {}: expected the minor inner diameter in mm, > 0 and at most \
+             --known-id-mm {}",
+            d_min * 1e3,
+            a.known_id_mm
+        )));
+    }
+    if !(a.min_range >= 0.0 && a.max_range > a.min_range && a.max_range.is_finite()) {
+        return Err(usage(format!(
+            "--min-range {} and --max-range {}: need 0 ≤ min < max",
+            a.min_range, a.max_range
+        )));
+    }
+    if a.range_bins == 0 || a.intensity_bins == 0 || a.range_bins * a.intensity_bins > 1 << 20 {
+        return Err(usage(format!(
+            "--range-bins {} × --intensity-bins {}: need at least 1 each, at most 2²⁰ bins",
+            a.range_bins, a.intensity_bins
+        )));
+    }
+    if a.files.iter().any(|f| f.as_os_str() == "-") {
+        return Err(usage("calibrate reads files only (no `-`)"));
+    }
+    if let Some(n) = a.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n.get())
+            .build_global()
+            .context("cannot start the worker threads")?;
+    }
+    let gate = (a.min_range, a.max_range);
+    let options = EstimateOptions::default()
+        .with_loss(Loss::from_name("cauchy", DEFAULT_LOSS_SCALE_M)?)?
+        .with_loss_scale(LossScale::Auto);
+    let input: InputConfig = (&a.input).into();
+    let bar = if a.quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(a.files.len() as u64)
+    };
+    // Every frame is read first: the table and the poses are refined together.
+    let read: Vec<Result<(PointCloud, Vec<f64>), String>> = a
+        .files
+        .par_iter()
+        .with_max_len(1)
+        .map(|p| {
+            let r = read_input(p, &input).and_then(|c| {
+                let i = intensity(&c, "the table is binned by intensity")?;
+                Ok((c, i))
+            });
+            bar.inc(1);
+            r
+        })
+        .collect();
+    bar.finish_and_clear();
+    let mut failed = Vec::new();
+    let mut names = Vec::new();
+    let mut frames = Vec::new();
+    for (path, r) in a.files.iter().zip(&read) {
+        match r {
+            Ok((c, i)) => {
+                names.push(path.display().to_string());
+                frames.push(CalibrationFrame {
+                    points: &c.points,
+                    intensity: i,
+                });
+            }
+            Err(e) => failed.push(format!("{}: {e}", path.display())),
+        }
+    }
+    if frames.is_empty() {
+        for f in &failed {
+            eprintln!("skipped {f}");
+        }
+        anyhow::bail!(
+            "no frame could be read: no table written to {}",
+            a.out.display()
+        );
+    }
+    let settings = CalibrationSettings {
+        known: (d_max, d_min),
+        gate,
+        bins: (a.range_bins, a.intensity_bins),
+        min_count: a.min_count.max(1),
+        passes: a.passes as usize,
+    };
+    let cal = calibrate(&frames, &settings, &options)
+        .with_context(|| format!("no table written to {}", a.out.display()))?;
+    let deg = 180.0 / std::f64::consts::PI;
+    let mut used = 0;
+    for (name, fit) in names.iter().zip(&cal.fits) {
+        match fit {
+            Ok(est) => {
+                used += 1;
+                if !a.quiet {
+                    let p = est.params;
+                    eprintln!(
+                        "{name}: pose roll {:.2}° pitch {:.3}° yaw {:.3}° δy {:.1} mm δz {:.1} mm, \
+                         {} points",
+                        p.roll * deg,
+                        p.pitch * deg,
+                        p.yaw * deg,
+                        p.dy * 1e3,
+                        p.dz * 1e3,
+                        est.n_points,
+                    );
+                }
+            }
+            Err(e) => failed.push(format!("{name}: {e}")),
+        }
+    }
+    for f in &failed {
+        eprintln!("skipped {f}");
+    }
+    let n_obs = cal.n_observations;
+    let cal = CalibrationTable {
+        table: cal.table,
+        known: (d_max, d_min),
+        frames: used,
+        n_observations: n_obs as u64,
+    };
+    let json = cal.to_json();
+    tof_sim::output::write_file_atomic(&a.out, |w| std::io::Write::write_all(w, json.as_bytes()))?;
+    if !a.quiet {
+        let t = &cal.table;
+        let filled = t.count.iter().filter(|&&c| c > 0).count();
+        let (lo, hi) = t
+            .offset_m
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
+                (l.min(v), h.max(v))
+            });
+        eprintln!(
+            "{}: {} × {} bins ({filled} filled) from {used} frames and {n_obs} points; offsets \
+             {:.1} to {:.1} mm",
+            a.out.display(),
+            t.range.n,
+            t.log_intensity.n,
+            lo * 1e3,
+            hi * 1e3
+        );
+    }
+    Ok(if failed.is_empty() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
+}
+
 fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
     use tof_sim::output::{PlyFormat, PlyPrecision, save_ply, write_file_atomic};
     use tof_sim::{
@@ -644,7 +968,7 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         far_outlier_fraction: 0.0,
         bias_b0: 0.0,
         bias_b1: 0.0,
-        physics: None,
+        physics: (a.sensor == SensorArg::Helios2).then(tof_sim::ToFPhysics::helios2),
     };
     let sub = match a.points {
         None => Subsample::All,
@@ -686,7 +1010,7 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         let deg = 180.0 / std::f64::consts::PI;
         let json = format!(
             "{{\"d_max_mm\":{},\"d_min_mm\":{},\"roll_deg\":{},\"pitch_deg\":{},\"yaw_deg\":{},\"dy_mm\":{},\"dz_mm\":{},\
-             \"n_points\":{},\"seed\":{seed},\"trial\":{k},\"sigma_m\":{},\"outlier_fraction\":{}}}\n",
+             \"n_points\":{},\"seed\":{seed},\"trial\":{k},\"sigma_m\":{},\"outlier_fraction\":{},\"sensor\":\"{}\"}}\n",
             t.d_max * 1e3,
             t.d_min * 1e3,
             t.roll * deg,
@@ -696,7 +1020,12 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
             t.dz * 1e3,
             frame.len(),
             noise.sigma,
-            noise.outlier_fraction
+            noise.outlier_fraction,
+            if a.sensor == SensorArg::Helios2 {
+                "helios2"
+            } else {
+                "plain"
+            }
         );
         write_file_atomic(&out.join(format!("{stem}.json")), |w| {
             std::io::Write::write_all(w, json.as_bytes())
@@ -723,6 +1052,7 @@ fn main() -> ExitCode {
     };
     let result = match &cli.command {
         Command::Estimate(a) => run_estimate(a),
+        Command::Calibrate(a) => run_calibrate(a),
         Command::Simulate(a) => run_simulate(a),
     };
     match result {

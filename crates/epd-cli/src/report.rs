@@ -33,6 +33,10 @@ pub struct FileEstimate {
     /// The nominal outer diameter (mm), when given; then the wall thickness is
     /// estimated as (OD − mean inner diameter)/2.
     pub nominal_od_mm: Option<f64>,
+    /// Points moved by a depth-calibration table (`None` without one).
+    pub n_calibrated: Option<usize>,
+    /// Whether each residual was weighted by 1/σᵢ (σᵢ from the calibration table).
+    pub weighted: bool,
 }
 
 /// The CSV columns, in order: the keys of [`FileReport::fields`].
@@ -45,9 +49,11 @@ pub fn columns() -> Vec<&'static str> {
 }
 
 /// The fields after the estimate's, without the final `error`.
-const CONTEXT_KEYS: [&str; 9] = [
+const CONTEXT_KEYS: [&str; 11] = [
     "n_read",
     "n_out_of_range",
+    "n_calibrated",
+    "weighted",
     "rms_residual_mm",
     "elapsed_ms",
     "read_ms",
@@ -140,6 +146,11 @@ impl FileReport {
                 let p = e.estimate.params;
                 f.push(("n_read", Field::Int(e.n_read as u64)));
                 f.push(("n_out_of_range", Field::Int(e.n_out_of_range as u64)));
+                f.push((
+                    "n_calibrated",
+                    e.n_calibrated.map_or(Field::Null, |n| Field::Int(n as u64)),
+                ));
+                f.push(("weighted", Field::Bool(e.weighted)));
                 f.push((
                     "rms_residual_mm",
                     e.rms_residual_mm.map_or(Field::Null, num),
@@ -301,6 +312,8 @@ mod tests {
                 estimate: est,
                 n_read: 400,
                 n_out_of_range: 0,
+                n_calibrated: None,
+                weighted: false,
                 rms_residual_mm: None,
                 elapsed_ms: 1.0,
                 read_ms: 1.0,

@@ -16,12 +16,14 @@
 //!
 //! Binning uses the *model* range of each observation: binned by measured range, a
 //! bin would collect the points whose noise pushed them in, and store that noise's
-//! conditional mean along with the systematic error. A new frame has no model, so the
-//! lookup uses the measured range; the table is smooth on the scale of the noise.
+//! conditional mean along with the systematic error. A new frame has no model: its
+//! correction solves ρ + T(ρ, I) = r for the wall range ρ of each measured range r.
 
 use crate::error::EpdError;
+use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
 use crate::params::Params;
 use crate::residual::Geometry;
+use rayon::prelude::*;
 
 /// One observation of the systematic range error: a point of a calibration frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -67,6 +69,136 @@ pub fn offsets(
             })
         })
         .collect())
+}
+
+/// One calibration frame: measured points (SCS, m; invalid pixels as zeros) and their
+/// intensities.
+#[derive(Clone, Copy, Debug)]
+pub struct CalibrationFrame<'a> {
+    /// Measured points.
+    pub points: &'a [[f64; 3]],
+    /// One intensity per point.
+    pub intensity: &'a [f64],
+}
+
+/// How a table is made from calibration frames.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CalibrationSettings {
+    /// The known (Dmax, Dmin) of the calibration pipe (m).
+    pub known: (f64, f64),
+    /// Range gate on the model range (m): the points used.
+    pub gate: (f64, f64),
+    /// Range × intensity bins.
+    pub bins: (usize, usize),
+    /// Least observations of a filled bin.
+    pub min_count: usize,
+    /// Passes of the alternating refinement (≥ 1; see [`calibrate`]).
+    pub passes: usize,
+}
+
+/// A depth table with the frames' fitted poses.
+#[derive(Clone, Debug)]
+pub struct Calibration {
+    /// The table.
+    pub table: DepthTable,
+    /// Per frame: its fit with the diameters held, or why it failed (the frame is then
+    /// left out).
+    pub fits: Vec<Result<Estimate, EpdError>>,
+    /// Observations behind the table.
+    pub n_observations: usize,
+}
+
+/// The depth table of frames recorded in a pipe of known diameter.
+///
+/// The systematic error and the pose are found together: a frame's pose, fitted with
+/// the diameters held, absorbs the part of the error that looks like a pose change (a
+/// range error larger on one side shifts δy, δz), and the table built on that pose
+/// inherits the pose's error. So the fit alternates, like the joint least squares of
+/// one table and one pose per frame: pass 1 fits each frame's pose on its measured
+/// points and builds the table from their offsets (measured − model range); each
+/// further pass fits the poses again on the points corrected by the current table and
+/// rebuilds the table from the raw points' offsets to the new poses. The table's
+/// bins span the observations of the first pass (range clipped to the gate).
+/// Frames whose fit does not converge are left out; fails when none is left.
+pub fn calibrate(
+    frames: &[CalibrationFrame<'_>],
+    settings: &CalibrationSettings,
+    options: &EstimateOptions,
+) -> Result<Calibration, EpdError> {
+    let (d_max, d_min) = settings.known;
+    let (lo, hi) = settings.gate;
+    let options = options
+        .with_fixed_diameters(d_max, d_min)?
+        .with_range_gate(lo, hi)?;
+    let mut table: Option<DepthTable> = None;
+    let mut bins: Option<TableBins> = None;
+    let mut last = None;
+    for _ in 0..settings.passes.max(1) {
+        let per_frame: Vec<Result<(Estimate, Vec<Observation>), EpdError>> = frames
+            .par_iter()
+            .with_max_len(1)
+            .map(|f| {
+                let corrected;
+                let pts = match &table {
+                    None => f.points,
+                    Some(t) => {
+                        let mut c = f.points.to_vec();
+                        t.correct(&mut c, f.intensity)?;
+                        corrected = c;
+                        &corrected
+                    }
+                };
+                let est = estimate(pts, Method::MlEpd, &options)?;
+                if !est.status.is_converged() {
+                    return Err(EpdError::Degenerate(format!(
+                        "the pose fit with the known diameters ended {}: {}",
+                        est.status.name(),
+                        est.status.reason()
+                    )));
+                }
+                let obs = offsets(f.points, f.intensity, &est.params, settings.gate)?;
+                Ok((est, obs))
+            })
+            .collect();
+        let obs: Vec<Observation> = per_frame
+            .iter()
+            .filter_map(|r| r.as_ref().ok())
+            .flat_map(|(_, o)| o.iter().copied())
+            .collect();
+        if obs.is_empty() {
+            let why = per_frame
+                .iter()
+                .find_map(|r| r.as_ref().err().map(|e| e.to_string()))
+                .unwrap_or_else(|| "no point lies in the range gate".into());
+            return Err(EpdError::InvalidOption(format!(
+                "no calibration frame could be used: {why}"
+            )));
+        }
+        let b = match bins {
+            Some(b) => b,
+            None => {
+                let mut b = TableBins::spanning(&obs, settings.bins.0, settings.bins.1)?;
+                b.range.lo = b.range.lo.max(lo);
+                b.range.hi = b.range.hi.min(hi);
+                if !(b.range.hi > b.range.lo) {
+                    (b.range.lo, b.range.hi) = (lo, hi);
+                }
+                b.min_count = settings.min_count.max(1);
+                bins = Some(b);
+                b
+            }
+        };
+        table = Some(DepthTable::build(&obs, &b)?);
+        last = Some((per_frame, obs.len()));
+    }
+    let (Some(table), Some((per_frame, n_observations))) = (table, last) else {
+        return Err(EpdError::InvalidOption("no calibration pass ran".into()));
+    };
+    Ok(Calibration {
+        table,
+        fits: per_frame.into_iter().map(|r| r.map(|(e, _)| e)).collect(),
+        n_observations,
+    })
 }
 
 /// An axis of the table: `n` equal bins over [lo, hi] of a coordinate (the range in m,
@@ -212,9 +344,10 @@ impl DepthTable {
     /// then the mean of the offsets within m ± 4·1.4826·MAD (a clipped mean: as
     /// efficient as the mean for Gaussian noise, deaf to flying pixels). A bin with
     /// fewer than `min_count` observations is empty and takes the values of the nearest
-    /// filled bin (Euclidean distance in bin indices; ties go to the lower range, then
-    /// the lower intensity), so that the table is defined everywhere and never
-    /// extrapolates a trend it has not seen. Fails when no bin is filled.
+    /// filled bin of its range row (ties to the lower intensity); a row without any
+    /// filled bin takes the nearest filled row (ties to the lower range). The table is
+    /// then defined everywhere and never extrapolates a trend it has not seen; the
+    /// range, which sets the wiggling, is never mixed up. Fails when no bin is filled.
     pub fn build(obs: &[Observation], bins: &TableBins) -> Result<Self, EpdError> {
         bins.range.validate("range")?;
         bins.log_intensity.validate("log-intensity")?;
@@ -264,21 +397,40 @@ impl DepthTable {
                 bins.min_count.max(1)
             )));
         }
-        for k in 0..cells {
-            if count[k] > 0 {
+        // Empty bins: from the nearest filled bin of the same range row (the range sets
+        // the wiggling; in a pipe each range sees a narrow band of intensities), then
+        // whole empty rows from the nearest filled row.
+        let row_filled = |i: usize, count: &[u64]| (0..ni).any(|j| count[i * ni + j] > 0);
+        for i in 0..nr {
+            if !row_filled(i, &count) {
                 continue;
             }
-            let (i, j) = ((k / ni) as i64, (k % ni) as i64);
-            let nearest = filled
+            for j in 0..ni {
+                if count[i * ni + j] > 0 {
+                    continue;
+                }
+                let near = (0..ni)
+                    .filter(|&f| count[i * ni + f] > 0)
+                    .min_by_key(|&f| (f.abs_diff(j), f))
+                    .unwrap_or(j);
+                offset_m[i * ni + j] = offset_m[i * ni + near];
+                spread_m[i * ni + j] = spread_m[i * ni + near];
+            }
+        }
+        let rows: Vec<usize> = (0..nr).filter(|&i| row_filled(i, &count)).collect();
+        for i in 0..nr {
+            if row_filled(i, &count) {
+                continue;
+            }
+            let near = rows
                 .iter()
                 .copied()
-                .min_by_key(|&f| {
-                    let (fi, fj) = ((f / ni) as i64, (f % ni) as i64);
-                    ((fi - i).pow(2) + (fj - j).pow(2), f)
-                })
-                .unwrap_or(filled[0]);
-            offset_m[k] = offset_m[nearest];
-            spread_m[k] = spread_m[nearest];
+                .min_by_key(|&f| (f.abs_diff(i), f))
+                .unwrap_or(filled[0] / ni);
+            for j in 0..ni {
+                offset_m[i * ni + j] = offset_m[near * ni + j];
+                spread_m[i * ni + j] = spread_m[near * ni + j];
+            }
         }
         Ok(Self {
             range: bins.range,
@@ -350,10 +502,31 @@ impl DepthTable {
         self.interpolate(&self.spread_m, range_m, intensity)
     }
 
-    /// Move each measured point (SCS, m) along its own sensing line by −T(r, I):
-    /// x̂ ← x̂·(r − T)/r. Zero and non-finite points (invalid pixels) are left as they
-    /// are, and so is a point the correction would carry through the sensor. Returns
-    /// how many points were moved.
+    /// The range ρ whose systematic error brings it to the measured range r:
+    /// ρ + T(ρ, I) = r, by the fixed-point iteration ρ ← r − T(ρ, I) from ρ = r (the
+    /// table is indexed by the wall's range, and |∂T/∂ρ| ≪ 1, so a few steps converge:
+    /// the error shrinks by |∂T/∂ρ| per step; the iteration stops when a step moves ρ
+    /// by less than 1 µm, after at most eight steps).
+    pub fn true_range(&self, range_m: f64, intensity: f64) -> f64 {
+        let mut rho = range_m - self.offset_at(range_m, intensity);
+        for _ in 0..7 {
+            let next = range_m - self.offset_at(rho, intensity);
+            let done = (next - rho).abs() < 1e-6;
+            rho = next;
+            if done {
+                break;
+            }
+        }
+        rho
+    }
+
+    /// Move each measured point (SCS, m) along its own sensing line to the range ρ that
+    /// the table's systematic error carries to its measured range r
+    /// ([`true_range`](Self::true_range)): x̂ ← x̂·ρ/r. Looking the offset up at r
+    /// itself would read the table a whole offset (centimetres) away from where it was
+    /// measured. Zero and non-finite points (invalid pixels) are left as they are, and
+    /// so is a point the correction would carry through the sensor. Returns how many
+    /// points were moved.
     pub fn correct(&self, points: &mut [[f64; 3]], intensity: &[f64]) -> Result<usize, EpdError> {
         if points.len() != intensity.len() {
             return Err(EpdError::InvalidOption(format!(
@@ -362,18 +535,26 @@ impl DepthTable {
                 intensity.len()
             )));
         }
-        let mut moved = 0;
-        for (p, &i) in points.iter_mut().zip(intensity) {
-            if !usable(p) {
-                continue;
-            }
-            let r = norm(p);
-            let k = (r - self.offset_at(r, i)) / r;
-            if k > 0.0 && k.is_finite() {
-                *p = [p[0] * k, p[1] * k, p[2] * k];
-                moved += 1;
-            }
-        }
+        const CHUNK: usize = 4096;
+        let moved = points
+            .par_chunks_mut(CHUNK)
+            .zip(intensity.par_chunks(CHUNK))
+            .map(|(ps, is)| {
+                let mut moved = 0;
+                for (p, &i) in ps.iter_mut().zip(is) {
+                    if !usable(p) {
+                        continue;
+                    }
+                    let r = norm(p);
+                    let k = self.true_range(r, i) / r;
+                    if k > 0.0 && k.is_finite() {
+                        *p = [p[0] * k, p[1] * k, p[2] * k];
+                        moved += 1;
+                    }
+                }
+                moved
+            })
+            .sum();
         Ok(moved)
     }
 
@@ -381,8 +562,8 @@ impl DepthTable {
     /// points): the per-point scale of a weighted fit.
     pub fn sigmas(&self, points: &[[f64; 3]], intensity: &[f64]) -> Vec<f64> {
         points
-            .iter()
-            .zip(intensity)
+            .par_iter()
+            .zip(intensity.par_iter())
             .map(|(p, &i)| {
                 if usable(p) {
                     self.sigma_at(norm(p), i)
@@ -538,11 +719,12 @@ mod tests {
         }
         let t = DepthTable::build(&obs, &bins(4, 2)).unwrap();
         assert_eq!(t.count, vec![20, 0, 0, 0, 0, 0, 0, 20]);
-        // Bins (0, 1) and (1, 0) are next to (0, 0); bins (2, 1) and (3, 0) next to (3, 1).
+        // Row 0: bin (0, 1) from (0, 0); row 3: (3, 0) from (3, 1); the empty rows 1
+        // and 2 from their nearest filled rows, 0 and 3.
         let (a, b) = (t.offset_m[0], t.offset_m[7]);
         assert!((a - 0.01).abs() < 1e-15 && (b + 0.02).abs() < 1e-15);
-        assert_eq!([t.offset_m[1], t.offset_m[2]], [a, a]);
-        assert_eq!([t.offset_m[5], t.offset_m[6]], [b, b]);
+        assert_eq!(&t.offset_m[..4], &[a, a, a, a]);
+        assert_eq!(&t.offset_m[4..], &[b, b, b, b]);
         assert!(t.validate().is_ok());
         // No observation at all: refused with a reason.
         let e = DepthTable::build(&[], &bins(4, 2)).unwrap_err().to_string();
@@ -569,6 +751,7 @@ mod tests {
         assert_eq!(moved, 1);
         let r0 = norm(&before[0]);
         assert!((norm(&pts[0]) - (r0 - 0.02)).abs() < 1e-12);
+        assert!((t.true_range(1.3, 10.0) - 1.28).abs() < 1e-12);
         // Same direction.
         let c = (0..3).map(|k| pts[0][k] * before[0][k]).sum::<f64>() / (norm(&pts[0]) * r0);
         assert!((c - 1.0).abs() < 1e-12);
