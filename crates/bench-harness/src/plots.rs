@@ -31,6 +31,7 @@ fn colour(method: &str) -> RGBColor {
         "c-epd" => RGBColor(214, 39, 40),
         "ru-epd" => RGBColor(31, 119, 180),
         "ml-epd" => RGBColor(44, 160, 44),
+        "ml-epd-w" => RGBColor(148, 103, 189),
         _ => RGBColor(80, 80, 80),
     }
 }

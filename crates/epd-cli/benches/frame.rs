@@ -1,0 +1,130 @@
+//! One realistic camera frame through `epd estimate --calibration`'s path: a full
+//! 640×480 Helios2 frame of the realistic model (binary PLY, float x y z + intensity,
+//! invalid pixels as zeros) parsed, corrected by a depth table, gated to [0.5, 2] m and
+//! estimated by weighted ML-EPD with the Cauchy loss. The camera runs at up to 30
+//! frames/s: the target is ≤ 30 ms per frame on 2 cores.
+//!
+//! `cargo bench -p epd-cli --bench frame`
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use epd_cli::read::{Format, read_bytes};
+use epd_core::calibration::{CalibrationFrame, CalibrationSettings, calibrate};
+use epd_core::{EstimateOptions, Loss, LossScale, Method, estimate_weighted};
+use tof_sim::output::{PlyFormat, PlyPrecision, write_ply};
+use tof_sim::{
+    FrameSeed, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, ToFPhysics, WallModel,
+};
+
+fn frame(pipe: &Pipe, k: u64) -> tof_sim::Frame {
+    let truth = PoseRanges::default().sample(pipe, 3, k).expect("pose");
+    let scene = Scene::new(&truth, WallModel::Exact, 6.0).expect("scene");
+    let noise = Noise {
+        physics: Some(ToFPhysics::helios2()),
+        ..Noise::none()
+    };
+    tof_sim::simulate(
+        &Sensor::helios2(),
+        &scene,
+        &noise,
+        Subsample::All,
+        FrameSeed {
+            seed: 3,
+            trial: k,
+            sweep_index: 0,
+        },
+    )
+    .expect("frame")
+}
+
+fn bench(c: &mut Criterion) {
+    let options = EstimateOptions::default()
+        .with_loss(Loss::from_name("cauchy", 0.05).expect("loss"))
+        .expect("loss")
+        .with_loss_scale(LossScale::Auto)
+        .with_range_gate(0.5, 2.0)
+        .expect("gate");
+    // The table from three rig frames (20", 9.5 mm wall, round).
+    let rig = Pipe {
+        nominal_od_in: 20.0,
+        wall_thickness: 0.0095,
+        ovality: 0.0,
+    };
+    let rig_frames: Vec<(tof_sim::Frame, Vec<f64>)> = (0..3)
+        .map(|k| {
+            let f = frame(&rig, k);
+            let i = f.intensity.iter().map(|&v| v as f64).collect();
+            (f, i)
+        })
+        .collect();
+    let views: Vec<CalibrationFrame<'_>> = rig_frames
+        .iter()
+        .map(|(f, i)| CalibrationFrame {
+            points: &f.measured,
+            intensity: i,
+        })
+        .collect();
+    let settings = CalibrationSettings {
+        known: (rig.d_max(), rig.d_min()),
+        gate: (0.5, 2.0),
+        bins: (30, 12),
+        min_count: 30,
+        passes: 3,
+    };
+    let table = calibrate(&views, &settings, &options).expect("table").table;
+    // One inspection frame as the camera's PLY.
+    let pipe = Pipe {
+        wall_thickness: 0.0127,
+        ovality: 0.01,
+        ..Pipe::paper_20in()
+    };
+    let f = frame(&pipe, 10);
+    let mut ply = Vec::new();
+    write_ply(
+        &mut ply,
+        &f,
+        PlyFormat::BinaryLittleEndian,
+        PlyPrecision::F32,
+    )
+    .expect("ply");
+    let mut g = c.benchmark_group("frame");
+    g.sample_size(30);
+    g.bench_function("read_calibrate_gate_estimate", |b| {
+        b.iter(|| {
+            let mut cloud = read_bytes(Format::Ply, &ply).expect("read");
+            let i = cloud
+                .extra
+                .iter()
+                .find(|(n, _)| n == "intensity")
+                .map(|(_, v)| v.clone())
+                .expect("intensity");
+            table.correct(&mut cloud.points, &i).expect("correct");
+            let s = table.sigmas(&cloud.points, &i);
+            estimate_weighted(&cloud.points, &s, Method::MlEpd, &options).expect("estimate")
+        })
+    });
+    let cloud = read_bytes(Format::Ply, &ply).expect("read");
+    let i: Vec<f64> = f.intensity.iter().map(|&v| v as f64).collect();
+    g.bench_function("correct", |b| {
+        b.iter(|| {
+            let mut p = cloud.points.clone();
+            table.correct(&mut p, &i).expect("correct");
+            table.sigmas(&p, &i)
+        })
+    });
+    let mut corrected = cloud.points.clone();
+    table.correct(&mut corrected, &i).expect("correct");
+    let s = table.sigmas(&corrected, &i);
+    g.bench_function("estimate_weighted", |b| {
+        b.iter(|| estimate_weighted(&corrected, &s, Method::MlEpd, &options).expect("estimate"))
+    });
+    g.bench_function("estimate_unweighted", |b| {
+        b.iter(|| epd_core::estimate(&corrected, Method::MlEpd, &options).expect("estimate"))
+    });
+    g.bench_function("read", |b| {
+        b.iter(|| read_bytes(Format::Ply, &ply).expect("read"))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
