@@ -185,11 +185,28 @@ fn draw_panel(
                 });
             continue;
         }
-        chart
-            .draw_series(LineSeries::new(line.clone(), c.stroke_width(2)))
-            .map_err(|e| err(e.to_string()))?
-            .label(s.name.clone())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+        // A missing value (NaN) breaks the line: no segment is drawn across a gap.
+        let mut segments: Vec<Vec<(f64, f64)>> = vec![vec![]];
+        for &(x, m, _, _) in &s.points {
+            let (px, py) = (xa.f(x) + shift, ya.f(m));
+            if px.is_finite() && py.is_finite() {
+                if let Some(v) = segments.last_mut() {
+                    v.push((px, py));
+                }
+            } else if segments.last().is_some_and(|v| !v.is_empty()) {
+                segments.push(vec![]);
+            }
+        }
+        for (k, seg) in segments.into_iter().enumerate() {
+            let drawn = chart
+                .draw_series(LineSeries::new(seg, c.stroke_width(2)))
+                .map_err(|e| err(e.to_string()))?;
+            if k == 0 {
+                drawn.label(s.name.clone()).legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2))
+                });
+            }
+        }
         if s.marker_triangle {
             chart
                 .draw_series(line.iter().map(|&p| TriangleMarker::new(p, 5, c.filled())))
@@ -718,18 +735,42 @@ pub fn plot_pipeline(
             }
         })
         .collect();
+    // Along the distance, with a break (NaN) between sections.
     let along = |m: &str, f: fn((f64, f64)) -> f64| -> Vec<(f64, f64, f64, f64)> {
-        points
-            .iter()
-            .filter(|p| p.method == m && p.calibrated)
-            .filter_map(|p| {
-                let y = f(p.d_mm?);
-                Some((p.distance_m, y, y, y))
-            })
-            .collect()
+        let mut v = Vec::new();
+        for si in 0..s.sections.len() {
+            if si > 0 {
+                v.push((f64::NAN, f64::NAN, f64::NAN, f64::NAN));
+            }
+            v.extend(
+                points
+                    .iter()
+                    .filter(|p| p.section == si && p.method == m && p.calibrated)
+                    .filter_map(|p| {
+                        let y = f(p.d_mm?);
+                        Some((p.distance_m, y, y, y))
+                    }),
+            );
+        }
+        v
     };
     let mut dmean = nominal;
-    let mut oval = Vec::new();
+    let mut oval: Vec<Series> = s
+        .sections
+        .iter()
+        .map(|sec| {
+            let x1 = sec.start_m + (s.frames_per_section as f64 - 1.0) * s.frame_spacing_m;
+            let y = sec.pipe.ovality * 100.0;
+            Series {
+                name: format!("true ovality {}", sec.name),
+                colour: grey,
+                points: vec![(sec.start_m, y, y, y), (x1, y, y, y)],
+                bars: false,
+                marker_triangle: false,
+                dashed: true,
+            }
+        })
+        .collect();
     for m in METHODS {
         dmean.push(Series {
             name: m.to_uppercase(),
@@ -765,7 +806,7 @@ pub fn plot_pipeline(
                 series: &dmean,
             },
             Panel {
-                title: "ovality (Dmax − Dmin)/D".into(),
+                title: "ovality (Dmax − Dmin)/D, D the mean diameter".into(),
                 y_label: "%".into(),
                 series: &oval,
             },
