@@ -730,8 +730,7 @@ fn frame_rows(
         .map(|c| (c[0], c[1]))
         .unwrap_or((None, None));
     let mut corrected = frame.measured.clone();
-    table.correct(&mut corrected, &intensity)?;
-    let table_sigma = table.sigmas(&corrected, &intensity);
+    let (_, table_sigma) = table.correct_with_sigmas(&mut corrected, &intensity)?;
     let mut rows = Vec::new();
     for calibrated in [false, true] {
         let pts = if calibrated {

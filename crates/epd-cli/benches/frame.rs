@@ -97,8 +97,9 @@ fn bench(c: &mut Criterion) {
                 .find(|(n, _)| n == "intensity")
                 .map(|(_, v)| v.clone())
                 .expect("intensity");
-            table.correct(&mut cloud.points, &i).expect("correct");
-            let s = table.sigmas(&cloud.points, &i);
+            let (_, s) = table
+                .correct_with_sigmas(&mut cloud.points, &i)
+                .expect("correct");
             estimate_weighted(&cloud.points, &s, Method::MlEpd, &options).expect("estimate")
         })
     });
@@ -107,13 +108,13 @@ fn bench(c: &mut Criterion) {
     g.bench_function("correct", |b| {
         b.iter(|| {
             let mut p = cloud.points.clone();
-            table.correct(&mut p, &i).expect("correct");
-            table.sigmas(&p, &i)
+            table.correct_with_sigmas(&mut p, &i).expect("correct")
         })
     });
     let mut corrected = cloud.points.clone();
-    table.correct(&mut corrected, &i).expect("correct");
-    let s = table.sigmas(&corrected, &i);
+    let (_, s) = table
+        .correct_with_sigmas(&mut corrected, &i)
+        .expect("correct");
     g.bench_function("estimate_weighted", |b| {
         b.iter(|| estimate_weighted(&corrected, &s, Method::MlEpd, &options).expect("estimate"))
     });

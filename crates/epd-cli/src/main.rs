@@ -575,14 +575,19 @@ fn estimate_file(path: &Path, cfg: &EstimateConfig) -> FileReport {
         let mut sigmas = None;
         if let Some(cal) = &cfg.calibration {
             let i = intensity(&cloud, "--calibration needs one per point")?;
-            let moved = cal
-                .table
-                .correct(&mut cloud.points, &i)
-                .map_err(|e| e.to_string())?;
+            let moved = if cfg.weighted {
+                let (moved, s) = cal
+                    .table
+                    .correct_with_sigmas(&mut cloud.points, &i)
+                    .map_err(|e| e.to_string())?;
+                sigmas = Some(s);
+                moved
+            } else {
+                cal.table
+                    .correct(&mut cloud.points, &i)
+                    .map_err(|e| e.to_string())?
+            };
             n_calibrated = Some(moved);
-            if cfg.weighted {
-                sigmas = Some(cal.table.sigmas(&cloud.points, &i));
-            }
         }
         // Invalid pixels (NaN, inf, zeros) are dropped and counted by the estimator; the
         // range gate keeps points by their model range (see EstimateOptions).

@@ -534,28 +534,71 @@ impl DepthTable {
                 intensity.len()
             )));
         }
+        Ok(self.apply(points, intensity, None))
+    }
+
+    /// [`correct`](Self::correct) the points and return each one's σ from the table's
+    /// spread at its corrected range and intensity (NaN for invalid points): the
+    /// per-point scales of a weighted fit, in the same pass.
+    pub fn correct_with_sigmas(
+        &self,
+        points: &mut [[f64; 3]],
+        intensity: &[f64],
+    ) -> Result<(usize, Vec<f64>), EpdError> {
+        if points.len() != intensity.len() {
+            return Err(EpdError::InvalidOption(format!(
+                "{} points but {} intensities: one intensity per point is needed",
+                points.len(),
+                intensity.len()
+            )));
+        }
+        let mut sigma = vec![f64::NAN; points.len()];
+        let moved = self.apply(points, intensity, Some(&mut sigma));
+        Ok((moved, sigma))
+    }
+
+    /// The correction of equal-length slices, with the σ of each point when asked.
+    fn apply(
+        &self,
+        points: &mut [[f64; 3]],
+        intensity: &[f64],
+        sigma: Option<&mut [f64]>,
+    ) -> usize {
         const CHUNK: usize = 4096;
         let inverse = self.inverse();
-        let moved = points
-            .par_chunks_mut(CHUNK)
-            .zip(intensity.par_chunks(CHUNK))
-            .map(|(ps, is)| {
-                let mut moved = 0;
-                for (p, &i) in ps.iter_mut().zip(is) {
-                    if !usable(p) {
-                        continue;
-                    }
-                    let r = norm(p);
-                    let k = inverse.true_range(r, log_of(i)) / r;
-                    if k > 0.0 && k.is_finite() {
-                        *p = [p[0] * k, p[1] * k, p[2] * k];
-                        moved += 1;
-                    }
+        let one = |ps: &mut [[f64; 3]], is: &[f64], mut ss: Option<&mut [f64]>| {
+            let mut moved = 0;
+            for (k, (p, &i)) in ps.iter_mut().zip(is).enumerate() {
+                if !usable(p) {
+                    continue;
                 }
-                moved
-            })
-            .sum();
-        Ok(moved)
+                let r = norm(p);
+                let li = log_of(i);
+                let rho = inverse.true_range(r, li);
+                let f = rho / r;
+                if f > 0.0 && f.is_finite() {
+                    *p = [p[0] * f, p[1] * f, p[2] * f];
+                    moved += 1;
+                }
+                if let Some(s) = ss.as_deref_mut() {
+                    s[k] = self.interpolate(&self.spread_m, norm(p), li);
+                }
+            }
+            moved
+        };
+        match sigma {
+            None => points
+                .par_chunks_mut(CHUNK)
+                .zip(intensity.par_chunks(CHUNK))
+                .map(|(ps, is)| one(ps, is, None))
+                .sum(),
+            Some(sigma) => points
+                .par_chunks_mut(CHUNK)
+                .zip(intensity.par_chunks(CHUNK))
+                .zip(sigma.par_chunks_mut(CHUNK))
+                .map(|((ps, is), ss)| one(ps, is, Some(ss)))
+                .sum(),
+        }
     }
 
     /// [`true_range`](Self::true_range) tabulated once for a whole frame: at
@@ -827,8 +870,14 @@ mod tests {
         let t = DepthTable::build(&obs, &b).unwrap();
         let mut pts = [[1.0, 0.2, -0.1], [0.0, 0.0, 0.0], [f64::NAN, 1.0, 1.0]];
         let before = pts;
+        let mut again = pts;
         let moved = t.correct(&mut pts, &[10.0, 10.0, 10.0]).unwrap();
         assert_eq!(moved, 1);
+        let (m2, sig) = t.correct_with_sigmas(&mut again, &[10.0; 3]).unwrap();
+        assert_eq!(m2, 1);
+        assert_eq!(again[0], pts[0]);
+        assert_eq!(sig[0], t.sigma_at(norm(&pts[0]), 10.0));
+        assert!(sig[1].is_nan() && sig[2].is_nan());
         let r0 = norm(&before[0]);
         assert!((norm(&pts[0]) - (r0 - 0.02)).abs() < 1e-12);
         assert!((t.true_range(1.3, 10.0) - 1.28).abs() < 1e-12);
