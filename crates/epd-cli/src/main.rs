@@ -225,7 +225,8 @@ struct CalibrateArgs {
     /// Intensity bins of the table (even in log-intensity).
     #[arg(long, value_name = "N", default_value_t = 12)]
     intensity_bins: usize,
-    /// A bin with fewer points is empty and takes the nearest filled bin's values.
+    /// A bin with fewer points (at least 5) is empty and takes the nearest filled bin's
+    /// values.
     #[arg(long, value_name = "N", default_value_t = 30)]
     min_count: usize,
     /// Passes of the alternating refinement of the poses and the table (1: the poses
@@ -339,6 +340,31 @@ impl std::error::Error for Usage {}
 
 fn usage(msg: impl Into<String>) -> anyhow::Error {
     anyhow::Error::new(Usage(msg.into()))
+}
+
+/// Refuse an output path that exists but is not a regular file (a device, a link, a
+/// folder: the atomic write would replace it), or that names one of the inputs.
+fn check_output_path(out: &Path, inputs: &[PathBuf], flag: &str) -> anyhow::Result<()> {
+    let shown = out.display();
+    match std::fs::symlink_metadata(out) {
+        Ok(m) if !m.file_type().is_file() => {
+            return Err(usage(format!(
+                "{flag} {shown}: exists and is not a regular file (a link, device or folder); \
+                 the result replaces the file at that path, so name a new or regular file"
+            )));
+        }
+        _ => {}
+    }
+    if let Ok(o) = out.canonicalize() {
+        for i in inputs {
+            if i.canonicalize().is_ok_and(|c| c == o) {
+                return Err(usage(format!(
+                    "{flag} {shown}: is also an input file; it would be overwritten"
+                )));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Seed scale of the first robust pass (m) when --loss-scale is not given.
@@ -720,6 +746,9 @@ fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
     } else {
         ProgressBar::new(args.files.len() as u64)
     };
+    if let Some(out) = &args.output {
+        check_output_path(out, &args.files, "-o")?;
+    }
     let mut sink = Sink::open(args.output.as_deref())?;
     let mut failed = Vec::new();
     let write = |sink: &mut Sink, text: &str| -> anyhow::Result<bool> {
@@ -826,6 +855,13 @@ fn run_calibrate(a: &CalibrateArgs) -> anyhow::Result<ExitCode> {
     if a.files.iter().any(|f| f.as_os_str() == "-") {
         return Err(usage("calibrate reads files only (no `-`)"));
     }
+    if a.min_count < 5 {
+        return Err(usage(format!(
+            "--min-count {}: a bin needs at least 5 points to measure a mean and a spread",
+            a.min_count
+        )));
+    }
+    check_output_path(&a.out, &a.files, "--out")?;
     if let Some(n) = a.threads {
         rayon::ThreadPoolBuilder::new()
             .num_threads(n.get())

@@ -138,6 +138,13 @@ impl CalibrationTable {
             count: f.count.into_iter().flatten().collect(),
         };
         table.validate().map_err(|e| format!("depth table: {e}"))?;
+        let ok = |d: f64| d.is_finite() && d > 0.0;
+        if !(ok(f.known_d_max_mm) && ok(f.known_d_min_mm) && f.known_d_min_mm <= f.known_d_max_mm) {
+            return Err(format!(
+                "depth table: known diameters {} / {} mm: need 0 < Dmin ≤ Dmax",
+                f.known_d_max_mm, f.known_d_min_mm
+            ));
+        }
         Ok(Self {
             table,
             known: (f.known_d_max_mm * 1e-3, f.known_d_min_mm * 1e-3),
@@ -146,18 +153,23 @@ impl CalibrationTable {
         })
     }
 
-    /// Read a table file.
+    /// Read a table file: a regular file of at most 64 MiB.
     pub fn read(path: &Path) -> Result<Self, String> {
-        let meta = std::fs::metadata(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        if meta.len() > 64 << 20 {
-            return Err(format!(
-                "{}: {} bytes is too large for a depth table (at most 64 MiB)",
-                path.display(),
-                meta.len()
-            ));
+        use std::io::Read;
+        const MAX: u64 = 64 << 20;
+        let name = path.display();
+        let meta = std::fs::metadata(path).map_err(|e| format!("{name}: {e}"))?;
+        if !meta.is_file() {
+            return Err(format!("{name}: not a regular file"));
         }
-        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        Self::from_json(&text).map_err(|e| format!("{}: {e}", path.display()))
+        let mut text = String::new();
+        std::fs::File::open(path)
+            .and_then(|f| f.take(MAX + 1).read_to_string(&mut text))
+            .map_err(|e| format!("{name}: {e}"))?;
+        if text.len() as u64 > MAX {
+            return Err(format!("{name}: larger than 64 MiB: not a depth table"));
+        }
+        Self::from_json(&text).map_err(|e| format!("{name}: {e}"))
     }
 }
 

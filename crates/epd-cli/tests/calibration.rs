@@ -177,6 +177,86 @@ fn calibration_refuses_what_it_cannot_use() {
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(err.contains("--calibration"), "{err}");
     }
+    // Crafted tables found by an attack: offsets of 1e308 mm or 10 m, a zero spread, a
+    // negative range: refused (exit 2), never a panic or an allocation of terabytes.
+    let good = {
+        let rig = simulate(&dir.path().join("rig"), "3", "2", "9.5", "0");
+        let o = epd()
+            .arg("calibrate")
+            .args(&rig)
+            .args(["--known-id-mm", "489.0", "--out"])
+            .arg(&lut)
+            .output()
+            .unwrap();
+        ok(&o);
+        std::fs::read_to_string(&lut).unwrap()
+    };
+    let table: serde_json::Value = serde_json::from_str(&good).unwrap();
+    let set_all = |key: &str, v: f64| {
+        let mut t = table.clone();
+        for row in t[key].as_array_mut().unwrap() {
+            for x in row.as_array_mut().unwrap() {
+                *x = serde_json::json!(v);
+            }
+        }
+        t.to_string()
+    };
+    let mut lo_negative = table.clone();
+    lo_negative["range_m"]["lo"] = serde_json::json!(-5.0);
+    for (text, says) in [
+        (set_all("offset_mm", 1e308), "not a depth error"),
+        (set_all("offset_mm", 1e4), "not a depth error"),
+        (set_all("spread_mm", 0.0), "spread"),
+        (lo_negative.to_string(), "range axis"),
+    ] {
+        std::fs::write(&lut, text).unwrap();
+        let o = epd()
+            .args(["estimate", "--calibration"])
+            .arg(&lut)
+            .arg(&csv)
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(2));
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(says), "{says}: {err}");
+    }
+    // Not a regular file: refused without reading (/dev/zero would never end).
+    let o = epd()
+        .args(["estimate", "--calibration", "/dev/zero"])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("not a regular file"));
+    // Outputs that would replace a link or an input: refused.
+    #[cfg(unix)]
+    {
+        let target = dir.path().join("target.json");
+        std::fs::write(&target, "keep").unwrap();
+        let link = dir.path().join("link.json");
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        let o = epd()
+            .args(["calibrate", "--known-id-mm", "489"])
+            .arg(&csv)
+            .arg("--out")
+            .arg(&link)
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(2));
+        assert!(String::from_utf8_lossy(&o.stderr).contains("not a regular file"));
+        assert_eq!(std::fs::read_to_string(&target).unwrap(), "keep");
+        assert!(link.is_symlink());
+    }
+    let o = epd()
+        .arg("estimate")
+        .arg(&csv)
+        .arg("-o")
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("also an input"));
+    assert!(std::fs::read_to_string(&csv).unwrap().starts_with("x,y,z"));
     // --unweighted means nothing without a table.
     let o = epd()
         .args(["estimate", "--unweighted"])

@@ -385,6 +385,10 @@ impl DepthTable {
                 continue;
             }
             let (mean, spread) = clipped_mean(v);
+            if !(spread > 0.0) {
+                // All offsets alike: too few distinct points to know the noise there.
+                continue;
+            }
             offset_m[k] = mean;
             spread_m[k] = spread;
             count[k] = v.len() as u64;
@@ -392,8 +396,8 @@ impl DepthTable {
         let filled: Vec<usize> = (0..cells).filter(|&k| count[k] > 0).collect();
         if filled.is_empty() {
             return Err(EpdError::InvalidOption(format!(
-                "no bin of the depth table holds {} observations: record more frames or use \
-                 fewer bins",
+                "no bin of the depth table holds {} observations with a spread: record more \
+                 frames or use fewer bins",
                 bins.min_count.max(1)
             )));
         }
@@ -457,18 +461,39 @@ impl DepthTable {
                 self.count.len()
             )));
         }
-        if let Some(k) = self.offset_m.iter().position(|v| !v.is_finite()) {
+        if !(self.range.lo >= 0.0 && self.range.hi <= MAX_TABLE_RANGE_M) {
             return Err(EpdError::InvalidOption(format!(
-                "depth table: offset of bin {k} is not a finite number"
+                "depth table: range axis [{}, {}] m: a ToF camera's ranges lie in [0, {MAX_TABLE_RANGE_M}] m",
+                self.range.lo, self.range.hi
+            )));
+        }
+        if !(self.log_intensity.hi - self.log_intensity.lo <= 100.0) {
+            return Err(EpdError::InvalidOption(format!(
+                "depth table: log-intensity axis [{}, {}] spans more than e^100",
+                self.log_intensity.lo, self.log_intensity.hi
+            )));
+        }
+        if let Some(k) = self
+            .offset_m
+            .iter()
+            .position(|v| !(v.is_finite() && v.abs() <= MAX_OFFSET_M))
+        {
+            return Err(EpdError::InvalidOption(format!(
+                "depth table: offset {} mm of bin {k} is not a depth error (at most ±{} mm)",
+                self.offset_m[k] * 1e3,
+                MAX_OFFSET_M * 1e3
             )));
         }
         if let Some(k) = self
             .spread_m
             .iter()
-            .position(|v| !(v.is_finite() && *v >= 0.0))
+            .position(|v| !(v.is_finite() && *v > 0.0 && *v <= MAX_OFFSET_M))
         {
             return Err(EpdError::InvalidOption(format!(
-                "depth table: spread of bin {k} is not a finite number ≥ 0"
+                "depth table: spread {} mm of bin {k} is not a random error's σ (need > 0 and \
+                 at most {} mm)",
+                self.spread_m[k] * 1e3,
+                MAX_OFFSET_M * 1e3
             )));
         }
         Ok(())
@@ -523,9 +548,11 @@ impl DepthTable {
     /// the table's systematic error carries to its measured range r
     /// ([`true_range`](Self::true_range)): x̂ ← x̂·ρ/r. Looking the offset up at r
     /// itself would read the table a whole offset (centimetres) away from where it was
-    /// measured. Zero and non-finite points (invalid pixels) are left as they are, and
-    /// so is a point the correction would carry through the sensor. Returns how many
-    /// points were moved.
+    /// measured. Zero and non-finite points (invalid pixels) are left as they are. A
+    /// valid point that cannot be corrected — its intensity is not a finite number > 0
+    /// (cameras write 0 for invalid pixels), or the correction would carry it through
+    /// the sensor — becomes NaN, so the estimators drop and count it: an uncorrected
+    /// point among corrected ones is a biased one. Returns how many points were moved.
     pub fn correct(&self, points: &mut [[f64; 3]], intensity: &[f64]) -> Result<usize, EpdError> {
         if points.len() != intensity.len() {
             return Err(EpdError::InvalidOption(format!(
@@ -573,15 +600,21 @@ impl DepthTable {
                     continue;
                 }
                 let r = norm(p);
-                let li = log_of(i);
-                let rho = inverse.true_range(r, li);
-                let f = rho / r;
-                if f > 0.0 && f.is_finite() {
-                    *p = [p[0] * f, p[1] * f, p[2] * f];
-                    moved += 1;
+                let f = if i > 0.0 && i.is_finite() {
+                    inverse.true_range(r, i.ln()) / r
+                } else {
+                    f64::NAN
+                };
+                if !(f > 0.0 && f.is_finite()) {
+                    // No intensity to look up, or a correction through the sensor: the
+                    // point cannot be corrected, and an uncorrected point is biased.
+                    *p = [f64::NAN; 3];
+                    continue;
                 }
+                *p = [p[0] * f, p[1] * f, p[2] * f];
+                moved += 1;
                 if let Some(s) = ss.as_deref_mut() {
-                    s[k] = self.interpolate(&self.spread_m, norm(p), li);
+                    s[k] = self.interpolate(&self.spread_m, r * f, i.ln());
                 }
             }
             moved
@@ -613,7 +646,12 @@ impl DepthTable {
         let w = self.range.width();
         let lo = self.range.lo + tmin - w;
         let hi = self.range.hi + tmax + w;
-        let n = ((hi - lo) / w * INVERSE_STEPS as f64).ceil().max(1.0) as usize + 1;
+        let nodes = ((hi - lo) / w * INVERSE_STEPS as f64).ceil();
+        let n = if nodes.is_finite() {
+            (nodes.max(1.0) as usize).min(MAX_INVERSE_NODES) + 1
+        } else {
+            MAX_INVERSE_NODES + 1
+        };
         let step = (hi - lo) / (n - 1) as f64;
         let li_w = self.log_intensity.width();
         let mut rho = Vec::with_capacity(n * ni);
@@ -670,6 +708,16 @@ fn clipped_mean(v: &mut [f64]) -> (f64, f64) {
         (s / n as f64, spread)
     }
 }
+
+/// The largest systematic error a table may hold (m): a ToF camera's depth errors are
+/// millimetres to centimetres; a larger offset is a damaged or foreign table.
+pub const MAX_OFFSET_M: f64 = 0.5;
+
+/// The longest range a table may cover (m).
+pub const MAX_TABLE_RANGE_M: f64 = 100.0;
+
+/// Most nodes of the tabulated inverse.
+const MAX_INVERSE_NODES: usize = 1 << 16;
 
 /// Nodes per range bin of the tabulated inverse (see [`DepthTable::correct`]).
 const INVERSE_STEPS: usize = 8;
@@ -828,16 +876,18 @@ mod tests {
     fn empty_bins_take_the_nearest_filled_bin() {
         // Observations only in range bin 0 (intensity bin 0) and range bin 3 (bin 1).
         let mut obs = vec![];
-        for _ in 0..20 {
+        for k in 0..20 {
+            // ± 1 mm of noise about the bin's offset.
+            let e = if k % 2 == 0 { 0.001 } else { -0.001 };
             obs.push(Observation {
                 model_range_m: 0.6,
                 intensity: 1.5,
-                offset_m: 0.01,
+                offset_m: 0.01 + e,
             });
             obs.push(Observation {
                 model_range_m: 1.9,
                 intensity: 3f64.exp(),
-                offset_m: -0.02,
+                offset_m: -0.02 + e,
             });
         }
         let t = DepthTable::build(&obs, &bins(4, 2)).unwrap();
@@ -845,7 +895,7 @@ mod tests {
         // Row 0: bin (0, 1) from (0, 0); row 3: (3, 0) from (3, 1); the empty rows 1
         // and 2 from their nearest filled rows, 0 and 3.
         let (a, b) = (t.offset_m[0], t.offset_m[7]);
-        assert!((a - 0.01).abs() < 1e-15 && (b + 0.02).abs() < 1e-15);
+        assert!((a - 0.01).abs() < 1e-12 && (b + 0.02).abs() < 1e-12);
         assert_eq!(&t.offset_m[..4], &[a, a, a, a]);
         assert_eq!(&t.offset_m[4..], &[b, b, b, b]);
         assert!(t.validate().is_ok());
@@ -860,7 +910,7 @@ mod tests {
             .map(|k| Observation {
                 model_range_m: 0.5 + 1.5 * k as f64 / 100.0,
                 intensity: 10.0,
-                offset_m: 0.02,
+                offset_m: 0.02 + if k % 2 == 0 { 0.001 } else { -0.001 },
             })
             .collect();
         let b = TableBins {
@@ -881,6 +931,10 @@ mod tests {
         let r0 = norm(&before[0]);
         assert!((norm(&pts[0]) - (r0 - 0.02)).abs() < 1e-12);
         assert!((t.true_range(1.3, 10.0) - 1.28).abs() < 1e-12);
+        // Without a usable intensity a valid point cannot be corrected: it becomes NaN.
+        let mut q = [[1.0, 0.2, -0.1], [1.0, 0.1, 0.1]];
+        assert_eq!(t.correct(&mut q, &[0.0, f64::NAN]).unwrap(), 0);
+        assert!(q.iter().all(|p| p[0].is_nan()));
         // Same direction.
         let c = (0..3).map(|k| pts[0][k] * before[0][k]).sum::<f64>() / (norm(&pts[0]) * r0);
         assert!((c - 1.0).abs() < 1e-12);
@@ -939,7 +993,7 @@ mod tests {
             .map(|k| Observation {
                 model_range_m: 0.5 + 1.5 * k as f64 / 100.0,
                 intensity: 10.0,
-                offset_m: 0.0,
+                offset_m: if k % 2 == 0 { 0.001 } else { -0.001 },
             })
             .collect();
         let mut t = DepthTable::build(
@@ -953,6 +1007,32 @@ mod tests {
         t.offset_m.pop();
         assert!(t.validate().unwrap_err().to_string().contains("offsets"));
         t.offset_m.push(f64::NAN);
-        assert!(t.validate().unwrap_err().to_string().contains("finite"));
+        assert!(
+            t.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("not a depth error")
+        );
+        *t.offset_m.last_mut().unwrap() = 1e300;
+        assert!(
+            t.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("not a depth error")
+        );
+        *t.offset_m.last_mut().unwrap() = 0.0;
+        t.spread_m[0] = 0.0;
+        assert!(t.validate().unwrap_err().to_string().contains("spread"));
+        t.spread_m[0] = 0.01;
+        t.range.lo = -5.0;
+        assert!(t.validate().unwrap_err().to_string().contains("range axis"));
+        t.range.lo = 0.5;
+        t.log_intensity.hi = 1e308;
+        assert!(
+            t.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("log-intensity")
+        );
     }
 }
