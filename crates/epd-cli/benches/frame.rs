@@ -37,6 +37,8 @@ fn frame(pipe: &Pipe, k: u64) -> tof_sim::Frame {
 }
 
 fn bench(c: &mut Criterion) {
+    // As `epd` does at start-up.
+    epd_cli::keep_freed_memory();
     let options = EstimateOptions::default()
         .with_loss(Loss::from_name("cauchy", 0.05).expect("loss"))
         .expect("loss")

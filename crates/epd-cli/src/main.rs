@@ -1082,6 +1082,7 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
 }
 
 fn main() -> ExitCode {
+    epd_cli::keep_freed_memory();
     let cli = match Cli::try_parse() {
         Ok(c) => c,
         // Help and version exit 0, usage errors 2 (clap's codes); a closed stdout while
