@@ -342,14 +342,15 @@ fn usage(msg: impl Into<String>) -> anyhow::Error {
     anyhow::Error::new(Usage(msg.into()))
 }
 
-/// Refuse an output path that exists but is not a regular file (a device, a link, a
-/// folder: the atomic write would replace it), or that names one of the inputs.
+/// Refuse an output path that exists but is not a regular file or a link (a device, a
+/// pipe, a folder: the atomic write would replace it), or that names one of the inputs.
 fn check_output_path(out: &Path, inputs: &[PathBuf], flag: &str) -> anyhow::Result<()> {
     let shown = out.display();
+    // A link is replaced, never followed (a planted link cannot redirect the write).
     match std::fs::symlink_metadata(out) {
-        Ok(m) if !m.file_type().is_file() => {
+        Ok(m) if !m.file_type().is_file() && !m.file_type().is_symlink() => {
             return Err(usage(format!(
-                "{flag} {shown}: exists and is not a regular file (a link, device or folder); \
+                "{flag} {shown}: exists and is not a regular file (a device, pipe or folder); \
                  the result replaces the file at that path, so name a new or regular file"
             )));
         }
