@@ -228,25 +228,19 @@ fn calibration_refuses_what_it_cannot_use() {
         .unwrap();
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("not a regular file"));
-    // Outputs that would replace a link or an input: refused.
-    #[cfg(unix)]
-    {
-        let target = dir.path().join("target.json");
-        std::fs::write(&target, "keep").unwrap();
-        let link = dir.path().join("link.json");
-        std::os::unix::fs::symlink(&target, &link).unwrap();
-        let o = epd()
-            .args(["calibrate", "--known-id-mm", "489"])
-            .arg(&csv)
-            .arg("--out")
-            .arg(&link)
-            .output()
-            .unwrap();
-        assert_eq!(o.status.code(), Some(2));
-        assert!(String::from_utf8_lossy(&o.stderr).contains("not a regular file"));
-        assert_eq!(std::fs::read_to_string(&target).unwrap(), "keep");
-        assert!(link.is_symlink());
-    }
+    // Outputs that would replace a device, a pipe or a folder, or an input: refused.
+    let folder = dir.path().join("folder");
+    std::fs::create_dir(&folder).unwrap();
+    let o = epd()
+        .args(["calibrate", "--known-id-mm", "489"])
+        .arg(&csv)
+        .arg("--out")
+        .arg(&folder)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("not a regular file"));
+    assert!(folder.is_dir());
     let o = epd()
         .arg("estimate")
         .arg(&csv)
