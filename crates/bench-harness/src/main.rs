@@ -101,6 +101,21 @@ fn start_workers(threads: Option<NonZeroUsize>) -> Result<(), ExitCode> {
     Ok(())
 }
 
+/// Print why a run failed and give its exit code: 2 for a refused output folder or
+/// scenario (nothing written), 130 when interrupted, 1 otherwise.
+fn failed(e: &anyhow::Error, name: &str) -> ExitCode {
+    if e.downcast_ref::<OutputRefused>().is_some() || e.downcast_ref::<ScenarioError>().is_some() {
+        eprintln!("error: {e}");
+        ExitCode::from(2)
+    } else if e.downcast_ref::<Interrupted>().is_some() {
+        eprintln!("{name}: {e}");
+        ExitCode::from(130)
+    } else {
+        eprintln!("error: {e:#}");
+        ExitCode::FAILURE
+    }
+}
+
 /// A pipeline run (a scenario with a `[pipeline]` table).
 fn run_pipeline_main(cli: &Cli, path: &Path, text: &str) -> ExitCode {
     let scenario = match PipelineScenario::parse(path, text) {
@@ -144,18 +159,7 @@ fn run_pipeline_main(cli: &Cli, path: &Path, text: &str) -> ExitCode {
             }
             ExitCode::SUCCESS
         }
-        Err(e) if e.downcast_ref::<OutputRefused>().is_some() => {
-            eprintln!("error: {e}");
-            ExitCode::from(2)
-        }
-        Err(e) if e.downcast_ref::<Interrupted>().is_some() => {
-            eprintln!("{}: {e}", scenario.name);
-            ExitCode::from(130)
-        }
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            ExitCode::FAILURE
-        }
+        Err(e) => failed(&e, &scenario.name),
     }
 }
 
@@ -236,20 +240,6 @@ fn main() -> ExitCode {
             }
             ExitCode::SUCCESS
         }
-        Err(e)
-            if e.downcast_ref::<OutputRefused>().is_some()
-                || e.downcast_ref::<ScenarioError>().is_some() =>
-        {
-            eprintln!("error: {e}");
-            ExitCode::from(2)
-        }
-        Err(e) if e.downcast_ref::<Interrupted>().is_some() => {
-            eprintln!("{}: {e}", scenario.name);
-            ExitCode::from(130)
-        }
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            ExitCode::FAILURE
-        }
+        Err(e) => failed(&e, &scenario.name),
     }
 }

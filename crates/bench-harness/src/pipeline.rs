@@ -26,6 +26,7 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use anyhow::Context;
+use epd_cli::table::CalibrationTable;
 use epd_core::calibration::{CalibrationFrame, CalibrationSettings};
 use epd_core::{
     DepthTable, EstimateOptions, Loss, LossScale, Method, Params, cramer_rao_bound_weighted,
@@ -967,11 +968,11 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
     files.push(write_new(&dir.join("scenario.toml"), s.source.as_bytes())?);
     files.push(write_new(
         &dir.join("depth_table.json"),
-        table_json(&table, s).as_bytes(),
+        table_file(&table, n_obs, s).to_json().as_bytes(),
     )?);
     files.extend(crate::plots::plot_pipeline(
         s,
-        &profile_points(s, &rows),
+        &profile_points(&rows),
         &sections,
         dir,
     )?);
@@ -1004,31 +1005,15 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
     })
 }
 
-/// The depth table as JSON (the format `epd calibrate` writes, without its reader's
-/// checks: the harness does not depend on epd-cli).
-fn table_json(t: &DepthTable, s: &PipelineScenario) -> String {
-    let ni = t.log_intensity.n;
-    let rows = |v: &[f64]| -> Vec<Vec<f64>> {
-        v.chunks(ni)
-            .map(|c| c.iter().map(|x| x * 1e3).collect())
-            .collect()
-    };
-    let counts: Vec<Vec<u64>> = t.count.chunks(ni).map(|c| c.to_vec()).collect();
-    serde_json::to_string_pretty(&serde_json::json!({
-        "format": "epd-depth-table",
-        "version": 1,
-        "known_d_max_mm": s.rig.d_max() * 1e3,
-        "known_d_min_mm": s.rig.d_min() * 1e3,
-        "frames": s.rig_frames,
-        "n_observations": t.count.iter().sum::<u64>(),
-        "range_m": { "lo": t.range.lo, "hi": t.range.hi, "bins": t.range.n },
-        "log_intensity": { "lo": t.log_intensity.lo, "hi": t.log_intensity.hi, "bins": ni },
-        "empty_bins": "nearest filled bin of the same range row, else the nearest filled row",
-        "offset_mm": rows(&t.offset_m),
-        "spread_mm": rows(&t.spread_m),
-        "count": counts,
-    }))
-    .unwrap_or_default()
+/// The depth table in the file format of `epd calibrate` (`epd estimate --calibration`
+/// reads it).
+fn table_file(t: &DepthTable, n_obs: usize, s: &PipelineScenario) -> CalibrationTable {
+    CalibrationTable {
+        table: t.clone(),
+        known: (s.rig.d_max(), s.rig.d_min()),
+        frames: s.rig_frames,
+        n_observations: n_obs as u64,
+    }
 }
 
 /// Per-frame values for the figures.
@@ -1048,7 +1033,7 @@ pub struct ProfilePoint {
     pub d_mm: Option<(f64, f64)>,
 }
 
-fn profile_points(_s: &PipelineScenario, rows: &[Row]) -> Vec<ProfilePoint> {
+fn profile_points(rows: &[Row]) -> Vec<ProfilePoint> {
     rows.iter()
         .map(|r| ProfilePoint {
             section: r.section,

@@ -577,6 +577,7 @@ pub fn plot_pipeline(
     out: &Path,
 ) -> anyhow::Result<Vec<PathBuf>> {
     use crate::pipeline::METHODS;
+    use tof_sim::Pipe;
     let name = &s.name;
     let mut files = Vec::new();
     let pick = |si: usize, m: &'static str, cal: bool| {
@@ -719,22 +720,22 @@ pub fn plot_pipeline(
         &panels,
     )?);
     // Profile along the distance: mean diameter and ovality, with the table.
-    let nominal: Vec<Series> = s
-        .sections
-        .iter()
-        .map(|sec| {
-            let x1 = sec.start_m + (s.frames_per_section as f64 - 1.0) * s.frame_spacing_m;
-            let y = sec.pipe.inner_diameter() * 1e3;
-            Series {
-                name: format!("nominal ID {}", sec.name),
-                colour: grey,
-                points: vec![(sec.start_m, y, y, y), (x1, y, y, y)],
-                bars: false,
-                marker_triangle: false,
-                dashed: true,
-            }
-        })
-        .collect();
+    // A dashed line over each section's stretch of the distance.
+    let per_section = |label: &str, y: fn(&Pipe) -> f64| -> Vec<Series> {
+        s.sections
+            .iter()
+            .map(|sec| {
+                let x1 = sec.start_m + (s.frames_per_section as f64 - 1.0) * s.frame_spacing_m;
+                reference(
+                    &format!("{label} {}", sec.name),
+                    (sec.start_m, x1),
+                    y(&sec.pipe),
+                    grey,
+                )
+            })
+            .collect()
+    };
+    let nominal = per_section("nominal ID", |p| p.inner_diameter() * 1e3);
     // Along the distance, with a break (NaN) between sections.
     let along = |m: &str, f: fn((f64, f64)) -> f64| -> Vec<(f64, f64, f64, f64)> {
         let mut v = Vec::new();
@@ -755,22 +756,7 @@ pub fn plot_pipeline(
         v
     };
     let mut dmean = nominal;
-    let mut oval: Vec<Series> = s
-        .sections
-        .iter()
-        .map(|sec| {
-            let x1 = sec.start_m + (s.frames_per_section as f64 - 1.0) * s.frame_spacing_m;
-            let y = sec.pipe.ovality * 100.0;
-            Series {
-                name: format!("true ovality {}", sec.name),
-                colour: grey,
-                points: vec![(sec.start_m, y, y, y), (x1, y, y, y)],
-                bars: false,
-                marker_triangle: false,
-                dashed: true,
-            }
-        })
-        .collect();
+    let mut oval = per_section("true ovality", |p| p.ovality * 100.0);
     for m in METHODS {
         dmean.push(Series {
             name: m.to_uppercase(),

@@ -600,21 +600,18 @@ impl DepthTable {
                     continue;
                 }
                 let r = norm(p);
-                let f = if i > 0.0 && i.is_finite() {
-                    inverse.true_range(r, i.ln()) / r
-                } else {
-                    f64::NAN
-                };
-                if !(f > 0.0 && f.is_finite()) {
+                let li = (i > 0.0 && i.is_finite()).then(|| i.ln());
+                let f = li.map_or(f64::NAN, |li| inverse.true_range(r, li) / r);
+                let (Some(li), true) = (li, f > 0.0 && f.is_finite()) else {
                     // No intensity to look up, or a correction through the sensor: the
                     // point cannot be corrected, and an uncorrected point is biased.
                     *p = [f64::NAN; 3];
                     continue;
-                }
+                };
                 *p = [p[0] * f, p[1] * f, p[2] * f];
                 moved += 1;
                 if let Some(s) = ss.as_deref_mut() {
-                    s[k] = self.interpolate(&self.spread_m, r * f, i.ln());
+                    s[k] = self.interpolate(&self.spread_m, r * f, li);
                 }
             }
             moved
