@@ -249,8 +249,9 @@ impl Axis {
         if f >= last {
             return (self.n - 1, self.n - 1, 0.0);
         }
-        let k = f.floor();
-        (k as usize, k as usize + 1, f - k)
+        // f ∈ (0, n − 1): truncation is the floor (and no libm call).
+        let k = f as usize;
+        (k, k + 1, f - k as f64)
     }
 }
 
@@ -749,9 +750,10 @@ impl Inverse {
         if f >= last {
             return r - (self.lo + last * self.step - at(self.n - 1));
         }
-        let k = f.floor();
-        let (a, b) = (at(k as usize), at(k as usize + 1));
-        a + (b - a) * (f - k)
+        // f ∈ (0, n − 1): truncation is the floor.
+        let k = f as usize;
+        let (a, b) = (at(k), at(k + 1));
+        a + (b - a) * (f - k as f64)
     }
 }
 

@@ -2,6 +2,8 @@
 
 use std::borrow::Cow;
 
+use rayon::prelude::*;
+
 /// Measured points (SCS, m) with the unusable ones removed.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct CleanCloud<'a> {
@@ -19,13 +21,13 @@ fn usable(p: &[f64; 3]) -> bool {
 /// zeros or NaN for invalid pixels); count the others. Borrows the input when every
 /// point is usable, so a clean frame is not copied.
 pub fn clean(points: &[[f64; 3]]) -> CleanCloud<'_> {
-    if points.iter().all(usable) {
+    if points.par_iter().all(usable) {
         return CleanCloud {
             points: Cow::Borrowed(points),
             dropped: 0,
         };
     }
-    let kept: Vec<[f64; 3]> = points.iter().copied().filter(usable).collect();
+    let kept: Vec<[f64; 3]> = points.par_iter().copied().filter(usable).collect();
     CleanCloud {
         dropped: points.len() - kept.len(),
         points: Cow::Owned(kept),
@@ -49,7 +51,7 @@ pub struct CleanWeighted {
 /// counted).
 pub fn clean_weighted(points: &[[f64; 3]], sigma: &[f64]) -> CleanWeighted {
     let (kept_points, kept_sigma): (Vec<[f64; 3]>, Vec<f64>) = points
-        .iter()
+        .par_iter()
         .zip(sigma)
         .filter(|(p, s)| usable(p) && s.is_finite() && **s > 0.0)
         .map(|(p, s)| (*p, *s))

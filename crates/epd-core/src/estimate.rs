@@ -5,6 +5,7 @@ use std::fmt;
 use std::str::FromStr;
 
 use nalgebra::{DMatrix, SMatrix, SVector};
+use rayon::prelude::*;
 
 use crate::check::{Diagnostics, FitStatus, assess};
 use crate::cloud::{CleanWeighted, clean, clean_weighted};
@@ -311,12 +312,14 @@ pub fn estimate_weighted(
 }
 
 /// The usable pairs of `points` and `sigma` and their scales sᵢ = σ̃/σᵢ with σ̃ the
-/// median of the kept σᵢ (returned beside them).
+/// median of the kept σᵢ (of an even subsample of at most `TYPICAL_SIGMA_POINTS` of
+/// them: σ̃ only sets the units of the scaled residuals), returned beside them.
 fn weighted_cloud(points: &[[f64; 3]], sigma: &[f64]) -> (CleanWeighted, Vec<f64>, f64) {
     let cloud = clean_weighted(points, sigma);
-    let mut sorted = cloud.sigma.clone();
+    let stride = cloud.sigma.len().div_ceil(TYPICAL_SIGMA_POINTS).max(1);
+    let mut sorted: Vec<f64> = cloud.sigma.iter().step_by(stride).copied().collect();
     let typical = crate::check::quantile(&mut sorted, 0.5);
-    let scales = cloud.sigma.iter().map(|s| typical / s).collect();
+    let scales = cloud.sigma.par_iter().map(|s| typical / s).collect();
     (cloud, scales, typical)
 }
 
@@ -326,6 +329,9 @@ struct View<'a> {
     points: &'a [[f64; 3]],
     scales: Option<&'a [f64]>,
 }
+
+/// Most σᵢ of the median σ̃ in [`weighted_cloud`].
+const TYPICAL_SIGMA_POINTS: usize = 1 << 16;
 
 /// Points of the first fit of a range gate (see [`estimate_view`]).
 const GATE_PROBE_POINTS: usize = 32_768;
@@ -356,12 +362,16 @@ impl<'a> View<'a> {
         self.scales.map_or(1.0, |s| s[i])
     }
 
-    /// The points for which `keep` holds, with their scales.
-    fn select(&self, keep: impl Fn(&[f64; 3]) -> bool) -> Selection {
-        let idx: Vec<usize> = (0..self.len()).filter(|&i| keep(&self.points[i])).collect();
+    /// The points for which `keep` holds, with their scales, in their order (the
+    /// test runs on all cores).
+    fn select(&self, keep: impl Fn(&[f64; 3]) -> bool + Sync) -> Selection {
+        let idx: Vec<usize> = (0..self.len())
+            .into_par_iter()
+            .filter(|&i| keep(&self.points[i]))
+            .collect();
         Selection {
-            points: idx.iter().map(|&i| self.points[i]).collect(),
-            scales: self.scales.map(|s| idx.iter().map(|&i| s[i]).collect()),
+            points: idx.par_iter().map(|&i| self.points[i]).collect(),
+            scales: self.scales.map(|s| idx.par_iter().map(|&i| s[i]).collect()),
         }
     }
 
@@ -392,15 +402,16 @@ fn estimate_view(
         return fit_cloud(cloud, n_dropped, 0, method, options, None);
     };
     let range = |p: &[f64; 3]| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-    let measured = cloud.select(|p| (lo..=hi).contains(&range(p)));
-    // The first fit only chooses the points and the start of the final one: an even
-    // subsample of at most GATE_PROBE_POINTS does (its parameters are within a few of
-    // the final fit's standard deviations, far below the gate's resolution).
-    let stride = measured.points.len().div_ceil(GATE_PROBE_POINTS).max(1);
+    // The first fit only chooses the points and the start of the final one: the points
+    // of an even subsample (at most GATE_PROBE_POINTS of the cloud) whose measured range
+    // is in the gate do (its parameters are within a few of the final fit's standard
+    // deviations, far below the gate's resolution).
+    let stride = cloud.len().div_ceil(GATE_PROBE_POINTS).max(1);
+    let in_gate = |p: &[f64; 3]| (lo..=hi).contains(&range(p));
     let probe = if stride > 1 {
-        measured.view().strided(stride)
+        cloud.strided(stride).view().select(in_gate)
     } else {
-        measured
+        cloud.select(in_gate)
     };
     let first = fit_cloud(probe.view(), n_dropped, 0, method, options, None)?;
     let geom = Geometry::new(&first.params).ok_or_else(|| {
