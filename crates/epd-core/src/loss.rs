@@ -133,8 +133,9 @@ pub fn ln_1p_nonneg(q: f64) -> f64 {
     /// The bits of √½: mantissas from it upward map to exponent k.
     const SQRT_HALF_BITS: u64 = 0x3fe6_a09e_667f_3bcd;
     const ONE_BITS: u64 = 0x3ff0_0000_0000_0000;
-    const LN2_HI: f64 = 6.931_471_803_691_238_2e-1;
-    const LN2_LO: f64 = 1.908_214_929_270_587_7e-10;
+    // ln 2 = LN2_HI + LN2_LO, the high part with its low 32 bits zero (fdlibm's split).
+    const LN2_HI: f64 = f64::from_bits(0x3fe6_2e42_fee0_0000);
+    const LN2_LO: f64 = f64::from_bits(0x3dea_39ef_3579_3c76);
     let x = 1.0 + q;
     let e = (q - (x - 1.0)) / x;
     let ix = x.to_bits().wrapping_add(ONE_BITS - SQRT_HALF_BITS);
