@@ -39,6 +39,7 @@ pub mod params;
 pub mod problem;
 pub mod report;
 pub mod residual;
+pub mod segment;
 pub mod symmetry;
 
 pub use calibration::{DepthTable, Observation, TableBins};

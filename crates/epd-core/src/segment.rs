@@ -1,0 +1,478 @@
+//! Where the straight pipe ends: a frame near a bend or a tee (the paper's §5, item 3).
+//!
+//! A robot approaching an elbow sees it metres ahead; fitted as one straight elliptic
+//! cylinder, the bend's points bias the estimate and nothing tells the user. [`segment`]
+//! fits the straight pipe, looks at how the points depart from it along the axis, and
+//! refits on the points before the departure.
+//!
+//! **How it decides.** The points are taken to the PCS of the straight fit (eq. 3) and
+//! each gets its radial deviation from the wall, d = ρ − ρ_w(ψ), with ρ, ψ the polar
+//! coordinates in the cross-section and ρ_w(ψ) the ellipse's radius there. The axis is
+//! cut into slices (5 cm) and each slice into angular sectors (30°); per sector the
+//! median deviation m_k, and per slice the least-squares fit m_k ≈ c₀ + c₁cos ψ_k +
+//! c₂sin ψ_k weighted by the medians' variances. c₀ is the slice's mean widening (what a
+//! range-dependent depth bias also produces), (c₁, c₂) its *lateral shift*: a straight
+//! pipe, however tilted, has none; a bend moves its tube toward its centre of curvature
+//! (the wall on that side out, the opposite wall in), a tee's opening lets the points on
+//! its side run outward. A slice departs when its shift exceeds `threshold_sigmas` of its
+//! own standard error and `min_shift_m`, in `persistence` consecutive slices. The
+//! departure is then located to the first departing slice's edge refined by the
+//! shift's growth (a bend's centreline leaves the axis as R_b − √(R_b² − s²) at an axial
+//! distance s past its start), the straight pipe refitted on the points before it (less
+//! a margin), and the test repeated with the new fit until the end stops moving.
+//!
+//! A bend and a tee differ on the far side: a bend pulls the opposite wall in (its
+//! sector's median goes negative with the shift), a tee leaves it on the cylinder.
+
+use nalgebra::{Point3, Vector3};
+
+use crate::check::quantile;
+use crate::cloud::clean;
+use crate::error::EpdError;
+use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
+use crate::params::Params;
+
+/// What the frame shows ahead of the sensor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// One straight pipe as far as the points reach.
+    Straight,
+    /// A straight pipe, then a bend.
+    BendAhead,
+    /// A straight pipe with a branch opening (a tee) ahead.
+    TeeAhead,
+    /// The sensor is already in a bend: no straight section in view.
+    InBend,
+}
+
+impl Layout {
+    /// The name in reports: `straight`, `bend_ahead`, `tee_ahead`, `in_bend`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Layout::Straight => "straight",
+            Layout::BendAhead => "bend_ahead",
+            Layout::TeeAhead => "tee_ahead",
+            Layout::InBend => "in_bend",
+        }
+    }
+}
+
+/// Settings of [`segment`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SegmentOptions {
+    /// Slice length along the axis (m).
+    pub slice_m: f64,
+    /// Angular sectors per slice (≥ 6).
+    pub sectors: usize,
+    /// Points a sector needs for its median to count.
+    pub min_points: usize,
+    /// A slice departs when its lateral shift exceeds this many of its standard errors…
+    pub threshold_sigmas: f64,
+    /// …and this shift (m).
+    pub min_shift_m: f64,
+    /// Consecutive departing slices that make a departure.
+    pub persistence: usize,
+    /// Points within this axial distance before the end are left out of the refit (m).
+    pub margin_m: f64,
+    /// Refits at most.
+    pub max_rounds: usize,
+}
+
+impl Default for SegmentOptions {
+    fn default() -> Self {
+        Self {
+            slice_m: 0.05,
+            sectors: 12,
+            min_points: 12,
+            threshold_sigmas: 6.0,
+            min_shift_m: 0.002,
+            persistence: 2,
+            margin_m: 0.03,
+            max_rounds: 4,
+        }
+    }
+}
+
+impl SegmentOptions {
+    /// An error naming the first field out of range.
+    pub fn validate(&self) -> Result<(), EpdError> {
+        let bad = |name: &str, v: f64, why: &str| {
+            Err(EpdError::InvalidOption(format!(
+                "segmentation {name} = {v}: {why}"
+            )))
+        };
+        if !(self.slice_m > 0.001 && self.slice_m <= 1.0) {
+            return bad("slice_m", self.slice_m, "must lie in (0.001, 1] m");
+        }
+        if !(6..=360).contains(&self.sectors) {
+            return bad("sectors", self.sectors as f64, "must lie in [6, 360]");
+        }
+        if self.min_points < 3 {
+            return bad("min_points", self.min_points as f64, "must be ≥ 3");
+        }
+        if !(self.threshold_sigmas > 0.0 && self.threshold_sigmas.is_finite()) {
+            return bad("threshold_sigmas", self.threshold_sigmas, "must be > 0");
+        }
+        if !(self.min_shift_m >= 0.0 && self.min_shift_m.is_finite()) {
+            return bad("min_shift_m", self.min_shift_m, "must be ≥ 0 m");
+        }
+        if self.persistence == 0 {
+            return bad("persistence", 0.0, "must be ≥ 1");
+        }
+        if !(self.margin_m >= 0.0 && self.margin_m.is_finite()) {
+            return bad("margin_m", self.margin_m, "must be ≥ 0 m");
+        }
+        if self.max_rounds == 0 {
+            return bad("max_rounds", 0.0, "must be ≥ 1");
+        }
+        Ok(())
+    }
+}
+
+/// One slice of the departure profile (PCS of the straight fit).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Slice {
+    /// Axial coordinate of the slice's near edge (m).
+    pub start_m: f64,
+    /// Points in the slice.
+    pub n_points: usize,
+    /// Sectors with enough points.
+    pub n_sectors: usize,
+    /// Mean radial deviation c₀ (m).
+    pub widening_m: f64,
+    /// Lateral shift (c₁, c₂) (m), toward +Y and +Z of the PCS.
+    pub shift_m: [f64; 2],
+    /// Standard error of the shift's length (m).
+    pub shift_se_m: f64,
+    /// Median deviation of the sector opposite the shift (m), NaN without points.
+    pub opposite_m: f64,
+}
+
+impl Slice {
+    /// The shift's length (m).
+    pub fn shift(&self) -> f64 {
+        self.shift_m[0].hypot(self.shift_m[1])
+    }
+
+    /// The shift's direction in the cross-section: the angle from +Y toward +Z (rad).
+    pub fn direction(&self) -> f64 {
+        self.shift_m[1].atan2(self.shift_m[0])
+    }
+
+    /// Whether the shift is significant under `o`.
+    pub fn departs(&self, o: &SegmentOptions) -> bool {
+        let s = self.shift();
+        self.n_sectors >= 6 && s > o.min_shift_m && s > o.threshold_sigmas * self.shift_se_m
+    }
+}
+
+/// A frame split into its straight section and what lies beyond.
+#[derive(Clone, Debug)]
+pub struct Segmentation {
+    /// What lies ahead.
+    pub layout: Layout,
+    /// Axial distance (PCS x, m) from the sensor to the end of the straight section;
+    /// `None` when the straight section runs out of view or no straight section is in
+    /// view.
+    pub straight_until: Option<f64>,
+    /// The straight section's estimate, on its points only.
+    pub straight: Estimate,
+    /// Clean points beyond the straight section's end (its bend or tee), in the SCS.
+    pub beyond: Vec<[f64; 3]>,
+    /// Direction of the departure in the straight fit's cross-section: the angle from
+    /// the PCS +Y (major) axis toward +Z (rad); for a bend, toward its centre of
+    /// curvature; for a tee, toward its branch.
+    pub direction: Option<f64>,
+    /// A first bend radius (m) from the departure's growth (see [`locate_end`]), `None`
+    /// without a departure or growth.
+    pub radius_guess: Option<f64>,
+    /// The departure profile of the last round.
+    pub profile: Vec<Slice>,
+    /// Fits made.
+    pub rounds: usize,
+}
+
+/// Radial deviation of a PCS point from the wall of `beta` and its polar angle ψ
+/// (from +Y toward +Z): d = ρ − ab/√((b cos ψ)² + (a sin ψ)²).
+fn deviation(beta: &Params, p: &Point3<f64>) -> (f64, f64) {
+    let (a, b) = (0.5 * beta.d_max, 0.5 * beta.d_min);
+    let psi = p.z.atan2(p.y);
+    let rho = p.y.hypot(p.z);
+    let wall = a * b / ((b * psi.cos()).powi(2) + (a * psi.sin()).powi(2)).sqrt();
+    (rho - wall, psi)
+}
+
+/// The departure profile of `points` (SCS, clean) against the straight fit `beta`.
+pub fn profile(points: &[[f64; 3]], beta: &Params, o: &SegmentOptions) -> Vec<Slice> {
+    let pcs: Vec<(f64, f64, f64)> = points
+        .iter()
+        .map(|p| {
+            let q = beta.scs_to_pcs(&Point3::new(p[0], p[1], p[2]));
+            let (d, psi) = deviation(beta, &q);
+            (q.x, d, psi)
+        })
+        .filter(|(x, d, _)| x.is_finite() && d.is_finite())
+        .collect();
+    let Some(x_max) = pcs.iter().map(|v| v.0).reduce(f64::max) else {
+        return Vec::new();
+    };
+    let x_min = pcs.iter().map(|v| v.0).fold(f64::INFINITY, f64::min).max(0.0);
+    if !(x_max > x_min) {
+        return Vec::new();
+    }
+    let n_slices = (((x_max - x_min) / o.slice_m).ceil() as usize).clamp(1, 100_000);
+    let ns = o.sectors;
+    let mut cells: Vec<Vec<f64>> = vec![Vec::new(); n_slices * ns];
+    let tau = std::f64::consts::TAU;
+    for &(x, d, psi) in &pcs {
+        if x < x_min {
+            continue;
+        }
+        let i = (((x - x_min) / o.slice_m) as usize).min(n_slices - 1);
+        let k = ((psi.rem_euclid(tau) / tau * ns as f64) as usize).min(ns - 1);
+        cells[i * ns + k].push(d);
+    }
+    (0..n_slices)
+        .map(|i| slice_stats(&mut cells[i * ns..(i + 1) * ns], x_min + i as f64 * o.slice_m, o))
+        .collect()
+}
+
+/// One slice's statistics from its sectors' deviations.
+fn slice_stats(sectors: &mut [Vec<f64>], start_m: f64, o: &SegmentOptions) -> Slice {
+    let ns = sectors.len();
+    let tau = std::f64::consts::TAU;
+    let n_points = sectors.iter().map(Vec::len).sum();
+    // (ψ, median, variance of the median) per usable sector.
+    let mut meds: Vec<(f64, f64, f64)> = Vec::new();
+    let mut by_sector = vec![f64::NAN; ns];
+    for (k, v) in sectors.iter_mut().enumerate() {
+        if v.len() < o.min_points {
+            continue;
+        }
+        let n = v.len() as f64;
+        let m = quantile(v, 0.5);
+        let mut dev: Vec<f64> = v.iter().map(|x| (x - m).abs()).collect();
+        let s = 1.4826 * quantile(&mut dev, 0.5);
+        // Var(median) ≈ (π/2)·σ²/n, floored so that a noise-free slice is not infinitely
+        // certain.
+        let var = (std::f64::consts::FRAC_PI_2 * s * s / n).max(1e-12);
+        let psi = (k as f64 + 0.5) / ns as f64 * tau;
+        meds.push((psi, m, var));
+        by_sector[k] = m;
+    }
+    let mut out = Slice {
+        start_m,
+        n_points,
+        n_sectors: meds.len(),
+        widening_m: f64::NAN,
+        shift_m: [f64::NAN; 2],
+        shift_se_m: f64::NAN,
+        opposite_m: f64::NAN,
+    };
+    if meds.len() < 3 {
+        return out;
+    }
+    // Weighted least squares m_k ≈ c₀ + c₁cos ψ + c₂sin ψ.
+    let mut a = nalgebra::Matrix3::<f64>::zeros();
+    let mut rhs = Vector3::<f64>::zeros();
+    for &(psi, m, var) in &meds {
+        let row = Vector3::new(1.0, psi.cos(), psi.sin());
+        a += row * row.transpose() / var;
+        rhs += row * m / var;
+    }
+    let Some(inv) = a.try_inverse() else {
+        return out;
+    };
+    let c = inv * rhs;
+    out.widening_m = c[0];
+    out.shift_m = [c[1], c[2]];
+    let len = c[1].hypot(c[2]);
+    // Standard error of the shift's length: along its direction (the mean of the two
+    // variances when the shift is zero).
+    out.shift_se_m = if len > 0.0 {
+        let u = Vector3::new(0.0, c[1] / len, c[2] / len);
+        (u.transpose() * inv * u)[0].sqrt()
+    } else {
+        (0.5 * (inv[(1, 1)] + inv[(2, 2)])).sqrt()
+    };
+    let dir = c[2].atan2(c[1]);
+    let opp = ((dir + std::f64::consts::PI).rem_euclid(tau) / tau * ns as f64) as usize % ns;
+    out.opposite_m = by_sector[opp];
+    out
+}
+
+/// The first slice of the first run of `persistence` departing slices.
+fn first_departure(profile: &[Slice], o: &SegmentOptions) -> Option<usize> {
+    let flags: Vec<bool> = profile.iter().map(|s| s.departs(o)).collect();
+    (0..flags.len()).find(|&i| {
+        i + o.persistence <= flags.len() && flags[i..i + o.persistence].iter().all(|&f| f)
+    })
+}
+
+/// The straight section, its end and what lies beyond, by refitting on the points
+/// before the departure until the end stops moving (see the module's text).
+pub fn segment(
+    points: &[[f64; 3]],
+    method: Method,
+    options: &EstimateOptions,
+    seg: &SegmentOptions,
+) -> Result<Segmentation, EpdError> {
+    seg.validate()?;
+    let cloud = clean(points);
+    let pts: &[[f64; 3]] = &cloud.points;
+    let mut fit = estimate(pts, method, options)?;
+    let mut end: Option<f64> = None;
+    let mut rounds = 1;
+    let mut prof = profile(pts, &fit.params, seg);
+    loop {
+        let found = first_departure(&prof, seg).map(|i| locate_end(&prof, i, seg).0);
+        let moved = match (found, end) {
+            (None, None) => false,
+            (Some(a), Some(b)) => (a - b).abs() > 0.5 * seg.slice_m,
+            _ => true,
+        };
+        if !moved || rounds > seg.max_rounds {
+            break;
+        }
+        end = found;
+        let Some(x_end) = end else {
+            // The departure vanished with the last refit: fit all points again.
+            fit = estimate(pts, method, options)?;
+            rounds += 1;
+            prof = profile(pts, &fit.params, seg);
+            continue;
+        };
+        let before = axial_select(pts, &fit.params, |x| x < x_end - seg.margin_m);
+        if before.len() < 1000 {
+            // Too little straight pipe left to refit: the sensor is in the bend.
+            break;
+        }
+        fit = estimate(&before, method, options)?;
+        rounds += 1;
+        prof = profile(pts, &fit.params, seg);
+    }
+    let departure = first_departure(&prof, seg);
+    let located = departure.map(|i| locate_end(&prof, i, seg));
+    let straight_until = located.map(|l| l.0);
+    // The departure's growth c ≈ 1/(2R): a first bend radius.
+    let radius_guess = located.and_then(|l| (l.1 > 0.0).then(|| 0.5 / l.1));
+    let direction = departure.map(|i| {
+        // The departure's direction from the first few departing slices, weighted by
+        // their shifts.
+        let (sy, sz) = prof[i..(i + 4).min(prof.len())]
+            .iter()
+            .filter(|s| s.departs(seg))
+            .fold((0.0, 0.0), |(y, z), s| (y + s.shift_m[0], z + s.shift_m[1]));
+        sz.atan2(sy)
+    });
+    let x_first = prof.first().map_or(0.0, |s| s.start_m);
+    let layout = match (departure, straight_until) {
+        (None, _) | (_, None) => Layout::Straight,
+        (Some(_), Some(x)) if x <= x_first + seg.slice_m => Layout::InBend,
+        (Some(i), Some(_)) => classify(&prof[i..], seg),
+    };
+    let beyond = match straight_until {
+        Some(x) => axial_select(pts, &fit.params, |a| a >= x),
+        None => Vec::new(),
+    };
+    Ok(Segmentation {
+        layout,
+        straight_until: if layout == Layout::InBend {
+            None
+        } else {
+            straight_until
+        },
+        straight: fit,
+        beyond,
+        direction,
+        radius_guess,
+        profile: prof,
+        rounds,
+    })
+}
+
+/// The points (SCS) whose PCS axial coordinate under `beta` satisfies `keep`.
+fn axial_select(points: &[[f64; 3]], beta: &Params, keep: impl Fn(f64) -> bool) -> Vec<[f64; 3]> {
+    let r = beta.rotation();
+    let row = r.matrix().row(0).into_owned();
+    points
+        .iter()
+        .filter(|p| keep(row[0] * p[0] + row[1] * p[1] + row[2] * p[2]))
+        .copied()
+        .collect()
+}
+
+/// The axial coordinate where the departure starts, from the first departing slice
+/// `i`: the shift along the departure's direction u (that of the departing run) over
+/// the run and three slices before it, fitted by c·(x − x₀)² for x > x₀ and 0 before
+/// (the leading order of R − √(R² − (x − x₀)²), a bend's centreline leaving the axis);
+/// x₀ on a grid of slice/20 steps from three slices before slice `i` to its far edge,
+/// c ≥ 0 by weighted least squares for each x₀: (x₀, c), c ≈ 1/(2R) for a bend. A tee,
+/// whose shift jumps, gives the x₀ where the jump is best placed.
+fn locate_end(profile: &[Slice], i: usize, o: &SegmentOptions) -> (f64, f64) {
+    let lo_i = i.saturating_sub(3);
+    let hi_i = (i + 6).min(profile.len());
+    let (uy, uz) = profile[i..hi_i]
+        .iter()
+        .filter(|s| s.departs(o))
+        .fold((0.0, 0.0), |(y, z), s| (y + s.shift_m[0], z + s.shift_m[1]));
+    let norm = uy.hypot(uz);
+    let (uy, uz) = if norm > 0.0 {
+        (uy / norm, uz / norm)
+    } else {
+        (1.0, 0.0)
+    };
+    let pts: Vec<(f64, f64, f64)> = profile[lo_i..hi_i]
+        .iter()
+        .filter(|s| s.shift().is_finite() && s.shift_se_m > 0.0)
+        .map(|s| {
+            (
+                s.start_m + 0.5 * o.slice_m,
+                s.shift_m[0] * uy + s.shift_m[1] * uz,
+                s.shift_se_m * s.shift_se_m,
+            )
+        })
+        .collect();
+    let edge = profile[i].start_m;
+    let (x_lo, x_hi) = (profile[lo_i].start_m, edge + o.slice_m);
+    let mut best = (f64::INFINITY, edge, 0.0);
+    let steps = 20 * (i - lo_i + 1);
+    for k in 0..=steps {
+        let x0 = x_lo + (x_hi - x_lo) * k as f64 / steps as f64;
+        // For a given x₀, s ≈ (x − x₀)²/(2R) to leading order: linear in c = 1/(2R).
+        let (mut num, mut den) = (0.0, 0.0);
+        for &(x, s, v) in &pts {
+            let q = (x - x0).max(0.0).powi(2);
+            num += q * s / v;
+            den += q * q / v;
+        }
+        let c = if den > 0.0 { (num / den).max(0.0) } else { 0.0 };
+        let cost: f64 = pts
+            .iter()
+            .map(|&(x, s, v)| (s - c * (x - x0).max(0.0).powi(2)).powi(2) / v)
+            .sum();
+        if cost < best.0 {
+            best = (cost, x0, c);
+        }
+    }
+    (best.1, best.2)
+}
+
+/// Bend or tee, from the departing slices: a bend pulls the wall opposite its shift
+/// inward (that sector's median goes below minus a third of the shift) in most of them.
+fn classify(run: &[Slice], o: &SegmentOptions) -> Layout {
+    let departing: Vec<&Slice> = run.iter().take(8).filter(|s| s.departs(o)).collect();
+    let pulled = departing
+        .iter()
+        .filter(|s| s.opposite_m.is_finite() && s.opposite_m < -s.shift() / 3.0)
+        .count();
+    let judged = departing
+        .iter()
+        .filter(|s| s.opposite_m.is_finite())
+        .count();
+    if judged > 0 && 2 * pulled >= judged {
+        Layout::BendAhead
+    } else {
+        Layout::TeeAhead
+    }
+}
