@@ -108,8 +108,9 @@ impl Torus {
                 self.axis.into_inner()
             )));
         }
-        if !(self.minor_radius > 0.0 && self.minor_radius < self.major_radius)
-            || !self.major_radius.is_finite()
+        if !(self.minor_radius > 0.0
+            && self.minor_radius < self.major_radius
+            && self.major_radius.is_finite())
         {
             return Err(EpdError::InvalidGeometry(format!(
                 "torus radii R = {}, r = {} must satisfy 0 < r < R < ∞",
@@ -438,7 +439,10 @@ mod tests {
         assert!(Torus::new(Vector3::repeat(f64::NAN), Vector3::z(), 1.0, 0.3).is_err());
         let t = bend();
         let o = Vector3::new(1.0, 0.0, 0.0);
-        assert!(t.ray_hit(&o, &Vector3::new(f64::NAN, 0.0, 0.0), 10.0).is_none());
+        assert!(
+            t.ray_hit(&o, &Vector3::new(f64::NAN, 0.0, 0.0), 10.0)
+                .is_none()
+        );
         assert!(t.ray_hit(&o, &Vector3::zeros(), 10.0).is_none());
         assert!(t.ray_hit(&o, &Vector3::y(), f64::NAN).is_none());
         assert!(t.ray_hit(&o, &Vector3::y(), -1.0).is_none());

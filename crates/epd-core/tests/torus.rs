@@ -222,11 +222,19 @@ proptest! {
 
 #[test]
 fn rays_that_must_miss() {
-    let t = Torus::new(Vector3::new(0.5, -1.0, 2.0), Vector3::new(0.0, 1.0, 1.0), 0.8, 0.3)
-        .unwrap();
+    let t = Torus::new(
+        Vector3::new(0.5, -1.0, 2.0),
+        Vector3::new(0.0, 1.0, 1.0),
+        0.8,
+        0.3,
+    )
+    .unwrap();
     let a = t.axis.into_inner();
     // Along the axis through the hole, both ways.
-    assert!(t.ray_hit(&(t.centre - a * 5.0), &a, f64::INFINITY).is_none());
+    assert!(
+        t.ray_hit(&(t.centre - a * 5.0), &a, f64::INFINITY)
+            .is_none()
+    );
     assert!(t.ray_hit(&t.centre, &a, f64::INFINITY).is_none());
     // Parallel to the axis just outside the outer equator.
     let e = a.cross(&Vector3::x()).normalize();
@@ -238,7 +246,10 @@ fn rays_that_must_miss() {
     assert_eq!(c.len, 2);
     assert!((c.t[0] - 3.0).abs() < 1e-2 && (c.t[1] - 3.0).abs() < 1e-2);
     // Pointing away from the torus.
-    assert!(t.ray_hit(&(t.centre + e * 3.0), &e, f64::INFINITY).is_none());
+    assert!(
+        t.ray_hit(&(t.centre + e * 3.0), &e, f64::INFINITY)
+            .is_none()
+    );
     // Stopping short of the wall.
     let o = t.centre + e * 0.8;
     assert!(t.ray_hit(&o, &e, 0.3 - 1e-9).is_none());
