@@ -26,4 +26,7 @@ pub enum EpdError {
     /// An option outside its range.
     #[error("invalid option: {0}")]
     InvalidOption(String),
+    /// A geometric shape (a torus) with impossible dimensions.
+    #[error("invalid geometry: {0}")]
+    InvalidGeometry(String),
 }

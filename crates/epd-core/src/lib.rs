@@ -41,6 +41,7 @@ pub mod report;
 pub mod residual;
 pub mod segment;
 pub mod symmetry;
+pub mod torus;
 
 pub use calibration::{DepthTable, Observation, TableBins};
 pub use check::{Diagnostics, FitStatus, Implausible};
@@ -55,3 +56,4 @@ pub use loss::Loss;
 pub use params::{N_PARAMS, PARAM_NAMES, Params};
 pub use residual::Residual;
 pub use symmetry::{ParamErrors, canonicalize, errors_against};
+pub use torus::{RayCrossings, Torus};

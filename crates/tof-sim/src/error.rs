@@ -14,6 +14,18 @@ pub enum SimError {
         /// What the field must satisfy.
         reason: &'static str,
     },
+    /// A field of one segment of a pipeline outside its valid range.
+    #[error("invalid `pipeline.segments[{index}].{field}` = {value}: {reason}")]
+    InvalidSegment {
+        /// The segment's index in `Pipeline::segments`.
+        index: usize,
+        /// The field of the segment (`radius`, `angle`, …).
+        field: &'static str,
+        /// The refused value, as text.
+        value: String,
+        /// What the field must satisfy.
+        reason: &'static str,
+    },
     /// The pipe geometry could not be built.
     #[error("cannot build the pipe mesh: {0}")]
     Mesh(String),

@@ -9,6 +9,7 @@ use rayon::prelude::*;
 use crate::error::SimError;
 use crate::noise::{Noise, NoiseModel, Stream, stream};
 use crate::physics::ToFPhysics;
+use crate::pipeline::Part;
 use crate::scene::Scene;
 use crate::sensor::Sensor;
 
@@ -50,6 +51,12 @@ pub struct Frame {
     /// σ(A) of the physical model, the constant `Noise::sigma` of the plain one (the
     /// total rms for the isotropic model); NaN for invalid pixels.
     pub sigma: Vec<f64>,
+    /// What each point's ray hit, for a scene with labels ([`Scene::pipeline`]): the
+    /// segment and the kind of wall of the exact point; `None` for a pixel whose ray met
+    /// no wall (only invalid pixels of the physical model). Empty for scenes without
+    /// labels, so their frames are as before; otherwise aligned with the other lists
+    /// (kept so by [`Frame::retain_valid`] and the subsampling).
+    pub part: Vec<Option<Part>>,
     /// The true β.
     pub truth: Params,
     /// Image size (W, H) the pixels index.
@@ -76,6 +83,7 @@ impl Frame {
             directions: Vec::new(),
             intensity: Vec::new(),
             sigma: Vec::new(),
+            part: Vec::new(),
             truth: Params {
                 d_max: 0.0,
                 d_min: 0.0,
@@ -125,6 +133,9 @@ impl Frame {
         self.directions[to] = self.directions[from];
         self.intensity[to] = self.intensity[from];
         self.sigma[to] = self.sigma[from];
+        if !self.part.is_empty() {
+            self.part[to] = self.part[from];
+        }
     }
 
     /// Keep the first `n` points, in every list.
@@ -135,6 +146,7 @@ impl Frame {
         self.directions.truncate(n);
         self.intensity.truncate(n);
         self.sigma.truncate(n);
+        self.part.truncate(n);
     }
 }
 
@@ -209,6 +221,10 @@ pub fn simulate(
 /// r + wiggle(r) + offset(A_m) + multipath shift → outliers → + σ(A_m)·ε from the row's
 /// stream → range filter. Without it, the plain model: r + b0 + b1·r → outliers →
 /// + σ·ε → range filter.
+///
+/// For a scene with labels ([`Scene::is_labeled`]: a pipeline) every ray is cast with
+/// [`Scene::cast_labeled`] and the hit part goes to [`Frame::part`]; otherwise the casts
+/// are as they always were and `part` is left empty.
 pub fn simulate_into(
     sensor: &Sensor,
     scene: &Scene,
@@ -235,8 +251,92 @@ pub fn simulate_into(
     frame.directions.resize(n_pix, [0.0; 3]);
     frame.intensity.resize(n_pix, 0.0);
     frame.sigma.resize(n_pix, 0.0);
-    // Each row writes its in-range points at the start of its own slice of the buffers.
-    let counts: Vec<usize> = frame
+    let labeled = scene.is_labeled();
+    if labeled {
+        frame.part.resize(n_pix, None);
+    } else {
+        frame.part.clear();
+    }
+    // One image row: writes its in-range points at the start of its own slice of the
+    // buffers (and of `part`, for a labelled scene) and returns their number.
+    let row = |v: usize, bufs: RowBuffers, mut part: Option<&mut [Option<Part>]>| -> usize {
+        let RowBuffers {
+            meas,
+            exact,
+            pixels,
+            dirs,
+            inten,
+            sig,
+        } = bufs;
+        let v = v as u32;
+        let mut rng = stream(
+            seeds.seed,
+            seeds.trial,
+            seeds.sweep_index,
+            Stream::Row,
+            v as u64,
+        );
+        let mut k = 0;
+        for u in 0..sensor.width {
+            let dir = pinhole.direction(u, v);
+            let mut label = None;
+            let (m, x, intensity, sigma) = match &physics {
+                None => {
+                    let range = if labeled {
+                        scene.cast_labeled(&dir, cast_limit).map(|(r, _, p)| {
+                            label = Some(p);
+                            r
+                        })
+                    } else {
+                        scene.cast(&dir, cast_limit)
+                    };
+                    let Some(range) = range else {
+                        continue;
+                    };
+                    // Depth bias and outliers act on the range along the ray.
+                    let r = range + noise.bias_b0 + noise.bias_b1 * range;
+                    let m = displace(noise, noise.sigma, &dir, range, r, &mut rng);
+                    (Some(m), dir * range, f32::NAN, noise.sigma)
+                }
+                Some(p) => {
+                    let hit = if labeled {
+                        scene.cast_labeled(&dir, cast_limit).map(|(r, c, part)| {
+                            label = Some(part);
+                            (r, c)
+                        })
+                    } else {
+                        scene.cast_with_normal(&dir, cast_limit)
+                    };
+                    let q = physical_point(p, noise, &dir, hit, &mut rng);
+                    let intensity = (p.intensity_scale * q.amplitude) as f32;
+                    (q.measured, q.exact, intensity, q.sigma)
+                }
+            };
+            let keep = match &m {
+                // Invalid pixels are kept as zeros, whatever the range filter.
+                None => true,
+                Some(m) => {
+                    let mr = m.norm();
+                    mr >= sensor.min_range && mr <= sensor.max_range
+                }
+            };
+            if keep {
+                let m = m.unwrap_or_else(Vector3::zeros);
+                meas[k] = [m.x, m.y, m.z];
+                exact[k] = [x.x, x.y, x.z];
+                pixels[k] = [u, v];
+                dirs[k] = [dir.x, dir.y, dir.z];
+                inten[k] = intensity;
+                sig[k] = sigma;
+                if let Some(part) = part.as_deref_mut() {
+                    part[k] = label;
+                }
+                k += 1;
+            }
+        }
+        k
+    };
+    let rows = frame
         .measured
         .par_chunks_mut(w)
         .zip(frame.exact.par_chunks_mut(w))
@@ -244,58 +344,26 @@ pub fn simulate_into(
         .zip(frame.directions.par_chunks_mut(w))
         .zip(frame.intensity.par_chunks_mut(w))
         .zip(frame.sigma.par_chunks_mut(w))
-        .enumerate()
-        .map(|(v, (((((meas, exact), pixels), dirs), inten), sig))| {
-            let v = v as u32;
-            let mut rng = stream(
-                seeds.seed,
-                seeds.trial,
-                seeds.sweep_index,
-                Stream::Row,
-                v as u64,
-            );
-            let mut k = 0;
-            for u in 0..sensor.width {
-                let dir = pinhole.direction(u, v);
-                let (m, x, intensity, sigma) = match &physics {
-                    None => {
-                        let Some(range) = scene.cast(&dir, cast_limit) else {
-                            continue;
-                        };
-                        // Depth bias and outliers act on the range along the ray.
-                        let r = range + noise.bias_b0 + noise.bias_b1 * range;
-                        let m = displace(noise, noise.sigma, &dir, range, r, &mut rng);
-                        (Some(m), dir * range, f32::NAN, noise.sigma)
-                    }
-                    Some(p) => {
-                        let hit = scene.cast_with_normal(&dir, cast_limit);
-                        let q = physical_point(p, noise, &dir, hit, &mut rng);
-                        let intensity = (p.intensity_scale * q.amplitude) as f32;
-                        (q.measured, q.exact, intensity, q.sigma)
-                    }
-                };
-                let keep = match &m {
-                    // Invalid pixels are kept as zeros, whatever the range filter.
-                    None => true,
-                    Some(m) => {
-                        let mr = m.norm();
-                        mr >= sensor.min_range && mr <= sensor.max_range
-                    }
-                };
-                if keep {
-                    let m = m.unwrap_or_else(Vector3::zeros);
-                    meas[k] = [m.x, m.y, m.z];
-                    exact[k] = [x.x, x.y, x.z];
-                    pixels[k] = [u, v];
-                    dirs[k] = [dir.x, dir.y, dir.z];
-                    inten[k] = intensity;
-                    sig[k] = sigma;
-                    k += 1;
-                }
-            }
-            k
-        })
-        .collect();
+        .map(
+            |(((((meas, exact), pixels), dirs), inten), sig)| RowBuffers {
+                meas,
+                exact,
+                pixels,
+                dirs,
+                inten,
+                sig,
+            },
+        );
+    let counts: Vec<usize> = if labeled {
+        rows.zip(frame.part.par_chunks_mut(w))
+            .enumerate()
+            .map(|(v, (bufs, part))| row(v, bufs, Some(part)))
+            .collect()
+    } else {
+        rows.enumerate()
+            .map(|(v, bufs)| row(v, bufs, None))
+            .collect()
+    };
     // Close the gaps between rows, in place.
     let mut at = 0;
     for (v, &k) in counts.iter().enumerate() {
@@ -307,6 +375,9 @@ pub fn simulate_into(
             frame.directions.copy_within(from..from + k, at);
             frame.intensity.copy_within(from..from + k, at);
             frame.sigma.copy_within(from..from + k, at);
+            if labeled {
+                frame.part.copy_within(from..from + k, at);
+            }
         }
         at += k;
     }
@@ -339,6 +410,16 @@ pub fn simulate_into(
     frame.truth = *scene.truth();
     frame.image_size = [sensor.width, sensor.height];
     Ok(())
+}
+
+/// One image row's slices of a frame's buffers.
+struct RowBuffers<'a> {
+    meas: &'a mut [[f64; 3]],
+    exact: &'a mut [[f64; 3]],
+    pixels: &'a mut [[u32; 2]],
+    dirs: &'a mut [[f64; 3]],
+    inten: &'a mut [f32],
+    sig: &'a mut [f64],
 }
 
 /// One pixel under the physical model.

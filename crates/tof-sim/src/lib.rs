@@ -5,6 +5,11 @@
 //! along the axis, Y major axis, Z minor axis), related by eq. (3) of the RU-EPD paper
 //! through [`epd_core::Params`] — the one definition of the convention in the workspace.
 //!
+//! [`Pipeline`] (module [`pipeline`]) chains straights, bends (tori) and tees in the PCS
+//! of the first straight; [`Scene::pipeline`] casts against its labelled mesh, and the
+//! frames then carry what each pixel hit ([`Frame::part`]) with the exact geometry as
+//! ground truth ([`Pipeline::straight_until`], [`Pipeline::bends`], [`Pipeline::frames`]).
+//!
 //! [`ToFPhysics`] (optional, `Noise::physics`) adds a physical sensor model: amplitude
 //! ρ·cos θ/r², Lange's amplitude-dependent range noise, dark and saturated pixels written
 //! as zeros, wiggling, intensity-related offset and multipath, and a per-point intensity.
@@ -29,6 +34,7 @@ pub mod noise;
 pub mod output;
 pub mod physics;
 pub mod pipe;
+pub mod pipeline;
 pub mod pose;
 pub mod scene;
 pub mod sensor;
@@ -39,6 +45,10 @@ pub use frame::{Frame, FrameSeed, Subsample, simulate, simulate_into};
 pub use noise::{Noise, NoiseModel};
 pub use physics::ToFPhysics;
 pub use pipe::Pipe;
+pub use pipeline::{
+    BendTruth, BranchTruth, LabeledMesh, MeshResolution, Part, PartKind, Pipeline, Segment,
+    SegmentFrame,
+};
 pub use pose::PoseRanges;
 pub use scene::{Scene, WallModel};
 pub use sensor::Sensor;

@@ -6,6 +6,13 @@ use parry3d_f64::shape::TriMesh;
 
 use crate::error::SimError;
 
+/// The factor (1 + 1/cos(π/n))/2 by which the vertices of a closed ring of `n` segments
+/// are pushed out from the curve, so that its chords straddle the curve: a circle of
+/// radius R is then within −R(1 − cos(π/n))/2 … +R(1/cos(π/n) − 1)/2 of its polygon.
+pub fn straddle_factor(n: usize) -> f64 {
+    0.5 * (1.0 + 1.0 / (std::f64::consts::PI / n as f64).cos())
+}
+
 /// The inner wall of an elliptic cylinder (PCS: axis X, semi-axes `a` along Y and `b`
 /// along Z) from x = `x0` to `x1`, tessellated with `segments` vertices around and
 /// `rings` rings along (straight walls need 2). `radius_at(x, φ)` may perturb the
@@ -28,7 +35,7 @@ pub fn tube_mesh(
             "need ≥ 3 segments, ≥ 2 rings and x1 > x0 (got {segments}, {rings}, {x0}..{x1})"
         )));
     }
-    let straddle = 0.5 * (1.0 + 1.0 / (std::f64::consts::PI / segments as f64).cos());
+    let straddle = straddle_factor(segments);
     let mut vertices = Vec::with_capacity(segments * rings);
     for r in 0..rings {
         let x = x0 + (x1 - x0) * r as f64 / (rings - 1) as f64;

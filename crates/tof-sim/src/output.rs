@@ -6,6 +6,7 @@ use std::path::Path;
 
 use crate::error::SimError;
 use crate::frame::Frame;
+use crate::pipeline::PartKind;
 
 /// PLY encodings.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -29,6 +30,11 @@ pub enum PlyPrecision {
 /// `property float intensity` (camera counts) after v when the frame has any finite
 /// intensity (the physical sensor model; the plain model's intensities are NaN and are
 /// not written). Invalid pixels are written as they are held: x = y = z = 0, intensity 0.
+///
+/// A frame with labels ([`Frame::part`], a pipeline scene) gets two more properties at
+/// the end, `property ushort segment` (the index in `Pipeline::segments`) and
+/// `property uchar part` (the [`part_code`]: 0 no wall, 1 straight, 2 bend, 3 branch),
+/// described in a header comment. Frames without labels are written as before.
 pub fn write_ply<W: Write>(
     w: &mut W,
     frame: &Frame,
@@ -46,11 +52,12 @@ pub fn write_ply<W: Write>(
     let t = &frame.truth;
     let with_intensity = frame.intensity.len() == frame.measured.len()
         && frame.intensity.iter().any(|i| i.is_finite());
+    let with_part = !frame.part.is_empty() && frame.part.len() == frame.measured.len();
     write!(
         w,
         "ply\nformat {fmt} 1.0\ncomment tof-sim frame: measured points in the sensor frame (m; X forward, Y right, Z up)\n\
          comment truth d_max_m {} d_min_m {} roll_rad {} pitch_rad {} yaw_rad {} dy_m {} dz_m {}\n\
-         element vertex {}\nproperty {ty} x\nproperty {ty} y\nproperty {ty} z\nproperty uint u\nproperty uint v\n{}end_header\n",
+         {}element vertex {}\nproperty {ty} x\nproperty {ty} y\nproperty {ty} z\nproperty uint u\nproperty uint v\n{}{}end_header\n",
         t.d_max,
         t.d_min,
         t.roll,
@@ -58,9 +65,19 @@ pub fn write_ply<W: Write>(
         t.yaw,
         t.dy,
         t.dz,
+        if with_part {
+            "comment part: what the pixel's ray hit, 0 no wall, 1 straight, 2 bend, 3 branch; segment: its index in the pipeline\n"
+        } else {
+            ""
+        },
         frame.measured.len(),
         if with_intensity {
             "property float intensity\n"
+        } else {
+            ""
+        },
+        if with_part {
+            "property ushort segment\nproperty uchar part\n"
         } else {
             ""
         }
@@ -87,15 +104,37 @@ pub fn write_ply<W: Write>(
             }
         }
         match format {
-            PlyFormat::Ascii if with_intensity => writeln!(w, " {}", frame.intensity[i])?,
-            PlyFormat::Ascii => writeln!(w)?,
+            PlyFormat::Ascii if with_intensity => write!(w, " {}", frame.intensity[i])?,
+            PlyFormat::Ascii => {}
             PlyFormat::BinaryLittleEndian if with_intensity => {
                 w.write_all(&frame.intensity[i].to_le_bytes())?
             }
             PlyFormat::BinaryLittleEndian => {}
         }
+        if with_part {
+            let (segment, code) = frame.part[i].map_or((0, 0), |p| (p.segment, part_code(p.kind)));
+            match format {
+                PlyFormat::Ascii => write!(w, " {segment} {code}")?,
+                PlyFormat::BinaryLittleEndian => {
+                    w.write_all(&segment.to_le_bytes())?;
+                    w.write_all(&[code])?;
+                }
+            }
+        }
+        if format == PlyFormat::Ascii {
+            writeln!(w)?;
+        }
     }
     Ok(())
+}
+
+/// The PLY code of a part kind: 1 straight, 2 bend, 3 branch (0 is "no wall").
+pub fn part_code(kind: PartKind) -> u8 {
+    match kind {
+        PartKind::Straight => 1,
+        PartKind::Bend => 2,
+        PartKind::Branch => 3,
+    }
 }
 
 /// Write `frame`'s measured points as CSV: a header `x,y,z`, then one point per line (m, SCS).

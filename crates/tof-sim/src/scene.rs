@@ -10,6 +10,7 @@ use parry3d_f64::shape::TriMesh;
 use crate::elliptic_cylinder::EllipticCylinder;
 use crate::error::SimError;
 use crate::mesh::tube_mesh;
+use crate::pipeline::{LabeledMesh, MeshResolution, Part, PartKind, Pipeline};
 use crate::pose::check_inside;
 
 /// Which geometry stands for the pipe's inner wall.
@@ -29,7 +30,14 @@ pub enum WallModel {
 enum Wall {
     Exact(EllipticCylinder),
     Mesh(Box<TriMesh>),
+    Labeled(Box<LabeledMesh>),
 }
+
+/// The label of every hit on a wall that is one straight pipe.
+const ONE_PIPE: Part = Part {
+    segment: 0,
+    kind: PartKind::Straight,
+};
 
 /// A pipe wall seen from the sensor: the geometry in the PCS and its pose in the SCS,
 /// the inverse of eq. (3): x_S = Rᵀ(x_P − [0, δy, δz]).
@@ -84,6 +92,63 @@ impl Scene {
         Ok(s)
     }
 
+    /// A scene inside `pipeline` ([`crate::pipeline`]), meshed at `resolution`, the sensor
+    /// placed by `truth` (eq. 3) in the PCS of the pipeline's first straight section.
+    /// `truth.d_max` and `truth.d_min` must equal the pipeline's (the first straight's
+    /// cross-section, which the estimator is scored against), and the sensor, at PCS
+    /// [0, δy, δz], must lie inside the first straight: strictly within its cross-section
+    /// and with `start_x` < 0 < the end of the first run of straights and tees
+    /// ([`Pipeline::first_run_end`]). Hits are labelled ([`Scene::cast_labeled`]) and
+    /// frames of this scene carry [`crate::Frame::part`].
+    pub fn pipeline(
+        truth: &Params,
+        pipeline: &Pipeline,
+        resolution: &MeshResolution,
+    ) -> Result<Self, SimError> {
+        pipeline.validate()?;
+        if truth.d_max != pipeline.d_max || truth.d_min != pipeline.d_min {
+            return Err(SimError::invalid(
+                "pipeline.d_max/d_min",
+                format!(
+                    "{}/{} (truth {}/{})",
+                    pipeline.d_max, pipeline.d_min, truth.d_max, truth.d_min
+                ),
+                "must equal the truth's diameters (the first straight's cross-section)",
+            ));
+        }
+        if !(pipeline.start_x < 0.0 && pipeline.first_run_end() > 0.0) {
+            return Err(SimError::invalid(
+                "pipeline.start_x",
+                pipeline.start_x,
+                "the sensor (PCS x = 0) must lie inside the first straight section: start_x < 0 < its end",
+            ));
+        }
+        let mesh = pipeline.mesh(resolution)?;
+        Self::with_labeled_mesh(truth, mesh)
+    }
+
+    /// A scene over a labelled mesh of walls given in the PCS (see
+    /// [`crate::pipeline::Pipeline::mesh`]); `truth` places it. The labels must be one per
+    /// triangle.
+    pub fn with_labeled_mesh(truth: &Params, mesh: LabeledMesh) -> Result<Self, SimError> {
+        if mesh.labels.len() != mesh.mesh.num_triangles() {
+            return Err(SimError::Mesh(format!(
+                "{} labels for {} triangles",
+                mesh.labels.len(),
+                mesh.mesh.num_triangles()
+            )));
+        }
+        let mut s = Self::new(truth, WallModel::Exact, 1.0)?;
+        s.wall = Wall::Labeled(Box::new(mesh));
+        Ok(s)
+    }
+
+    /// Whether hits carry pipeline labels (a scene from [`Scene::pipeline`] or
+    /// [`Scene::with_labeled_mesh`]).
+    pub fn is_labeled(&self) -> bool {
+        matches!(self.wall, Wall::Labeled(_))
+    }
+
     /// The true β.
     pub fn truth(&self) -> &Params {
         &self.truth
@@ -96,6 +161,7 @@ impl Scene {
         match &self.wall {
             Wall::Exact(c) => c.cast_ray(&self.pose, &ray, max_range, false),
             Wall::Mesh(m) => m.cast_ray(&self.pose, &ray, max_range, false),
+            Wall::Labeled(m) => m.mesh.cast_ray(&self.pose, &ray, max_range, false),
         }
     }
 
@@ -109,8 +175,31 @@ impl Scene {
         let hit = match &self.wall {
             Wall::Exact(c) => c.cast_ray_and_get_normal(&self.pose, &ray, max_range, false),
             Wall::Mesh(m) => m.cast_ray_and_get_normal(&self.pose, &ray, max_range, false),
+            Wall::Labeled(m) => m
+                .mesh
+                .cast_ray_and_get_normal(&self.pose, &ray, max_range, false),
         }?;
         let cos = (hit.normal.dot(d) / d.length()).abs().min(1.0);
         Some((hit.time_of_impact, cos))
+    }
+
+    /// [`Scene::cast_with_normal`] with what the ray hit: (range (m), cos θ, part). The
+    /// part is the hit triangle's label for a pipeline scene, and
+    /// `Part { segment: 0, kind: Straight }` for a scene of one straight pipe (exact or
+    /// meshed, or a custom mesh from [`Scene::with_mesh`]).
+    pub fn cast_labeled(&self, dir: &Vector3<f64>, max_range: f64) -> Option<(f64, f64, Part)> {
+        let Wall::Labeled(m) = &self.wall else {
+            return self
+                .cast_with_normal(dir, max_range)
+                .map(|(r, c)| (r, c, ONE_PIPE));
+        };
+        let d = to_glam(dir);
+        let ray = Ray::new(DVec3::ZERO, d);
+        let hit = m
+            .mesh
+            .cast_ray_and_get_normal(&self.pose, &ray, max_range, false)?;
+        let cos = (hit.normal.dot(d) / d.length()).abs().min(1.0);
+        let part = *m.labels.get(hit.subshape as usize)?;
+        Some((hit.time_of_impact, cos, part))
     }
 }
