@@ -27,6 +27,7 @@
 //! ```
 #![deny(missing_docs)]
 
+pub mod bend;
 pub mod calibration;
 pub mod check;
 pub mod cloud;

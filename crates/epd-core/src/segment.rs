@@ -31,6 +31,7 @@ use crate::cloud::clean;
 use crate::error::EpdError;
 use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
 use crate::params::Params;
+use crate::residual::Geometry;
 
 /// What the frame shows ahead of the sensor.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -192,31 +193,45 @@ pub struct Segmentation {
     pub rounds: usize,
 }
 
-/// Radial deviation of a PCS point from the wall of `beta` and its polar angle ψ
-/// (from +Y toward +Z): d = ρ − ab/√((b cos ψ)² + (a sin ψ)²).
-fn deviation(beta: &Params, p: &Point3<f64>) -> (f64, f64) {
+/// Where a measured point's ray meets the wall of `beta` and how far the point lies off
+/// it, normal to the wall: (x, d, ψ) with x the axial coordinate and ψ the polar angle
+/// (from +Y toward +Z) of the *model* wall point t·x̂ (t the line parameter of eq. 21,
+/// the ray's crossing of the wall), and d = (1 − t)·‖x̂‖·|n·u| the range error along the
+/// ray (ML-EPD's residual) times the cosine of the incidence (n the wall's normal, u the
+/// ray). Binning by the model point rather than the measured one keeps the range noise
+/// out of the binning: a measured point moves along its ray, toward the sensor when its
+/// noise is negative, and near the edge of the view the first slices would collect the
+/// short ones.
+fn deviation(geom: &Geometry, beta: &Params, p: &[f64; 3]) -> Option<(f64, f64, f64)> {
+    let t = geom.line_parameter(p);
+    let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+    let u = beta.dir_scs_to_pcs(&Vector3::new(p[0] / r, p[1] / r, p[2] / r));
+    let q = beta.scs_to_pcs(&Point3::new(t * p[0], t * p[1], t * p[2]));
     let (a, b) = (0.5 * beta.d_max, 0.5 * beta.d_min);
-    let psi = p.z.atan2(p.y);
-    let rho = p.y.hypot(p.z);
-    let wall = a * b / ((b * psi.cos()).powi(2) + (a * psi.sin()).powi(2)).sqrt();
-    (rho - wall, psi)
+    let n = Vector3::new(0.0, q.y / (a * a), q.z / (b * b)).normalize();
+    let d = (1.0 - t) * r * n.dot(&u).abs();
+    let out = (q.x, d, q.z.atan2(q.y));
+    (out.0.is_finite() && out.1.is_finite() && out.2.is_finite()).then_some(out)
 }
 
-/// The departure profile of `points` (SCS, clean) against the straight fit `beta`.
+/// The departure profile of `points` (SCS, clean) against the straight fit `beta`
+/// (empty when β leaves the model).
 pub fn profile(points: &[[f64; 3]], beta: &Params, o: &SegmentOptions) -> Vec<Slice> {
+    let Some(geom) = Geometry::new(beta) else {
+        return Vec::new();
+    };
     let pcs: Vec<(f64, f64, f64)> = points
         .iter()
-        .map(|p| {
-            let q = beta.scs_to_pcs(&Point3::new(p[0], p[1], p[2]));
-            let (d, psi) = deviation(beta, &q);
-            (q.x, d, psi)
-        })
-        .filter(|(x, d, _)| x.is_finite() && d.is_finite())
+        .filter_map(|p| deviation(&geom, beta, p))
         .collect();
     let Some(x_max) = pcs.iter().map(|v| v.0).reduce(f64::max) else {
         return Vec::new();
     };
-    let x_min = pcs.iter().map(|v| v.0).fold(f64::INFINITY, f64::min).max(0.0);
+    let x_min = pcs
+        .iter()
+        .map(|v| v.0)
+        .fold(f64::INFINITY, f64::min)
+        .max(0.0);
     if !(x_max > x_min) {
         return Vec::new();
     }
@@ -233,7 +248,13 @@ pub fn profile(points: &[[f64; 3]], beta: &Params, o: &SegmentOptions) -> Vec<Sl
         cells[i * ns + k].push(d);
     }
     (0..n_slices)
-        .map(|i| slice_stats(&mut cells[i * ns..(i + 1) * ns], x_min + i as f64 * o.slice_m, o))
+        .map(|i| {
+            slice_stats(
+                &mut cells[i * ns..(i + 1) * ns],
+                x_min + i as f64 * o.slice_m,
+                o,
+            )
+        })
         .collect()
 }
 
@@ -391,13 +412,22 @@ pub fn segment(
     })
 }
 
-/// The points (SCS) whose PCS axial coordinate under `beta` satisfies `keep`.
+/// The points (SCS) whose ray meets the wall of `beta` at a PCS axial coordinate that
+/// satisfies `keep`: the crossing t·x̂ of eq. (21), which depends on the ray only, so
+/// that the cut does not select points by their range noise (at a grazing wall the noise
+/// moves a point mostly along the axis). Empty when β leaves the model.
 fn axial_select(points: &[[f64; 3]], beta: &Params, keep: impl Fn(f64) -> bool) -> Vec<[f64; 3]> {
+    let Some(geom) = Geometry::new(beta) else {
+        return Vec::new();
+    };
     let r = beta.rotation();
     let row = r.matrix().row(0).into_owned();
     points
         .iter()
-        .filter(|p| keep(row[0] * p[0] + row[1] * p[1] + row[2] * p[2]))
+        .filter(|p| {
+            let t = geom.line_parameter(p);
+            keep(t * (row[0] * p[0] + row[1] * p[1] + row[2] * p[2]))
+        })
         .copied()
         .collect()
 }

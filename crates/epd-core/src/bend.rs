@@ -1,0 +1,352 @@
+//! The bend beyond a straight section: a torus fitted to its points (the paper's §5,
+//! item 3), attached to the straight fit.
+//!
+//! In the PCS of the straight fit (eq. 3), a bend that starts at axial coordinate x₀ and
+//! turns toward the direction u = (0, cos φ, sin φ) of the cross-section (φ from +Y
+//! toward +Z) with centreline radius R has its centre of curvature at c = (x₀, R cos φ,
+//! R sin φ) and the bend plane's normal a = (0, −sin φ, cos φ); its wall is the torus of
+//! major radius R and tube radius r ([`Torus`]). The bend continues the straight pipe
+//! tangentially, so four parameters θ = (x₀, φ, R, r) place it.
+//!
+//! The residual is the range error along the sensing line, as ML-EPD's: with the ray
+//! o + τ·d from the sensor (o = [0, δy, δz], d the unit direction of the measured point
+//! p in the PCS) and the measured range ‖p − o‖, the wall's range along the ray is, to
+//! first order in the point's signed distance s(p) to the wall, ‖p − o‖ − s/(n·d), n
+//! the wall's outward normal: eᵢ = s(pᵢ)/|n·d|, the distance along the ray (not an
+//! algebraic value of the quartic). The fit minimises Σ c(eᵢ) under the Cauchy loss
+//! (points of what follows the bend weigh little) by [`minimize`], the Jacobian by
+//! central differences.
+
+use nalgebra::{Point3, SVector, Unit, Vector3};
+
+use crate::error::EpdError;
+use crate::lm::{LmOptions, NormalEquations, NormalEquationsProblem, Status, minimize};
+use crate::loss::Loss;
+use crate::params::Params;
+use crate::torus::Torus;
+
+/// A bend's placement θ = (x₀, φ, R, r) in the PCS of a straight fit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BendGeometry {
+    /// Axial coordinate of the bend's start (m): where the straight section ends.
+    pub start: f64,
+    /// Direction of the turn φ (rad): from the PCS +Y axis toward +Z, the side of the
+    /// centre of curvature.
+    pub direction: f64,
+    /// Centreline (bend) radius R (m).
+    pub radius: f64,
+    /// Tube radius r (m): half the pipe's diameter in the bend.
+    pub tube_radius: f64,
+}
+
+impl BendGeometry {
+    fn to_vector(self) -> SVector<f64, 4> {
+        SVector::from([self.start, self.direction, self.radius, self.tube_radius])
+    }
+
+    fn from_vector(v: &SVector<f64, 4>) -> Self {
+        Self {
+            start: v[0],
+            direction: v[1],
+            radius: v[2],
+            tube_radius: v[3],
+        }
+    }
+
+    /// The bend's torus in the PCS, or `None` when R ≤ r (not a ring torus) or a value
+    /// is not finite.
+    pub fn torus(&self) -> Option<Torus> {
+        let (s, c) = self.direction.sin_cos();
+        let t = Torus {
+            centre: Vector3::new(self.start, self.radius * c, self.radius * s),
+            axis: Unit::new_unchecked(Vector3::new(0.0, -s, c)),
+            major_radius: self.radius,
+            minor_radius: self.tube_radius,
+        };
+        (self.radius > self.tube_radius
+            && self.tube_radius > 0.0
+            && t.centre.iter().all(|v| v.is_finite()))
+        .then_some(t)
+    }
+
+    /// The angle (rad) a PCS point has turned about the bend's axis from its start: 0 in
+    /// the start's plane, π/2 at the end of a 90° elbow.
+    pub fn turned(&self, p: &Vector3<f64>) -> f64 {
+        let (s, c) = self.direction.sin_cos();
+        // From the centre of curvature: the start lies toward −u, the bend runs toward +X.
+        let v = p - Vector3::new(self.start, self.radius * c, self.radius * s);
+        let along = v.x;
+        let back = -(v.y * c + v.z * s);
+        along.atan2(back)
+    }
+}
+
+/// A bend fitted to points beyond a straight section.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BendFit {
+    /// The fitted placement (PCS of the straight fit).
+    pub geometry: BendGeometry,
+    /// The bend angle seen so far (rad): the 98th percentile of the turned angle of the
+    /// points within three robust σ of the wall.
+    pub angle_seen: f64,
+    /// Points used.
+    pub n_points: usize,
+    /// Points within three robust σ of the wall.
+    pub n_inliers: usize,
+    /// Robust σ of the residuals, 1.4826·MAD (m).
+    pub residual_sigma: f64,
+    /// How the solver ended.
+    pub status: Status,
+}
+
+/// At most this many (evenly strided) points enter the bend fit.
+const BEND_POINTS: usize = 8192;
+
+/// The fit of a bend to `beyond` (SCS points past the straight section, from
+/// [`crate::segment::segment`]) attached to the straight fit `straight`, from `start`.
+pub fn fit_bend(
+    beyond: &[[f64; 3]],
+    straight: &Params,
+    start: &BendGeometry,
+) -> Result<BendFit, EpdError> {
+    let stride = beyond.len().div_ceil(BEND_POINTS).max(1);
+    let rot = straight.rotation();
+    let origin = Vector3::new(0.0, straight.dy, straight.dz);
+    let rays: Vec<(Vector3<f64>, Vector3<f64>)> = beyond
+        .iter()
+        .step_by(stride)
+        .filter_map(|p| {
+            let q = rot * Vector3::new(p[0], p[1], p[2]) + origin;
+            let d = (q - origin).normalize();
+            (q.iter().all(|v| v.is_finite()) && d.iter().all(|v| v.is_finite())).then_some((q, d))
+        })
+        .collect();
+    if rays.len() < 50 {
+        return Err(EpdError::TooFewPoints {
+            usable: rays.len(),
+            dropped: beyond.len() - rays.len(),
+            needed: 50,
+        });
+    }
+    start.torus().ok_or_else(|| {
+        EpdError::InvalidOption(format!(
+            "bend start {start:?}: the bend radius must exceed the tube radius"
+        ))
+    })?;
+    // The loss scale: a few times the residuals' robust σ at the start.
+    let sigma0 = robust_sigma(&rays, start).unwrap_or(0.01).max(1e-4);
+    // First order from the start (smooth in θ, converges from far), then the exact
+    // range error from there (unbiased when the noise is not small against the tube).
+    let loss = Loss::Cauchy {
+        scale: 2.3849 * sigma0,
+    };
+    let mut problem = BendProblem {
+        origin,
+        semi_axes: (0.5 * straight.d_max, 0.5 * straight.d_min),
+        exact: false,
+        rays: &rays,
+        loss,
+    };
+    let first = minimize(&problem, start.to_vector(), &LmOptions::default());
+    problem.exact = true;
+    let refined = minimize(&problem, first.x, &LmOptions::default());
+    let rep = if refined.status.is_converged() {
+        refined
+    } else {
+        first
+    };
+    let geometry = BendGeometry::from_vector(&rep.x);
+    let sigma = robust_sigma(&rays, &geometry).unwrap_or(f64::NAN);
+    let torus = geometry.torus();
+    let mut turned: Vec<f64> = rays
+        .iter()
+        .filter(|(q, d)| {
+            torus
+                .and_then(|t| residual(&t, q, d))
+                .is_some_and(|e| e.abs() <= 3.0 * sigma)
+        })
+        .map(|(q, _)| geometry.turned(q))
+        .filter(|a| *a >= 0.0)
+        .collect();
+    let n_inliers = turned.len();
+    let angle_seen = if turned.is_empty() {
+        0.0
+    } else {
+        crate::check::quantile(&mut turned, 0.98)
+    };
+    Ok(BendFit {
+        geometry,
+        angle_seen,
+        n_points: rays.len(),
+        n_inliers,
+        residual_sigma: sigma,
+        status: rep.status,
+    })
+}
+
+/// eᵢ = s(q)/|n·d|: the distance along the ray from q to the wall, to first order.
+fn residual(t: &Torus, q: &Vector3<f64>, d: &Vector3<f64>) -> Option<f64> {
+    let s = t.signed_distance(q);
+    let n = t.normal(q)?;
+    let cos = n.dot(d).abs().max(0.05);
+    let e = s / cos;
+    e.is_finite().then_some(e)
+}
+
+fn robust_sigma(rays: &[(Vector3<f64>, Vector3<f64>)], g: &BendGeometry) -> Option<f64> {
+    let t = g.torus()?;
+    let mut e: Vec<f64> = rays
+        .iter()
+        .filter_map(|(q, d)| residual(&t, q, d))
+        .collect();
+    if e.is_empty() {
+        return None;
+    }
+    let med = crate::check::quantile(&mut e, 0.5);
+    let mut dev: Vec<f64> = e.iter().map(|x| (x - med).abs()).collect();
+    let s = 1.4826 * crate::check::quantile(&mut dev, 0.5);
+    (s > 0.0 && s.is_finite()).then_some(s)
+}
+
+/// The bend's least squares in θ over the rays' points.
+struct BendProblem<'a> {
+    /// The sensor o = [0, δy, δz] in the PCS.
+    origin: Vector3<f64>,
+    /// The straight pipe's semi-axes (Dmax/2, Dmin/2) (m).
+    semi_axes: (f64, f64),
+    /// The exact range error (the ray cast to the torus) rather than its first-order
+    /// form s/|n·d|.
+    exact: bool,
+    rays: &'a [(Vector3<f64>, Vector3<f64>)],
+    loss: Loss,
+}
+
+impl NormalEquationsProblem<4> for BendProblem<'_> {
+    fn normal_equations(&self, x: &SVector<f64, 4>) -> Option<NormalEquations<4>> {
+        let g = BendGeometry::from_vector(x);
+        let t0 = g.torus()?;
+        // ∂s/∂θ at a fixed point by central differences: 0.1 mm for lengths, 1e-4 rad for
+        // the direction.
+        let h = 1e-4;
+        let shifted: Vec<(Torus, Torus)> = (0..4)
+            .map(|k| {
+                let mut a = *x;
+                let mut b = *x;
+                a[k] += h;
+                b[k] -= h;
+                Some((
+                    BendGeometry::from_vector(&a).torus()?,
+                    BendGeometry::from_vector(&b).torus()?,
+                ))
+            })
+            .collect::<Option<_>>()?;
+        let mut eq = NormalEquations::zero();
+        for (q, d) in self.rays {
+            // The exact range error where the ray meets the wall at a usable angle; the
+            // first-order one otherwise (a point never leaves the sum because its ray
+            // misses: the fit could otherwise lower its cost by turning rays away).
+            let exact = if self.exact {
+                self.range_error(&g, &t0, q, d).and_then(|(e, hit)| {
+                    let nd = t0.normal(&hit)?.dot(d);
+                    (nd.abs() >= 0.05).then_some((e, hit, nd))
+                })
+            } else {
+                None
+            };
+            let (e, j) = if let Some((e, hit, nd)) = exact {
+                // The hit moves along the ray as the wall moves: t(θ) with
+                // s(o + t·d; θ) = 0, so ∂t/∂θ = −(∂s/∂θ)/(n·d) and ∂e/∂θ = −∂t/∂θ.
+                let mut j = [0.0; 4];
+                for k in 0..4 {
+                    let (a, b) = (&shifted[k].0, &shifted[k].1);
+                    let ds = (a.signed_distance(&hit) - b.signed_distance(&hit)) / (2.0 * h);
+                    j[k] = ds / nd;
+                }
+                (e, j)
+            } else {
+                let Some(e) = residual(&t0, q, d) else {
+                    continue;
+                };
+                let mut j = [0.0; 4];
+                let mut ok = true;
+                for k in 0..4 {
+                    let (a, b) = (&shifted[k].0, &shifted[k].1);
+                    match (residual(a, q, d), residual(b, q, d)) {
+                        (Some(ea), Some(eb)) => j[k] = (ea - eb) / (2.0 * h),
+                        _ => ok = false,
+                    }
+                }
+                if !ok {
+                    continue;
+                }
+                (e, j)
+            };
+            let (c, wg, wh) = self.loss.cost_and_weights(e);
+            eq.push_weighted(e, &j, c, wg, wh);
+        }
+        eq.symmetrize();
+        (eq.n_residuals > 4).then_some(eq)
+    }
+}
+
+impl BendProblem<'_> {
+    /// The range at which the ray o + τ·d leaves the straight pipe's elliptic cylinder
+    /// y²/a² + z²/b² = 1 (the positive root of the quadratic in τ), `None` for a ray
+    /// along the axis.
+    fn straight_exit(&self, d: &Vector3<f64>) -> Option<f64> {
+        let (a2, b2) = (self.semi_axes.0.powi(2), self.semi_axes.1.powi(2));
+        let o = &self.origin;
+        let qa = d.y * d.y / a2 + d.z * d.z / b2;
+        let qb = 2.0 * (o.y * d.y / a2 + o.z * d.z / b2);
+        let qc = o.y * o.y / a2 + o.z * o.z / b2 - 1.0;
+        let disc = qb * qb - 4.0 * qa * qc;
+        (qa > 0.0 && disc >= 0.0).then(|| (-qb + disc.sqrt()) / (2.0 * qa))
+    }
+
+    /// e = ‖q − o‖ − t: the measured range minus the range t at which the ray from the
+    /// sensor o through the measured point q meets the bend's wall from inside, with the
+    /// wall point o + t·d: the nearest crossing of the ring torus where the ray leaves
+    /// the tube (n·d > 0) at a turned angle in [0, π] (the ring's other parts are not
+    /// the bend). `None` when no crossing within three times the measured range
+    /// qualifies.
+    fn range_error(
+        &self,
+        geometry: &BendGeometry,
+        t: &Torus,
+        q: &Vector3<f64>,
+        d: &Vector3<f64>,
+    ) -> Option<(f64, Vector3<f64>)> {
+        let range = (q - self.origin).norm();
+        // Before the bend's start plane the wall is the straight pipe's.
+        if let Some(tau) = self.straight_exit(d)
+            && self.origin.x + tau * d.x < geometry.start
+        {
+            return Some((range - tau, self.origin + d * tau));
+        }
+        let crossings = t.ray_crossings(&self.origin, d, 3.0 * range);
+        let hit = crossings.as_slice().iter().find_map(|&tau| {
+            let w = self.origin + d * tau;
+            let leaving = t.normal(&w).is_some_and(|n| n.dot(d) > 0.0);
+            let a = geometry.turned(&w);
+            (leaving && (0.0..=std::f64::consts::PI).contains(&a)).then_some(tau)
+        })?;
+        Some((range - hit, self.origin + d * hit))
+    }
+}
+
+/// A bend's start from a segmentation: the straight fit's end, the departure's
+/// direction, a bend radius from the departure's growth and the straight pipe's mean
+/// radius as the tube's.
+pub fn start_from(straight: &Params, end: f64, direction: f64, radius: f64) -> BendGeometry {
+    BendGeometry {
+        start: end,
+        direction,
+        radius,
+        tube_radius: 0.25 * (straight.d_max + straight.d_min),
+    }
+}
+
+/// A PCS point of the straight fit from an SCS point.
+pub fn to_pcs(straight: &Params, p: &[f64; 3]) -> Vector3<f64> {
+    straight.scs_to_pcs(&Point3::new(p[0], p[1], p[2])).coords
+}
