@@ -330,18 +330,16 @@ fn first_departure(profile: &[Slice], o: &SegmentOptions) -> Option<usize> {
     })
 }
 
-/// The straight section, its end and what lies beyond, by refitting on the points
-/// before the departure until the end stops moving (see the module's text).
-pub fn segment(
-    points: &[[f64; 3]],
+/// From the straight fit `fit`: the departure, a refit on the points before it, until
+/// the departure stops moving (at most `max_rounds` refits). Returns the last fit, its
+/// profile and the fits made.
+fn refine(
+    pts: &[[f64; 3]],
+    mut fit: Estimate,
     method: Method,
     options: &EstimateOptions,
     seg: &SegmentOptions,
-) -> Result<Segmentation, EpdError> {
-    seg.validate()?;
-    let cloud = clean(points);
-    let pts: &[[f64; 3]] = &cloud.points;
-    let mut fit = estimate(pts, method, options)?;
+) -> Result<(Estimate, Vec<Slice>, usize), EpdError> {
     let mut end: Option<f64> = None;
     let mut rounds = 1;
     let mut prof = profile(pts, &fit.params, seg);
@@ -371,6 +369,48 @@ pub fn segment(
         fit = estimate(&before, method, options)?;
         rounds += 1;
         prof = profile(pts, &fit.params, seg);
+    }
+    Ok((fit, prof, rounds))
+}
+
+/// The straight section, its end and what lies beyond, by refitting on the points
+/// before the departure until the end stops moving (see the module's text).
+pub fn segment(
+    points: &[[f64; 3]],
+    method: Method,
+    options: &EstimateOptions,
+    seg: &SegmentOptions,
+) -> Result<Segmentation, EpdError> {
+    seg.validate()?;
+    let cloud = clean(points);
+    let pts: &[[f64; 3]] = &cloud.points;
+    let first = estimate(pts, method, options)?;
+    let (mut fit, mut prof, mut rounds) = refine(pts, first, method, options, seg)?;
+    // A departure from the very first slices: either the sensor is in the bend, or a
+    // bend close ahead dragged the first fit (on every point) off the straight pipe.
+    // Start again from the near points only (forward coordinate within 1.0, then 0.6 m)
+    // and keep the first start that finds a straight section.
+    let at_start = |prof: &[Slice]| {
+        let x_first = prof.first().map_or(0.0, |s| s.start_m);
+        first_departure(prof, seg)
+            .is_some_and(|i| locate_end(prof, i, seg).0 <= x_first + seg.slice_m)
+    };
+    if at_start(&prof) {
+        for near in [1.0, 0.6] {
+            let close: Vec<[f64; 3]> = pts.iter().filter(|p| p[0] <= near).copied().collect();
+            if close.len() < 2000 {
+                continue;
+            }
+            let Ok(start) = estimate(&close, method, options) else {
+                continue;
+            };
+            let (f, p, r) = refine(pts, start, method, options, seg)?;
+            rounds += r;
+            if !at_start(&p) {
+                (fit, prof) = (f, p);
+                break;
+            }
+        }
     }
     let departure = first_departure(&prof, seg);
     let located = departure.map(|i| locate_end(&prof, i, seg));
@@ -505,4 +545,72 @@ fn classify(run: &[Slice], o: &SegmentOptions) -> Layout {
     } else {
         Layout::TeeAhead
     }
+}
+
+/// A frame's geometry: its segmentation and, for a bend, the bend's fit.
+#[derive(Clone, Debug)]
+pub struct Survey {
+    /// The straight section and what lies beyond. Its `layout` and `straight_until`
+    /// are the survey's verdict (a departure whose torus fits is a bend, starting where
+    /// the torus starts; one that does not is a tee).
+    pub segmentation: Segmentation,
+    /// The bend's fit, for [`Layout::BendAhead`].
+    pub bend: Option<crate::bend::BendFit>,
+}
+
+/// [`segment`], then a torus fitted to what lies beyond a departure
+/// ([`crate::bend::fit_bend`], started at the departure with a long-radius bend,
+/// R = 1.5·D): when it converges with residuals within twice the straight section's
+/// and a bend radius above the tube's, the departure is a bend and the straight section
+/// ends where the torus starts; otherwise it is a tee (a branch opening: the main pipe
+/// goes on).
+pub fn survey(
+    points: &[[f64; 3]],
+    method: Method,
+    options: &EstimateOptions,
+    seg: &SegmentOptions,
+) -> Result<Survey, EpdError> {
+    let mut s = segment(points, method, options, seg)?;
+    let (Some(end), Some(dir), Layout::BendAhead | Layout::TeeAhead) =
+        (s.straight_until, s.direction, s.layout)
+    else {
+        return Ok(Survey {
+            segmentation: s,
+            bend: None,
+        });
+    };
+    let beta = s.straight.params;
+    let d_mean = 0.5 * (beta.d_max + beta.d_min);
+    let start = crate::bend::start_from(&beta, end, dir, 1.5 * d_mean);
+    let bend = crate::bend::fit_bend(&s.beyond, &beta, &start).ok();
+    let straight_sigma = s.straight.rms_residual;
+    let accepted = bend.filter(|b| {
+        b.status.is_converged()
+            && b.residual_sigma <= 2.0 * straight_sigma.max(1e-4)
+            && b.geometry.radius > 1.05 * b.geometry.tube_radius
+            && b.geometry.radius < 100.0 * d_mean
+            && b.angle_seen > 0.0
+    });
+    match accepted {
+        Some(b) => {
+            s.layout = Layout::BendAhead;
+            s.straight_until = Some(b.geometry.start);
+            s.direction = Some(b.geometry.direction);
+        }
+        None => s.layout = Layout::TeeAhead,
+    }
+    Ok(Survey {
+        segmentation: s,
+        bend: accepted,
+    })
+}
+
+/// The clock angle (deg, [0, 360)) of a direction of the straight fit's cross-section
+/// (angle φ from the PCS +Y toward +Z) as the sensor sees it: the direction taken to
+/// the SCS and read about the sensor's forward axis, 0° up (+Z), 90° right (+Y),
+/// 180° down, 270° left. Unlike φ, it does not depend on which member of the fit's
+/// symmetry class (a 180° turn about the axis) was reported.
+pub fn clock_angle_deg(beta: &Params, direction: f64) -> f64 {
+    let u = beta.dir_pcs_to_scs(&Vector3::new(0.0, direction.cos(), direction.sin()));
+    u.y.atan2(u.z).to_degrees().rem_euclid(360.0)
 }
