@@ -597,7 +597,14 @@ pub fn survey(
             s.straight_until = Some(b.geometry.start);
             s.direction = Some(b.geometry.direction);
         }
-        None => s.layout = Layout::TeeAhead,
+        None => {
+            // A branch opening starts abruptly: at the near edge of the first departing
+            // slice (within one slice), not where a bend's growth would start.
+            s.layout = Layout::TeeAhead;
+            if let Some(i) = first_departure(&s.profile, seg) {
+                s.straight_until = Some(s.profile[i].start_m);
+            }
+        }
     }
     Ok(Survey {
         segmentation: s,
