@@ -7,6 +7,7 @@ pub mod pipeline;
 pub mod plots;
 pub mod run;
 pub mod scenario;
+pub mod shard;
 pub mod stats;
 pub mod trial;
 
