@@ -57,7 +57,8 @@ timings (time_ms) aside. Pipeline scenarios ([pipeline]) cannot be sharded.";
     version,
     after_help = AFTER_HELP,
     args_conflicts_with_subcommands = true,
-    subcommand_negates_reqs = true
+    subcommand_negates_reqs = true,
+    disable_help_subcommand = true
 )]
 struct Cli {
     #[command(subcommand)]
@@ -88,11 +89,13 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Merge the N shard folders of one run (`--shard K/N`, any order) into one run's
-    /// folder: trials.csv, summary.csv, scenario.toml, metadata.json and the plots, equal
-    /// to an unsharded run's apart from timings. Refused (exit 2, nothing written): shards
-    /// of different scenarios, seeds, --trials or code, a shard missing or given twice,
-    /// different N.
+    /// Merge the N shard folders of one run (`--shard K/N`) into one run's folder.
+    ///
+    /// The folders may come in any order. The merged folder holds trials.csv,
+    /// summary.csv, scenario.toml, metadata.json and the plots, equal to an unsharded
+    /// run's apart from timings. Refused (exit 2, nothing written): shards of different
+    /// scenarios, seeds, --trials or code (or another binary than the merge's), a shard
+    /// missing or given twice, different N.
     Merge(MergeArgs),
 }
 

@@ -855,7 +855,8 @@ pub fn write_run<T: StagedFiles>(
     let _lock = lock_dir(staging.path())?;
     let mut staged = match stage(staging.path()) {
         Ok(s) => s,
-        Err(e) if e.is::<Interrupted>() => return Err(e),
+        // Refused shards are a usage error, named as such (nothing is written).
+        Err(e) if e.is::<Interrupted>() || e.is::<crate::shard::MergeError>() => return Err(e),
         Err(e) => {
             return Err(e.context(format!(
                 "the run into {} failed (the previous results, if any, are untouched)",
