@@ -148,7 +148,7 @@ log "unsharded run of the same binary for comparison"
 t2=$(date +%s.%N)
 "$work/run/bench-harness" "$scenario" --quiet --out "$work/whole"
 t3=$(date +%s.%N)
-log "unsharded run: $(echo "$t3 - $t2" | bc) s"
+log "unsharded run: $(awk -v a="$t2" -v b="$t3" 'BEGIN { printf "%.1f", b - a }') s"
 # trials.csv without time_ms (column 8); summary.csv without the time_ms rows' statistics.
 trials() { cut -d, -f1-7,9- "$1/trials.csv"; }
 summary() { awk -F, -v OFS=, '$4 == "time_ms" { print $1, $2, $3, $4, $5, $6, $7; next } { print }' "$1/summary.csv"; }

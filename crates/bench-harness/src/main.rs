@@ -17,7 +17,7 @@ use std::sync::atomic::Ordering;
 use bench_harness::pipeline::{PipelineScenario, is_pipeline, run_pipeline};
 use bench_harness::run::{INTERRUPTED, Interrupted, OutputRefused, default_output};
 use bench_harness::scenario::MAX_SCENARIO_BYTES;
-use bench_harness::shard::{MergeError, MergeOptions, merge, run_shard};
+use bench_harness::shard::{MergeError, MergeOptions, merge, run_shard, shard_trial_count};
 use bench_harness::{RunOptions, Scenario, ScenarioError, run};
 use clap::{Parser, Subcommand};
 use epd_cli::shard::ShardSpec;
@@ -328,12 +328,15 @@ fn main() -> ExitCode {
     match result {
         Ok(report) => {
             if !cli.quiet {
-                let part = cli.shard.map_or(String::new(), |s| format!(" (shard {s})"));
+                let per_setting = trials.unwrap_or(scenario.trials);
+                let part = cli.shard.map_or(String::new(), |s| {
+                    let n = shard_trial_count(s, scenario.sweeps.len(), per_setting);
+                    format!(" shard {s}: {n} trials of")
+                });
                 eprintln!(
-                    "{}{part}: {} settings × {} trials in {:.1} s → {}",
+                    "{}{part}: {} settings × {per_setting} trials in {:.1} s → {}",
                     scenario.name,
                     scenario.sweeps.len(),
-                    trials.unwrap_or(scenario.trials),
                     report.wall_time_s,
                     out.display()
                 );
