@@ -126,18 +126,20 @@ done
 t1=$(date +%s)
 log "all jobs left the queue after $((t1 - t0)) s"
 
-echo "job summary (scontrol show job):"
+echo "job summary (scontrol show job): id, array task, name, state, exit code, start, end, elapsed"
 {
     scontrol -o show job "$array"
     scontrol -o show job "$merge"
-} | tr ' ' '\n' | awk -F= '
-    /^JobId=/ { if (line) print line; line = sprintf("%-12s", $2) }
-    /^ArrayTaskId=/ { line = line sprintf(" task %-4s", $2) }
-    /^JobName=/ { line = line sprintf(" %-10s", $2) }
-    /^JobState=/ { line = line sprintf(" %-10s", $2) }
-    /^ExitCode=/ { line = line sprintf(" exit %-5s", $2) }
-    /^RunTime=/ { line = line sprintf(" elapsed %s", $2) }
-    END { if (line) print line }' | tee "$work/jobs.txt"
+} | awk '{
+        delete f
+        for (i = 1; i <= NF; i++) {
+            eq = index($i, "=")
+            if (eq > 0) f[substr($i, 1, eq - 1)] = substr($i, eq + 1)
+        }
+        task = ("ArrayTaskId" in f) ? f["ArrayJobId"] "_" f["ArrayTaskId"] : "-"
+        printf "%-5s %-6s %-10s %-10s %-5s %s %s %s\n", f["JobId"], task, f["JobName"],
+            f["JobState"], f["ExitCode"], f["StartTime"], f["EndTime"], f["RunTime"]
+    }' | sort -n | tee "$work/jobs.txt"
 merge_state=$(scontrol -o show job "$merge" | grep -o 'JobState=[A-Z_]*' | cut -d= -f2)
 if [[ $merge_state != COMPLETED ]]; then
     echo "error: the merge job is $merge_state; logs in $work/run/logs" >&2

@@ -252,27 +252,16 @@ pub enum MergeError {
         b_trials: usize,
     },
     /// Different scenarios.
-    #[error(
-        "shards of different scenarios: {a} ran `{a_name}` ({a_file}, sha256 {a_hash}), {b} ran \
-         `{b_name}` ({b_file}, sha256 {b_hash})"
-    )]
+    #[error("shards of different scenarios: {a} ran {a_scenario}, {b} ran {b_scenario}")]
     Scenario {
         /// One folder.
         a: PathBuf,
-        /// Its scenario's name.
-        a_name: String,
-        /// Its scenario file.
-        a_file: String,
-        /// Its scenario's SHA-256.
-        a_hash: String,
+        /// Its scenario: name, file and SHA-256.
+        a_scenario: String,
         /// Another.
         b: PathBuf,
-        /// Its scenario's name.
-        b_name: String,
-        /// Its scenario file.
-        b_file: String,
-        /// Its scenario's SHA-256.
-        b_hash: String,
+        /// Its scenario: name, file and SHA-256.
+        b_scenario: String,
     },
     /// Different shard counts.
     #[error("shard counts differ: {a} is shard {a_k}/{a_n}, {b} is shard {b_k}/{b_n}")]
@@ -758,15 +747,19 @@ fn check_shards(dirs: &[PathBuf], manifests: &[ShardManifest]) -> Result<(), Mer
     }
     for (b, m) in dirs.iter().zip(manifests).skip(1) {
         if m.scenario_sha256 != m0.scenario_sha256 || m.scenario != m0.scenario {
+            let what = |m: &ShardManifest| {
+                format!(
+                    "`{}` ({}, sha256 {})",
+                    m.scenario,
+                    m.scenario_file,
+                    m.scenario_sha256.chars().take(16).collect::<String>()
+                )
+            };
             return Err(MergeError::Scenario {
                 a: a.clone(),
-                a_name: m0.scenario.clone(),
-                a_file: m0.scenario_file.clone(),
-                a_hash: m0.scenario_sha256.chars().take(16).collect(),
+                a_scenario: what(m0),
                 b: b.clone(),
-                b_name: m.scenario.clone(),
-                b_file: m.scenario_file.clone(),
-                b_hash: m.scenario_sha256.chars().take(16).collect(),
+                b_scenario: what(m),
             });
         }
     }
@@ -1154,7 +1147,7 @@ mod tests {
                     status: Some("implausible"),
                     message: "a \"quoted\", multi\nline message".into(),
                     iterations: 12,
-                    time_ms: 3.141_592_653_589_793,
+                    time_ms: 2.718_281_828_459_1,
                     estimate: Some(Params::from_array([0.49, 0.48, 0.1, 0.2, 0.3, 0.01, -0.02])),
                     sigma: [None, Some(1e-5), None, None, None, None, Some(2e-5)],
                     errors: Some(ParamErrors {
