@@ -277,6 +277,21 @@ fn wrong_sets_of_shards_are_refused_and_nothing_is_written() {
     let m = m.replacen("\"crate_version\": \"", "\"crate_version\": \"9.", 1);
     std::fs::write(code.join("shard.json"), m).unwrap();
     refused(&[&a1, &code], &out, "different code versions");
+    // Both shards from another build: the merge itself is not the code that made them.
+    let other_a1 = d("code1");
+    std::fs::create_dir_all(&other_a1).unwrap();
+    for e in std::fs::read_dir(&a1).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), other_a1.join(e.file_name())).unwrap();
+    }
+    let m = read(&other_a1.join("shard.json"));
+    let m = m.replacen("\"crate_version\": \"", "\"crate_version\": \"9.", 1);
+    std::fs::write(other_a1.join("shard.json"), m).unwrap();
+    refused(
+        &[&other_a1, &code],
+        &out,
+        "merge with the binary that made the shards",
+    );
 
     // Not a shard: a whole run, an empty folder, a missing one.
     let whole = d("whole");
