@@ -1,11 +1,13 @@
-//! `bench-harness SCENARIO.toml [--out DIR] [--trials N] [--threads N] [-q]`: run a
-//! scenario.
+//! `bench-harness SCENARIO.toml [--out DIR] [--trials N] [--threads N] [--shard K/N] [-q]`:
+//! run a scenario, or the K-th of N parts of it;
+//! `bench-harness merge D_1 … D_N --out M [-q]`: merge the N parts into one run.
 //!
 //! Exit codes: 0 done; 1 the run failed, or a trial could not be made at all (status
 //! `error` in `trials.csv`; estimates that did not converge are results, counted in
 //! `n_failed`); 2 the scenario, the arguments or the output folder are wrong (nothing is
 //! written then);
 //! 130 interrupted (SIGINT or SIGTERM: nothing is written, the previous results stay).
+//! `merge` exits 2 when the folders are not the N shards of one run (nothing is written).
 
 use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
@@ -15,8 +17,10 @@ use std::sync::atomic::Ordering;
 use bench_harness::pipeline::{PipelineScenario, is_pipeline, run_pipeline};
 use bench_harness::run::{INTERRUPTED, Interrupted, OutputRefused, default_output};
 use bench_harness::scenario::MAX_SCENARIO_BYTES;
+use bench_harness::shard::{MergeError, MergeOptions, merge, run_shard, shard_trial_count};
 use bench_harness::{RunOptions, Scenario, ScenarioError, run};
-use clap::Parser;
+use clap::{Parser, Subcommand};
+use epd_cli::shard::ShardSpec;
 
 /// Most worker threads (`--threads`).
 const MAX_THREADS: usize = 1024;
@@ -34,17 +38,34 @@ Exit codes:
   1    the run failed (an I/O error, naming the file: nothing is written, the
        previous run stays), or a trial could not be made at all (status `error` in
        trials.csv: the frame or an estimate returned an error; the run is written)
-  2    bad arguments, scenario (a limit passed) or output folder: nothing is written
-  130  interrupted (SIGINT, SIGTERM): nothing is written, the previous run stays";
+  2    bad arguments, scenario (a limit passed) or output folder: nothing is written;
+       for merge also: the folders are not the N shards of one run
+  130  interrupted (SIGINT, SIGTERM): nothing is written, the previous run stays
+
+Sharding (one machine is not enough):
+  bench-harness SCENARIO --shard K/N --out D_K    (K = 1 … N, anywhere, any order)
+  bench-harness merge D_1 … D_N --out M           (M/trials.csv, M/summary.csv, plots)
+Trial g = setting index × trials + trial runs in shard (g mod N) + 1, with the seeds of
+the unsharded run: the merged trials.csv and summary.csv equal one unsharded run's,
+timings (time_ms) aside. Pipeline scenarios ([pipeline]) cannot be sharded.";
 
 /// Run a scenario of simulated ToF frames through the EPD estimators: trials.csv,
 /// summary.csv, metadata.json and PNG plots in one folder, replaced as a whole.
 #[derive(Parser, Debug)]
-#[command(name = "bench-harness", version, after_help = AFTER_HELP)]
+#[command(
+    name = "bench-harness",
+    version,
+    after_help = AFTER_HELP,
+    args_conflicts_with_subcommands = true,
+    subcommand_negates_reqs = true,
+    disable_help_subcommand = true
+)]
 struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
     /// The scenario file (TOML); `-` reads it from standard input.
-    #[arg(value_name = "SCENARIO")]
-    scenario: PathBuf,
+    #[arg(value_name = "SCENARIO", required = true)]
+    scenario: Option<PathBuf>,
     /// Output folder (default: target/results/<name>/ of the workspace, ignored by git).
     #[arg(short = 'o', long, alias = "output", value_name = "DIR")]
     out: Option<PathBuf>,
@@ -55,7 +76,38 @@ struct Cli {
     /// Worker threads, 1 ≤ N ≤ 1024 (default: all cores); the results do not depend on it.
     #[arg(long, value_name = "N")]
     threads: Option<NonZeroUsize>,
+    /// Run only the K-th of N parts (1 ≤ K ≤ N): the trials g = setting index × trials +
+    /// trial with g mod N = K − 1, seeded as in the unsharded run. Writes trials.csv (this
+    /// part's rows), shard.json and shard-trials.jsonl (exact values) for `merge`; no
+    /// summary or plots. Default --out: target/results/<name>-shard-K-of-N/.
+    #[arg(long, value_name = "K/N")]
+    shard: Option<ShardSpec>,
     /// No progress bar and no summary line: only errors on stderr.
+    #[arg(short, long)]
+    quiet: bool,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Merge the N shard folders of one run (`--shard K/N`) into one run's folder.
+    ///
+    /// The folders may come in any order. The merged folder holds trials.csv,
+    /// summary.csv, scenario.toml, metadata.json and the plots, equal to an unsharded
+    /// run's apart from timings. Refused (exit 2, nothing written): shards of different
+    /// scenarios, seeds, --trials or code (or another binary than the merge's), a shard
+    /// missing or given twice, different N.
+    Merge(MergeArgs),
+}
+
+#[derive(clap::Args, Debug)]
+struct MergeArgs {
+    /// The shard folders D_1 … D_N, in any order.
+    #[arg(value_name = "DIR", required = true)]
+    dirs: Vec<PathBuf>,
+    /// The merged run's folder (replaced as a whole, like a run's).
+    #[arg(short = 'o', long, alias = "output", value_name = "M")]
+    out: PathBuf,
+    /// No summary line: only errors on stderr.
     #[arg(short, long)]
     quiet: bool,
 }
@@ -101,10 +153,13 @@ fn start_workers(threads: Option<NonZeroUsize>) -> Result<(), ExitCode> {
     Ok(())
 }
 
-/// Print why a run failed and give its exit code: 2 for a refused output folder or
-/// scenario (nothing written), 130 when interrupted, 1 otherwise.
+/// Print why a run failed and give its exit code: 2 for a refused output folder,
+/// scenario or set of shards (nothing written), 130 when interrupted, 1 otherwise.
 fn failed(e: &anyhow::Error, name: &str) -> ExitCode {
-    if e.downcast_ref::<OutputRefused>().is_some() || e.downcast_ref::<ScenarioError>().is_some() {
+    if e.downcast_ref::<OutputRefused>().is_some()
+        || e.downcast_ref::<ScenarioError>().is_some()
+        || e.downcast_ref::<MergeError>().is_some()
+    {
         eprintln!("error: {e}");
         ExitCode::from(2)
     } else if e.downcast_ref::<Interrupted>().is_some() {
@@ -128,6 +183,14 @@ fn run_pipeline_main(cli: &Cli, path: &Path, text: &str) -> ExitCode {
     if cli.trials.is_some() {
         eprintln!(
             "error: --trials does not apply to a pipeline run (set pipeline.frames_per_section)"
+        );
+        return ExitCode::from(2);
+    }
+    if let Some(shard) = cli.shard {
+        eprintln!(
+            "error: --shard {shard}: a pipeline run cannot be sharded: every frame is corrected by \
+             one depth table fitted to all the rig's frames, so its parts are not independent; run \
+             it whole"
         );
         return ExitCode::from(2);
     }
@@ -163,6 +226,34 @@ fn run_pipeline_main(cli: &Cli, path: &Path, text: &str) -> ExitCode {
     }
 }
 
+/// `bench-harness merge D_1 … D_N --out M`.
+fn merge_main(a: &MergeArgs) -> ExitCode {
+    if let Err(code) = start_workers(None) {
+        return code;
+    }
+    match merge(&a.dirs, &MergeOptions { out: a.out.clone() }) {
+        Ok(report) => {
+            if !a.quiet {
+                eprintln!(
+                    "merged {} shards in {:.2} s → {}",
+                    a.dirs.len(),
+                    report.wall_time_s,
+                    a.out.display()
+                );
+            }
+            if report.trial_errors > 0 {
+                eprintln!(
+                    "{} trials or estimates could not be made (status `error` in trials.csv)",
+                    report.trial_errors
+                );
+                return ExitCode::FAILURE;
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => failed(&e, "merge"),
+    }
+}
+
 fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(c) => c,
@@ -171,13 +262,21 @@ fn main() -> ExitCode {
             return ExitCode::from(u8::try_from(e.exit_code()).unwrap_or(2));
         }
     };
+    if let Some(Command::Merge(a)) = &cli.command {
+        return merge_main(a);
+    }
+    let Some(scenario_arg) = cli.scenario.clone() else {
+        // clap requires SCENARIO without a subcommand; kept as an error, not a panic.
+        eprintln!("error: the scenario file is missing: bench-harness SCENARIO.toml");
+        return ExitCode::from(2);
+    };
     let trials = cli.trials.map(NonZeroUsize::get);
-    let path = if cli.scenario.as_os_str() == "-" {
+    let path = if scenario_arg.as_os_str() == "-" {
         PathBuf::from("<stdin>")
     } else {
-        cli.scenario.clone()
+        scenario_arg.clone()
     };
-    let text = if cli.scenario.as_os_str() == "-" {
+    let text = if scenario_arg.as_os_str() == "-" {
         read_scenario(&path, std::io::stdin().lock())
     } else {
         std::fs::File::open(&path)
@@ -213,20 +312,31 @@ fn main() -> ExitCode {
     if let Err(code) = start_workers(cli.threads) {
         return code;
     }
-    let out = cli.out.unwrap_or_else(|| default_output(&scenario.name));
+    let out = cli.out.unwrap_or_else(|| match cli.shard {
+        None => default_output(&scenario.name),
+        Some(s) => default_output(&format!("{}-shard-{}-of-{}", scenario.name, s.k(), s.n())),
+    });
     let options = RunOptions {
         out: out.clone(),
         trials,
         progress: !cli.quiet,
     };
-    match run(&scenario, &options) {
+    let result = match cli.shard {
+        None => run(&scenario, &options),
+        Some(shard) => run_shard(&scenario, &options, shard),
+    };
+    match result {
         Ok(report) => {
             if !cli.quiet {
+                let per_setting = trials.unwrap_or(scenario.trials);
+                let part = cli.shard.map_or(String::new(), |s| {
+                    let n = shard_trial_count(s, scenario.sweeps.len(), per_setting);
+                    format!(" shard {s}: {n} trials of")
+                });
                 eprintln!(
-                    "{}: {} settings × {} trials in {:.1} s → {}",
+                    "{}{part}: {} settings × {per_setting} trials in {:.1} s → {}",
                     scenario.name,
                     scenario.sweeps.len(),
-                    trials.unwrap_or(scenario.trials),
                     report.wall_time_s,
                     out.display()
                 );

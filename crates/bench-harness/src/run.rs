@@ -43,7 +43,7 @@ use rayon::prelude::*;
 
 use crate::scenario::Scenario;
 use crate::stats::Stats;
-use crate::trial::{FramePool, TrialResult, run_trial};
+use crate::trial::{FramePool, TrialRecord, TrialResult, run_trial};
 
 /// A summarised quantity: its name in `summary.csv`, unit, the error it reads (in that
 /// unit) and the index of its parameter in β for the Cramér–Rao bound.
@@ -310,7 +310,7 @@ pub(crate) fn wrote(p: &Path) -> impl Fn(std::io::Error) -> anyhow::Error + '_ {
 #[error("{0}")]
 pub struct OutputRefused(String);
 
-/// The files a sweep run writes; with [`PIPELINE_FILES`], the only names an output folder
+/// The files a sweep run writes; with [`PIPELINE_FILES`] and [`SHARD_FILES`], the only names an output folder
 /// holding a previous run may contain (with the temporary files of earlier versions,
 /// `.trials.csv.tmp<PID>`).
 pub const RUN_FILES: &[&str] = &[
@@ -338,11 +338,16 @@ pub const PIPELINE_FILES: &[&str] = &[
     "weights.png",
 ];
 
+/// The files a shard writes besides `trials.csv`, `scenario.toml` and `metadata.json`
+/// (`crate::shard`).
+pub const SHARD_FILES: &[&str] = &[crate::shard::MANIFEST_FILE, crate::shard::RECORDS_FILE];
+
 /// Whether `name` is a file a run writes, or a temporary file an earlier version left
 /// (`.<file>.tmp<PID>`).
 fn is_run_file(name: &str) -> bool {
     RUN_FILES.contains(&name)
         || PIPELINE_FILES.contains(&name)
+        || SHARD_FILES.contains(&name)
         || name.strip_prefix('.').is_some_and(|rest| {
             RUN_FILES.iter().any(|f| {
                 rest.strip_prefix(f)
@@ -620,11 +625,11 @@ pub fn default_output(name: &str) -> PathBuf {
     }
 }
 
-fn trial_rows(
+pub(crate) fn trial_rows(
     w: &mut impl Write,
     variable: &str,
     value: &str,
-    t: &TrialResult,
+    t: &TrialRecord,
 ) -> std::io::Result<()> {
     let tr = &t.truth;
     for m in &t.methods {
@@ -672,8 +677,12 @@ fn trial_rows(
     Ok(())
 }
 
-/// Summarise the trials of one setting.
-fn summarise(value: &str, methods: &[epd_core::Method], trials: &[TrialResult]) -> Vec<SummaryRow> {
+/// Summarise the trials of one setting (every one of them, in trial order).
+pub(crate) fn summarise(
+    value: &str,
+    methods: &[epd_core::Method],
+    trials: &[TrialRecord],
+) -> Vec<SummaryRow> {
     let mut rows = Vec::new();
     for (mi, m) in methods.iter().enumerate() {
         let results: Vec<_> = trials.iter().map(|t| (&t.methods[mi], t)).collect();
@@ -734,7 +743,7 @@ fn summarise(value: &str, methods: &[epd_core::Method], trials: &[TrialResult]) 
     rows
 }
 
-fn summary_line(variable: &str, r: &SummaryRow) -> String {
+pub(crate) fn summary_line(variable: &str, r: &SummaryRow) -> String {
     let s = &r.stats;
     [
         field(variable),
@@ -846,7 +855,8 @@ pub fn write_run<T: StagedFiles>(
     let _lock = lock_dir(staging.path())?;
     let mut staged = match stage(staging.path()) {
         Ok(s) => s,
-        Err(e) if e.is::<Interrupted>() => return Err(e),
+        // Refused shards are a usage error, named as such (nothing is written).
+        Err(e) if e.is::<Interrupted>() || e.is::<crate::shard::MergeError>() => return Err(e),
         Err(e) => {
             return Err(e.context(format!(
                 "the run into {} failed (the previous results, if any, are untouched)",
@@ -874,21 +884,8 @@ struct Staged {
     trial_errors: usize,
 }
 
-/// Run the trials and write every file of the run into `dir` (the staging folder).
-fn stage(
-    scenario: &Scenario,
-    progress: bool,
-    trials: usize,
-    dir: &Path,
-    start: Instant,
-) -> anyhow::Result<Staged> {
-    let trials_path = dir.join("trials.csv");
-    let summary_path = dir.join("summary.csv");
-    let mut trials_csv = create_new(&trials_path)?;
-    let mut summary_csv = create_new(&summary_path)?;
-    writeln!(trials_csv, "{}", TRIAL_COLUMNS.join(",")).map_err(wrote(&trials_path))?;
-    writeln!(summary_csv, "{}", SUMMARY_COLUMNS.join(",")).map_err(wrote(&summary_path))?;
-    let total = (trials * scenario.sweeps.len()) as u64;
+/// A progress bar over `total` trials (hidden unless `progress`).
+pub(crate) fn progress_bar(progress: bool, total: u64) -> ProgressBar {
     let bar = if progress {
         ProgressBar::new(total)
     } else {
@@ -901,65 +898,72 @@ fn stage(
         .unwrap_or_else(|_| ProgressStyle::default_bar())
         .progress_chars("=> "),
     );
-    let pool = FramePool::default();
-    let batch = if scenario.timing {
-        1
-    } else {
-        4 * rayon::current_num_threads().max(1)
-    };
-    let mut summary = Vec::new();
-    let mut trial_errors = 0;
-    for (si, (value, setting)) in scenario.sweeps.iter().enumerate() {
-        bar.set_message(format!("{} = {value}", scenario.sweep_variable));
-        let mut results: Vec<TrialResult> = Vec::with_capacity(trials);
-        let mut k = 0;
-        while k < trials {
+    bar
+}
+
+/// Runs the trials of a scenario in batches: in parallel, or one at a time when the
+/// scenario takes timings.
+pub(crate) struct TrialRunner<'a> {
+    scenario: &'a Scenario,
+    pool: FramePool,
+    batch: usize,
+    bar: &'a ProgressBar,
+}
+
+impl<'a> TrialRunner<'a> {
+    pub(crate) fn new(scenario: &'a Scenario, bar: &'a ProgressBar) -> Self {
+        let batch = if scenario.timing {
+            1
+        } else {
+            4 * rayon::current_num_threads().max(1)
+        };
+        Self {
+            scenario,
+            pool: FramePool::default(),
+            batch,
+            bar,
+        }
+    }
+
+    /// Run trials `ts` (in that order) of setting `si`, handing each one's record to
+    /// `each` in order; stops at the next batch when interrupted.
+    pub(crate) fn run_setting(
+        &self,
+        si: usize,
+        ts: &[usize],
+        mut each: impl FnMut(TrialRecord) -> anyhow::Result<()>,
+    ) -> anyhow::Result<()> {
+        let (value, setting) = &self.scenario.sweeps[si];
+        self.bar
+            .set_message(format!("{} = {value}", self.scenario.sweep_variable));
+        for ks in ts.chunks(self.batch) {
             if INTERRUPTED.load(Ordering::SeqCst) {
-                bar.finish_and_clear();
+                self.bar.finish_and_clear();
                 return Err(Interrupted.into());
             }
-            let ks: Vec<usize> = (k..(k + batch).min(trials)).collect();
-            let run_one = |&t: &usize| run_trial(setting, scenario.seed, t, si, &pool);
-            let done: Vec<TrialResult> = if scenario.timing {
+            let run_one = |&t: &usize| run_trial(setting, self.scenario.seed, t, si, &self.pool);
+            let done: Vec<TrialResult> = if self.scenario.timing {
                 ks.iter().map(run_one).collect()
             } else {
                 ks.par_iter().map(run_one).collect()
             };
+            self.bar.inc(done.len() as u64);
             for t in &done {
-                trial_rows(&mut trials_csv, &scenario.sweep_variable, value, t)
-                    .map_err(wrote(&trials_path))?;
-                trial_errors += usize::from(t.error.is_some())
-                    + t.methods.iter().filter(|m| m.status.is_none()).count();
+                each(TrialRecord::new(si, t))?;
             }
-            bar.inc(done.len() as u64);
-            results.extend(done);
-            k += ks.len();
         }
-        for row in summarise(value, &setting.methods, &results) {
-            writeln!(
-                summary_csv,
-                "{}",
-                summary_line(&scenario.sweep_variable, &row)
-            )
-            .map_err(wrote(&summary_path))?;
-            summary.push(row);
-        }
+        Ok(())
     }
-    bar.finish_and_clear();
-    if INTERRUPTED.load(Ordering::SeqCst) {
-        return Err(Interrupted.into());
-    }
-    let mut files = vec![
-        finish(trials_csv, &trials_path)?,
-        finish(summary_csv, &summary_path)?,
-    ];
-    files.push(write_new(
-        &dir.join("scenario.toml"),
-        scenario.source.as_bytes(),
-    )?);
-    files.extend(crate::plots::plot_all(scenario, &summary, dir)?);
+}
+
+/// The run's `metadata.json` (keys sorted): the scenario, the code, the machine and the
+/// wall time.
+pub(crate) fn metadata(
+    scenario: &Scenario,
+    trials: usize,
+    wall_time_s: f64,
+) -> serde_json::Map<String, serde_json::Value> {
     let (git_commit, git_dirty) = git_provenance();
-    let wall_time_s = start.elapsed().as_secs_f64();
     let meta = serde_json::json!({
         "scenario": scenario.name,
         "scenario_file": scenario.path.display().to_string(),
@@ -979,12 +983,102 @@ fn stage(
             "trials in parallel: time_ms is the estimate call alone, contended by concurrent trials"
         },
         "crb": "crb_* and crb_std: Cramér–Rao 1-σ for range noise of the setting's σ (exact for noise.model = range)",
-        "profile": if cfg!(debug_assertions) { "dev" } else { "release" },
+        "profile": profile(),
     });
+    match meta {
+        serde_json::Value::Object(m) => m,
+        _ => serde_json::Map::new(),
+    }
+}
+
+/// The build profile of this binary: `dev` or `release`.
+pub(crate) fn profile() -> &'static str {
+    if cfg!(debug_assertions) {
+        "dev"
+    } else {
+        "release"
+    }
+}
+
+/// Write `summary.csv`, `scenario.toml`, the plots and `metadata.json` of a whole run
+/// into `dir` (after `trials.csv`); `extra` keys go into the metadata. Returns the files
+/// and the wall time written in the metadata.
+pub(crate) fn finish_run(
+    scenario: &Scenario,
+    summary: &[SummaryRow],
+    trials: usize,
+    dir: &Path,
+    start: Instant,
+    extra: serde_json::Map<String, serde_json::Value>,
+) -> anyhow::Result<(Vec<PathBuf>, f64)> {
+    let summary_path = dir.join("summary.csv");
+    let mut summary_csv = create_new(&summary_path)?;
+    writeln!(summary_csv, "{}", SUMMARY_COLUMNS.join(",")).map_err(wrote(&summary_path))?;
+    for row in summary {
+        writeln!(
+            summary_csv,
+            "{}",
+            summary_line(&scenario.sweep_variable, row)
+        )
+        .map_err(wrote(&summary_path))?;
+    }
+    let mut files = vec![finish(summary_csv, &summary_path)?];
+    files.push(write_new(
+        &dir.join("scenario.toml"),
+        scenario.source.as_bytes(),
+    )?);
+    files.extend(crate::plots::plot_all(scenario, summary, dir)?);
+    let wall_time_s = start.elapsed().as_secs_f64();
+    let mut meta = metadata(scenario, trials, wall_time_s);
+    meta.extend(extra);
     files.push(write_new(
         &dir.join("metadata.json"),
         serde_json::to_string_pretty(&meta)?.as_bytes(),
     )?);
+    Ok((files, wall_time_s))
+}
+
+/// Run the trials and write every file of the run into `dir` (the staging folder).
+fn stage(
+    scenario: &Scenario,
+    progress: bool,
+    trials: usize,
+    dir: &Path,
+    start: Instant,
+) -> anyhow::Result<Staged> {
+    let trials_path = dir.join("trials.csv");
+    let mut trials_csv = create_new(&trials_path)?;
+    writeln!(trials_csv, "{}", TRIAL_COLUMNS.join(",")).map_err(wrote(&trials_path))?;
+    let bar = progress_bar(progress, (trials * scenario.sweeps.len()) as u64);
+    let runner = TrialRunner::new(scenario, &bar);
+    let all: Vec<usize> = (0..trials).collect();
+    let mut summary = Vec::new();
+    let mut trial_errors = 0;
+    for (si, (value, setting)) in scenario.sweeps.iter().enumerate() {
+        let mut results: Vec<TrialRecord> = Vec::with_capacity(trials);
+        runner.run_setting(si, &all, |t| {
+            trial_rows(&mut trials_csv, &scenario.sweep_variable, value, &t)
+                .map_err(wrote(&trials_path))?;
+            trial_errors += t.errors();
+            results.push(t);
+            Ok(())
+        })?;
+        summary.extend(summarise(value, &setting.methods, &results));
+    }
+    bar.finish_and_clear();
+    if INTERRUPTED.load(Ordering::SeqCst) {
+        return Err(Interrupted.into());
+    }
+    let mut files = vec![finish(trials_csv, &trials_path)?];
+    let (rest, wall_time_s) = finish_run(
+        scenario,
+        &summary,
+        trials,
+        dir,
+        start,
+        serde_json::Map::new(),
+    )?;
+    files.extend(rest);
     Ok(Staged {
         summary,
         files,

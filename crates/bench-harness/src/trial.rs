@@ -209,3 +209,102 @@ fn run_with(
         error: None,
     }
 }
+
+/// The names [`MethodRecord::status`] may take: those of [`FitStatus::name`]. Only
+/// `converged` is a result.
+pub const FIT_STATUS_NAMES: [&str; 4] =
+    ["converged", "iteration_limit", "degenerate", "implausible"];
+
+/// What the output files need of one method's result on one frame: a
+/// [`MethodResult`] with its status reduced to its name, so that it can be written to a
+/// shard file and read back exactly (`crate::shard`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MethodRecord {
+    /// The method.
+    pub method: Method,
+    /// [`FitStatus::name`] of the estimate (one of [`FIT_STATUS_NAMES`]); `None` when no
+    /// estimate could be made (written `error`).
+    pub status: Option<&'static str>,
+    /// The reason or error message.
+    pub message: String,
+    /// Solver iterations.
+    pub iterations: usize,
+    /// Wall time of the estimate call alone (ms).
+    pub time_ms: f64,
+    /// The canonical estimate, when one was made.
+    pub estimate: Option<Params>,
+    /// Its reported 1-σ.
+    pub sigma: Sigmas,
+    /// Estimate − truth under the symmetries.
+    pub errors: Option<ParamErrors>,
+}
+
+impl MethodRecord {
+    /// Whether the fit converged (the trial counts in the statistics), as
+    /// [`MethodResult::ok`].
+    pub fn ok(&self) -> bool {
+        self.status == Some(FIT_STATUS_NAMES[0]) && self.errors.is_some()
+    }
+
+    /// The status as written in `trials.csv`: the estimate's, or `error`.
+    pub fn status_name(&self) -> &'static str {
+        self.status.unwrap_or("error")
+    }
+}
+
+impl From<&MethodResult> for MethodRecord {
+    fn from(m: &MethodResult) -> Self {
+        Self {
+            method: m.method,
+            status: m.status.map(|s| s.name()),
+            message: m.message.clone(),
+            iterations: m.iterations,
+            time_ms: m.time_ms,
+            estimate: m.estimate,
+            sigma: m.sigma,
+            errors: m.errors,
+        }
+    }
+}
+
+/// What the output files (`trials.csv`, `summary.csv`) need of one trial, with the
+/// index of its setting: written by a run, or read back from shard files by a merge.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrialRecord {
+    /// Index of the setting (swept value) in the scenario.
+    pub setting: usize,
+    /// Trial index within the setting.
+    pub trial: usize,
+    /// Points in the cloud the methods saw.
+    pub n_points: usize,
+    /// The true β (canonical form).
+    pub truth: Params,
+    /// Cramér–Rao 1-σ per parameter for range noise of the setting's σ.
+    pub crb: Sigmas,
+    /// One record per method, in the scenario's order.
+    pub methods: Vec<MethodRecord>,
+    /// Why the frame could not be made, if it could not.
+    pub error: Option<String>,
+}
+
+impl TrialRecord {
+    /// The record of `result`, a trial of setting `setting`.
+    pub fn new(setting: usize, result: &TrialResult) -> Self {
+        Self {
+            setting,
+            trial: result.trial,
+            n_points: result.n_points,
+            truth: result.truth,
+            crb: result.crb,
+            methods: result.methods.iter().map(MethodRecord::from).collect(),
+            error: result.error.clone(),
+        }
+    }
+
+    /// Trials or estimates of this trial that could not be made at all (status
+    /// `error`): the frame, and each method without an estimate.
+    pub fn errors(&self) -> usize {
+        usize::from(self.error.is_some())
+            + self.methods.iter().filter(|m| m.status.is_none()).count()
+    }
+}

@@ -4,6 +4,7 @@
 
 pub mod read;
 pub mod report;
+pub mod shard;
 pub mod table;
 
 /// Keep freed memory in the process for the next frame instead of returning it to the
