@@ -2,8 +2,10 @@
 //! formats. The binary is a thin layer of argument parsing over it.
 #![deny(missing_docs)]
 
+pub mod estimate;
 pub mod read;
 pub mod report;
+pub mod simulate;
 pub mod table;
 
 /// Keep freed memory in the process for the next frame instead of returning it to the
