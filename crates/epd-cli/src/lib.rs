@@ -2,9 +2,11 @@
 //! formats. The binary is a thin layer of argument parsing over it.
 #![deny(missing_docs)]
 
+pub mod estimate;
 pub mod read;
 pub mod report;
 pub mod shard;
+pub mod simulate;
 pub mod table;
 
 /// Keep freed memory in the process for the next frame instead of returning it to the

@@ -22,18 +22,20 @@ use std::io::{BufWriter, ErrorKind, Write};
 use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::Instant;
 
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use epd_cli::read::{Format, MAX_INPUT_BYTES, PointCloud, read_from, read_path};
-use epd_cli::report::{FileEstimate, FileReport, columns};
+use epd_cli::estimate::{
+    DEFAULT_LOSS_SCALE_M, EstimateConfig, EstimateSettings, InputConfig, InputFrame, Units,
+    estimate_file, intensity, read_input,
+};
+use epd_cli::read::{Format, PointCloud};
+use epd_cli::report::{FileReport, columns};
 use epd_cli::shard::ShardSpec;
 use epd_cli::table::CalibrationTable;
 use epd_core::calibration::{CalibrationFrame, CalibrationSettings, calibrate};
-use epd_core::{
-    EstimateOptions, Loss, LossScale, Method, estimate, estimate_weighted, rms_range_residual,
-};
+use epd_core::report::json_object;
+use epd_core::{EstimateOptions, Loss, LossScale, Method};
 use indicatif::ProgressBar;
 use rayon::prelude::*;
 
@@ -378,28 +380,7 @@ fn check_output_path(out: &Path, inputs: &[PathBuf], flag: &str) -> anyhow::Resu
     Ok(())
 }
 
-/// Seed scale of the first robust pass (m) when --loss-scale is not given.
-const DEFAULT_LOSS_SCALE_M: f64 = 0.05;
-
-/// Checked settings of `epd estimate`.
-struct EstimateConfig {
-    method: Method,
-    nominal_od_mm: Option<f64>,
-    options: EstimateOptions,
-    loss: String,
-    input: InputConfig,
-    calibration: Option<CalibrationTable>,
-    weighted: bool,
-}
-
-/// How the files are read, checked.
-#[derive(Clone, Copy, Debug)]
-struct InputConfig {
-    units: Units,
-    frame: InputFrame,
-    format: Option<Format>,
-}
-
+/// The input settings as the library takes them.
 impl From<&InputArgs> for InputConfig {
     fn from(a: &InputArgs) -> Self {
         Self {
@@ -416,257 +397,28 @@ impl From<&InputArgs> for InputConfig {
     }
 }
 
-/// The length unit of the input file.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Units {
-    Metres,
-    Millimetres,
-}
-
-/// The coordinate frame of the input file.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum InputFrame {
-    /// The paper's sensor frame: X forward (optical axis), Y right, Z up.
-    Sensor,
-    /// A camera's optical frame (Arena SDK, PCL, Open3D, ROS): X right, Y down, Z forward.
-    Optical,
-}
-
-/// A cloud whose median distance from the sensor exceeds this (m) is not in metres.
-const MAX_MEDIAN_RANGE_M: f64 = 30.0;
-/// A cloud whose median distance from the sensor is below this (m) is not in the unit
-/// given (e.g. metres read as millimetres).
-const MIN_MEDIAN_RANGE_M: f64 = 0.02;
-
-/// Convert the points to metres in the sensor frame, in place, and check that the
-/// unit is plausible for a camera inside a pipe: its points lie between 2 cm and 30 m
-/// (median distance) from the sensor.
-fn to_sensor_metres(
-    points: &mut [[f64; 3]],
-    units: Units,
-    frame: InputFrame,
-) -> Result<(), String> {
-    let k = match units {
-        Units::Metres => 1.0,
-        Units::Millimetres => 1e-3,
-    };
-    for p in points.iter_mut() {
-        let [x, y, z] = *p;
-        *p = match frame {
-            InputFrame::Sensor => [k * x, k * y, k * z],
-            // X_sensor = Z_optical, Y_sensor = X_optical, Z_sensor = −Y_optical (a
-            // reflection: the sensor frame is left-handed).
-            InputFrame::Optical => [k * z, k * x, -k * y],
-        };
-    }
-    let stride = points.len().div_ceil(4096).max(1);
-    let mut r: Vec<f64> = points
-        .iter()
-        .step_by(stride)
-        .filter(|p| p.iter().all(|v| v.is_finite()) && p.iter().any(|&v| v != 0.0))
-        .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
-        .collect();
-    if r.is_empty() {
-        return Ok(());
-    }
-    let mid = r.len() / 2;
-    let (_, &mut median, _) = r.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
-    if median > MAX_MEDIAN_RANGE_M {
-        return Err(match units {
-            Units::Metres => format!(
-                "the points lie a median {median:.1} m from the sensor: the cloud looks like millimetres \
-                 (the Helios2 SDK writes mm); pass --units mm"
-            ),
-            Units::Millimetres => format!(
-                "the points lie a median {median:.1} m from the sensor even read as millimetres: \
-                 not a frame from inside a pipe"
-            ),
-        });
-    }
-    if median < MIN_MEDIAN_RANGE_M {
-        return Err(match units {
-            Units::Millimetres => format!(
-                "read as millimetres, the points lie a median {:.1} mm from the sensor: the cloud looks like \
-                 metres; drop --units mm",
-                median * 1e3
-            ),
-            Units::Metres => format!(
-                "the points lie a median {:.1} mm from the sensor: the cloud is not in metres \
-                 (kilometres?) or not a frame from inside a pipe",
-                median * 1e3
-            ),
-        });
-    }
-    Ok(())
-}
-
 fn estimate_config(a: &EstimateArgs) -> anyhow::Result<EstimateConfig> {
-    let min_range = a.min_range.unwrap_or(0.0);
-    let max_range = a.max_range.unwrap_or(f64::INFINITY);
-    if !(min_range >= 0.0 && max_range > min_range) {
-        return Err(usage(format!(
-            "--min-range {min_range} and --max-range {max_range}: need 0 ≤ min < max"
-        )));
-    }
-    let nominal_od_mm = match a.nominal_od_in {
-        None => None,
-        Some(x) if x > 0.0 && x.is_finite() => Some(x * 25.4),
-        Some(x) => {
-            return Err(usage(format!(
-                "--nominal-od-in {x}: expected a diameter in inches > 0"
-            )));
-        }
-    };
     let loss_name = match a.loss {
         LossArg::Cauchy => "cauchy",
         LossArg::Huber => "huber",
         LossArg::None => "none",
     };
-    let scale = a.loss_scale.unwrap_or(DEFAULT_LOSS_SCALE_M);
-    let loss = Loss::from_name(loss_name, scale)
-        .map_err(|e| usage(format!("--loss/--loss-scale: {e}")))?;
-    let mut options = EstimateOptions::default()
-        .with_loss(loss)
-        .map_err(|e| usage(e.to_string()))?
-        .with_loss_scale(if a.loss_scale.is_some() {
-            LossScale::Fixed
-        } else {
-            LossScale::Auto
-        });
-    if a.min_range.is_some() || a.max_range.is_some() {
-        options = options
-            .with_range_gate(min_range, max_range)
-            .map_err(|e| usage(e.to_string()))?;
-    }
+    let settings = EstimateSettings {
+        method: a.method.into(),
+        min_range: a.min_range,
+        max_range: a.max_range,
+        nominal_od_in: a.nominal_od_in,
+        loss: loss_name.into(),
+        loss_scale: a.loss_scale,
+        calibration: a.calibration.clone(),
+        unweighted: a.unweighted,
+        input: (&a.input).into(),
+    };
+    let cfg = EstimateConfig::new(&settings).map_err(|e| usage(e.to_string()))?;
     if a.files.iter().filter(|f| f.as_os_str() == "-").count() > 1 {
         return Err(usage("standard input (`-`) may be given only once"));
     }
-    if a.unweighted && a.calibration.is_none() {
-        return Err(usage(
-            "--unweighted applies to --calibration (without a table every point weighs the same)",
-        ));
-    }
-    let calibration = match &a.calibration {
-        None => None,
-        Some(p) => {
-            Some(CalibrationTable::read(p).map_err(|e| usage(format!("--calibration {e}")))?)
-        }
-    };
-    Ok(EstimateConfig {
-        method: a.method.into(),
-        nominal_od_mm,
-        options,
-        loss: loss.name().into(),
-        input: (&a.input).into(),
-        weighted: calibration.is_some() && !a.unweighted,
-        calibration,
-    })
-}
-
-/// Read one input (a file, or standard input for `-`) and convert its points to metres
-/// in the sensor frame.
-fn read_input(path: &Path, input: &InputConfig) -> Result<PointCloud, String> {
-    let mut cloud = if path.as_os_str() == "-" {
-        read_from(std::io::stdin().lock(), input.format, MAX_INPUT_BYTES)?
-    } else {
-        read_path(path)?
-    };
-    to_sensor_metres(&mut cloud.points, input.units, input.frame)?;
-    Ok(cloud)
-}
-
-/// The per-point `intensity` of a cloud (any case), or why there is none.
-fn intensity(cloud: &PointCloud, why: &str) -> Result<Vec<f64>, String> {
-    cloud
-        .extra
-        .iter()
-        .find(|(name, _)| name.eq_ignore_ascii_case("intensity"))
-        .map(|(_, v)| v.clone())
-        .ok_or_else(|| {
-            let have: Vec<&str> = cloud.extra.iter().map(|(n, _)| n.as_str()).collect();
-            format!(
-                "no per-point `intensity` in the file ({}); {why}",
-                if have.is_empty() {
-                    "it holds x, y, z only".to_string()
-                } else {
-                    format!("it holds x, y, z, {}", have.join(", "))
-                }
-            )
-        })
-}
-
-/// Read, filter and estimate one file.
-fn estimate_file(path: &Path, cfg: &EstimateConfig) -> FileReport {
-    let file = path.display().to_string();
-    let run = || -> Result<FileEstimate, String> {
-        let t0 = Instant::now();
-        let mut cloud = read_input(path, &cfg.input)?;
-        let read_ms = t0.elapsed().as_secs_f64() * 1e3;
-        let n_read = cloud.points.len();
-        if n_read == 0 {
-            return Err("the file holds no points".into());
-        }
-        let t1 = Instant::now();
-        // The calibration moves each point along its ray; its spread gives each point's σ.
-        let mut n_calibrated = None;
-        let mut sigmas = None;
-        if let Some(cal) = &cfg.calibration {
-            let i = intensity(&cloud, "--calibration needs one per point")?;
-            let moved = if cfg.weighted {
-                let (moved, s) = cal
-                    .table
-                    .correct_with_sigmas(&mut cloud.points, &i)
-                    .map_err(|e| e.to_string())?;
-                sigmas = Some(s);
-                moved
-            } else {
-                cal.table
-                    .correct(&mut cloud.points, &i)
-                    .map_err(|e| e.to_string())?
-            };
-            n_calibrated = Some(moved);
-        }
-        // Invalid pixels (NaN, inf, zeros) are dropped and counted by the estimator; the
-        // range gate keeps points by their model range (see EstimateOptions).
-        let kept = cloud.points;
-        let est = match &sigmas {
-            None => estimate(&kept, cfg.method, &cfg.options),
-            Some(s) => estimate_weighted(&kept, s, cfg.method, &cfg.options),
-        }
-        .map_err(|e| format!("{e} ({n_read} points read)"))?;
-        let elapsed_ms = t1.elapsed().as_secs_f64() * 1e3;
-        let n_out_of_range = est.n_out_of_gate;
-        let loss_scale_m = match (est.method, est.loss.scale()) {
-            (_, None) => f64::NAN,
-            // C-EPD's residual r_c ≈ 2δ/R: back to metres of radial error.
-            (Method::CEpd, Some(k)) => k * (est.params.d_max + est.params.d_min) / 8.0,
-            (_, Some(k)) => k,
-        };
-        let gated: Vec<[f64; 3]>;
-        let fitted: &[[f64; 3]] = match cfg.options.range_gate() {
-            None => &kept,
-            Some((lo, hi)) => {
-                gated = epd_core::gate_by_model_range(&kept, &est.params, lo, hi);
-                &gated
-            }
-        };
-        Ok(FileEstimate {
-            loss: (cfg.loss.clone(), loss_scale_m),
-            rms_residual_mm: rms_range_residual(fitted, &est.params).map(|v| v * 1e3),
-            estimate: est,
-            n_read,
-            n_out_of_range,
-            elapsed_ms,
-            read_ms,
-            nominal_od_mm: cfg.nominal_od_mm,
-            n_calibrated,
-            weighted: sigmas.is_some(),
-        })
-    };
-    FileReport {
-        file,
-        outcome: run(),
-    }
+    Ok(cfg)
 }
 
 /// Where results go: standard output, or a temporary file in the target folder that
@@ -1022,33 +774,10 @@ fn run_calibrate(a: &CalibrateArgs) -> anyhow::Result<ExitCode> {
 }
 
 fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
+    use epd_cli::simulate::{PoseOverride, SimulateError, SimulateSettings, Simulator};
+    use tof_sim::NoiseModel;
     use tof_sim::output::{PlyFormat, PlyPrecision, save_ply, write_file_atomic};
-    use tof_sim::{
-        FrameSeed, Noise, NoiseModel, Pipe, PoseRanges, Scene, Sensor, Subsample, WallModel,
-        simulate_into,
-    };
-    let (out, frames, seed) = (a.out.clone(), a.frames, a.seed);
-    let pipe = Pipe {
-        nominal_od_in: a.od_in,
-        wall_thickness: a.wall_mm * 1e-3,
-        ovality: a.ovality,
-    };
-    let noise = Noise {
-        model: match a.noise {
-            NoiseArg::Range => NoiseModel::Range,
-            NoiseArg::Isotropic => NoiseModel::Isotropic,
-        },
-        sigma: a.sigma,
-        outlier_fraction: a.outliers,
-        far_outlier_fraction: 0.0,
-        bias_b0: 0.0,
-        bias_b1: 0.0,
-        physics: (a.sensor == SensorArg::Helios2).then(tof_sim::ToFPhysics::helios2),
-    };
-    let sub = match a.points {
-        None => Subsample::All,
-        Some(n) => Subsample::Points(n.get()),
-    };
+    let (out, frames) = (a.out.clone(), a.frames);
     let format = match a.ply {
         PlyArg::Binary => PlyFormat::BinaryLittleEndian,
         PlyArg::Ascii => PlyFormat::Ascii,
@@ -1057,51 +786,33 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         PrecisionArg::F64 => PlyPrecision::F64,
         PrecisionArg::F32 => PlyPrecision::F32,
     };
-    let sensor = Sensor::helios2();
-    sensor.validate()?;
-    noise.validate().map_err(|e| usage(e.to_string()))?;
-    pipe.validate().map_err(|e| usage(e.to_string()))?;
+    let sim = Simulator::new(&SimulateSettings {
+        seed: a.seed,
+        sigma: a.sigma,
+        od_in: a.od_in,
+        ovality: a.ovality,
+        wall_mm: a.wall_mm,
+        points: a.points,
+        outliers: a.outliers,
+        noise: match a.noise {
+            NoiseArg::Range => NoiseModel::Range,
+            NoiseArg::Isotropic => NoiseModel::Isotropic,
+        },
+        helios2: a.sensor == SensorArg::Helios2,
+        pose: PoseOverride::default(),
+    })
+    .map_err(|e| match e {
+        SimulateError::Setting(m) => usage(m),
+        SimulateError::Sim(e) => e.into(),
+    })?;
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     let mut frame = tof_sim::Frame::empty();
     let bar = ProgressBar::new(frames);
     for k in 0..frames {
-        let truth = PoseRanges::default().sample(&pipe, seed, k)?;
-        let scene = Scene::new(&truth, WallModel::Exact, sensor.max_range)?;
-        simulate_into(
-            &sensor,
-            &scene,
-            &noise,
-            sub,
-            FrameSeed {
-                seed,
-                trial: k,
-                sweep_index: 0,
-            },
-            &mut frame,
-        )?;
+        sim.frame(k, &mut frame)?;
         let stem = format!("frame_{k:04}");
         save_ply(&out.join(format!("{stem}.ply")), &frame, format, precision)?;
-        let t = epd_core::canonicalize(&truth);
-        let deg = 180.0 / std::f64::consts::PI;
-        let json = format!(
-            "{{\"d_max_mm\":{},\"d_min_mm\":{},\"roll_deg\":{},\"pitch_deg\":{},\"yaw_deg\":{},\"dy_mm\":{},\"dz_mm\":{},\
-             \"n_points\":{},\"seed\":{seed},\"trial\":{k},\"sigma_m\":{},\"outlier_fraction\":{},\"sensor\":\"{}\"}}\n",
-            t.d_max * 1e3,
-            t.d_min * 1e3,
-            t.roll * deg,
-            t.pitch * deg,
-            t.yaw * deg,
-            t.dy * 1e3,
-            t.dz * 1e3,
-            frame.len(),
-            noise.sigma,
-            noise.outlier_fraction,
-            if a.sensor == SensorArg::Helios2 {
-                "helios2"
-            } else {
-                "plain"
-            }
-        );
+        let json = format!("{}\n", json_object(&sim.truth(k, &frame)));
         write_file_atomic(&out.join(format!("{stem}.json")), |w| {
             std::io::Write::write_all(w, json.as_bytes())
         })?;

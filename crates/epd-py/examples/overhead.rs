@@ -1,0 +1,75 @@
+//! Time of one estimate of a file's points called from Rust: the baseline of the Python
+//! overhead figure (`examples/overhead.py` times the same through `epd.estimate`).
+//!
+//! ```text
+//! cargo run --release -p epd-py --example overhead -- FILE [CALLS]
+//! ```
+//! Prints one JSON object: per-call times (ms) of `epd_core::estimate` alone (`core`)
+//! and of what `epd.estimate` runs on an array, the estimate and its report fields
+//! (`pipeline`), each after one warm-up call.
+
+use std::borrow::Cow;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use epd_cli::estimate::{
+    EstimateConfig, EstimateSettings, InputConfig, InputFrame, Units, estimate_points,
+};
+use epd_cli::report::FileReport;
+use epd_core::Method;
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let mut args = std::env::args().skip(1);
+    let path = PathBuf::from(args.next().ok_or("usage: overhead FILE [CALLS]")?);
+    let calls: usize = args.next().map_or(Ok(20), |s| s.parse())?;
+    let cloud = epd_cli::read::read_path(&path)?;
+    let cfg = EstimateConfig::new(&EstimateSettings {
+        method: Method::MlEpd,
+        min_range: None,
+        max_range: None,
+        nominal_od_in: None,
+        loss: "cauchy".into(),
+        loss_scale: None,
+        calibration: None,
+        unweighted: false,
+        input: InputConfig {
+            units: Units::Metres,
+            frame: InputFrame::Sensor,
+            format: None,
+        },
+    })?;
+    let pipeline = || -> Result<usize, String> {
+        let e = estimate_points(Cow::Borrowed(&cloud.points), None, None, &cfg, 0.0)?;
+        let report = FileReport {
+            file: String::new(),
+            outcome: Ok(e),
+        };
+        Ok(report.fields().len())
+    };
+    let core = || epd_core::estimate(&cloud.points, cfg.method, &cfg.options);
+    pipeline()?;
+    core()?;
+    let mut t_pipeline = Vec::with_capacity(calls);
+    let mut t_core = Vec::with_capacity(calls);
+    for _ in 0..calls {
+        let t = Instant::now();
+        core()?;
+        t_core.push(t.elapsed().as_secs_f64() * 1e3);
+        let t = Instant::now();
+        pipeline()?;
+        t_pipeline.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    let list = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x:.4}"))
+            .collect::<Vec<_>>()
+            .join(",")
+    };
+    println!(
+        "{{\"n_points\":{},\"core\":[{}],\"pipeline\":[{}]}}",
+        cloud.points.len(),
+        list(&t_core),
+        list(&t_pipeline)
+    );
+    Ok(())
+}

@@ -1,0 +1,616 @@
+//! The `epd` Python package: `epd.estimate`, `epd.simulate` and `epd.read` over the
+//! workspace's libraries, with numpy arrays at the boundary.
+//!
+//! Every result goes through the same code as the `epd` tool (`epd_cli::estimate`,
+//! `epd_cli::report`, `epd_cli::simulate`, `epd_cli::read`), so `epd.estimate` returns
+//! the keys and values of one JSON object of `epd estimate --format json`, and the
+//! errors carry the tool's messages. The GIL is released while a cloud is read,
+//! converted and fitted. A C-contiguous, aligned float64 (N, 3) array is read in place
+//! (no copy); any other real array is converted once.
+#![deny(missing_docs)]
+
+use std::borrow::Cow;
+use std::num::NonZeroUsize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use epd_cli::estimate::{
+    EstimateConfig, EstimateSettings, InputConfig, InputFrame, Units, estimate_file,
+    estimate_points, sensor_metres,
+};
+use epd_cli::report::{FileEstimate, FileReport};
+use epd_cli::simulate::{PoseOverride, SimulateError, SimulateSettings, Simulator};
+use epd_core::Method;
+use epd_core::report::Field;
+use numpy::{
+    PyArray1, PyArray2, PyArrayDescrMethods, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
+    PyUntypedArrayMethods,
+};
+use pyo3::exceptions::{PyIsADirectoryError, PyOSError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyString};
+
+/// Points or per-point values taken from a Python object: a read-only borrow of a
+/// float64 array, either the caller's own (no copy) or a converted copy.
+struct Taken<A> {
+    array: A,
+    /// Whether the values were copied (converted dtype, layout or a non-array object).
+    copied: bool,
+}
+
+/// `obj` as a numpy array (`numpy.asarray`, which makes a new array of anything but an
+/// array), checked: real numbers (integer or float) in `ndim` dimensions, the second of
+/// length 3 for points; `name` starts the error messages.
+fn as_real_array<'py>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+    ndim: usize,
+) -> PyResult<Bound<'py, PyAny>> {
+    let py = obj.py();
+    let np = py.import("numpy")?;
+    let arr = np
+        .call_method1("asarray", (obj,))
+        .map_err(|e| PyValueError::new_err(format!("{name}: not an array of numbers: {e}")))?;
+    let dtype = arr.getattr("dtype")?;
+    let kind: String = dtype.getattr("kind")?.extract()?;
+    if !matches!(kind.as_str(), "f" | "i" | "u") {
+        return Err(PyValueError::new_err(format!(
+            "{name}: dtype {} is not a real number type (float or integer)",
+            dtype.str()?
+        )));
+    }
+    let shape: Vec<usize> = arr.getattr("shape")?.extract()?;
+    let ok = shape.len() == ndim && (ndim != 2 || shape[1] == 3);
+    if !ok {
+        let want = if ndim == 2 { "(N, 3)" } else { "(N,)" };
+        return Err(PyValueError::new_err(format!(
+            "{name}: expected an array of shape {want}, got shape {shape:?}"
+        )));
+    }
+    Ok(arr)
+}
+
+/// The array itself when it is float64 (native byte order), aligned and C-contiguous;
+/// else a converted C-contiguous float64 copy.
+fn contiguous_f64<'py>(arr: Bound<'py, PyAny>) -> PyResult<(Bound<'py, PyAny>, bool)> {
+    let fits = match arr.cast::<numpy::PyUntypedArray>() {
+        Ok(a) => {
+            a.is_c_contiguous()
+                && arr
+                    .getattr("flags")?
+                    .getattr("aligned")?
+                    .extract::<bool>()?
+                && a.dtype().is_equiv_to(&numpy::dtype::<f64>(arr.py()))
+        }
+        Err(_) => false,
+    };
+    if fits {
+        return Ok((arr, false));
+    }
+    let np = arr.py().import("numpy")?;
+    let f64_type = np.getattr("float64")?;
+    let copy = np.call_method1("ascontiguousarray", (arr, f64_type))?;
+    Ok((copy, true))
+}
+
+/// Points from an (N, 3) array of real numbers (or anything `numpy.asarray` makes one
+/// of): the caller's float64 C-contiguous array is borrowed, anything else copied once.
+fn take_points<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Taken<PyReadonlyArray2<'py, f64>>> {
+    let arr = as_real_array(obj, "points", 2)?;
+    let made = !obj.is_instance_of::<numpy::PyUntypedArray>();
+    let (arr, converted) = contiguous_f64(arr)?;
+    let copied = made || converted;
+    let arr = arr.cast_into::<PyArray2<f64>>()?;
+    let array = arr
+        .try_readonly()
+        .map_err(|e| PyValueError::new_err(format!("points: {e}")))?;
+    Ok(Taken { array, copied })
+}
+
+/// Per-point values (intensity, σ) from a 1-D array of real numbers.
+fn take_values<'py>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+) -> PyResult<Taken<PyReadonlyArray1<'py, f64>>> {
+    let arr = as_real_array(obj, name, 1)?;
+    let made = !obj.is_instance_of::<numpy::PyUntypedArray>();
+    let (arr, converted) = contiguous_f64(arr)?;
+    let copied = made || converted;
+    let arr = arr.cast_into::<PyArray1<f64>>()?;
+    let array = arr
+        .try_readonly()
+        .map_err(|e| PyValueError::new_err(format!("{name}: {e}")))?;
+    Ok(Taken { array, copied })
+}
+
+/// The points of a borrowed (N, 3) array as `[x, y, z]` rows, in place.
+fn rows<'a>(a: &'a PyReadonlyArray2<'_, f64>) -> PyResult<&'a [[f64; 3]]> {
+    let flat = a
+        .as_slice()
+        .map_err(|_| PyValueError::new_err("points: the array is not contiguous"))?;
+    let (rows, rest) = flat.as_chunks::<3>();
+    if !rest.is_empty() {
+        return Err(PyValueError::new_err("points: expected 3 values per point"));
+    }
+    Ok(rows)
+}
+
+/// The values of a borrowed 1-D array, in place.
+fn values<'a>(a: &'a PyReadonlyArray1<'_, f64>, name: &str) -> PyResult<&'a [f64]> {
+    a.as_slice()
+        .map_err(|_| PyValueError::new_err(format!("{name}: the array is not contiguous")))
+}
+
+/// The Python exception for a failure to read `path` with the tool's `message`:
+/// `OSError` (with its errno, so `FileNotFoundError`, `PermissionError`, …) when the file
+/// cannot be opened or is not a regular file, else `ValueError` (the contents are wrong).
+fn file_error(path: &Path, message: String) -> PyErr {
+    let name = path.display().to_string();
+    let os = |e: std::io::Error| match e.raw_os_error() {
+        Some(errno) => PyOSError::new_err((errno, message.clone(), name.clone())),
+        None => PyOSError::new_err(message.clone()),
+    };
+    match std::fs::metadata(path) {
+        Err(e) => os(e),
+        Ok(m) if m.is_dir() => PyIsADirectoryError::new_err(message),
+        Ok(m) if !m.is_file() => PyOSError::new_err(message),
+        // A regular file: opening it cannot block.
+        Ok(_) => match std::fs::File::open(path) {
+            Err(e) => os(e),
+            Ok(_) => PyValueError::new_err(message),
+        },
+    }
+}
+
+/// A report field as a Python value.
+fn field_value<'py>(py: Python<'py>, f: &Field) -> PyResult<Bound<'py, PyAny>> {
+    Ok(match f {
+        Field::Num(v) if v.is_finite() => v.into_pyobject(py)?.into_any(),
+        Field::Num(_) | Field::Null => py.None().into_bound(py),
+        Field::Int(v) => v.into_pyobject(py)?.into_any(),
+        Field::Text(s) => PyString::new(py, s).into_any(),
+        Field::Bool(b) => b.into_pyobject(py)?.to_owned().into_any(),
+    })
+}
+
+/// Report fields as a dict, keys in order; `file` is `None` when the points came as an
+/// array.
+fn fields_dict<'py>(
+    py: Python<'py>,
+    fields: &[(&'static str, Field)],
+    from_array: bool,
+) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    for (k, v) in fields {
+        if from_array && *k == "file" {
+            d.set_item(*k, py.None())?;
+        } else {
+            d.set_item(*k, field_value(py, v)?)?;
+        }
+    }
+    Ok(d)
+}
+
+fn parse_units(units: &str) -> PyResult<Units> {
+    match units {
+        "m" => Ok(Units::Metres),
+        "mm" => Ok(Units::Millimetres),
+        other => Err(PyValueError::new_err(format!(
+            "units={other:?}: expected \"m\" or \"mm\""
+        ))),
+    }
+}
+
+fn parse_frame(frame: &str) -> PyResult<InputFrame> {
+    match frame {
+        "sensor" => Ok(InputFrame::Sensor),
+        "optical" => Ok(InputFrame::Optical),
+        other => Err(PyValueError::new_err(format!(
+            "frame={other:?}: expected \"sensor\" or \"optical\""
+        ))),
+    }
+}
+
+/// What `estimate` works on once the arguments are taken.
+enum Input<'py> {
+    /// A file, read as `epd estimate FILE` reads it.
+    File(PathBuf),
+    /// Points (and per-point values) borrowed or copied from arrays.
+    Array {
+        points: Taken<PyReadonlyArray2<'py, f64>>,
+        intensity: Option<Taken<PyReadonlyArray1<'py, f64>>>,
+        sigma: Option<Taken<PyReadonlyArray1<'py, f64>>>,
+    },
+}
+
+/// Estimate the pipe's diameters and the sensor's pose from one cloud.
+///
+/// `points` is an (N, 3) array (float64 C-contiguous arrays are read in place; other
+/// real arrays are converted once) or the path of a PLY/PCD/CSV/XYZ file. The other
+/// arguments are those of `epd estimate`: `method` ("ml-epd", "ru-epd", "c-epd"),
+/// `units` ("m", "mm"), `frame` ("sensor", "optical"), `loss` ("cauchy", "huber",
+/// "none"; `None` is "none"), `loss_scale` (m; `None`: from the residuals),
+/// `min_range`/`max_range` (m), `calibration` (a depth-table JSON file; needs
+/// `intensity`, one per point, or a file with an `intensity` property),
+/// `unweighted`, `nominal_od_in`. `sigma` gives each point's range standard deviation
+/// (m) for a weighted fit. Returns the keys and values of one JSON object of
+/// `epd estimate --format json` (`file` is `None` for an array). Raises `ValueError`
+/// for bad arguments or a cloud that cannot be fitted and `OSError` for a file that
+/// cannot be read, with the tool's messages. The GIL is released during the fit.
+#[pyfunction]
+#[pyo3(signature = (
+    points, method="ml-epd", units="m", frame="sensor", loss=Some("cauchy"),
+    loss_scale=None, min_range=None, max_range=None, calibration=None,
+    intensity=None, sigma=None, unweighted=false, nominal_od_in=None,
+))]
+#[allow(clippy::too_many_arguments)] // the tool's flags, as keyword arguments
+fn estimate<'py>(
+    py: Python<'py>,
+    points: &Bound<'py, PyAny>,
+    method: &str,
+    units: &str,
+    frame: &str,
+    loss: Option<&str>,
+    loss_scale: Option<f64>,
+    min_range: Option<f64>,
+    max_range: Option<f64>,
+    calibration: Option<PathBuf>,
+    intensity: Option<&Bound<'py, PyAny>>,
+    sigma: Option<&Bound<'py, PyAny>>,
+    unweighted: bool,
+    nominal_od_in: Option<f64>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let method: Method = method
+        .parse()
+        .map_err(|e: epd_core::EpdError| PyValueError::new_err(e.to_string()))?;
+    let settings = EstimateSettings {
+        method,
+        min_range,
+        max_range,
+        nominal_od_in,
+        loss: loss.unwrap_or("none").to_string(),
+        loss_scale,
+        calibration,
+        unweighted,
+        input: InputConfig {
+            units: parse_units(units)?,
+            frame: parse_frame(frame)?,
+            format: None,
+        },
+    };
+    let input = if points.is_instance_of::<PyString>() || has_fspath(points)? {
+        let path: PathBuf = points.extract()?;
+        if path.as_os_str() == "-" {
+            return Err(PyValueError::new_err(
+                "points=\"-\": standard input is not read here; pass a file path or an array",
+            ));
+        }
+        if intensity.is_some() || sigma.is_some() {
+            return Err(PyValueError::new_err(
+                "intensity= and sigma= go with an array of points; a file brings its own \
+                 properties",
+            ));
+        }
+        Input::File(path)
+    } else {
+        let points = take_points(points)?;
+        if points.array.len() == 0 {
+            return Err(PyValueError::new_err("the array holds no points"));
+        }
+        if sigma.is_some() && settings.calibration.is_some() && !unweighted {
+            return Err(PyValueError::new_err(
+                "sigma= and a weighting calibration= both give per-point σ: pass one, or \
+                 unweighted=True",
+            ));
+        }
+        Input::Array {
+            points,
+            intensity: intensity.map(|a| take_values(a, "intensity")).transpose()?,
+            sigma: sigma.map(|a| take_values(a, "sigma")).transpose()?,
+        }
+    };
+    let config = |settings: &EstimateSettings| {
+        EstimateConfig::new(settings).map_err(|e| match &e {
+            epd_cli::estimate::ConfigError::Calibration { path, .. } => {
+                Failure::File(path.clone(), e.to_string())
+            }
+            epd_cli::estimate::ConfigError::Setting(m) => Failure::Value(m.clone()),
+        })
+    };
+    match &input {
+        Input::File(path) => {
+            let report: FileReport = py
+                .detach(|| -> Result<FileReport, Failure> {
+                    Ok(estimate_file(path, &config(&settings)?))
+                })
+                .map_err(|f| f.into_py_err())?;
+            match &report.outcome {
+                Ok(_) => fields_dict(py, &report.fields(), false),
+                Err(msg) => Err(file_error(path, msg.clone())),
+            }
+        }
+        Input::Array {
+            points,
+            intensity,
+            sigma,
+        } => {
+            let pts = rows(&points.array)?;
+            let i = intensity
+                .as_ref()
+                .map(|t| values(&t.array, "intensity"))
+                .transpose()?;
+            let s = sigma
+                .as_ref()
+                .map(|t| values(&t.array, "sigma"))
+                .transpose()?;
+            let outcome = py
+                .detach(|| -> Result<FileEstimate, Failure> {
+                    let cfg = config(&settings)?;
+                    let t0 = Instant::now();
+                    let pts: Cow<'_, [[f64; 3]]> =
+                        sensor_metres(pts, cfg.input.units, cfg.input.frame)
+                            .map_err(Failure::Value)?;
+                    let read_ms = t0.elapsed().as_secs_f64() * 1e3;
+                    estimate_points(pts, i, s, &cfg, read_ms).map_err(Failure::Value)
+                })
+                .map_err(|f| f.into_py_err())?;
+            let report = FileReport {
+                file: String::new(),
+                outcome: Ok(outcome),
+            };
+            fields_dict(py, &report.fields(), true)
+        }
+    }
+}
+
+/// An error found with the GIL released, turned into a Python exception afterwards.
+enum Failure {
+    /// Bad input: `ValueError`.
+    Value(String),
+    /// A file that could not be used: `OSError` or `ValueError` (see [`file_error`]).
+    File(PathBuf, String),
+}
+
+impl Failure {
+    fn into_py_err(self) -> PyErr {
+        match self {
+            Failure::Value(m) => PyValueError::new_err(m),
+            Failure::File(p, m) => file_error(&p, m),
+        }
+    }
+}
+
+/// Whether `obj` is an `os.PathLike` (has `__fspath__`).
+fn has_fspath(obj: &Bound<'_, PyAny>) -> PyResult<bool> {
+    obj.hasattr("__fspath__")
+}
+
+/// The address of the float64 data that `estimate` would fit for `points`, and whether
+/// it is a copy: `(address, copied)`. For tests of the no-copy path.
+#[pyfunction]
+fn _points_buffer(points: &Bound<'_, PyAny>) -> PyResult<(usize, bool)> {
+    let t = take_points(points)?;
+    let rows = rows(&t.array)?;
+    Ok((rows.as_ptr() as usize, t.copied))
+}
+
+/// An `(N, 3)` float64 array owning `points` (no copy).
+fn points_array<'py>(py: Python<'py>, points: Vec<[f64; 3]>) -> PyResult<Bound<'py, PyAny>> {
+    let n = points.len();
+    let flat = PyArray1::from_vec(py, points.into_flattened());
+    Ok(flat.reshape([n, 3])?.into_any())
+}
+
+/// Read a point-cloud file (PLY, PCD, CSV/XYZ/TXT/PTS/ASC) with the `epd` tool's readers.
+///
+/// Returns `(points, properties)`: the points as stored (an (N, 3) float64 array, not
+/// converted: pass `units=`/`frame=` to `estimate`) and a dict of the other per-point
+/// properties (`intensity`, …) as float64 arrays. Raises `OSError` when the file cannot be
+/// opened and `ValueError` when its contents are not a point cloud, with the tool's
+/// messages. The GIL is released while the file is read.
+#[pyfunction]
+fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyDict>)> {
+    let cloud = py
+        .detach(|| epd_cli::read::read_path(&path))
+        .map_err(|m| file_error(&path, m))?;
+    let props = PyDict::new(py);
+    for (name, v) in cloud.extra {
+        props.set_item(name, PyArray1::from_vec(py, v))?;
+    }
+    Ok((points_array(py, cloud.points)?, props))
+}
+
+/// Simulate one Helios2-like frame inside a pipe, as `epd simulate` does.
+///
+/// Arguments as the tool's flags: `od_in` (nominal outer diameter, inch), `wall_mm`,
+/// `ovality` ((Dmax − Dmin)/ID), `sigma` (m of range noise), `seed`, `trial` (the frame
+/// index: frame_KKKK of `epd simulate --seed S` is `trial=K`), `points` (a uniform
+/// subsample of that many points), `outliers` (fraction), `noise` ("range",
+/// "isotropic"), `sensor` ("plain", "helios2"); `roll_deg`, `pitch_deg`, `yaw_deg`,
+/// `dy_mm`, `dz_mm` replace the drawn pose parameters. Returns `(points, truth)`: the
+/// measured points (an (N, 3) float64 array, m, sensor frame) and the ground truth with
+/// the keys and values of the JSON file `epd simulate` writes; with
+/// `return_properties=True`, `(points, truth, properties)` where properties holds `u`,
+/// `v` and (Helios2) `intensity` as in the PLY file.
+#[pyfunction]
+#[pyo3(signature = (
+    od_in=20.0, wall_mm=12.0, ovality=0.02, sigma=0.03, seed=1, trial=0, points=None,
+    outliers=0.0, noise="range", sensor="plain", roll_deg=None, pitch_deg=None,
+    yaw_deg=None, dy_mm=None, dz_mm=None, return_properties=false,
+))]
+#[allow(clippy::too_many_arguments)] // the tool's flags, as keyword arguments
+fn simulate<'py>(
+    py: Python<'py>,
+    od_in: f64,
+    wall_mm: f64,
+    ovality: f64,
+    sigma: f64,
+    seed: u64,
+    trial: u64,
+    points: Option<usize>,
+    outliers: f64,
+    noise: &str,
+    sensor: &str,
+    roll_deg: Option<f64>,
+    pitch_deg: Option<f64>,
+    yaw_deg: Option<f64>,
+    dy_mm: Option<f64>,
+    dz_mm: Option<f64>,
+    return_properties: bool,
+) -> PyResult<Bound<'py, PyAny>> {
+    let noise = match noise {
+        "range" => tof_sim::NoiseModel::Range,
+        "isotropic" => tof_sim::NoiseModel::Isotropic,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "noise={other:?}: expected \"range\" or \"isotropic\""
+            )));
+        }
+    };
+    let helios2 = match sensor {
+        "plain" => false,
+        "helios2" => true,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "sensor={other:?}: expected \"plain\" or \"helios2\""
+            )));
+        }
+    };
+    let points = match points {
+        None => None,
+        Some(n) => Some(NonZeroUsize::new(n).ok_or_else(|| {
+            PyValueError::new_err("points=0: expected a number of points ≥ 1, or None for all")
+        })?),
+    };
+    let rad = |d: Option<f64>| d.map(f64::to_radians);
+    let m = |v: Option<f64>| v.map(|v| v * 1e-3);
+    let settings = SimulateSettings {
+        seed,
+        sigma,
+        od_in,
+        ovality,
+        wall_mm,
+        points,
+        outliers,
+        noise,
+        helios2,
+        pose: PoseOverride {
+            roll: rad(roll_deg),
+            pitch: rad(pitch_deg),
+            yaw: rad(yaw_deg),
+            dy: m(dy_mm),
+            dz: m(dz_mm),
+        },
+    };
+    let (frame, truth) = py
+        .detach(|| -> Result<_, SimulateError> {
+            let sim = Simulator::new(&settings)?;
+            let mut frame = tof_sim::Frame::empty();
+            sim.frame(trial, &mut frame)?;
+            let truth = sim.truth(trial, &frame);
+            Ok((frame, truth))
+        })
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let truth = fields_dict(py, &truth, false)?;
+    let props = PyDict::new(py);
+    if return_properties {
+        let col = |i: usize| frame.pixels.iter().map(|p| f64::from(p[i])).collect();
+        props.set_item("u", PyArray1::from_vec(py, col(0)))?;
+        props.set_item("v", PyArray1::from_vec(py, col(1)))?;
+        // As the PLY file: an intensity property only when the model gives one.
+        if frame.intensity.len() == frame.measured.len()
+            && frame.intensity.iter().any(|i| i.is_finite())
+        {
+            let i: Vec<f64> = frame.intensity.iter().map(|&v| f64::from(v)).collect();
+            props.set_item("intensity", PyArray1::from_vec(py, i))?;
+        }
+    }
+    let pts = points_array(py, frame.measured)?;
+    if return_properties {
+        Ok((pts, truth, props).into_pyobject(py)?.into_any())
+    } else {
+        Ok((pts, truth).into_pyobject(py)?.into_any())
+    }
+}
+
+/// Pipe elliptical diameters and sensor pose from 3D time-of-flight point clouds.
+#[pymodule]
+fn epd(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(estimate, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate, m)?)?;
+    m.add_function(wrap_pyfunction!(read, m)?)?;
+    m.add_function(wrap_pyfunction!(_points_buffer, m)?)?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    //! What can be checked without numpy: the argument names, the exception classes and
+    //! the report's Python values (the package itself is tested by pytest, tests/).
+    use super::*;
+
+    #[test]
+    fn names_of_units_and_frames() {
+        assert_eq!(parse_units("mm").ok(), Some(Units::Millimetres));
+        assert_eq!(parse_frame("optical").ok(), Some(InputFrame::Optical));
+        Python::initialize();
+        Python::attach(|py| {
+            let e = parse_units("km").unwrap_err();
+            assert!(e.is_instance_of::<PyValueError>(py));
+            assert_eq!(
+                e.value(py).to_string(),
+                "units=\"km\": expected \"m\" or \"mm\""
+            );
+            assert!(parse_frame("world").is_err());
+        });
+    }
+
+    #[test]
+    fn file_errors_are_os_errors_unless_the_file_opens() {
+        Python::initialize();
+        let dir = std::env::temp_dir().join(format!("epd-py-test-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("a.ply");
+        std::fs::write(&file, b"not a cloud").unwrap();
+        Python::attach(|py| {
+            let missing = file_error(&dir.join("missing.ply"), "cannot read: x".into());
+            // Python picks the subclass from the errno when the exception is made.
+            let v = missing.value(py);
+            assert!(v.is_instance_of::<pyo3::exceptions::PyFileNotFoundError>());
+            assert_eq!(v.getattr("strerror").unwrap().to_string(), "cannot read: x");
+            let d = file_error(&dir, "not a regular file".into());
+            assert!(d.is_instance_of::<PyIsADirectoryError>(py));
+            let bad = file_error(&file, "PLY: bad".into());
+            assert!(bad.is_instance_of::<PyValueError>(py));
+            assert!(!bad.is_instance_of::<PyOSError>(py));
+        });
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn report_values_keep_their_types() {
+        Python::initialize();
+        Python::attach(|py| {
+            let fields = [
+                ("file", Field::Text("f.ply".into())),
+                ("n", Field::Int(3)),
+                ("x", Field::Num(508.0)),
+                ("nan", Field::Num(f64::NAN)),
+                ("b", Field::Bool(true)),
+                ("none", Field::Null),
+            ];
+            let d = fields_dict(py, &fields, true).unwrap();
+            let keys: Vec<String> = d.keys().extract().unwrap();
+            assert_eq!(keys, ["file", "n", "x", "nan", "b", "none"]);
+            let get = |k: &str| d.get_item(k).unwrap().unwrap();
+            assert!(get("file").is_none(), "an array has no file");
+            assert_eq!(get("n").extract::<i64>().unwrap(), 3);
+            assert!(get("x").is_instance_of::<pyo3::types::PyFloat>());
+            assert!(get("nan").is_none());
+            assert!(get("b").extract::<bool>().unwrap());
+            let d = fields_dict(py, &fields, false).unwrap();
+            assert_eq!(d.get_item("file").unwrap().unwrap().to_string(), "f.ply");
+        });
+    }
+}
