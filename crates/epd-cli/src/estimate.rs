@@ -12,8 +12,9 @@ use epd_core::{
 };
 
 use crate::read::{Format, MAX_INPUT_BYTES, PointCloud, read_from, read_path};
-use crate::report::{FileEstimate, FileReport};
+use crate::report::{FileEstimate, FileReport, GeometryReport};
 use crate::table::CalibrationTable;
+use epd_core::segment::{SegmentOptions, straight_mask};
 
 /// Seed scale of the first robust pass (m) when no loss scale is given.
 pub const DEFAULT_LOSS_SCALE_M: f64 = 0.05;
@@ -73,6 +74,9 @@ pub struct EstimateSettings {
     pub calibration: Option<PathBuf>,
     /// With a table, do not weight each residual by 1/σᵢ.
     pub unweighted: bool,
+    /// Look for a bend or a tee ahead and estimate the straight section only
+    /// (`epd_core::segment::survey`); `false` fits every point as one straight pipe.
+    pub geometry: bool,
     /// How the inputs are read.
     pub input: InputConfig,
 }
@@ -110,6 +114,8 @@ pub struct EstimateConfig {
     pub calibration: Option<CalibrationTable>,
     /// Whether each residual is weighted by the table's 1/σᵢ.
     pub weighted: bool,
+    /// Whether the geometry ahead is surveyed (see [`EstimateSettings::geometry`]).
+    pub geometry: bool,
 }
 
 impl EstimateConfig {
@@ -174,6 +180,7 @@ impl EstimateConfig {
             input: a.input,
             weighted: calibration.is_some() && !a.unweighted,
             calibration,
+            geometry: a.geometry,
         })
     }
 }
@@ -369,11 +376,43 @@ pub fn estimate_points(
     // Invalid pixels (NaN, inf, zeros) are dropped and counted by the estimator; the
     // range gate keeps points by their model range (see EstimateOptions).
     let kept: &[[f64; 3]] = &points;
-    let est = match &sigmas {
-        None => estimate(kept, cfg.method, &cfg.options),
-        Some(s) => estimate_weighted(kept, s, cfg.method, &cfg.options),
-    }
-    .map_err(|e| format!("{e} ({n_read} points read)"))?;
+    let failed = |e: epd_core::EpdError| format!("{e} ({n_read} points read)");
+    let survey = if cfg.geometry {
+        Some(
+            epd_core::segment::survey(kept, cfg.method, &cfg.options, &SegmentOptions::default())
+                .map_err(failed)?,
+        )
+    } else {
+        None
+    };
+    let est = match (&sigmas, &survey) {
+        // The survey's straight estimate is the (unweighted) estimate on the straight
+        // section's points: all of them when nothing lies ahead.
+        (None, Some(s)) => s.segmentation.straight.clone(),
+        (None, None) => estimate(kept, cfg.method, &cfg.options).map_err(failed)?,
+        (Some(sig), s) => {
+            match s.as_ref().and_then(|s| {
+                s.segmentation
+                    .straight_until
+                    .map(|end| (end, s.segmentation.straight.params))
+            }) {
+                // Weighted, on the straight section's points only.
+                Some((end, beta)) => {
+                    let keep = straight_mask(kept, &beta, end, SegmentOptions::default().margin_m);
+                    let (p, w): (Vec<[f64; 3]>, Vec<f64>) = kept
+                        .iter()
+                        .zip(sig.iter())
+                        .zip(&keep)
+                        .filter(|(_, k)| **k)
+                        .map(|((p, w), _)| (*p, *w))
+                        .unzip();
+                    estimate_weighted(&p, &w, cfg.method, &cfg.options).map_err(failed)?
+                }
+                None => estimate_weighted(kept, sig, cfg.method, &cfg.options).map_err(failed)?,
+            }
+        }
+    };
+    let geometry = survey.as_ref().map(GeometryReport::of);
     let elapsed_ms = t1.elapsed().as_secs_f64() * 1e3;
     let n_out_of_range = est.n_out_of_gate;
     let loss_scale_m = match (est.method, est.loss.scale()) {
@@ -381,6 +420,21 @@ pub fn estimate_points(
         // C-EPD's residual r_c ≈ 2δ/R: back to metres of radial error.
         (Method::CEpd, Some(k)) => k * (est.params.d_max + est.params.d_min) / 8.0,
         (_, Some(k)) => k,
+    };
+    // The straight section's points (all of them when nothing lies ahead), gated.
+    let straight: Vec<[f64; 3]>;
+    let kept: &[[f64; 3]] = match survey.as_ref().and_then(|s| s.segmentation.straight_until) {
+        None => kept,
+        Some(end) => {
+            let keep = straight_mask(kept, &est.params, end, SegmentOptions::default().margin_m);
+            straight = kept
+                .iter()
+                .zip(&keep)
+                .filter(|(_, k)| **k)
+                .map(|(p, _)| *p)
+                .collect();
+            &straight
+        }
     };
     let gated: Vec<[f64; 3]>;
     let fitted: &[[f64; 3]] = match cfg.options.range_gate() {
@@ -401,6 +455,7 @@ pub fn estimate_points(
         nominal_od_mm: cfg.nominal_od_mm,
         n_calibrated,
         weighted: sigmas.is_some(),
+        geometry,
     })
 }
 

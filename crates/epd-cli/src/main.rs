@@ -165,6 +165,12 @@ struct EstimateArgs {
     /// at the point's range and intensity).
     #[arg(long)]
     unweighted: bool,
+    /// Fit every point as one straight pipe, without looking for a bend or a tee ahead.
+    /// By default the frame is surveyed first (JSON keys `geometry`, `straight_until_m`,
+    /// `bend_radius_mm`, `bend_angle_deg`, `bend_direction_deg`): the estimate then uses
+    /// the straight section's points only, and a sensor already in a bend gets no result.
+    #[arg(long)]
+    straight_only: bool,
     /// Write the results to FILE (atomically) instead of standard output.
     #[arg(short = 'o', long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -412,6 +418,7 @@ fn estimate_config(a: &EstimateArgs) -> anyhow::Result<EstimateConfig> {
         loss_scale: a.loss_scale,
         calibration: a.calibration.clone(),
         unweighted: a.unweighted,
+        geometry: !a.straight_only,
         input: (&a.input).into(),
     };
     let cfg = EstimateConfig::new(&settings).map_err(|e| usage(e.to_string()))?;

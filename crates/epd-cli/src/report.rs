@@ -37,6 +37,49 @@ pub struct FileEstimate {
     pub n_calibrated: Option<usize>,
     /// Whether each residual was weighted by 1/σᵢ (σᵢ from the calibration table).
     pub weighted: bool,
+    /// What lies ahead (`None`: not surveyed).
+    pub geometry: Option<GeometryReport>,
+}
+
+/// The geometry ahead of the sensor in a report (`epd_core::segment::survey`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct GeometryReport {
+    /// `straight`, `bend_ahead`, `tee_ahead` or `in_bend`.
+    pub layout: &'static str,
+    /// Axial distance from the sensor to the end of the straight section (m).
+    pub straight_until_m: Option<f64>,
+    /// The bend's centreline radius (mm).
+    pub bend_radius_mm: Option<f64>,
+    /// The bend angle seen so far (deg).
+    pub bend_angle_deg: Option<f64>,
+    /// The bend's direction as a clock angle seen from the sensor (deg: 0 up, 90 right).
+    pub bend_direction_deg: Option<f64>,
+}
+
+impl GeometryReport {
+    /// The report of a survey.
+    pub fn of(s: &epd_core::segment::Survey) -> Self {
+        let seg = &s.segmentation;
+        let beta = seg.straight.params;
+        Self {
+            layout: seg.layout.name(),
+            straight_until_m: seg.straight_until,
+            bend_radius_mm: s.bend.map(|b| b.geometry.radius * 1e3),
+            bend_angle_deg: s.bend.map(|b| b.angle_seen.to_degrees()),
+            bend_direction_deg: s
+                .bend
+                .map(|b| epd_core::segment::clock_angle_deg(&beta, b.geometry.direction)),
+        }
+    }
+
+    /// Why the straight estimate is withheld: the sensor is in the bend.
+    pub fn withheld(&self) -> Option<String> {
+        (self.layout == "in_bend").then(|| {
+            "the sensor is in a bend: no straight section in view to estimate (geometry \
+             in_bend)"
+                .to_string()
+        })
+    }
 }
 
 /// The CSV columns, in order: the keys of [`FileReport::fields`].
@@ -49,7 +92,7 @@ pub fn columns() -> Vec<&'static str> {
 }
 
 /// The fields after the estimate's, without the final `error`.
-const CONTEXT_KEYS: [&str; 11] = [
+const CONTEXT_KEYS: [&str; 16] = [
     "n_read",
     "n_out_of_range",
     "n_calibrated",
@@ -61,6 +104,11 @@ const CONTEXT_KEYS: [&str; 11] = [
     "loss_scale_m",
     "nominal_od_mm",
     "wall_thickness_est_mm",
+    "geometry",
+    "straight_until_m",
+    "bend_radius_mm",
+    "bend_angle_deg",
+    "bend_direction_deg",
 ];
 
 /// The keys of `epd_core::report::estimate_fields`, for the rows of failed files.
@@ -107,6 +155,9 @@ impl FileReport {
                 e.estimate.status.name(),
                 e.estimate.status.reason()
             )),
+            Ok(e) if e.geometry.as_ref().and_then(|g| g.withheld()).is_some() => {
+                e.geometry.as_ref().and_then(|g| g.withheld())
+            }
             Ok(_) => None,
         }
     }
@@ -116,15 +167,18 @@ impl FileReport {
     /// a number is printed only when it can be believed.
     pub fn fields(&self) -> Vec<(&'static str, Field)> {
         let mut f = self.all_fields();
-        if let Ok(e) = &self.outcome
-            && !e.estimate.status.is_converged()
-        {
+        let withheld = match &self.outcome {
+            Ok(e) if !e.estimate.status.is_converged() => Some(e.estimate.status.reason()),
+            Ok(e) => e.geometry.as_ref().and_then(|g| g.withheld()),
+            Err(_) => None,
+        };
+        if let Some(why) = withheld {
             for (k, v) in f.iter_mut() {
                 if is_result(k) {
                     *v = Field::Null;
                 }
                 if *k == "error" {
-                    *v = Field::Text(e.estimate.status.reason());
+                    *v = Field::Text(why.clone());
                 }
             }
         }
@@ -164,6 +218,19 @@ impl FileReport {
                     .nominal_od_mm
                     .map(|od| (od - 0.5 * (p.d_max + p.d_min) * 1e3) / 2.0);
                 f.push(("wall_thickness_est_mm", wall.map_or(Field::Null, num)));
+                let g = e.geometry.as_ref();
+                f.push((
+                    "geometry",
+                    g.map_or(Field::Null, |g| Field::Text(g.layout.into())),
+                ));
+                let opt = |v: Option<f64>| v.map_or(Field::Null, num);
+                f.push(("straight_until_m", opt(g.and_then(|g| g.straight_until_m))));
+                f.push(("bend_radius_mm", opt(g.and_then(|g| g.bend_radius_mm))));
+                f.push(("bend_angle_deg", opt(g.and_then(|g| g.bend_angle_deg))));
+                f.push((
+                    "bend_direction_deg",
+                    opt(g.and_then(|g| g.bend_direction_deg)),
+                ));
                 f.push(("error", Field::Null));
             }
             Err(msg) => {
@@ -213,6 +280,14 @@ impl FileReport {
                 e.estimate.n_points,
                 e.estimate.status.reason()
             ),
+            Ok(e) if e.geometry.as_ref().and_then(|g| g.withheld()).is_some() => format!(
+                "{}: {} — no result",
+                self.file,
+                e.geometry
+                    .as_ref()
+                    .and_then(|g| g.withheld())
+                    .unwrap_or_default()
+            ),
             Ok(e) => {
                 let est = &e.estimate;
                 let p = est.params;
@@ -256,6 +331,23 @@ impl FileReport {
                         "\n  wall thickness ≈ {:.2} mm (nominal OD {od:.1} mm − mean ID)/2",
                         (od - 0.5 * (p.d_max + p.d_min) * 1e3) / 2.0
                     ));
+                }
+                if let Some(g) = &e.geometry {
+                    t.push_str(&format!("\n  geometry: {}", g.layout));
+                    if let Some(x) = g.straight_until_m {
+                        t.push_str(&format!(
+                            " — the straight section ends {x:.3} m ahead; the estimate uses \
+                             its points only"
+                        ));
+                    }
+                    if let (Some(r), Some(a), Some(c)) =
+                        (g.bend_radius_mm, g.bend_angle_deg, g.bend_direction_deg)
+                    {
+                        t.push_str(&format!(
+                            "\n  bend: radius {r:.0} mm, {a:.0}° seen so far, toward {c:.0}° \
+                             (clock angle from the sensor: 0 up, 90 right)"
+                        ));
+                    }
                 }
                 t
             }
@@ -319,9 +411,31 @@ mod tests {
                 read_ms: 1.0,
                 loss: ("none".into(), f64::NAN),
                 nominal_od_mm: None,
+                geometry: None,
             }),
         };
         let keys: Vec<&str> = ok.fields().into_iter().map(|(k, _)| k).collect();
         assert_eq!(keys, columns());
+        // With a survey: the same keys.
+        let mut surveyed = ok.clone();
+        if let Ok(e) = &mut surveyed.outcome {
+            e.geometry = Some(GeometryReport {
+                layout: "bend_ahead",
+                straight_until_m: Some(1.0),
+                bend_radius_mm: Some(762.0),
+                bend_angle_deg: Some(60.0),
+                bend_direction_deg: Some(90.0),
+            });
+        }
+        let keys: Vec<&str> = surveyed.fields().into_iter().map(|(k, _)| k).collect();
+        assert_eq!(keys, columns());
+        // In a bend: every result withheld, with the reason.
+        if let Ok(e) = &mut surveyed.outcome {
+            e.geometry.as_mut().unwrap().layout = "in_bend";
+        }
+        let f = surveyed.fields();
+        let get = |k: &str| f.iter().find(|(n, _)| *n == k).unwrap().1.clone();
+        assert_eq!(get("d_max_mm"), Field::Null);
+        assert!(matches!(get("error"), Field::Text(t) if t.contains("in a bend")));
     }
 }

@@ -432,6 +432,9 @@ pub fn segment(
         (Some(_), Some(x)) if x <= x_first + seg.slice_m => Layout::InBend,
         (Some(i), Some(_)) => classify(&prof[i..], seg),
     };
+    // The fits ran on the clean points: the invalid ones count as dropped, as in
+    // `estimate`.
+    fit.n_dropped += cloud.dropped;
     let beyond = match straight_until {
         Some(x) => axial_select(pts, &fit.params, |a| a >= x),
         None => Vec::new(),
@@ -620,4 +623,22 @@ pub fn survey(
 pub fn clock_angle_deg(beta: &Params, direction: f64) -> f64 {
     let u = beta.dir_pcs_to_scs(&Vector3::new(0.0, direction.cos(), direction.sin()));
     u.y.atan2(u.z).to_degrees().rem_euclid(360.0)
+}
+
+/// Which points (SCS) belong to the straight section that ends at `end` (PCS x of the
+/// straight fit `beta`, m): those whose ray meets the fitted wall before `end − margin`
+/// (the ray's model crossing, not the noisy point). All `false` when β leaves the model.
+pub fn straight_mask(points: &[[f64; 3]], beta: &Params, end: f64, margin: f64) -> Vec<bool> {
+    let Some(geom) = Geometry::new(beta) else {
+        return vec![false; points.len()];
+    };
+    let r = beta.rotation();
+    let row = r.matrix().row(0).into_owned();
+    points
+        .iter()
+        .map(|p| {
+            let t = geom.line_parameter(p);
+            t * (row[0] * p[0] + row[1] * p[1] + row[2] * p[2]) < end - margin
+        })
+        .collect()
 }

@@ -32,6 +32,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         loss_scale: None,
         calibration: None,
         unweighted: false,
+        geometry: true,
         input: InputConfig {
             units: Units::Metres,
             frame: InputFrame::Sensor,

@@ -232,7 +232,7 @@ enum Input<'py> {
 /// "none"; `None` is "none"), `loss_scale` (m; `None`: from the residuals),
 /// `min_range`/`max_range` (m), `calibration` (a depth-table JSON file; needs
 /// `intensity`, one per point, or a file with an `intensity` property),
-/// `unweighted`, `nominal_od_in`. `sigma` gives each point's range standard deviation
+/// `unweighted`, `nominal_od_in`, `straight_only`. `sigma` gives each point's range standard deviation
 /// (m) for a weighted fit. Returns the keys and values of one JSON object of
 /// `epd estimate --format json` (`file` is `None` for an array). Raises `ValueError`
 /// for bad arguments or a cloud that cannot be fitted and `OSError` for a file that
@@ -241,7 +241,7 @@ enum Input<'py> {
 #[pyo3(signature = (
     points, method="ml-epd", units="m", frame="sensor", loss=Some("cauchy"),
     loss_scale=None, min_range=None, max_range=None, calibration=None,
-    intensity=None, sigma=None, unweighted=false, nominal_od_in=None,
+    intensity=None, sigma=None, unweighted=false, nominal_od_in=None, straight_only=false,
 ))]
 #[allow(clippy::too_many_arguments)] // the tool's flags, as keyword arguments
 fn estimate<'py>(
@@ -259,6 +259,7 @@ fn estimate<'py>(
     sigma: Option<&Bound<'py, PyAny>>,
     unweighted: bool,
     nominal_od_in: Option<f64>,
+    straight_only: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     let method: Method = method
         .parse()
@@ -272,6 +273,7 @@ fn estimate<'py>(
         loss_scale,
         calibration,
         unweighted,
+        geometry: !straight_only,
         input: InputConfig {
             units: parse_units(units)?,
             frame: parse_frame(frame)?,
