@@ -388,7 +388,7 @@ pub fn estimate_points(
     let est = match (&sigmas, &survey) {
         // The survey's straight estimate is the (unweighted) estimate on the straight
         // section's points: all of them when nothing lies ahead.
-        (None, Some(s)) => s.segmentation.straight.clone(),
+        (None, Some(s)) => s.segmentation.straight,
         (None, None) => estimate(kept, cfg.method, &cfg.options).map_err(failed)?,
         (Some(sig), s) => {
             match s.as_ref().and_then(|s| {
