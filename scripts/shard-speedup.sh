@@ -24,14 +24,18 @@ mkdir -p "$work/shards"
 now() { date +%s.%N; }
 secs() { awk -v a="$1" -v b="$2" 'BEGIN { printf "%.2f", b - a }'; }
 
-# CPU seconds (user + system) of the children run so far, from bash's `times`.
-cpu() { times | tail -1 | awk '{ split($1, u, /[ms]/); split($2, s, /[ms]/); printf "%.2f", u[1] * 60 + u[2] + s[1] * 60 + s[2] }'; }
+# CPU seconds (user + system) of this script's children so far: bash's `times`, which
+# must run in this shell (not in a $(…) subshell), then read back.
+cpu_now() { times >"$work/.times"; }
+cpu_read() { tail -1 "$work/.times" | awk '{ split($1, u, /[ms]/); split($2, s, /[ms]/); printf "%.2f", u[1] * 60 + u[2] + s[1] * 60 + s[2] }'; }
 load0=$(cut -d' ' -f1 /proc/loadavg)
-c0=$(cpu)
+cpu_now
+c0=$(cpu_read)
 t0=$(now)
 "$bin" "$scenario" --quiet --out "$work/whole"
 t1=$(now)
-c1=$(cpu)
+cpu_now
+c1=$(cpu_read)
 for ((k = 1; k <= n; k++)); do
     "$bin" "$scenario" --shard "$k/$n" --threads 1 --quiet --out "$work/shards/shard-$k-of-$n" &
 done
@@ -41,7 +45,9 @@ dirs=()
 for ((k = 1; k <= n; k++)); do dirs+=("$work/shards/shard-$k-of-$n"); done
 "$bin" merge "${dirs[@]}" --quiet --out "$work/merged"
 t3=$(now)
-c3=$(cpu)
+cpu_now
+c3=$(cpu_read)
+rm -f "$work/.times"
 load1=$(cut -d' ' -f1 /proc/loadavg)
 
 trials() { cut -d, -f1-7,9- "$1/trials.csv"; }

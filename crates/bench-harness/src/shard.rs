@@ -91,9 +91,11 @@ pub struct CodeVersion {
 impl CodeVersion {
     /// The code of this process.
     pub fn current() -> Self {
-        let executable_sha256 = std::env::current_exe()
+        // /proc/self/exe opens the running program even when its file has been replaced
+        // since it started (a rebuild during a long shard); the path is the fallback.
+        let executable_sha256 = File::open("/proc/self/exe")
+            .or_else(|_| std::env::current_exe().and_then(File::open))
             .ok()
-            .and_then(|p| File::open(p).ok())
             .and_then(|f| sha256_of(f).ok());
         Self {
             crate_version: env!("CARGO_PKG_VERSION").to_string(),
