@@ -17,9 +17,10 @@ def big():
 
 
 def progress_during(fit):
-    """Run `fit` in a thread while this thread keeps taking time stamps; returns the
-    stamps taken while the fit ran, the longest gap between two of them (s) and the fit's
-    result."""
+    """Run `fit` in a thread while this thread takes a time stamp every half millisecond
+    (sleeping in between, so that it needs the GIL often but the CPU little: the fit's
+    threads keep the cores); returns the stamps taken while the fit ran, the longest gap
+    between two of them (s) and the fit's result."""
     spans, results = [], []
 
     def worker():
@@ -36,6 +37,7 @@ def progress_during(fit):
         t.start()
         while t.is_alive():
             stamps.append(time.perf_counter())
+            time.sleep(0.0005)
         t.join()
     finally:
         sys.setswitchinterval(old)
@@ -59,5 +61,5 @@ def test_another_thread_runs_during_the_fit(big, tmp_path, source):
     assert fit_s > 0.003, result
     # With the GIL held this thread would stand still for the whole fit: one gap at
     # least as long as the fit. Released, it keeps stamping all along.
-    assert stall < 0.5 * fit_s, (stall, fit_s, turns)
-    assert turns > 100, (turns, fit_s)
+    assert stall < 0.75 * fit_s, (stall, fit_s, turns)
+    assert turns >= 5, (turns, fit_s)
