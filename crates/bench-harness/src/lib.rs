@@ -4,6 +4,7 @@
 //! split into shards (`--shard K/N`) and their merge ([`shard`]).
 #![deny(missing_docs)]
 
+pub mod approach;
 pub mod pipeline;
 pub mod plots;
 pub mod run;

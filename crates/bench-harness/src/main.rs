@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::Ordering;
 
+use bench_harness::approach::{ApproachScenario, is_approach, run_approach};
 use bench_harness::pipeline::{PipelineScenario, is_pipeline, run_pipeline};
 use bench_harness::run::{INTERRUPTED, Interrupted, OutputRefused, default_output};
 use bench_harness::scenario::MAX_SCENARIO_BYTES;
@@ -226,6 +227,46 @@ fn run_pipeline_main(cli: &Cli, path: &Path, text: &str) -> ExitCode {
     }
 }
 
+/// An approach run (a scenario with an `[approach]` table: an elbow or a tee ahead).
+fn run_approach_main(cli: &Cli, path: &Path, text: &str) -> ExitCode {
+    let scenario = match ApproachScenario::parse(path, text) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    if cli.trials.is_some() || cli.shard.is_some() {
+        eprintln!(
+            "error: --trials and --shard do not apply to an approach run (set approach.frames)"
+        );
+        return ExitCode::from(2);
+    }
+    if let Err(code) = start_workers(cli.threads) {
+        return code;
+    }
+    let out = cli
+        .out
+        .clone()
+        .unwrap_or_else(|| default_output(&scenario.name));
+    match run_approach(&scenario, &out, !cli.quiet) {
+        Ok(report) => {
+            if !cli.quiet {
+                eprintln!(
+                    "{}: {} distances × {} frames in {:.1} s → {}",
+                    scenario.name,
+                    scenario.distances_m.len(),
+                    scenario.frames,
+                    report.wall_time_s,
+                    out.display()
+                );
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => failed(&e, &scenario.name),
+    }
+}
+
 /// `bench-harness merge D_1 … D_N --out M`.
 fn merge_main(a: &MergeArgs) -> ExitCode {
     if let Err(code) = start_workers(None) {
@@ -295,6 +336,9 @@ fn main() -> ExitCode {
     };
     if is_pipeline(&text) {
         return run_pipeline_main(&cli, &path, &text);
+    }
+    if is_approach(&text) {
+        return run_approach_main(&cli, &path, &text);
     }
     let scenario = match Scenario::parse(&path, &text) {
         Ok(s) => s,

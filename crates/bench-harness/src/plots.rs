@@ -877,6 +877,156 @@ pub fn plot_pipeline(
     Ok(files)
 }
 
+/// `approach.png` of an `[approach]` run: per distance, the mean-diameter error of the
+/// plain fit and of the survey's straight estimate (mean, bars from min to max over the
+/// frames), the error of `straight_until_m`, the bend radius's error and the direction's.
+pub fn plot_approach(
+    s: &crate::approach::ApproachScenario,
+    rows: &[crate::approach::FrameRow],
+    out: &Path,
+) -> anyhow::Result<PathBuf> {
+    // (x, mean, min, max) of `f` over the frames of each distance, finite values only.
+    let spread = |segmented: bool, f: fn(&crate::approach::FrameRow) -> f64| {
+        s.distances_m
+            .iter()
+            .filter_map(|&d| {
+                let v: Vec<f64> = rows
+                    .iter()
+                    .filter(|r| r.distance_m == d && r.segmented == segmented)
+                    .map(f)
+                    .filter(|v| v.is_finite())
+                    .collect();
+                if v.is_empty() {
+                    return None;
+                }
+                let mean = v.iter().sum::<f64>() / v.len() as f64;
+                let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+                let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                Some((d, mean, lo, hi))
+            })
+            .collect::<Vec<_>>()
+    };
+    let series = |name: &str, c: RGBColor, points| Series {
+        name: name.into(),
+        colour: c,
+        points,
+        bars: true,
+        marker_triangle: false,
+        dashed: false,
+    };
+    let zero = {
+        let lo = s.distances_m.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = s
+            .distances_m
+            .iter()
+            .copied()
+            .fold(f64::NEG_INFINITY, f64::max);
+        Series {
+            name: "0".into(),
+            colour: RGBColor(90, 90, 90),
+            points: vec![(lo, 0.0, 0.0, 0.0), (hi, 0.0, 0.0, 0.0)],
+            bars: false,
+            marker_triangle: false,
+            dashed: true,
+        }
+    };
+    let red = RGBColor(214, 39, 40);
+    let green = RGBColor(44, 160, 44);
+    let p0 = vec![
+        zero.clone_line(),
+        series(
+            "one fit on every point",
+            red,
+            spread(false, |r| r.dmean_err_mm),
+        ),
+        series(
+            "straight section only",
+            green,
+            spread(true, |r| r.dmean_err_mm),
+        ),
+    ];
+    let p0b = vec![
+        zero.clone_line(),
+        series(
+            "straight section only",
+            green,
+            spread(true, |r| r.dmean_err_mm),
+        ),
+    ];
+    let p1 = vec![
+        zero.clone_line(),
+        series(
+            "straight_until_m",
+            green,
+            spread(true, |r| r.straight_until_err_mm),
+        ),
+    ];
+    let p2 = vec![
+        zero.clone_line(),
+        series(
+            "bend radius",
+            green,
+            spread(true, |r| r.bend_radius_err_pct),
+        ),
+        series(
+            "direction (deg)",
+            RGBColor(31, 119, 180),
+            spread(true, |r| r.direction_err_deg),
+        ),
+    ];
+    let panels = [
+        Panel {
+            title: "mean-diameter error".into(),
+            y_label: "error (mm)".into(),
+            series: &p0,
+        },
+        Panel {
+            title: "mean-diameter error, segmented (zoom)".into(),
+            y_label: "error (mm)".into(),
+            series: &p0b,
+        },
+        Panel {
+            title: "end of the straight section".into(),
+            y_label: "error (mm)".into(),
+            series: &p1,
+        },
+        Panel {
+            title: "bend radius (%) and direction (deg) errors".into(),
+            y_label: "error (% / deg)".into(),
+            series: &p2,
+        },
+    ];
+    render(
+        Figure {
+            path: out.join("approach.png"),
+            title: format!(
+                "{}: mean, min and max over the frames at each distance",
+                s.name
+            ),
+            grid: (2, 2),
+            size: (1440, 1000),
+            x_label: "distance to the end of the straight section (m)",
+            xa: Axis { log: false },
+            ya: Axis { log: false },
+        },
+        &panels,
+    )
+}
+
+impl Series {
+    /// A copy of a reference line.
+    fn clone_line(&self) -> Series {
+        Series {
+            name: self.name.clone(),
+            colour: self.colour,
+            points: self.points.clone(),
+            bars: self.bars,
+            marker_triangle: self.marker_triangle,
+            dashed: self.dashed,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
