@@ -385,32 +385,36 @@ pub fn estimate_points(
     } else {
         None
     };
+    // Which points are the straight section's, when something lies ahead of it.
+    let mask: Option<Vec<bool>> = survey.as_ref().and_then(|s| {
+        let end = s.segmentation.straight_until?;
+        let margin = SegmentOptions::default().margin_m;
+        Some(straight_mask(
+            kept,
+            &s.segmentation.straight.params,
+            end,
+            margin,
+        ))
+    });
     let est = match (&sigmas, &survey) {
         // The survey's straight estimate is the (unweighted) estimate on the straight
         // section's points: all of them when nothing lies ahead.
         (None, Some(s)) => s.segmentation.straight,
         (None, None) => estimate(kept, cfg.method, &cfg.options).map_err(failed)?,
-        (Some(sig), s) => {
-            match s.as_ref().and_then(|s| {
-                s.segmentation
-                    .straight_until
-                    .map(|end| (end, s.segmentation.straight.params))
-            }) {
-                // Weighted, on the straight section's points only.
-                Some((end, beta)) => {
-                    let keep = straight_mask(kept, &beta, end, SegmentOptions::default().margin_m);
-                    let (p, w): (Vec<[f64; 3]>, Vec<f64>) = kept
-                        .iter()
-                        .zip(sig.iter())
-                        .zip(&keep)
-                        .filter(|(_, k)| **k)
-                        .map(|((p, w), _)| (*p, *w))
-                        .unzip();
-                    estimate_weighted(&p, &w, cfg.method, &cfg.options).map_err(failed)?
-                }
-                None => estimate_weighted(kept, sig, cfg.method, &cfg.options).map_err(failed)?,
+        (Some(sig), _) => match &mask {
+            // Weighted, on the straight section's points only.
+            Some(keep) => {
+                let (p, w): (Vec<[f64; 3]>, Vec<f64>) = kept
+                    .iter()
+                    .zip(sig.iter())
+                    .zip(keep)
+                    .filter(|(_, k)| **k)
+                    .map(|((p, w), _)| (*p, *w))
+                    .unzip();
+                estimate_weighted(&p, &w, cfg.method, &cfg.options).map_err(failed)?
             }
-        }
+            None => estimate_weighted(kept, sig, cfg.method, &cfg.options).map_err(failed)?,
+        },
     };
     let geometry = survey.as_ref().map(GeometryReport::of);
     let elapsed_ms = t1.elapsed().as_secs_f64() * 1e3;
@@ -423,13 +427,12 @@ pub fn estimate_points(
     };
     // The straight section's points (all of them when nothing lies ahead), gated.
     let straight: Vec<[f64; 3]>;
-    let kept: &[[f64; 3]] = match survey.as_ref().and_then(|s| s.segmentation.straight_until) {
+    let kept: &[[f64; 3]] = match &mask {
         None => kept,
-        Some(end) => {
-            let keep = straight_mask(kept, &est.params, end, SegmentOptions::default().margin_m);
+        Some(keep) => {
             straight = kept
                 .iter()
-                .zip(&keep)
+                .zip(keep)
                 .filter(|(_, k)| **k)
                 .map(|(p, _)| *p)
                 .collect();

@@ -17,7 +17,7 @@
 //! (points of what follows the bend weigh little) by [`minimize`], the Jacobian by
 //! central differences.
 
-use nalgebra::{Point3, SVector, Unit, Vector3};
+use nalgebra::{SVector, Unit, Vector3};
 
 use crate::error::EpdError;
 use crate::lm::{LmOptions, NormalEquations, NormalEquationsProblem, Status, minimize};
@@ -344,9 +344,4 @@ pub fn start_from(straight: &Params, end: f64, direction: f64, radius: f64) -> B
         radius,
         tube_radius: 0.25 * (straight.d_max + straight.d_min),
     }
-}
-
-/// A PCS point of the straight fit from an SCS point.
-pub fn to_pcs(straight: &Params, p: &[f64; 3]) -> Vector3<f64> {
-    straight.scs_to_pcs(&Point3::new(p[0], p[1], p[2])).coords
 }

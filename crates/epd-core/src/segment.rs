@@ -184,9 +184,6 @@ pub struct Segmentation {
     /// the PCS +Y (major) axis toward +Z (rad); for a bend, toward its centre of
     /// curvature; for a tee, toward its branch.
     pub direction: Option<f64>,
-    /// A first bend radius (m) from the departure's growth (see [`locate_end`]), `None`
-    /// without a departure or growth.
-    pub radius_guess: Option<f64>,
     /// The departure profile of the last round.
     pub profile: Vec<Slice>,
     /// Fits made.
@@ -344,7 +341,7 @@ fn refine(
     let mut rounds = 1;
     let mut prof = profile(pts, &fit.params, seg);
     loop {
-        let found = first_departure(&prof, seg).map(|i| locate_end(&prof, i, seg).0);
+        let found = first_departure(&prof, seg).map(|i| locate_end(&prof, i, seg));
         let moved = match (found, end) {
             (None, None) => false,
             (Some(a), Some(b)) => (a - b).abs() > 0.5 * seg.slice_m,
@@ -393,7 +390,7 @@ pub fn segment(
     let at_start = |prof: &[Slice]| {
         let x_first = prof.first().map_or(0.0, |s| s.start_m);
         first_departure(prof, seg)
-            .is_some_and(|i| locate_end(prof, i, seg).0 <= x_first + seg.slice_m)
+            .is_some_and(|i| locate_end(prof, i, seg) <= x_first + seg.slice_m)
     };
     if at_start(&prof) {
         for near in [1.0, 0.6] {
@@ -413,10 +410,7 @@ pub fn segment(
         }
     }
     let departure = first_departure(&prof, seg);
-    let located = departure.map(|i| locate_end(&prof, i, seg));
-    let straight_until = located.map(|l| l.0);
-    // The departure's growth c ≈ 1/(2R): a first bend radius.
-    let radius_guess = located.and_then(|l| (l.1 > 0.0).then(|| 0.5 / l.1));
+    let straight_until = departure.map(|i| locate_end(&prof, i, seg));
     let direction = departure.map(|i| {
         // The departure's direction from the first few departing slices, weighted by
         // their shifts.
@@ -449,29 +443,38 @@ pub fn segment(
         straight: fit,
         beyond,
         direction,
-        radius_guess,
         profile: prof,
         rounds,
     })
 }
 
-/// The points (SCS) whose ray meets the wall of `beta` at a PCS axial coordinate that
-/// satisfies `keep`: the crossing t·x̂ of eq. (21), which depends on the ray only, so
-/// that the cut does not select points by their range noise (at a grazing wall the noise
-/// moves a point mostly along the axis). Empty when β leaves the model.
-fn axial_select(points: &[[f64; 3]], beta: &Params, keep: impl Fn(f64) -> bool) -> Vec<[f64; 3]> {
-    let Some(geom) = Geometry::new(beta) else {
-        return Vec::new();
-    };
+/// The PCS axial coordinate at which each point's ray meets the wall of `beta`: the
+/// crossing t·x̂ of eq. (21), which depends on the ray only, so that a cut on it does not
+/// select points by their range noise (at a grazing wall the noise moves a point mostly
+/// along the axis). `None` when β leaves the model.
+fn model_axial(points: &[[f64; 3]], beta: &Params) -> Option<Vec<f64>> {
+    let geom = Geometry::new(beta)?;
     let r = beta.rotation();
     let row = r.matrix().row(0).into_owned();
+    Some(
+        points
+            .iter()
+            .map(|p| geom.line_parameter(p) * (row[0] * p[0] + row[1] * p[1] + row[2] * p[2]))
+            .collect(),
+    )
+}
+
+/// The points (SCS) whose ray meets the wall of `beta` at a PCS axial coordinate that
+/// satisfies `keep` ([`model_axial`]). Empty when β leaves the model.
+fn axial_select(points: &[[f64; 3]], beta: &Params, keep: impl Fn(f64) -> bool) -> Vec<[f64; 3]> {
+    let Some(x) = model_axial(points, beta) else {
+        return Vec::new();
+    };
     points
         .iter()
-        .filter(|p| {
-            let t = geom.line_parameter(p);
-            keep(t * (row[0] * p[0] + row[1] * p[1] + row[2] * p[2]))
-        })
-        .copied()
+        .zip(x)
+        .filter(|(_, x)| keep(*x))
+        .map(|(p, _)| *p)
         .collect()
 }
 
@@ -480,9 +483,9 @@ fn axial_select(points: &[[f64; 3]], beta: &Params, keep: impl Fn(f64) -> bool) 
 /// the run and three slices before it, fitted by c·(x − x₀)² for x > x₀ and 0 before
 /// (the leading order of R − √(R² − (x − x₀)²), a bend's centreline leaving the axis);
 /// x₀ on a grid of slice/20 steps from three slices before slice `i` to its far edge,
-/// c ≥ 0 by weighted least squares for each x₀: (x₀, c), c ≈ 1/(2R) for a bend. A tee,
-/// whose shift jumps, gives the x₀ where the jump is best placed.
-fn locate_end(profile: &[Slice], i: usize, o: &SegmentOptions) -> (f64, f64) {
+/// c ≥ 0 by weighted least squares for each x₀. A tee, whose shift jumps, gives the x₀
+/// where the jump is best placed.
+fn locate_end(profile: &[Slice], i: usize, o: &SegmentOptions) -> f64 {
     let lo_i = i.saturating_sub(3);
     let hi_i = (i + 6).min(profile.len());
     let (uy, uz) = profile[i..hi_i]
@@ -508,7 +511,7 @@ fn locate_end(profile: &[Slice], i: usize, o: &SegmentOptions) -> (f64, f64) {
         .collect();
     let edge = profile[i].start_m;
     let (x_lo, x_hi) = (profile[lo_i].start_m, edge + o.slice_m);
-    let mut best = (f64::INFINITY, edge, 0.0);
+    let mut best = (f64::INFINITY, edge);
     let steps = 20 * (i - lo_i + 1);
     for k in 0..=steps {
         let x0 = x_lo + (x_hi - x_lo) * k as f64 / steps as f64;
@@ -525,10 +528,10 @@ fn locate_end(profile: &[Slice], i: usize, o: &SegmentOptions) -> (f64, f64) {
             .map(|&(x, s, v)| (s - c * (x - x0).max(0.0).powi(2)).powi(2) / v)
             .sum();
         if cost < best.0 {
-            best = (cost, x0, c);
+            best = (cost, x0);
         }
     }
-    (best.1, best.2)
+    best.1
 }
 
 /// Bend or tee, from the departing slices: a bend pulls the wall opposite its shift
@@ -629,16 +632,8 @@ pub fn clock_angle_deg(beta: &Params, direction: f64) -> f64 {
 /// straight fit `beta`, m): those whose ray meets the fitted wall before `end − margin`
 /// (the ray's model crossing, not the noisy point). All `false` when β leaves the model.
 pub fn straight_mask(points: &[[f64; 3]], beta: &Params, end: f64, margin: f64) -> Vec<bool> {
-    let Some(geom) = Geometry::new(beta) else {
-        return vec![false; points.len()];
-    };
-    let r = beta.rotation();
-    let row = r.matrix().row(0).into_owned();
-    points
-        .iter()
-        .map(|p| {
-            let t = geom.line_parameter(p);
-            t * (row[0] * p[0] + row[1] * p[1] + row[2] * p[2]) < end - margin
-        })
-        .collect()
+    match model_axial(points, beta) {
+        Some(x) => x.into_iter().map(|x| x < end - margin).collect(),
+        None => vec![false; points.len()],
+    }
 }
