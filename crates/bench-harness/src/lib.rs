@@ -7,6 +7,7 @@
 pub mod approach;
 pub mod pipeline;
 pub mod plots;
+pub mod route;
 pub mod run;
 pub mod scenario;
 pub mod shard;

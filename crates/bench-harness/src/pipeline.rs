@@ -26,8 +26,10 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use anyhow::Context;
+use epd_cli::report::GeometryReport;
 use epd_cli::table::CalibrationTable;
 use epd_core::calibration::{CalibrationFrame, CalibrationSettings};
+use epd_core::segment::{SegmentOptions, straight_mask, survey};
 use epd_core::{
     DepthTable, EstimateOptions, Loss, LossScale, Method, Params, cramer_rao_bound_weighted,
     estimate, estimate_weighted,
@@ -37,9 +39,11 @@ use rayon::prelude::*;
 use serde::Deserialize;
 use tof_sim::noise::{Stream, stream};
 use tof_sim::{
-    Frame, FrameSeed, Noise, Pipe, Scene, Sensor, Subsample, ToFPhysics, WallModel, simulate,
+    Frame, FrameSeed, MeshResolution, Noise, PartKind, Pipe, Scene, Segment, Sensor, Subsample,
+    ToFPhysics, WallModel, simulate,
 };
 
+use crate::route::{Fitting, FittingKind, Route, TruthAhead, local_mesh};
 use crate::run::{
     INTERRUPTED, Interrupted, StagedFiles, create_new, finish, num, write_new, write_run, wrote,
 };
@@ -48,8 +52,9 @@ use crate::scenario::ScenarioError;
 /// The estimators of a pipeline run, by their names in the CSV files.
 pub const METHODS: [&str; 4] = ["c-epd", "ru-epd", "ml-epd", "ml-epd-w"];
 
-/// `profile.csv` columns (the first eleven are the interface; the rest add the truth and
-/// the Cramér–Rao bound of the heteroscedastic model).
+/// `profile.csv` columns (the first eleven are the interface; the rest add the truth, the
+/// Cramér–Rao bound of the heteroscedastic model, and the geometry ahead: the survey's
+/// verdict as `epd estimate` reports it, and the route's truth).
 pub const PROFILE_COLUMNS: &[&str] = &[
     "section",
     "frame",
@@ -67,6 +72,11 @@ pub const PROFILE_COLUMNS: &[&str] = &[
     "n_points",
     "crb_d_max_mm",
     "crb_d_min_mm",
+    "geometry",
+    "straight_until_m",
+    "bend_radius_mm",
+    "geometry_true",
+    "straight_until_true_m",
 ];
 
 /// `sections.csv` columns (the first eleven are the interface).
@@ -104,6 +114,25 @@ struct SectionFile {
     ovality: f64,
     /// Odometer distance of the first frame (m).
     start_m: f64,
+}
+
+/// A fitting between sections as written (`[[pipeline.fitting]]`).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FittingFile {
+    /// `tee` or `elbow`.
+    kind: String,
+    /// Odometer distance where it begins (m).
+    at_m: f64,
+    /// Tee: the branch's inner diameter (mm).
+    branch_diameter_mm: Option<f64>,
+    /// Elbow: centreline radius in pipe diameters (default 1.5, long radius).
+    bend_radius_d: Option<f64>,
+    /// Elbow: angle (degrees, default 90).
+    angle_deg: Option<f64>,
+    /// Toward (0, cos φ, sin φ) of the incoming straight's PCS (degrees).
+    #[serde(default)]
+    direction_deg: f64,
 }
 
 /// The calibration rig as written.
@@ -172,6 +201,11 @@ struct PipelineFile {
     section: Vec<SectionFile>,
     rig: RigFile,
     drift: DriftFile,
+    #[serde(default)]
+    fitting: Vec<FittingFile>,
+    /// Mesh cells around the pipe for frames that see a fitting.
+    #[serde(default = "five_twelve")]
+    mesh_segments: usize,
 }
 
 #[derive(Clone, Debug, Deserialize)]
@@ -221,6 +255,9 @@ fn helios2() -> String {
 }
 fn one() -> u64 {
     1
+}
+fn five_twelve() -> usize {
+    512
 }
 
 /// A straight section, checked.
@@ -301,6 +338,10 @@ pub struct PipelineScenario {
     pub drift: Drift,
     /// The pose along the rig (the drift with the rig's offset amplitude).
     pub rig_drift: Drift,
+    /// Tees and elbows along the odometer, between the sections.
+    pub route: Route,
+    /// How frames that see a fitting are meshed.
+    pub mesh: MeshResolution,
     /// The file's text.
     pub source: String,
     /// The file.
@@ -310,6 +351,145 @@ pub struct PipelineScenario {
 /// Whether a scenario text is a pipeline run (it has a `[pipeline]` table).
 pub fn is_pipeline(source: &str) -> bool {
     toml::from_str::<toml::Table>(source).is_ok_and(|t| t.contains_key("pipeline"))
+}
+
+/// The fittings as a [`Route`], checked: kinds and sizes, in driving order without
+/// overlaps, each between two sections' frames (the sections are straight pipe), each
+/// tee's branch no wider than the narrower neighbouring section. Errors name the key.
+fn parse_route(
+    files: &[FittingFile],
+    sections: &[Section],
+    frames: usize,
+    spacing: f64,
+) -> Result<Route, (String, String)> {
+    let span = |s: &Section| (s.start_m, s.start_m + (frames as f64 - 1.0) * spacing);
+    if !files.is_empty() && sections.windows(2).any(|w| span(&w[0]).1 >= w[1].start_m) {
+        return Err((
+            "pipeline.section".into(),
+            "with fittings, the sections must follow each other along the odometer without \
+             overlapping frames"
+                .into(),
+        ));
+    }
+    let mut route = Route::default();
+    for (k, f) in files.iter().enumerate() {
+        let key = |field: &str| format!("pipeline.fitting[{k}].{field}");
+        let bad = |field: &str, m: String| Err((key(field), m));
+        if !f.at_m.is_finite() {
+            return bad("at_m", format!("= {}: must be finite", f.at_m));
+        }
+        if !f.direction_deg.is_finite() {
+            return bad("direction_deg", "must be finite".into());
+        }
+        // The sections around it: the last one starting before it, the first after.
+        let Some(before) = sections.iter().rposition(|s| s.start_m < f.at_m) else {
+            return bad(
+                "at_m",
+                format!("= {}: must lie after the first section's frames", f.at_m),
+            );
+        };
+        if before + 1 >= sections.len() {
+            return bad(
+                "at_m",
+                format!("= {}: must lie before the last section", f.at_m),
+            );
+        }
+        let (a, b) = (&sections[before], &sections[before + 1]);
+        let d_min = a.pipe.d_min().min(b.pipe.d_min());
+        let kind = match f.kind.as_str() {
+            "tee" => {
+                if f.bend_radius_d.is_some() || f.angle_deg.is_some() {
+                    return bad(
+                        "kind",
+                        "= \"tee\" takes branch_diameter_mm, not bend_radius_d or angle_deg".into(),
+                    );
+                }
+                let Some(bd) = f.branch_diameter_mm else {
+                    return bad(
+                        "branch_diameter_mm",
+                        "a tee needs its branch's inner diameter".into(),
+                    );
+                };
+                if !(bd > 0.0 && bd * 1e-3 <= d_min) {
+                    return bad(
+                        "branch_diameter_mm",
+                        format!(
+                            "= {bd}: must lie in (0, {:.1}] (the main pipe's minor diameter)",
+                            d_min * 1e3
+                        ),
+                    );
+                }
+                FittingKind::Tee {
+                    branch_diameter: bd * 1e-3,
+                }
+            }
+            "elbow" => {
+                if f.branch_diameter_mm.is_some() {
+                    return bad(
+                        "kind",
+                        "= \"elbow\" takes bend_radius_d and angle_deg, not branch_diameter_mm"
+                            .into(),
+                    );
+                }
+                let rd = f.bend_radius_d.unwrap_or(1.5);
+                let angle = f.angle_deg.unwrap_or(90.0);
+                if !(0.75..=50.0).contains(&rd) {
+                    return bad(
+                        "bend_radius_d",
+                        format!("= {rd}: must lie in [0.75, 50] pipe diameters"),
+                    );
+                }
+                if !(angle > 0.0 && angle <= 180.0) {
+                    return bad("angle_deg", format!("= {angle}: must lie in (0, 180]"));
+                }
+                let d = 0.5 * (a.pipe.d_max() + a.pipe.d_min());
+                FittingKind::Elbow {
+                    radius: rd * d,
+                    angle: angle.to_radians(),
+                }
+            }
+            other => {
+                return bad(
+                    "kind",
+                    format!("= \"{other}\": must be \"tee\" or \"elbow\""),
+                );
+            }
+        };
+        let fitting = Fitting {
+            kind,
+            at_m: f.at_m,
+            direction: f.direction_deg.to_radians(),
+        };
+        if fitting.at_m <= span(a).1 || fitting.end_m() >= b.start_m {
+            return bad(
+                "at_m",
+                format!(
+                    "= {}: the fitting ({:.2} m long) must lie between section {}'s last frame \
+                     ({:.2} m) and section {}'s first ({:.2} m)",
+                    f.at_m,
+                    fitting.length(),
+                    a.name,
+                    span(a).1,
+                    b.name,
+                    b.start_m
+                ),
+            );
+        }
+        if let Some(prev) = route.fittings.last()
+            && prev.end_m() > fitting.at_m
+        {
+            return bad(
+                "at_m",
+                format!(
+                    "= {}: overlaps the fitting before it (ends at {:.3} m); list them in driving order",
+                    f.at_m,
+                    prev.end_m()
+                ),
+            );
+        }
+        route.fittings.push(fitting);
+    }
+    Ok(route)
 }
 
 impl PipelineScenario {
@@ -486,6 +666,21 @@ impl PipelineScenario {
             offset: p.rig.offset_mm * 1e-3,
             ..drift
         };
+        let mesh = MeshResolution {
+            segments: p.mesh_segments,
+            bend_step: 0.5f64.to_radians(),
+            straight_ring_spacing: 0.25,
+            tee_ring_spacing: 0.004,
+        };
+        mesh.validate()
+            .map_err(|e| invalid("pipeline.mesh_segments", e.to_string()))?;
+        let route = parse_route(
+            &p.fitting,
+            &sections,
+            p.frames_per_section,
+            p.frame_spacing_m,
+        )
+        .map_err(|(key, message)| invalid(&key, message))?;
         let scenario = Self {
             name: f.name.clone(),
             seed: f.seed,
@@ -501,11 +696,22 @@ impl PipelineScenario {
             calibration_passes: p.rig.passes,
             drift,
             rig_drift,
+            route,
+            mesh,
             source: source.to_string(),
             path: path.to_path_buf(),
         };
         // Every pose along the way must leave the sensor inside its pipe.
-        for (leg, pipe, xs) in scenario.legs() {
+        let plans = scenario.plans();
+        let legs = std::iter::once((
+            0,
+            scenario.rig,
+            (0..scenario.rig_frames)
+                .map(|k| scenario.rig_distance(k))
+                .collect(),
+        ))
+        .chain(plans.iter().map(|p| (p.drift_leg, p.pipe, vec![p.x])));
+        for (leg, pipe, xs) in legs {
             for x in xs {
                 let pose = scenario.drift_of(leg).pose(&pipe, scenario.seed, leg, x);
                 if !pose.sensor_inside() {
@@ -533,23 +739,70 @@ impl PipelineScenario {
         Ok(scenario)
     }
 
-    /// (leg, pipe, distances) of the rig (leg 0) and of each section (leg k + 1).
-    fn legs(&self) -> Vec<(u64, Pipe, Vec<f64>)> {
-        let mut v = vec![(
-            0,
-            self.rig,
-            (0..self.rig_frames).map(|k| self.rig_distance(k)).collect(),
-        )];
-        for (k, s) in self.sections.iter().enumerate() {
-            v.push((
-                k as u64 + 1,
-                s.pipe,
-                (0..self.frames_per_section)
-                    .map(|j| s.start_m + j as f64 * self.frame_spacing_m)
-                    .collect(),
-            ));
+    /// Every frame of the run in driving order: each section's frames, then (when
+    /// fittings lie between two sections) the frames the robot records on its way from
+    /// one section to the next, at the same spacing.
+    pub fn plans(&self) -> Vec<FramePlan> {
+        let n = self.sections.len();
+        let mut plans = Vec::new();
+        for (si, sec) in self.sections.iter().enumerate() {
+            let leg = si as u64 + 1;
+            let last = sec.start_m + (self.frames_per_section as f64 - 1.0) * self.frame_spacing_m;
+            for k in 0..self.frames_per_section {
+                plans.push(FramePlan {
+                    place: si,
+                    drift_leg: leg,
+                    seed_leg: leg,
+                    index: k,
+                    x: sec.start_m + k as f64 * self.frame_spacing_m,
+                    pipe: sec.pipe,
+                });
+            }
+            let Some(next) = self.sections.get(si + 1) else {
+                continue;
+            };
+            let gap: Vec<&Fitting> = self
+                .route
+                .fittings
+                .iter()
+                .filter(|f| f.at_m > last && f.at_m < next.start_m)
+                .collect();
+            let Some(change) = gap.last().map(|f| f.end_m()) else {
+                continue;
+            };
+            let mut j = 1;
+            loop {
+                let x = last + j as f64 * self.frame_spacing_m;
+                if x > next.start_m - 0.5 * self.frame_spacing_m {
+                    break;
+                }
+                plans.push(FramePlan {
+                    place: n + si,
+                    drift_leg: leg,
+                    seed_leg: TRANSIT_LEG + si as u64,
+                    index: j - 1,
+                    x,
+                    // The pipe changes to the next section's after the gap's last fitting.
+                    pipe: if x < change { sec.pipe } else { next.pipe },
+                });
+                j += 1;
+            }
         }
-        v
+        plans
+    }
+
+    /// The name of a place in the CSV files: a section's, or `A..B` between sections A
+    /// and B.
+    pub fn place_name(&self, place: usize) -> String {
+        let n = self.sections.len();
+        match self.sections.get(place) {
+            Some(s) => s.name.clone(),
+            None => format!(
+                "{}..{}",
+                self.sections[place - n].name,
+                self.sections[place - n + 1].name
+            ),
+        }
     }
 
     /// Where rig frame k is taken: the frames span one period of the offset's drift,
@@ -575,18 +828,17 @@ impl PipelineScenario {
         }
     }
 
-    fn frame(
-        &self,
-        leg: u64,
-        pipe: &Pipe,
-        index: usize,
-        x: f64,
-    ) -> anyhow::Result<(Params, Frame)> {
-        let truth = self.drift_of(leg).pose(pipe, self.seed, leg, x);
+    /// A rig frame: the straight rig pipe.
+    fn rig_frame(&self, index: usize, x: f64) -> anyhow::Result<Frame> {
+        let truth = self.rig_drift.pose(&self.rig, self.seed, 0, x);
         let scene = Scene::new(&truth, WallModel::Exact, self.sensor.max_range)?;
-        let frame = simulate(
+        self.cast(&scene, 0, index)
+    }
+
+    fn cast(&self, scene: &Scene, leg: u64, index: usize) -> anyhow::Result<Frame> {
+        Ok(simulate(
             &self.sensor,
-            &scene,
+            scene,
             &self.noise(),
             Subsample::All,
             FrameSeed {
@@ -594,15 +846,79 @@ impl PipelineScenario {
                 trial: index as u64,
                 sweep_index: leg,
             },
-        )?;
-        Ok((truth, frame))
+        )?)
     }
+
+    /// A frame of the run: the exact straight pipe when no fitting is in the sensor's
+    /// range, else the local pipeline ([`Route::local`]) meshed. Returns the truth (in an
+    /// elbow: the pose about the centreline frame, the bend's round diameter), the frame
+    /// and the local pipeline.
+    fn frame(
+        &self,
+        plan: &FramePlan,
+    ) -> anyhow::Result<(Params, Frame, Option<tof_sim::Pipeline>)> {
+        let mut truth =
+            self.drift_of(plan.drift_leg)
+                .pose(&plan.pipe, self.seed, plan.drift_leg, plan.x);
+        let view = self.sensor.max_range;
+        let local = self
+            .route
+            .local(plan.x, view, plan.pipe.d_max(), plan.pipe.d_min());
+        let scene = match &local {
+            None => Scene::new(&truth, WallModel::Exact, self.sensor.max_range)?,
+            Some((p, f)) => {
+                if self.route.in_elbow(plan.x).is_some() {
+                    let d = 2.0 * p.bend_tube_radius();
+                    (truth.d_max, truth.d_min) = (d, d);
+                }
+                Scene::with_labeled_mesh(&truth, local_mesh(p, f, &self.mesh)?)?
+            }
+        };
+        let frame = self.cast(&scene, plan.seed_leg, plan.index)?;
+        Ok((truth, frame, local.map(|l| l.0)))
+    }
+}
+
+/// `FrameSeed::sweep_index` of the frames between sections A and A + 1: this + A.
+const TRANSIT_LEG: u64 = 1000;
+
+/// Where and how one frame of the run is taken.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FramePlan {
+    /// A section's index, or `n_sections + A` between sections A and A + 1.
+    pub place: usize,
+    /// The drift's leg (its phases): the section's, continued between sections.
+    pub drift_leg: u64,
+    /// The frame's noise stream (`FrameSeed::sweep_index`).
+    pub seed_leg: u64,
+    /// Frame index within its place.
+    pub index: usize,
+    /// Odometer distance (m).
+    pub x: f64,
+    /// The pipe at x.
+    pub pipe: Pipe,
+}
+
+/// What the survey said of one frame and what the route holds there.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Geometry {
+    /// The survey's layout name.
+    found: &'static str,
+    /// Its straight_until (m).
+    straight_until: Option<f64>,
+    /// Its bend radius (mm).
+    bend_radius_mm: Option<f64>,
+    /// The truth.
+    truth: TruthAhead,
 }
 
 /// One estimate of one frame.
 #[derive(Clone, Debug)]
 struct Row {
+    /// [`FramePlan::place`].
     section: usize,
+    pipe: Pipe,
+    geometry: Geometry,
     frame: usize,
     distance_m: f64,
     method: &'static str,
@@ -677,7 +993,7 @@ fn calibrate(s: &PipelineScenario) -> anyhow::Result<(DepthTable, usize)> {
         .into_par_iter()
         .with_max_len(1)
         .map(|k| -> anyhow::Result<(Frame, Vec<f64>)> {
-            let (_, frame) = s.frame(0, &s.rig, k, s.rig_distance(k))?;
+            let frame = s.rig_frame(k, s.rig_distance(k))?;
             let intensity = frame.intensity.iter().map(|&i| i as f64).collect();
             Ok((frame, intensity))
         })
@@ -703,68 +1019,129 @@ fn calibrate(s: &PipelineScenario) -> anyhow::Result<(DepthTable, usize)> {
     Ok((cal.table, cal.n_observations))
 }
 
-/// Every method on one section frame, without and with the table.
+/// Every method on one frame, without and with the table. The geometry ahead is
+/// surveyed on the calibrated points as `epd estimate` does (ML-EPD, the run's options):
+/// when something lies ahead every method fits the straight section's points only, and
+/// in a bend every estimate is withheld (status `withheld`).
 fn frame_rows(
     s: &PipelineScenario,
     table: &DepthTable,
-    section: usize,
-    k: usize,
+    plan: &FramePlan,
 ) -> anyhow::Result<Vec<Row>> {
-    let sec = &s.sections[section];
-    let x = sec.start_m + k as f64 * s.frame_spacing_m;
-    let leg = section as u64 + 1;
-    let (truth, frame) = s.frame(leg, &sec.pipe, k, x)?;
+    let (truth, frame, local) = s.frame(plan)?;
     let opts = options(s.range_gate)?;
     let intensity: Vec<f64> = frame.intensity.iter().map(|&i| i as f64).collect();
-    // The Cramér–Rao bound of the heteroscedastic model over the valid pixels in the gate.
+    let mut corrected = frame.measured.clone();
+    let (_, table_sigma) = table.correct_with_sigmas(&mut corrected, &intensity)?;
+    let sv = survey(&corrected, Method::MlEpd, &opts, &SegmentOptions::default())
+        .context("the geometry survey")?;
+    let report = GeometryReport::of(&sv);
+    let geometry = Geometry {
+        found: report.layout,
+        straight_until: report.straight_until_m,
+        bend_radius_mm: report.bend_radius_mm,
+        truth: s.route.truth(plan.x, s.sensor.max_range),
+    };
+    let withheld = report.withheld().is_some();
+    // The straight section's points when something lies ahead.
+    let keep: Option<Vec<bool>> = sv.segmentation.straight_until.map(|end| {
+        straight_mask(
+            &corrected,
+            &sv.segmentation.straight.params,
+            end,
+            SegmentOptions::default().margin_m,
+        )
+    });
+    let pick = |v: &[[f64; 3]]| -> Vec<[f64; 3]> {
+        match &keep {
+            None => v.to_vec(),
+            Some(k) => v
+                .iter()
+                .zip(k)
+                .filter(|(_, k)| **k)
+                .map(|(p, _)| *p)
+                .collect(),
+        }
+    };
+    let pick_f = |v: &[f64]| -> Vec<f64> {
+        match &keep {
+            None => v.to_vec(),
+            Some(k) => v
+                .iter()
+                .zip(k)
+                .filter(|(_, k)| **k)
+                .map(|(p, _)| *p)
+                .collect(),
+        }
+    };
+    // The Cramér–Rao bound of the heteroscedastic model over the valid pixels in the gate
+    // on the sensor's straight pipe (before any bend; none in a bend).
+    let first_bend = local.as_ref().and_then(|p| {
+        p.segments
+            .iter()
+            .position(|g| matches!(g, Segment::Bend { .. }))
+    });
+    let on_straight = |i: usize| match frame.part.get(i).copied().flatten() {
+        None => true,
+        Some(part) => {
+            part.kind == PartKind::Straight
+                && first_bend.is_none_or(|b| (part.segment as usize) < b)
+        }
+    };
     let (mut exact, mut sig) = (Vec::new(), Vec::new());
     for i in 0..frame.len() {
         let e = frame.exact[i];
         let r = (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]).sqrt();
         let valid = frame.measured[i] != [0.0; 3] && frame.sigma[i].is_finite();
-        if valid && (s.range_gate.0..=s.range_gate.1).contains(&r) {
+        if valid && on_straight(i) && (s.range_gate.0..=s.range_gate.1).contains(&r) {
             exact.push(e);
             sig.push(frame.sigma[i]);
         }
     }
-    let crb = cramer_rao_bound_weighted(&exact, &sig, &truth)
-        .map(|c| (c[0], c[1]))
-        .unwrap_or((None, None));
-    let mut corrected = frame.measured.clone();
-    let (_, table_sigma) = table.correct_with_sigmas(&mut corrected, &intensity)?;
+    let crb = if s.route.in_elbow(plan.x).is_some() {
+        (None, None)
+    } else {
+        cramer_rao_bound_weighted(&exact, &sig, &truth)
+            .map(|c| (c[0], c[1]))
+            .unwrap_or((None, None))
+    };
     let mut rows = Vec::new();
     for calibrated in [false, true] {
-        let pts = if calibrated {
+        let pts = pick(if calibrated {
             &corrected
         } else {
             &frame.measured
-        };
-        let sigma = if calibrated {
+        });
+        let sigma = pick_f(if calibrated {
             &table_sigma
         } else {
             &frame.sigma
-        };
+        });
         for method in METHODS {
             let result = match method {
-                "c-epd" => estimate(pts, Method::CEpd, &opts),
-                "ru-epd" => estimate(pts, Method::RuEpd, &opts),
-                "ml-epd" => estimate(pts, Method::MlEpd, &opts),
-                _ => estimate_weighted(pts, sigma, Method::MlEpd, &opts),
+                _ if withheld => None,
+                "c-epd" => Some(estimate(&pts, Method::CEpd, &opts)),
+                "ru-epd" => Some(estimate(&pts, Method::RuEpd, &opts)),
+                "ml-epd" => Some(estimate(&pts, Method::MlEpd, &opts)),
+                _ => Some(estimate_weighted(&pts, &sigma, Method::MlEpd, &opts)),
             };
             let (status, d, n_points) = match result {
-                Ok(e) => (
+                None => ("withheld".to_string(), None, 0),
+                Some(Ok(e)) => (
                     e.status.name().to_string(),
                     e.status
                         .is_converged()
                         .then_some((e.params.d_max, e.params.d_min)),
                     e.n_points,
                 ),
-                Err(_) => ("error".to_string(), None, 0),
+                Some(Err(_)) => ("error".to_string(), None, 0),
             };
             rows.push(Row {
-                section,
-                frame: k,
-                distance_m: x,
+                section: plan.place,
+                pipe: plan.pipe,
+                geometry,
+                frame: plan.index,
+                distance_m: plan.x,
                 method,
                 calibrated,
                 status,
@@ -849,9 +1226,8 @@ fn summarise(s: &PipelineScenario, rows: &[Row]) -> Vec<SectionRow> {
 }
 
 fn profile_line(s: &PipelineScenario, r: &Row) -> String {
-    let sec = &s.sections[r.section];
-    let id = sec.pipe.inner_diameter();
-    let od = sec.pipe.outer_diameter();
+    let id = r.pipe.inner_diameter();
+    let od = r.pipe.outer_diameter();
     let opt = |v: Option<f64>| v.map_or(String::new(), num);
     let (dmax, dmin, dmean, ovality, wall) = match r.d {
         Some((a, b)) => (
@@ -863,8 +1239,9 @@ fn profile_line(s: &PipelineScenario, r: &Row) -> String {
         ),
         None => (None, None, None, None, None),
     };
+    let g = &r.geometry;
     [
-        sec.name.clone(),
+        s.place_name(r.section),
         r.frame.to_string(),
         num(r.distance_m),
         r.method.to_string(),
@@ -880,6 +1257,11 @@ fn profile_line(s: &PipelineScenario, r: &Row) -> String {
         r.n_points.to_string(),
         opt(r.crb.0.map(|v| v * 1e3)),
         opt(r.crb.1.map(|v| v * 1e3)),
+        g.found.to_string(),
+        opt(g.straight_until),
+        opt(g.bend_radius_mm),
+        g.truth.geometry.to_string(),
+        opt(g.truth.straight_until_m),
     ]
     .join(",")
 }
@@ -933,18 +1315,19 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
         table.range.n, table.log_intensity.n
     ));
     let mut rows = Vec::new();
-    for (si, sec) in s.sections.iter().enumerate() {
+    let plans = s.plans();
+    let mut places: Vec<usize> = plans.iter().map(|p| p.place).collect();
+    places.dedup();
+    for place in places {
         if INTERRUPTED.load(Ordering::SeqCst) {
             return Err(Interrupted.into());
         }
-        say(&format!(
-            "section {}: {} frames",
-            sec.name, s.frames_per_section
-        ));
-        let done: Vec<anyhow::Result<Vec<Row>>> = (0..s.frames_per_section)
+        let here: Vec<&FramePlan> = plans.iter().filter(|p| p.place == place).collect();
+        say(&format!("{}: {} frames", s.place_name(place), here.len()));
+        let done: Vec<anyhow::Result<Vec<Row>>> = here
             .into_par_iter()
             .with_max_len(1)
-            .map(|k| frame_rows(s, &table, si, k))
+            .map(|p| frame_rows(s, &table, p))
             .collect();
         for d in done {
             rows.extend(d?);

@@ -6,10 +6,14 @@ mod common;
 use bench_harness::pipeline::{PROFILE_COLUMNS, SECTION_COLUMNS};
 use common::{bin, temp_dir, workspace};
 
-/// The committed scenario, shrunk: 2 frames per section, 3 rig frames.
+/// The committed scenario, shrunk: 2 frames per section 1 m apart, the first section
+/// moved to 10 m (its frames at 10 and 11 m; 13 frames from 12 to 24 m past the tee at
+/// 13 m and the elbow at 18 m; the second section's at 25 and 26 m), 3 rig frames.
 fn small_scenario() -> String {
     let text = std::fs::read_to_string(workspace().join("scenarios/pipeline_run.toml")).unwrap();
     text.replace("frames_per_section = 50", "frames_per_section = 2")
+        .replace("frame_spacing_m = 0.2", "frame_spacing_m = 1.0")
+        .replace("start_m = 0.0", "start_m = 10.0")
         .replace("frames = 20", "frames = 3")
         .replace("name = \"pipeline_run\"", "name = \"pipeline_small\"")
 }
@@ -74,10 +78,46 @@ fn writes_the_tally_and_the_section_table_identically_for_1_and_2_threads() {
             "wall_mm"
         ]
     );
-    // 2 sections × 2 frames × 4 methods × (without, with the table).
+    // (2 sections × 2 frames + 13 between them) × 4 methods × (without, with the table).
     let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
-    assert_eq!(rows.len(), 32);
-    for r in &rows {
+    assert_eq!(rows.len(), (2 * 2 + 13) * 8);
+    let col = |name: &str| PROFILE_COLUMNS.iter().position(|c| *c == name).unwrap();
+    let (geometry, until, truth, truth_until) = (
+        col("geometry"),
+        col("straight_until_m"),
+        col("geometry_true"),
+        col("straight_until_true_m"),
+    );
+    let at = |x: f64| -> Vec<&Vec<&str>> {
+        rows.iter()
+            .filter(|r| (r[2].parse::<f64>().unwrap() - x).abs() < 1e-9)
+            .collect()
+    };
+    // Between the sections: the elbow 2 and 1 m ahead is found where it is; at its
+    // start plane the sensor is in the bend and every estimate is withheld.
+    for x in [16.0, 17.0] {
+        for r in at(x) {
+            assert_eq!(r[0], "11.9T..12.7T");
+            assert_eq!(
+                (r[geometry], r[truth]),
+                ("bend_ahead", "bend_ahead"),
+                "{r:?}"
+            );
+            let (u, t): (f64, f64) = (r[until].parse().unwrap(), r[truth_until].parse().unwrap());
+            assert!(
+                (t - (18.0 - x)).abs() < 1e-9 && (u - t).abs() < 0.1,
+                "{r:?}"
+            );
+        }
+    }
+    for r in at(18.0) {
+        assert_eq!(
+            (r[geometry], r[truth], r[5]),
+            ("in_bend", "in_bend", "withheld")
+        );
+        assert_eq!(r[6], "", "a withheld estimate has no diameter");
+    }
+    for r in rows.iter().filter(|r| r[0] != "11.9T..12.7T") {
         assert_eq!(r.len(), PROFILE_COLUMNS.len());
         assert_eq!(r[5], "converged", "{r:?}");
         // wall = (OD − mean ID)/2 with OD = 20" = 508 mm.
@@ -125,7 +165,7 @@ fn scenario_errors_name_the_key() {
     for (from, to, key) in [
         ("wall_mm = 11.9", "wall_mm = 300", "pipeline.section[0]"),
         (
-            "frame_spacing_m = 0.2",
+            "frame_spacing_m = 1.0",
             "frame_spacing_m = -1",
             "pipeline.frame_spacing_m",
         ),
@@ -133,6 +173,18 @@ fn scenario_errors_name_the_key() {
             "range_gate_m = [0.5, 2.0]",
             "range_gate_m = [2.0, 0.5]",
             "pipeline.range_gate_m",
+        ),
+        ("at_m = 18.0", "at_m = 13.2", "pipeline.fitting[1].at_m"),
+        ("at_m = 13.0", "at_m = 10.5", "pipeline.fitting[0].at_m"),
+        (
+            "kind = \"elbow\"",
+            "kind = \"wye\"",
+            "pipeline.fitting[1].kind",
+        ),
+        (
+            "branch_diameter_mm = 300.0",
+            "branch_diameter_mm = 600.0",
+            "pipeline.fitting[0].branch_diameter_mm",
         ),
         (
             "sensor = \"helios2\"",

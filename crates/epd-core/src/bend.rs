@@ -95,6 +95,11 @@ pub struct BendFit {
     pub n_inliers: usize,
     /// Robust σ of the residuals, 1.4826·MAD (m).
     pub residual_sigma: f64,
+    /// Robust σ (1.4826·MAD, m) of the same points' first-order range errors to the
+    /// straight fit's wall continued past its end: the scale the torus must beat. It
+    /// grows with the departure for a bend and stays at the noise for a tee, whose main
+    /// run goes on.
+    pub straight_sigma: f64,
     /// How the solver ended.
     pub status: Status,
 }
@@ -157,6 +162,7 @@ pub fn fit_bend(
     };
     let geometry = BendGeometry::from_vector(&rep.x);
     let sigma = robust_sigma(&rays, &geometry).unwrap_or(f64::NAN);
+    let straight_sigma = straight_robust_sigma(&rays, (0.5 * straight.d_max, 0.5 * straight.d_min));
     let torus = geometry.torus();
     let mut turned: Vec<f64> = rays
         .iter()
@@ -180,8 +186,32 @@ pub fn fit_bend(
         n_points: rays.len(),
         n_inliers,
         residual_sigma: sigma,
+        straight_sigma,
         status: rep.status,
     })
+}
+
+/// 1.4826·MAD of the first-order range errors eᵢ = sᵢ/|n·d| of PCS points q to the
+/// elliptic cylinder y²/a² + z²/b² = 1, with s = f/|∇f| for f = y²/a² + z²/b² − 1
+/// and n = ∇f/|∇f| (points on the axis skipped); NaN when none is usable.
+fn straight_robust_sigma(rays: &[(Vector3<f64>, Vector3<f64>)], (a, b): (f64, f64)) -> f64 {
+    let mut e: Vec<f64> = rays
+        .iter()
+        .filter_map(|(q, d)| {
+            let f = (q.y / a).powi(2) + (q.z / b).powi(2) - 1.0;
+            let g = Vector3::new(0.0, 2.0 * q.y / (a * a), 2.0 * q.z / (b * b));
+            let gn = g.norm();
+            let cos = (g.dot(d) / gn).abs();
+            (gn > 0.0 && cos > 1e-6).then(|| f / gn / cos)
+        })
+        .filter(|v| v.is_finite())
+        .collect();
+    if e.is_empty() {
+        return f64::NAN;
+    }
+    let med = crate::check::quantile(&mut e, 0.5);
+    let mut dev: Vec<f64> = e.iter().map(|x| (x - med).abs()).collect();
+    1.4826 * crate::check::quantile(&mut dev, 0.5)
 }
 
 /// eᵢ = s(q)/|n·d|: the distance along the ray from q to the wall, to first order.

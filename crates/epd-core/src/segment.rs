@@ -567,9 +567,12 @@ pub struct Survey {
 /// [`segment`], then a torus fitted to what lies beyond a departure
 /// ([`crate::bend::fit_bend`], started at the departure with a long-radius bend,
 /// R = 1.5·D): when it converges with residuals within twice the straight section's
-/// and a bend radius above the tube's, the departure is a bend and the straight section
-/// ends where the torus starts; otherwise it is a tee (a branch opening: the main pipe
-/// goes on).
+/// — or within half the residuals of the straight wall continued over the same points
+/// (with range-dependent noise the bend, farther away, is noisier than the straight
+/// section; a tee's main run goes on, so there the straight wall fits about as well as
+/// any torus) — and a bend radius above the tube's, the departure is a bend and the
+/// straight section ends where the torus starts; otherwise it is a tee (a branch
+/// opening: the main pipe goes on).
 pub fn survey(
     points: &[[f64; 3]],
     method: Method,
@@ -592,7 +595,8 @@ pub fn survey(
     let straight_sigma = s.straight.rms_residual;
     let accepted = bend.filter(|b| {
         b.status.is_converged()
-            && b.residual_sigma <= 2.0 * straight_sigma.max(1e-4)
+            && (b.residual_sigma <= 2.0 * straight_sigma.max(1e-4)
+                || b.residual_sigma <= 0.5 * b.straight_sigma)
             && b.geometry.radius > 1.05 * b.geometry.tube_radius
             && b.geometry.radius < 100.0 * d_mean
             && b.angle_seen > 0.0

@@ -44,7 +44,9 @@
 use std::f64::consts::{PI, TAU};
 
 use epd_core::torus::Torus;
-use nalgebra::{Rotation3, Unit, Vector3};
+use nalgebra::{Rotation3, Unit, UnitQuaternion, Vector3};
+use parry3d_f64::glamx::{DQuat, DVec3};
+use parry3d_f64::math::Pose;
 use parry3d_f64::math::Vector;
 use parry3d_f64::shape::TriMesh;
 
@@ -365,6 +367,24 @@ pub struct LabeledMesh {
     pub mesh: TriMesh,
     /// One label per triangle.
     pub labels: Vec<Part>,
+}
+
+impl LabeledMesh {
+    /// Re-express the mesh in the local coordinates of `frame` (given in the mesh's
+    /// current coordinates): every vertex p becomes Rᵀ·(p − o), with o and R the frame's
+    /// origin and rotation ([`SegmentFrame::to_local`]). A sensor placed at the origin of
+    /// the result looks along the frame's X, e.g. from inside a bend:
+    /// `SegmentFrame::after(&Segment::Bend { angle: θ, .. })` is the centreline frame θ
+    /// into it. Labels are unchanged.
+    pub fn express_in(&mut self, frame: &SegmentFrame) {
+        let q = UnitQuaternion::from_rotation_matrix(&frame.rotation).inverse();
+        let t = -(q * frame.origin);
+        let pose = Pose::from_parts(
+            DVec3::new(t.x, t.y, t.z),
+            DQuat::from_xyzw(q.i, q.j, q.k, q.w),
+        );
+        self.mesh.transform_vertices(&pose);
+    }
 }
 
 /// A segment-validation error naming `segments[index].field`.

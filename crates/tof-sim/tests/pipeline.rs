@@ -305,6 +305,70 @@ fn compare(scene: &Scene, truth: &Params, p: &Pipeline, bound: &dyn Fn(Part) -> 
 /// difference times cos θ stays within the sagitta bound e of
 /// `MeshResolution::faceting_bound` (1.77 µm: 0.57 µm around, 1.20 µm along the bend),
 /// hence |Δt| ≤ e/cos θ < 0.1 mm wherever cos θ ≥ 0.018; labels agree everywhere.
+/// A sensor inside a bend: the mesh re-expressed in the centreline frame θ into the
+/// bend (`LabeledMesh::express_in`), cast from there. Mapped back (x = o + R·x_local),
+/// every bend hit lies on the exact torus within the faceting bound, and straight hits
+/// on the straight after it or before it; the sensor's own frame sees the tube around it.
+#[test]
+fn a_sensor_inside_a_bend_sees_the_torus() {
+    let p = elbow(ID_20IN, ID_20IN, 0.5, 0.4);
+    let bend = p.first_bend().unwrap();
+    let theta = 0.6;
+    let mut partial = p.segments[1];
+    if let Segment::Bend { angle, .. } = &mut partial {
+        *angle = theta;
+    }
+    let at = bend.start.after(&partial);
+    let mut mesh = p.mesh(&MeshResolution::default()).unwrap();
+    mesh.express_in(&at);
+    let truth = pose(&p, 0.3, 0.0, 0.0, 0.01, -0.02);
+    let scene = Scene::with_labeled_mesh(&truth, mesh).unwrap();
+    let seed = FrameSeed {
+        seed: 1,
+        trial: 0,
+        sweep_index: 0,
+    };
+    let f = simulate(
+        &Sensor::helios2(),
+        &scene,
+        &Noise::none(),
+        Subsample::All,
+        seed,
+    )
+    .unwrap();
+    let tol =
+        MeshResolution::default().faceting_bound(p.bend_tube_radius(), R_LONG, FRAC_PI_2) + 1e-9;
+    let (mut n_bend, mut n_straight) = (0, 0);
+    for (e, part) in f.exact.iter().zip(&f.part) {
+        let Some(part) = part else { continue };
+        let local = truth.scs_to_pcs(&Point3::new(e[0], e[1], e[2]));
+        let q = at.to_pcs(&local.coords);
+        match part.kind {
+            PartKind::Bend => {
+                let d = bend.torus.signed_distance(&q).abs();
+                assert!(d <= tol, "bend hit {q:?} off the torus by {d}");
+                n_bend += 1;
+            }
+            PartKind::Straight => {
+                // After the bend: on its end frame's cylinder, beyond its end plane.
+                let l = bend.end.to_local(&q);
+                let r = (l.y * l.y + l.z * l.z).sqrt();
+                assert!(l.x >= -1e-9, "straight hit behind the bend's end: {l:?}");
+                assert!(
+                    (r - ID_20IN / 2.0).abs() <= tol,
+                    "straight hit at radius {r}"
+                );
+                n_straight += 1;
+            }
+            PartKind::Branch => panic!("no branch in an elbow"),
+        }
+    }
+    assert!(
+        n_bend > 50_000 && n_straight > 1_000,
+        "{n_bend} bend, {n_straight} straight hits"
+    );
+}
+
 #[test]
 fn bend_faceting_error_within_the_sagitta_bound() {
     let p = elbow(ID_20IN, ID_20IN, 1.0, 0.0);

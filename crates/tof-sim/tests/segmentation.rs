@@ -8,7 +8,7 @@ use epd_core::segment::{Layout, SegmentOptions, clock_angle_deg, survey};
 use epd_core::{EstimateOptions, Loss, Method, Params, estimate};
 use tof_sim::{
     FrameSeed, MeshResolution, Noise, Pipe, Pipeline, PoseRanges, Scene, Segment, Sensor,
-    Subsample, simulate,
+    Subsample, ToFPhysics, simulate,
 };
 
 /// The paper's 20" pipe (2 % ovality) with a 90° long-radius elbow (R = 1.5·20" =
@@ -125,6 +125,90 @@ fn noisy_elbow_is_cut_off_the_straight_estimate() {
         plain_worst > 0.5,
         "the elbow biases the plain fit: {plain_worst} mm"
     );
+}
+
+/// The Helios2 model's range-dependent noise alone (σ ∝ √(A+B)/A: the bend, farther
+/// away and seen more obliquely, is several times noisier than the straight section):
+/// the elbow 2 m ahead is still found as a bend. Its torus misses by more than twice the
+/// straight section's RMS, so only the comparison with the straight wall continued over
+/// the same points tells it from a tee; the same comparison keeps a tee a tee.
+#[test]
+fn range_dependent_noise_keeps_the_elbow_an_elbow() {
+    let physics = ToFPhysics {
+        wiggle_amplitude_m: 0.0,
+        amplitude_offset_m_per_ln: 0.0,
+        multipath_ratio: 0.0,
+        ..ToFPhysics::helios2()
+    };
+    let noise = Noise {
+        physics: Some(physics),
+        ..Noise::none()
+    };
+    let cast = |p: &Pipeline, k: u64| {
+        let mut truth = PoseRanges::default()
+            .sample(&Pipe::paper_20in(), 9, k)
+            .unwrap();
+        truth.d_max = p.d_max;
+        truth.d_min = p.d_min;
+        let scene = Scene::pipeline(&truth, p, &MeshResolution::default()).unwrap();
+        let seed = FrameSeed {
+            seed: 9,
+            trial: k,
+            sweep_index: 1,
+        };
+        simulate(&Sensor::helios2(), &scene, &noise, Subsample::All, seed)
+            .unwrap()
+            .measured
+    };
+    let p = elbow(2.0);
+    for k in 0..2 {
+        let s = survey(
+            &cast(&p, k),
+            Method::MlEpd,
+            &options(),
+            &SegmentOptions::default(),
+        )
+        .unwrap();
+        assert_eq!(s.segmentation.layout, Layout::BendAhead, "frame {k}");
+        let b = s.bend.unwrap();
+        assert!(
+            b.residual_sigma > 2.0 * s.segmentation.straight.rms_residual,
+            "frame {k}: the case the old rule refused ({} vs rms {})",
+            b.residual_sigma,
+            s.segmentation.straight.rms_residual
+        );
+        assert!(b.residual_sigma < 0.5 * b.straight_sigma);
+        let until = s.segmentation.straight_until.unwrap();
+        assert!(
+            (until - 2.0).abs() < 0.1,
+            "frame {k}: straight until {until}"
+        );
+    }
+    let tee = Pipeline {
+        d_max: p.d_max,
+        d_min: p.d_min,
+        bend_diameter: None,
+        start_x: -1.0,
+        segments: vec![
+            Segment::Straight { length: 2.85 },
+            Segment::Tee {
+                length: 0.6,
+                branch_diameter: 0.3,
+                direction: 0.7,
+            },
+            Segment::Straight { length: 6.0 },
+        ],
+    };
+    for k in 0..2 {
+        let s = survey(
+            &cast(&tee, k),
+            Method::MlEpd,
+            &options(),
+            &SegmentOptions::default(),
+        )
+        .unwrap();
+        assert_eq!(s.segmentation.layout, Layout::TeeAhead, "tee frame {k}");
+    }
 }
 
 /// A tee 2 m ahead: a tee (not a bend), its opening's near edge within 5 cm.
