@@ -1414,6 +1414,12 @@ pub struct ProfilePoint {
     pub calibrated: bool,
     /// Dmax, Dmin (mm) when converged.
     pub d_mm: Option<(f64, f64)>,
+    /// The survey's verdict (layout name).
+    pub geometry: &'static str,
+    /// The survey's distance to the straight section's end (m).
+    pub straight_until_m: Option<f64>,
+    /// The route's truth.
+    pub truth: TruthAhead,
 }
 
 fn profile_points(rows: &[Row]) -> Vec<ProfilePoint> {
@@ -1425,6 +1431,9 @@ fn profile_points(rows: &[Row]) -> Vec<ProfilePoint> {
             method: r.method,
             calibrated: r.calibrated,
             d_mm: r.d.map(|(a, b)| (a * 1e3, b * 1e3)),
+            geometry: r.geometry.found,
+            straight_until_m: r.geometry.straight_until,
+            truth: r.geometry.truth,
         })
         .collect()
 }

@@ -736,25 +736,90 @@ pub fn plot_pipeline(
             .collect()
     };
     let nominal = per_section("nominal ID", |p| p.inner_diameter() * 1e3);
-    // Along the distance, with a break (NaN) between sections.
+    // Along the distance (sections and the frames between them), with a break (NaN)
+    // where the place changes and where an estimate is withheld.
+    let gap = (f64::NAN, f64::NAN, f64::NAN, f64::NAN);
+    let mut driven: Vec<&crate::pipeline::ProfilePoint> =
+        points.iter().filter(|p| p.calibrated).collect();
+    driven.sort_by(|a, b| a.distance_m.total_cmp(&b.distance_m));
     let along = |m: &str, f: fn((f64, f64)) -> f64| -> Vec<(f64, f64, f64, f64)> {
         let mut v = Vec::new();
-        for si in 0..s.sections.len() {
-            if si > 0 {
-                v.push((f64::NAN, f64::NAN, f64::NAN, f64::NAN));
+        let mut place = None;
+        for p in driven.iter().filter(|p| p.method == m) {
+            if place.is_some_and(|q| q != p.section) {
+                v.push(gap);
             }
-            v.extend(
-                points
-                    .iter()
-                    .filter(|p| p.section == si && p.method == m && p.calibrated)
-                    .filter_map(|p| {
-                        let y = f(p.d_mm?);
-                        Some((p.distance_m, y, y, y))
-                    }),
-            );
+            place = Some(p.section);
+            v.push(p.d_mm.map_or(gap, |d| {
+                let y = f(d);
+                (p.distance_m, y, y, y)
+            }));
         }
         v
     };
+    // The geometry ahead, once per frame: the survey's distance to the straight section's
+    // end by its verdict, a bend's frames at 0, and the route's truth.
+    let frames: Vec<&&crate::pipeline::ProfilePoint> =
+        driven.iter().filter(|p| p.method == "ml-epd").collect();
+    let found = |layout: &str| -> Vec<(f64, f64, f64, f64)> {
+        frames
+            .iter()
+            .filter(|p| p.geometry == layout)
+            .flat_map(|p| {
+                let y = if layout == "in_bend" {
+                    0.0
+                } else {
+                    p.straight_until_m.unwrap_or(f64::NAN)
+                };
+                [(p.distance_m, y, y, y), gap]
+            })
+            .collect()
+    };
+    let truth_line: Vec<(f64, f64, f64, f64)> = frames
+        .iter()
+        .map(|p| {
+            let y = match (p.truth.geometry, p.truth.straight_until_m) {
+                ("in_bend", _) => 0.0,
+                (_, Some(u)) => u,
+                _ => f64::NAN,
+            };
+            (p.distance_m, y, y, y)
+        })
+        .collect();
+    let geometry = vec![
+        Series {
+            name: "truth (0: in the bend)".into(),
+            colour: RGBColor(150, 150, 150),
+            points: truth_line,
+            bars: false,
+            marker_triangle: false,
+            dashed: false,
+        },
+        Series {
+            name: "found: bend ahead".into(),
+            colour: RGBColor(31, 119, 180),
+            points: found("bend_ahead"),
+            bars: false,
+            marker_triangle: true,
+            dashed: false,
+        },
+        Series {
+            name: "found: tee ahead".into(),
+            colour: RGBColor(214, 39, 40),
+            points: found("tee_ahead"),
+            bars: false,
+            marker_triangle: false,
+            dashed: false,
+        },
+        Series {
+            name: "found: in a bend (withheld)".into(),
+            colour: RGBColor(44, 160, 44),
+            points: found("in_bend"),
+            bars: false,
+            marker_triangle: true,
+            dashed: false,
+        },
+    ];
     let mut dmean = nominal;
     let mut oval = per_section("true ovality", |p| p.ovality * 100.0);
     for m in METHODS {
@@ -779,8 +844,8 @@ pub fn plot_pipeline(
         Figure {
             path: out.join("profile.png"),
             title: format!("{name}: pipe tally along the run (with the depth table)"),
-            grid: (2, 1),
-            size: (1440, 1000),
+            grid: (3, 1),
+            size: (1440, 1400),
             x_label: "odometer distance (m)",
             xa: Axis { log: false },
             ya: Axis { log: false },
@@ -795,6 +860,12 @@ pub fn plot_pipeline(
                 title: "ovality (Dmax − Dmin)/D, D the mean diameter".into(),
                 y_label: "%".into(),
                 series: &oval,
+            },
+            Panel {
+                title: "geometry ahead: where the straight section ends (survey of every frame)"
+                    .into(),
+                y_label: "m ahead".into(),
+                series: &geometry,
             },
         ],
     )?);
