@@ -775,17 +775,19 @@ pub fn plot_pipeline(
             })
             .collect()
     };
-    let truth_line: Vec<(f64, f64, f64, f64)> = frames
-        .iter()
-        .map(|p| {
-            let y = match (p.truth.geometry, p.truth.straight_until_m) {
-                ("in_bend", _) => 0.0,
-                (_, Some(u)) => u,
-                _ => f64::NAN,
-            };
-            (p.distance_m, y, y, y)
-        })
-        .collect();
+    // Broken where the truth changes from one fitting to the next.
+    let mut truth_line: Vec<(f64, f64, f64, f64)> = Vec::new();
+    for (k, p) in frames.iter().enumerate() {
+        if k > 0 && frames[k - 1].truth.geometry != p.truth.geometry {
+            truth_line.push(gap);
+        }
+        let y = match (p.truth.geometry, p.truth.straight_until_m) {
+            ("in_bend", _) => 0.0,
+            (_, Some(u)) => u,
+            _ => f64::NAN,
+        };
+        truth_line.push((p.distance_m, y, y, y));
+    }
     let geometry = vec![
         Series {
             name: "truth (0: in the bend)".into(),
