@@ -338,6 +338,15 @@ pub const PIPELINE_FILES: &[&str] = &[
     "weights.png",
 ];
 
+/// The files of an approach run (`crate::approach`).
+pub const APPROACH_FILES: &[&str] = &[
+    "scenario.toml",
+    "metadata.json",
+    "frames.csv",
+    "approach.csv",
+    "approach.png",
+];
+
 /// The files a shard writes besides `trials.csv`, `scenario.toml` and `metadata.json`
 /// (`crate::shard`).
 pub const SHARD_FILES: &[&str] = &[crate::shard::MANIFEST_FILE, crate::shard::RECORDS_FILE];
@@ -347,6 +356,7 @@ pub const SHARD_FILES: &[&str] = &[crate::shard::MANIFEST_FILE, crate::shard::RE
 fn is_run_file(name: &str) -> bool {
     RUN_FILES.contains(&name)
         || PIPELINE_FILES.contains(&name)
+        || APPROACH_FILES.contains(&name)
         || SHARD_FILES.contains(&name)
         || name.strip_prefix('.').is_some_and(|rest| {
             RUN_FILES.iter().any(|f| {
