@@ -41,7 +41,7 @@ impl MethodResult {
 
     /// The status as written in `trials.csv`: the estimate's, or `error`.
     pub fn status_name(&self) -> &'static str {
-        MethodRecord::from(self).status_name()
+        self.status.map_or("error", |s| s.outcome().name())
     }
 }
 
