@@ -43,7 +43,7 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use epd_cli::shard::ShardSpec;
-use epd_core::{Method, N_PARAMS, ParamErrors, Params, Sigmas};
+use epd_core::{FitOutcome, Method, N_PARAMS, ParamErrors, Params, Sigmas};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
@@ -53,7 +53,7 @@ use crate::run::{
     summarise, trial_rows, write_new, write_run, wrote,
 };
 use crate::scenario::{MAX_SCENARIO_BYTES, Scenario};
-use crate::trial::{FIT_STATUS_NAMES, MethodRecord, TrialRecord};
+use crate::trial::{MethodRecord, TrialRecord};
 
 /// The `format` of a [`ShardManifest`] this version writes and reads.
 pub const SHARD_FORMAT: &str = "bench-harness-shard/1";
@@ -360,7 +360,7 @@ fn host_name() -> Option<String> {
 #[serde(deny_unknown_fields)]
 struct WireMethod {
     method: String,
-    status: Option<String>,
+    status: Option<FitOutcome>,
     message: String,
     iterations: usize,
     time_ms: u64,
@@ -410,7 +410,7 @@ impl From<&TrialRecord> for WireTrial {
                 .iter()
                 .map(|m| WireMethod {
                     method: m.method.name().to_string(),
-                    status: m.status.map(str::to_string),
+                    status: m.status,
                     message: m.message.clone(),
                     iterations: m.iterations,
                     time_ms: m.time_ms.to_bits(),
@@ -448,19 +448,9 @@ impl WireTrial {
                     m.name()
                 ));
             }
-            let status = match w.status {
-                None => None,
-                Some(s) => Some(
-                    FIT_STATUS_NAMES
-                        .iter()
-                        .copied()
-                        .find(|&n| n == s)
-                        .ok_or_else(|| format!("unknown status `{s}`"))?,
-                ),
-            };
             out.push(MethodRecord {
                 method: m,
-                status,
+                status: w.status,
                 message: w.message,
                 iterations: w.iterations,
                 time_ms: f(w.time_ms),
@@ -1146,7 +1136,7 @@ mod tests {
             methods: vec![
                 MethodRecord {
                     method: Method::CEpd,
-                    status: Some("implausible"),
+                    status: Some(FitOutcome::Implausible),
                     message: "a \"quoted\", multi\nline message".into(),
                     iterations: 12,
                     time_ms: 2.718_281_828_459_1,
@@ -1197,9 +1187,29 @@ mod tests {
         assert!(w.into_record(&[Method::MlEpd, Method::CEpd]).is_err());
         let w: WireTrial = serde_json::from_str(&line).unwrap();
         assert!(w.into_record(&[Method::CEpd]).is_err());
+        // The status is written by serde as the name of `trials.csv` (`error` is no
+        // status: a missing estimate is `null`), and an unknown name is refused.
+        assert!(line.contains(r#""status":"implausible""#), "{line}");
+        assert!(line.contains(r#""status":null"#), "{line}");
         let bad = line.replace("implausible", "fine");
-        let w: WireTrial = serde_json::from_str(&bad).unwrap();
-        assert!(w.into_record(&[Method::CEpd, Method::MlEpd]).is_err());
+        let e = serde_json::from_str::<WireTrial>(&bad)
+            .err()
+            .expect("refused");
+        assert!(e.to_string().contains("unknown variant `fine`"), "{e}");
+    }
+
+    #[test]
+    fn statuses_are_written_with_their_names() {
+        for o in FitOutcome::ALL {
+            let json = serde_json::to_string(&o).unwrap();
+            assert_eq!(json, format!("\"{}\"", o.name()));
+            assert_eq!(serde_json::from_str::<FitOutcome>(&json).unwrap(), o);
+        }
+        let names = FitOutcome::ALL.map(FitOutcome::name);
+        assert_eq!(
+            names,
+            ["converged", "iteration_limit", "degenerate", "implausible"]
+        );
     }
 
     #[test]

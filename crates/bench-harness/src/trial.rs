@@ -5,8 +5,8 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 use epd_core::{
-    EstimateOptions, FitStatus, LossScale, Method, N_PARAMS, ParamErrors, Params, Sigmas,
-    cramer_rao_bound, errors_against, estimate,
+    EstimateOptions, FitOutcome, FitStatus, LossScale, Method, N_PARAMS, ParamErrors, Params,
+    Sigmas, cramer_rao_bound, errors_against, estimate,
 };
 use tof_sim::{Frame, FrameSeed, Scene, WallModel, simulate_into};
 
@@ -41,7 +41,7 @@ impl MethodResult {
 
     /// The status as written in `trials.csv`: the estimate's, or `error`.
     pub fn status_name(&self) -> &'static str {
-        self.status.map_or("error", |s| s.name())
+        self.status.map_or("error", |s| s.outcome().name())
     }
 }
 
@@ -210,21 +210,16 @@ fn run_with(
     }
 }
 
-/// The names [`MethodRecord::status`] may take: those of [`FitStatus::name`]. Only
-/// `converged` is a result.
-pub const FIT_STATUS_NAMES: [&str; 4] =
-    ["converged", "iteration_limit", "degenerate", "implausible"];
-
 /// What the output files need of one method's result on one frame: a
-/// [`MethodResult`] with its status reduced to its name, so that it can be written to a
-/// shard file and read back exactly (`crate::shard`).
+/// [`MethodResult`] with its status reduced to its [`FitOutcome`], so that it can be
+/// written to a shard file and read back exactly (`crate::shard`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct MethodRecord {
     /// The method.
     pub method: Method,
-    /// [`FitStatus::name`] of the estimate (one of [`FIT_STATUS_NAMES`]); `None` when no
-    /// estimate could be made (written `error`).
-    pub status: Option<&'static str>,
+    /// [`FitStatus::outcome`] of the estimate; `None` when no estimate could be made
+    /// (written `error`).
+    pub status: Option<FitOutcome>,
     /// The reason or error message.
     pub message: String,
     /// Solver iterations.
@@ -243,12 +238,12 @@ impl MethodRecord {
     /// Whether the fit converged (the trial counts in the statistics), as
     /// [`MethodResult::ok`].
     pub fn ok(&self) -> bool {
-        self.status == Some(FIT_STATUS_NAMES[0]) && self.errors.is_some()
+        self.status == Some(FitOutcome::Converged) && self.errors.is_some()
     }
 
     /// The status as written in `trials.csv`: the estimate's, or `error`.
     pub fn status_name(&self) -> &'static str {
-        self.status.unwrap_or("error")
+        self.status.map_or("error", FitOutcome::name)
     }
 }
 
@@ -256,7 +251,7 @@ impl From<&MethodResult> for MethodRecord {
     fn from(m: &MethodResult) -> Self {
         Self {
             method: m.method,
-            status: m.status.map(|s| s.name()),
+            status: m.status.map(|s| s.outcome()),
             message: m.message.clone(),
             iterations: m.iterations,
             time_ms: m.time_ms,

@@ -163,15 +163,19 @@ impl FitStatus {
         }
     }
 
-    /// A short machine-readable name: `converged`, `iteration_limit`, `degenerate` or
-    /// `implausible`.
-    pub fn name(&self) -> &'static str {
+    /// Which of the four statuses this is, without its reason: what files write.
+    pub fn outcome(&self) -> FitOutcome {
         match self {
-            FitStatus::Converged(_) => "converged",
-            FitStatus::IterationLimit => "iteration_limit",
-            FitStatus::Degenerate(_) => "degenerate",
-            FitStatus::Implausible(_) => "implausible",
+            FitStatus::Converged(_) => FitOutcome::Converged,
+            FitStatus::IterationLimit => FitOutcome::IterationLimit,
+            FitStatus::Degenerate(_) => FitOutcome::Degenerate,
+            FitStatus::Implausible(_) => FitOutcome::Implausible,
         }
+    }
+
+    /// A short machine-readable name: [`FitOutcome::name`] of [`outcome`](Self::outcome).
+    pub fn name(&self) -> &'static str {
+        self.outcome().name()
     }
 
     /// The reason in words, for reports.
@@ -187,6 +191,52 @@ impl FitStatus {
     /// Whether the estimate is a result: converged and consistent with the data.
     pub fn is_converged(&self) -> bool {
         matches!(self, FitStatus::Converged(_))
+    }
+}
+
+/// A [`FitStatus`] without its reason: the value of a `status` column or key
+/// (`converged`, `iteration_limit`, `degenerate`, `implausible`), with the feature
+/// `serde` serialised as exactly those names. Only [`FitOutcome::Converged`] is a result.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(rename_all = "snake_case")
+)]
+pub enum FitOutcome {
+    /// A convergence test held and the result is consistent with the data.
+    Converged,
+    /// The iteration limit was reached first.
+    IterationLimit,
+    /// The solver found no usable step.
+    Degenerate,
+    /// The solver stopped, but the result disagrees with the data.
+    Implausible,
+}
+
+impl FitOutcome {
+    /// Every outcome, in the order above.
+    pub const ALL: [FitOutcome; 4] = [
+        FitOutcome::Converged,
+        FitOutcome::IterationLimit,
+        FitOutcome::Degenerate,
+        FitOutcome::Implausible,
+    ];
+
+    /// The name written in files: the variant in snake case (the same as serde's).
+    pub fn name(self) -> &'static str {
+        match self {
+            FitOutcome::Converged => "converged",
+            FitOutcome::IterationLimit => "iteration_limit",
+            FitOutcome::Degenerate => "degenerate",
+            FitOutcome::Implausible => "implausible",
+        }
+    }
+}
+
+impl std::fmt::Display for FitOutcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
     }
 }
 
@@ -379,6 +429,31 @@ mod tests {
             d.verdict(&t),
             Some(Implausible::AxisNotAhead { .. })
         ));
+    }
+
+    #[test]
+    fn the_outcome_follows_the_solver_unless_overruled() {
+        let conv = Status::Converged(Convergence::StepTolerance);
+        let cases = [
+            (conv, None, FitOutcome::Converged),
+            (Status::IterationLimit, None, FitOutcome::IterationLimit),
+            (
+                Status::Degenerate(DegenerateReason::NoDescent),
+                None,
+                FitOutcome::Degenerate,
+            ),
+            (
+                conv,
+                Some(Implausible::OutsideModel),
+                FitOutcome::Implausible,
+            ),
+        ];
+        for (solver, verdict, outcome) in cases {
+            let s = FitStatus::from_solver(solver, verdict);
+            assert_eq!(s.outcome(), outcome, "{solver:?} {verdict:?}");
+            assert_eq!(s.name(), outcome.name());
+            assert_eq!(s.is_converged(), outcome == FitOutcome::Converged);
+        }
     }
 
     #[test]

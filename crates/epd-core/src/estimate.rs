@@ -11,7 +11,7 @@ use crate::check::{Diagnostics, FitStatus, assess};
 use crate::cloud::{CleanWeighted, clean, clean_weighted};
 use crate::error::EpdError;
 use crate::init::initial_guess;
-use crate::lm::{LmOptions, NormalEquations, minimize};
+use crate::lm::{LmOptions, LmReport, NormalEquations, minimize};
 use crate::loss::Loss;
 use crate::params::{N_PARAMS, Params};
 use crate::problem::PipeFit;
@@ -473,7 +473,9 @@ fn residual_scale(pts: View<'_>, kind: Residual, x: &SVector<f64, N_PARAMS>) -> 
 }
 
 /// The fit of clean points (with their scales, if any), from the initial guess or from
-/// `start`.
+/// `start`: the solver's stages ([`solve_stages`]), the canonical form and its normal
+/// equations ([`canonical_equations`]), the 1-σ ([`uncertainty`]), then the check
+/// against the points ([`assess`]).
 fn fit_cloud(
     cloud: View<'_>,
     n_dropped: usize,
@@ -482,8 +484,7 @@ fn fit_cloud(
     options: &EstimateOptions,
     start: Option<Params>,
 ) -> Result<Estimate, EpdError> {
-    let pts = cloud.points;
-    let n = pts.len();
+    let n = cloud.len();
     if n < N_PARAMS {
         return Err(EpdError::TooFewPoints {
             usable: n,
@@ -492,16 +493,9 @@ fn fit_cloud(
         });
     }
     let fixed = options.fixed_mask();
-    let init = match (start, options.fixed_diameters) {
-        (Some(p), _) => p,
-        (None, None) => initial_guess(pts)?,
-        // The guess in canonical form (its roll names the major axis), with the held
-        // diameters.
-        (None, Some((d_max, d_min))) => Params {
-            d_max,
-            d_min,
-            ..canonicalize(&initial_guess(pts)?)
-        },
+    let init = match start {
+        Some(p) => p,
+        None => cold_start(cloud.points, options)?,
     };
     let sub: Selection;
     let stage_pts: View<'_> = if options.stage_points > 0 && n > 2 * options.stage_points {
@@ -511,102 +505,18 @@ fn fit_cloud(
     } else {
         cloud
     };
-    // Eq. (4) over `on` with `kind` and `loss`, the held parameters held.
-    fn problem<'v>(
-        on: View<'v>,
-        kind: Residual,
-        loss: Loss,
-        fixed: [bool; N_PARAMS],
-    ) -> PipeFit<'v> {
-        on.fit(kind).with_loss(loss).with_fixed(fixed)
-    }
-    let mut x = SVector::<f64, N_PARAMS>::from(init.to_array());
-    let mut iterations = 0;
-    // The loss in each residual's units.
-    let fixed_loss = |kind: Residual| match kind {
-        // r_c ≈ 2δ/R for a radial error δ at mean radius R = (Dmax + Dmin)/4.
-        Residual::Canonical => options.loss.scaled(8.0 / (init.d_max + init.d_min)),
-        _ => options.loss,
+    let stages = Stages {
+        cloud,
+        stage_pts,
+        method,
+        options,
+        fixed,
+        init: &init,
     };
-    let auto = options.loss != Loss::Squared && options.loss_scale == LossScale::Auto;
-    // The loss scaled to the data at x (falls back to the fixed scale).
-    let loss_at = |kind: Residual, x: &SVector<f64, N_PARAMS>| {
-        let fixed = fixed_loss(kind);
-        if !auto {
-            return fixed;
-        }
-        residual_scale(stage_pts, kind, x)
-            .map(|s| fixed.with_scale(tuning(fixed) * s))
-            .unwrap_or(fixed)
-    };
-    // Stage 1 (subsample or all): the method's own residual, RU-EPD first for ML-EPD;
-    // skipped when starting from a previous fit.
-    let mut stage_residuals = vec![];
-    if start.is_none() {
-        if method == Method::MlEpd {
-            stage_residuals.push(Residual::ErrorBased);
-        }
-        stage_residuals.push(method.residual());
-    }
-    let mut last = None;
-    for kind in stage_residuals {
-        let rep = minimize(
-            &problem(stage_pts, kind, fixed_loss(kind), fixed),
-            x,
-            &options.lm,
-        );
-        iterations += rep.iterations;
-        x = rep.x;
-        last = Some(rep);
-    }
-    // With the loss scaled to the data: the scale is taken at the stage-1 fit and the
-    // subsample refitted with it (a scale taken at a poor start is too wide), then
-    // taken again for the final stage. Starting from a previous fit, no refit.
+    let (x, rep, iterations, loss) = stages.solve(start.is_some())?;
     let kind = method.residual();
-    if auto && start.is_none() && stage_pts.len() != n {
-        let rep = minimize(
-            &problem(stage_pts, kind, loss_at(kind, &x), fixed),
-            x,
-            &options.lm,
-        );
-        iterations += rep.iterations;
-        x = rep.x;
-    }
-    let loss = loss_at(kind, &x);
-    // Stage 2: all points (unless stage 1 already fitted them with this loss).
-    if stage_pts.len() != n || last.is_none() || auto {
-        let rep = minimize(&problem(cloud, kind, loss, fixed), x, &options.lm);
-        iterations += rep.iterations;
-        x = rep.x;
-        last = Some(rep);
-    }
-    let Some(rep) = last else {
-        return Err(EpdError::Degenerate("no solver stage ran".into()));
-    };
-    let fitted = Params::from_array(x.into());
-    let (mut canonical, applied) = canonical_form(&fitted);
-    if let Some((d_max, d_min)) = options.fixed_diameters {
-        // The solver's steps in held diameters are exactly zero, and Dmax ≥ Dmin, so the
-        // 90° turn (which swaps them) is never applied and the flip and the end-for-end
-        // turn keep them: this only states what already holds bit for bit.
-        debug_assert!(!applied.turned && fitted.d_max == d_max && fitted.d_min == d_min);
-        canonical.d_max = d_max;
-        canonical.d_min = d_min;
-    }
     let fit = problem(cloud, kind, loss, fixed);
-    // Normal equations at the canonical β: a 180° turn only flips the signs of
-    // (pitch, yaw, δy, δz); a 90° turn re-expresses the pose, so evaluate afresh.
-    let eq = if applied.turned || applied.reversed {
-        fit.equations_at(&canonical).unwrap_or(rep.equations)
-    } else {
-        let mut e = rep.equations;
-        if applied.flipped {
-            let s = SVector::<f64, N_PARAMS>::from([1.0, 1.0, 1.0, -1.0, -1.0, -1.0, -1.0]);
-            e.jtj = SMatrix::from_fn(|i, j| e.jtj[(i, j)] * s[i] * s[j]);
-            e.jtr = e.jtr.component_mul(&s);
-        }
-        e
-    };
+    let (canonical, eq) = canonical_equations(&Params::from_array(x.into()), &rep, &fit, options);
     // Degrees of freedom: N minus the fitted parameters.
     let n_free = fixed.iter().filter(|&&f| !f).count();
     let dof = n.saturating_sub(n_free).max(1) as f64;
@@ -614,25 +524,7 @@ fn fit_cloud(
         let (s, c) = covariance(&eq, eq.cost / dof);
         (s, c, eq.cost)
     } else {
-        // On at most 16 384 evenly strided points: H and B both grow with N, so
-        // H⁻¹BH⁻¹ computed on m points is the covariance of N points times N/m.
-        let stride = n.div_ceil(SANDWICH_POINTS).max(1);
-        let sampled: Selection;
-        let on: View<'_> = if stride > 1 {
-            sampled = cloud.strided(stride);
-            sampled.view()
-        } else {
-            cloud
-        };
-        let m = on.len() as f64;
-        match problem(on, kind, loss, fixed).sandwich_at(&canonical) {
-            Some(sw) => {
-                let (s, c) =
-                    sandwich_covariance(&sw.bread, &sw.meat, (m / n as f64) * (n as f64 / dof));
-                (s, c, sw.raw_cost * n as f64 / m)
-            }
-            None => ([None; N_PARAMS], None, f64::NAN),
-        }
+        sandwich_uncertainty(cloud, kind, loss, fixed, &canonical, dof)
     };
     let roll_determined = roll_is_determined(
         &canonical,
@@ -664,6 +556,194 @@ fn fit_cloud(
         sigma,
         roll_determined,
     })
+}
+
+/// The data-only start ([`initial_guess`]); with held diameters, the guess in canonical
+/// form (its roll names the major axis) with the held diameters.
+fn cold_start(points: &[[f64; 3]], options: &EstimateOptions) -> Result<Params, EpdError> {
+    Ok(match options.fixed_diameters {
+        None => initial_guess(points)?,
+        Some((d_max, d_min)) => Params {
+            d_max,
+            d_min,
+            ..canonicalize(&initial_guess(points)?)
+        },
+    })
+}
+
+/// Eq. (4) over `on` with `kind` and `loss`, the held parameters held.
+fn problem<'v>(on: View<'v>, kind: Residual, loss: Loss, fixed: [bool; N_PARAMS]) -> PipeFit<'v> {
+    on.fit(kind).with_loss(loss).with_fixed(fixed)
+}
+
+/// The solver's stages of one fit: eq. (4) minimised by [`minimize`] on the stage
+/// points (a strided subsample of a large cloud, or all of it), then on all points.
+struct Stages<'v, 'o> {
+    /// All points.
+    cloud: View<'v>,
+    /// The points of the first stage.
+    stage_pts: View<'v>,
+    method: Method,
+    options: &'o EstimateOptions,
+    fixed: [bool; N_PARAMS],
+    /// The starting point.
+    init: &'o Params,
+}
+
+impl Stages<'_, '_> {
+    /// The loss in the units of `kind`'s residual: r_c ≈ 2δ/R for a radial error δ at
+    /// mean radius R = (Dmax + Dmin)/4 of the start (eq. 6's residual); the range units
+    /// of RU-EPD and ML-EPD as given.
+    fn fixed_loss(&self, kind: Residual) -> Loss {
+        match kind {
+            Residual::Canonical => self
+                .options
+                .loss
+                .scaled(8.0 / (self.init.d_max + self.init.d_min)),
+            _ => self.options.loss,
+        }
+    }
+
+    /// Whether the loss is scaled to the data ([`LossScale::Auto`] under a robust loss).
+    fn auto(&self) -> bool {
+        self.options.loss != Loss::Squared && self.options.loss_scale == LossScale::Auto
+    }
+
+    /// The loss scaled to the stage points' residuals at x (falls back to the fixed
+    /// scale).
+    fn loss_at(&self, kind: Residual, x: &SVector<f64, N_PARAMS>) -> Loss {
+        let fixed = self.fixed_loss(kind);
+        if !self.auto() {
+            return fixed;
+        }
+        residual_scale(self.stage_pts, kind, x)
+            .map(|s| fixed.with_scale(tuning(fixed) * s))
+            .unwrap_or(fixed)
+    }
+
+    /// Run the stages from the start (`warm`: a previous fit, so stage 1 and the refit
+    /// are skipped). Returns the solution, the last stage's report, the iterations over
+    /// all stages and the final loss.
+    fn solve(
+        &self,
+        warm: bool,
+    ) -> Result<(SVector<f64, N_PARAMS>, LmReport<N_PARAMS>, usize, Loss), EpdError> {
+        let (options, fixed, stage_pts) = (self.options, self.fixed, self.stage_pts);
+        let n = self.cloud.len();
+        let mut x = SVector::<f64, N_PARAMS>::from(self.init.to_array());
+        let mut iterations = 0;
+        // Stage 1 (subsample or all): the method's own residual, RU-EPD first for
+        // ML-EPD; skipped when starting from a previous fit.
+        let mut stage_residuals = vec![];
+        if !warm {
+            if self.method == Method::MlEpd {
+                stage_residuals.push(Residual::ErrorBased);
+            }
+            stage_residuals.push(self.method.residual());
+        }
+        let mut last = None;
+        for kind in stage_residuals {
+            let rep = minimize(
+                &problem(stage_pts, kind, self.fixed_loss(kind), fixed),
+                x,
+                &options.lm,
+            );
+            iterations += rep.iterations;
+            x = rep.x;
+            last = Some(rep);
+        }
+        // With the loss scaled to the data: the scale is taken at the stage-1 fit and
+        // the subsample refitted with it (a scale taken at a poor start is too wide),
+        // then taken again for the final stage. Starting from a previous fit, no refit.
+        let kind = self.method.residual();
+        let auto = self.auto();
+        if auto && !warm && stage_pts.len() != n {
+            let rep = minimize(
+                &problem(stage_pts, kind, self.loss_at(kind, &x), fixed),
+                x,
+                &options.lm,
+            );
+            iterations += rep.iterations;
+            x = rep.x;
+        }
+        let loss = self.loss_at(kind, &x);
+        // Stage 2: all points (unless stage 1 already fitted them with this loss).
+        if stage_pts.len() != n || last.is_none() || auto {
+            let rep = minimize(&problem(self.cloud, kind, loss, fixed), x, &options.lm);
+            iterations += rep.iterations;
+            x = rep.x;
+            last = Some(rep);
+        }
+        let Some(rep) = last else {
+            return Err(EpdError::Degenerate("no solver stage ran".into()));
+        };
+        Ok((x, rep, iterations, loss))
+    }
+}
+
+/// The canonical form of the fitted β (see [`canonical_form`]) and the normal equations
+/// of `fit` there: a 180° turn only flips the signs of (pitch, yaw, δy, δz) in the last
+/// stage's equations; a 90° turn or the end-for-end turn re-expresses the pose, so the
+/// equations are evaluated afresh. Held diameters are restated exactly.
+fn canonical_equations(
+    fitted: &Params,
+    rep: &LmReport<N_PARAMS>,
+    fit: &PipeFit<'_>,
+    options: &EstimateOptions,
+) -> (Params, NormalEquations<N_PARAMS>) {
+    let (mut canonical, applied) = canonical_form(fitted);
+    if let Some((d_max, d_min)) = options.fixed_diameters {
+        // The solver's steps in held diameters are exactly zero, and Dmax ≥ Dmin, so the
+        // 90° turn (which swaps them) is never applied and the flip and the end-for-end
+        // turn keep them: this only states what already holds bit for bit.
+        debug_assert!(!applied.turned && fitted.d_max == d_max && fitted.d_min == d_min);
+        canonical.d_max = d_max;
+        canonical.d_min = d_min;
+    }
+    let eq = if applied.turned || applied.reversed {
+        fit.equations_at(&canonical).unwrap_or(rep.equations)
+    } else {
+        let mut e = rep.equations;
+        if applied.flipped {
+            let s = SVector::<f64, N_PARAMS>::from([1.0, 1.0, 1.0, -1.0, -1.0, -1.0, -1.0]);
+            e.jtj = SMatrix::from_fn(|i, j| e.jtj[(i, j)] * s[i] * s[j]);
+            e.jtr = e.jtr.component_mul(&s);
+        }
+        e
+    };
+    (canonical, eq)
+}
+
+/// The 1-σ under a robust loss: the M-estimator's sandwich at the canonical β (see
+/// [`sandwich_covariance`]), with the raw cost Σ rᵢ² it implies over all points. On at
+/// most [`SANDWICH_POINTS`] evenly strided points: H and B both grow with N, so
+/// H⁻¹BH⁻¹ computed on m points is the covariance of N points times N/m.
+fn sandwich_uncertainty(
+    cloud: View<'_>,
+    kind: Residual,
+    loss: Loss,
+    fixed: [bool; N_PARAMS],
+    canonical: &Params,
+    dof: f64,
+) -> (Sigmas, Option<Mat7>, f64) {
+    let n = cloud.len();
+    let stride = n.div_ceil(SANDWICH_POINTS).max(1);
+    let sampled: Selection;
+    let on: View<'_> = if stride > 1 {
+        sampled = cloud.strided(stride);
+        sampled.view()
+    } else {
+        cloud
+    };
+    let m = on.len() as f64;
+    match problem(on, kind, loss, fixed).sandwich_at(canonical) {
+        Some(sw) => {
+            let (s, c) =
+                sandwich_covariance(&sw.bread, &sw.meat, (m / n as f64) * (n as f64 / dof));
+            (s, c, sw.raw_cost * n as f64 / m)
+        }
+        None => ([None; N_PARAMS], None, f64::NAN),
+    }
 }
 
 /// Whether the roll is determined (see [`Estimate::roll_determined`]); held diameters

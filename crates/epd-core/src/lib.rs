@@ -45,7 +45,7 @@ pub mod symmetry;
 pub mod torus;
 
 pub use calibration::{DepthTable, Observation, TableBins};
-pub use check::{Diagnostics, FitStatus, Implausible};
+pub use check::{Diagnostics, FitOutcome, FitStatus, Implausible};
 pub use error::EpdError;
 pub use estimate::{
     Estimate, EstimateOptions, LossScale, Method, Sigmas, cramer_rao_bound,

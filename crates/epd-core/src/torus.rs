@@ -253,35 +253,7 @@ impl Torus {
         let c3 = 4.0 * k;
         let c2 = 4.0 * k * k + 2.0 * m - 4.0 * r0 * r0 * w2;
         let c1 = 4.0 * k * m - 8.0 * r0 * r0 * (k - h0 * ua);
-        let d1 = |s: f64| ((4.0 * s + 3.0 * c3) * s + 2.0 * c2) * s + c1;
-        let d2 = |s: f64| (12.0 * s + 6.0 * c3) * s + 2.0 * c2;
-        // Roots of F″/2 = 6σ² + 3c₃σ + c₂.
-        let mut breaks = [lo; 6];
-        let mut nb = 1;
-        for s in quadratic_roots(6.0, 3.0 * c3, c2).iter().flatten() {
-            if *s > lo && *s < hi {
-                breaks[nb] = *s;
-                nb += 1;
-            }
-        }
-        breaks[nb] = hi;
-        nb += 1;
-        breaks[..nb].sort_by(f64::total_cmp);
-        // Roots of F′ on the pieces where it is monotone.
-        let mut crit = [lo; 6];
-        let mut nc = 1;
-        for w in breaks[..nb].windows(2) {
-            let (x0, x1) = (w[0], w[1]);
-            let (f0, f1) = (d1(x0), d1(x1));
-            if f0 == 0.0 && x0 > lo {
-                push_unique(&mut crit, &mut nc, x0);
-            } else if f0 * f1 < 0.0 {
-                let root = newton_bisect(d1, d2, x0, x1, f0);
-                push_unique(&mut crit, &mut nc, root);
-            }
-        }
-        push_unique(&mut crit, &mut nc, hi);
-        crit[..nc].sort_by(f64::total_cmp);
+        let (crit, nc) = monotone_pieces([c3, c2, c1], lo, hi);
         // Signed distance along the ray and its slope.
         let sd = |s: f64| self.signed_distance(&(q + u * s + self.centre));
         let slope = |s: f64| {
@@ -330,6 +302,45 @@ fn push_unique(v: &mut [f64; 6], n: &mut usize, x: f64) {
         v[*n] = x;
         *n += 1;
     }
+}
+
+/// Step 3 of [`Torus::ray_crossings`]: the ends of the pieces of [lo, hi] on which the
+/// quartic F(σ) = σ⁴ + c₃σ³ + c₂σ² + c₁σ + c₀ is monotone (`c` = [c₃, c₂, c₁]), in
+/// order: lo, the roots of F′ inside, hi. F″ is a quadratic whose roots split [lo, hi]
+/// into pieces where F′ is monotone; each holds at most one root of F′, found by
+/// safeguarded Newton. Returns the ends and their number.
+fn monotone_pieces(c: [f64; 3], lo: f64, hi: f64) -> ([f64; 6], usize) {
+    let [c3, c2, c1] = c;
+    let d1 = |s: f64| ((4.0 * s + 3.0 * c3) * s + 2.0 * c2) * s + c1;
+    let d2 = |s: f64| (12.0 * s + 6.0 * c3) * s + 2.0 * c2;
+    // Roots of F″/2 = 6σ² + 3c₃σ + c₂.
+    let mut breaks = [lo; 6];
+    let mut nb = 1;
+    for s in quadratic_roots(6.0, 3.0 * c3, c2).iter().flatten() {
+        if *s > lo && *s < hi {
+            breaks[nb] = *s;
+            nb += 1;
+        }
+    }
+    breaks[nb] = hi;
+    nb += 1;
+    breaks[..nb].sort_by(f64::total_cmp);
+    // Roots of F′ on the pieces where it is monotone.
+    let mut crit = [lo; 6];
+    let mut nc = 1;
+    for w in breaks[..nb].windows(2) {
+        let (x0, x1) = (w[0], w[1]);
+        let (f0, f1) = (d1(x0), d1(x1));
+        if f0 == 0.0 && x0 > lo {
+            push_unique(&mut crit, &mut nc, x0);
+        } else if f0 * f1 < 0.0 {
+            let root = newton_bisect(d1, d2, x0, x1, f0);
+            push_unique(&mut crit, &mut nc, root);
+        }
+    }
+    push_unique(&mut crit, &mut nc, hi);
+    crit[..nc].sort_by(f64::total_cmp);
+    (crit, nc)
 }
 
 /// The real roots of a·x² + b·x + c (a ≠ 0), by the cancellation-free formula

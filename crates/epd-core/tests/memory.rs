@@ -1,6 +1,8 @@
 //! Memory: no heap allocation per point inside the solver, and the peak for 10⁶ points
-//! stays below 2 MB beyond the input (measured 0.6 MB: the strided subsamples of the
-//! stages, the initial guess and the plausibility check, each ≤ 8192 points).
+//! stays below 1.3 MB beyond the input (measured 646 296 B for C-EPD, 627 216 B for
+//! RU-EPD and ML-EPD: the strided subsamples of the stages, the initial guess and the
+//! plausibility check, each ≤ 8192 points; the bound is 2× the largest). A copy of the
+//! points (24 MB) or a per-point buffer of one f64 (8 MB) would break it.
 //! Measured with a counting global allocator.
 
 mod common;
@@ -65,14 +67,14 @@ fn memory_is_bounded_and_allocations_do_not_scale_with_points() {
         let (peak_big, count_big) = measure(&big, m);
         let (_, count_small) = measure(&small, m);
         eprintln!(
-            "{m}: 10⁶ points: peak {:.1} MB beyond the input, {count_big} allocations (10⁵: {count_small})",
-            peak_big as f64 / 1e6
+            "{m}: 10⁶ points: peak {peak_big} B beyond the input, {count_big} allocations (10⁵: {count_small})"
         );
-        assert!(peak_big < 2_000_000, "{m}: peak {peak_big} B");
-        // Allocations per solver pass are per chunk, not per point: 10× the points may
-        // cost a few more chunk partials, never 10× the allocations.
+        assert!(peak_big < 1_300_000, "{m}: peak {peak_big} B");
+        // Allocations per solver pass are per chunk, not per point: 10× the points cost
+        // a few more chunk partials (measured ≤ 1.07× the allocations), never 10×; the
+        // bound is 1.5×.
         assert!(
-            count_big < 3 * count_small + 100,
+            2 * count_big < 3 * count_small,
             "{m}: {count_big} vs {count_small}"
         );
     }

@@ -11,7 +11,7 @@ use crate::noise::{Noise, NoiseModel, Stream, stream};
 use crate::physics::ToFPhysics;
 use crate::pipeline::Part;
 use crate::scene::Scene;
-use crate::sensor::Sensor;
+use crate::sensor::{Pinhole, Sensor};
 
 /// Which random streams a frame uses: a frame is a pure function of these and the
 /// configuration (SPEC §5).
@@ -235,107 +235,25 @@ pub fn simulate_into(
 ) -> Result<(), SimError> {
     sensor.validate()?;
     noise.validate()?;
-    let physics = noise.physics;
     // Cast far enough that noise may bring a point back into range; with the physical
     // model, also as far as a pixel may be valid.
-    let cast_limit = match &physics {
+    let cast_limit = match &noise.physics {
         None => sensor.max_range * 2.0 + 10.0 * noise.sigma + 1.0,
         Some(p) => (sensor.max_range * 2.0 + 1.0).max(p.max_valid_range()),
     };
-    let pinhole = sensor.rays();
     let w = sensor.width as usize;
-    let n_pix = sensor.pixel_count();
-    frame.measured.resize(n_pix, [0.0; 3]);
-    frame.exact.resize(n_pix, [0.0; 3]);
-    frame.pixels.resize(n_pix, [0; 2]);
-    frame.directions.resize(n_pix, [0.0; 3]);
-    frame.intensity.resize(n_pix, 0.0);
-    frame.sigma.resize(n_pix, 0.0);
     let labeled = scene.is_labeled();
-    if labeled {
-        frame.part.resize(n_pix, None);
-    } else {
-        frame.part.clear();
-    }
-    // One image row: writes its in-range points at the start of its own slice of the
-    // buffers (and of `part`, for a labelled scene) and returns their number.
-    let row = |v: usize, bufs: RowBuffers, mut part: Option<&mut [Option<Part>]>| -> usize {
-        let RowBuffers {
-            meas,
-            exact,
-            pixels,
-            dirs,
-            inten,
-            sig,
-        } = bufs;
-        let v = v as u32;
-        let mut rng = stream(
-            seeds.seed,
-            seeds.trial,
-            seeds.sweep_index,
-            Stream::Row,
-            v as u64,
-        );
-        let mut k = 0;
-        for u in 0..sensor.width {
-            let dir = pinhole.direction(u, v);
-            let mut label = None;
-            let (m, x, intensity, sigma) = match &physics {
-                None => {
-                    let range = if labeled {
-                        scene.cast_labeled(&dir, cast_limit).map(|(r, _, p)| {
-                            label = Some(p);
-                            r
-                        })
-                    } else {
-                        scene.cast(&dir, cast_limit)
-                    };
-                    let Some(range) = range else {
-                        continue;
-                    };
-                    // Depth bias and outliers act on the range along the ray.
-                    let r = range + noise.bias_b0 + noise.bias_b1 * range;
-                    let m = displace(noise, noise.sigma, &dir, range, r, &mut rng);
-                    (Some(m), dir * range, f32::NAN, noise.sigma)
-                }
-                Some(p) => {
-                    let hit = if labeled {
-                        scene.cast_labeled(&dir, cast_limit).map(|(r, c, part)| {
-                            label = Some(part);
-                            (r, c)
-                        })
-                    } else {
-                        scene.cast_with_normal(&dir, cast_limit)
-                    };
-                    let q = physical_point(p, noise, &dir, hit, &mut rng);
-                    let intensity = (p.intensity_scale * q.amplitude) as f32;
-                    (q.measured, q.exact, intensity, q.sigma)
-                }
-            };
-            let keep = match &m {
-                // Invalid pixels are kept as zeros, whatever the range filter.
-                None => true,
-                Some(m) => {
-                    let mr = m.norm();
-                    mr >= sensor.min_range && mr <= sensor.max_range
-                }
-            };
-            if keep {
-                let m = m.unwrap_or_else(Vector3::zeros);
-                meas[k] = [m.x, m.y, m.z];
-                exact[k] = [x.x, x.y, x.z];
-                pixels[k] = [u, v];
-                dirs[k] = [dir.x, dir.y, dir.z];
-                inten[k] = intensity;
-                sig[k] = sigma;
-                if let Some(part) = part.as_deref_mut() {
-                    part[k] = label;
-                }
-                k += 1;
-            }
-        }
-        k
+    frame.resize_for(sensor.pixel_count(), labeled);
+    let job = RowJob {
+        sensor,
+        pinhole: sensor.rays(),
+        scene,
+        noise,
+        cast_limit,
+        seeds,
     };
+    let row =
+        |v: usize, bufs: RowBuffers, part: Option<&mut [Option<Part>]>| job.run(v, bufs, part);
     let rows = frame
         .measured
         .par_chunks_mut(w)
@@ -364,52 +282,216 @@ pub fn simulate_into(
             .map(|(v, bufs)| row(v, bufs, None))
             .collect()
     };
-    // Close the gaps between rows, in place.
-    let mut at = 0;
-    for (v, &k) in counts.iter().enumerate() {
-        let from = v * w;
-        if from != at {
-            frame.measured.copy_within(from..from + k, at);
-            frame.exact.copy_within(from..from + k, at);
-            frame.pixels.copy_within(from..from + k, at);
-            frame.directions.copy_within(from..from + k, at);
-            frame.intensity.copy_within(from..from + k, at);
-            frame.sigma.copy_within(from..from + k, at);
-            if labeled {
-                frame.part.copy_within(from..from + k, at);
-            }
+    let total = frame.close_row_gaps(&counts, w, labeled);
+    let keep_n = match subsample {
+        Subsample::Points(n) if n < total => {
+            let mut rng = stream(
+                seeds.seed,
+                seeds.trial,
+                seeds.sweep_index,
+                Stream::Subsample,
+                0,
+            );
+            frame.select_sampling(total, n, &mut rng)
         }
-        at += k;
-    }
-    let total = at;
-    let mut keep_n = total;
-    if let Subsample::Points(n) = subsample
-        && n < total
-    {
+        _ => total,
+    };
+    frame.truncate(keep_n);
+    frame.truth = *scene.truth();
+    frame.image_size = [sensor.width, sensor.height];
+    Ok(())
+}
+
+/// What every image row of a frame shares.
+struct RowJob<'a> {
+    sensor: &'a Sensor,
+    pinhole: Pinhole,
+    scene: &'a Scene,
+    noise: &'a Noise,
+    cast_limit: f64,
+    seeds: FrameSeed,
+}
+
+impl RowJob<'_> {
+    /// Image row `v`: writes its in-range points at the start of its own slice of the
+    /// buffers (and of `part`, for a labelled scene) and returns their number. Its
+    /// random draws come from its own stream (seed, trial, sweep index, row).
+    fn run(&self, v: usize, bufs: RowBuffers, mut part: Option<&mut [Option<Part>]>) -> usize {
+        let RowBuffers {
+            meas,
+            exact,
+            pixels,
+            dirs,
+            inten,
+            sig,
+        } = bufs;
+        let (sensor, seeds) = (self.sensor, self.seeds);
+        let v = v as u32;
         let mut rng = stream(
             seeds.seed,
             seeds.trial,
             seeds.sweep_index,
-            Stream::Subsample,
-            0,
+            Stream::Row,
+            v as u64,
         );
+        let mut k = 0;
+        for u in 0..sensor.width {
+            let dir = self.pinhole.direction(u, v);
+            let Some(px) = sample_pixel(self.scene, self.noise, &dir, self.cast_limit, &mut rng)
+            else {
+                continue;
+            };
+            let keep = match &px.measured {
+                // Invalid pixels are kept as zeros, whatever the range filter.
+                None => true,
+                Some(m) => {
+                    let mr = m.norm();
+                    mr >= sensor.min_range && mr <= sensor.max_range
+                }
+            };
+            if keep {
+                let (m, x) = (px.measured.unwrap_or_else(Vector3::zeros), px.exact);
+                meas[k] = [m.x, m.y, m.z];
+                exact[k] = [x.x, x.y, x.z];
+                pixels[k] = [u, v];
+                dirs[k] = [dir.x, dir.y, dir.z];
+                inten[k] = px.intensity;
+                sig[k] = px.sigma;
+                if let Some(part) = part.as_deref_mut() {
+                    part[k] = px.part;
+                }
+                k += 1;
+            }
+        }
+        k
+    }
+}
+
+impl Frame {
+    /// Every list sized for `n_pix` pixels (`part` only for a labelled scene, emptied
+    /// otherwise), keeping the buffers' capacity.
+    fn resize_for(&mut self, n_pix: usize, labeled: bool) {
+        self.measured.resize(n_pix, [0.0; 3]);
+        self.exact.resize(n_pix, [0.0; 3]);
+        self.pixels.resize(n_pix, [0; 2]);
+        self.directions.resize(n_pix, [0.0; 3]);
+        self.intensity.resize(n_pix, 0.0);
+        self.sigma.resize(n_pix, 0.0);
+        if labeled {
+            self.part.resize(n_pix, None);
+        } else {
+            self.part.clear();
+        }
+    }
+
+    /// Close the gaps between rows of `w` pixels, in place: row v kept its `counts[v]`
+    /// points at the start of its slice. Returns the number of points.
+    fn close_row_gaps(&mut self, counts: &[usize], w: usize, labeled: bool) -> usize {
+        let mut at = 0;
+        for (v, &k) in counts.iter().enumerate() {
+            let from = v * w;
+            if from != at {
+                self.measured.copy_within(from..from + k, at);
+                self.exact.copy_within(from..from + k, at);
+                self.pixels.copy_within(from..from + k, at);
+                self.directions.copy_within(from..from + k, at);
+                self.intensity.copy_within(from..from + k, at);
+                self.sigma.copy_within(from..from + k, at);
+                if labeled {
+                    self.part.copy_within(from..from + k, at);
+                }
+            }
+            at += k;
+        }
+        at
+    }
+
+    /// Knuth's selection sampling (Algorithm S) of `n` < `total` of the first `total`
+    /// points, uniformly, moved to the front in their order. Returns the number kept.
+    fn select_sampling(&mut self, total: usize, n: usize, rng: &mut rand_pcg::Pcg64) -> usize {
         let mut chosen = 0;
         for i in 0..total {
             // Keep item i with probability (still needed)/(still available).
             if (rng.random::<f64>() * (total - i) as f64) < (n - chosen) as f64 {
-                frame.move_point(i, chosen);
+                self.move_point(i, chosen);
                 chosen += 1;
                 if chosen == n {
                     break;
                 }
             }
         }
-        keep_n = chosen;
+        chosen
     }
-    frame.truncate(keep_n);
-    frame.truth = *scene.truth();
-    frame.image_size = [sensor.width, sensor.height];
-    Ok(())
+}
+
+/// What one pixel measured (see [`simulate_into`]).
+struct PixelSample {
+    /// The measured point; `None` for an invalid pixel of the physical model.
+    measured: Option<Vector3<f64>>,
+    /// The exact wall point (NaN where the physical model's ray meets no wall).
+    exact: Vector3<f64>,
+    /// The intensity (NaN without the physical model).
+    intensity: f32,
+    /// σ of the random range error.
+    sigma: f64,
+    /// The part hit, for a labelled scene.
+    part: Option<Part>,
+}
+
+/// The pixel of ray `dir` (SCS, unit): the ray cast (labelled for a pipeline), then
+/// the plain model — r + b0 + b1·r, outliers, + σ·ε — or the physical one
+/// ([`physical_point`]), drawing from `rng`. `None` when the plain model's ray meets no
+/// wall within `cast_limit`.
+#[inline]
+fn sample_pixel(
+    scene: &Scene,
+    noise: &Noise,
+    dir: &Vector3<f64>,
+    cast_limit: f64,
+    rng: &mut rand_pcg::Pcg64,
+) -> Option<PixelSample> {
+    let labeled = scene.is_labeled();
+    let mut part = None;
+    Some(match &noise.physics {
+        None => {
+            let range = if labeled {
+                scene.cast_labeled(dir, cast_limit).map(|(r, _, p)| {
+                    part = Some(p);
+                    r
+                })
+            } else {
+                scene.cast(dir, cast_limit)
+            }?;
+            // Depth bias and outliers act on the range along the ray.
+            let r = range + noise.bias_b0 + noise.bias_b1 * range;
+            let m = displace(noise, noise.sigma, dir, range, r, rng);
+            PixelSample {
+                measured: Some(m),
+                exact: dir * range,
+                intensity: f32::NAN,
+                sigma: noise.sigma,
+                part,
+            }
+        }
+        Some(p) => {
+            let hit = if labeled {
+                scene.cast_labeled(dir, cast_limit).map(|(r, c, hit_part)| {
+                    part = Some(hit_part);
+                    (r, c)
+                })
+            } else {
+                scene.cast_with_normal(dir, cast_limit)
+            };
+            let q = physical_point(p, noise, dir, hit, rng);
+            PixelSample {
+                measured: q.measured,
+                exact: q.exact,
+                intensity: (p.intensity_scale * q.amplitude) as f32,
+                sigma: q.sigma,
+                part,
+            }
+        }
+    })
 }
 
 /// One image row's slices of a frame's buffers.

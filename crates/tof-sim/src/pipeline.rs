@@ -693,19 +693,57 @@ impl Pipeline {
     pub fn mesh(&self, res: &MeshResolution) -> Result<LabeledMesh, SimError> {
         self.validate()?;
         res.validate()?;
+        self.check_mesh_size(res)?;
         let frames = self.frames();
         let n = res.segments;
-        let st = straddle_factor(n);
-        let (a, b) = (self.d_max / 2.0, self.d_min / 2.0);
-        let r = self.bend_tube_radius();
-        let angles: Vec<(f64, f64)> = (0..n)
-            .map(|j| {
-                let phi = TAU * j as f64 / n as f64;
-                (phi.cos(), phi.sin())
-            })
-            .collect();
-        // Refuse meshes that would not fit in memory: building one peaks at about 0.6 kB
-        // a triangle (parry's bounding-volume tree included; 530 MB for 0.9 M measured).
+        let rings = Rings {
+            res,
+            angles: (0..n)
+                .map(|j| {
+                    let phi = TAU * j as f64 / n as f64;
+                    (phi.cos(), phi.sin())
+                })
+                .collect(),
+            st: straddle_factor(n),
+            a: self.d_max / 2.0,
+            b: self.d_min / 2.0,
+            r: self.bend_tube_radius(),
+        };
+        let mut m = Builder::default();
+        // The previous segment's last ring and its label; `true` if it is an ellipse ring
+        // (straight or tee) that the next straight may share.
+        let mut prev: Option<(Vec<u32>, Part, bool)> = None;
+        for (k, seg) in self.segments.iter().enumerate() {
+            let (f, segment) = (&frames[k], k as u16);
+            prev = Some(match *seg {
+                Segment::Straight { length } => {
+                    rings.straight(&mut m, f, segment, length, prev.take())
+                }
+                Segment::Bend {
+                    radius,
+                    angle,
+                    direction,
+                } => rings.bend(&mut m, f, segment, (radius, angle, direction), prev.take()),
+                Segment::Tee {
+                    length,
+                    branch_diameter,
+                    direction,
+                } => rings.tee(
+                    &mut m,
+                    f,
+                    segment,
+                    (length, branch_diameter, direction),
+                    prev.take(),
+                ),
+            });
+        }
+        m.build()
+    }
+
+    /// Refuse meshes that would not fit in memory: building one peaks at about 0.6 kB a
+    /// triangle (parry's bounding-volume tree included; 530 MB for 0.9 M measured), so
+    /// at most 8·10⁶ triangles, estimated from the rings each segment will have.
+    fn check_mesh_size(&self, res: &MeshResolution) -> Result<(), SimError> {
         let mut estimate = 0.0;
         for s in &self.segments {
             estimate += match *s {
@@ -723,189 +761,246 @@ impl Pipeline {
                 }
             };
         }
-        let triangles = estimate * 2.0 * n as f64;
+        let triangles = estimate * 2.0 * res.segments as f64;
         if triangles > 8e6 {
             return Err(SimError::Mesh(format!(
                 "about {triangles:.3e} triangles: coarsen the mesh resolution (at most 8e6)"
             )));
         }
-        let mut m = Builder::default();
-        // The previous segment's last ring and its label; `true` if it is an ellipse ring
-        // (straight or tee) that the next straight may share.
-        let mut prev: Option<(Vec<u32>, Part, bool)> = None;
-        for (k, seg) in self.segments.iter().enumerate() {
-            let f = frames[k];
-            let segment = k as u16;
-            let straight = Part {
-                segment,
-                kind: PartKind::Straight,
-            };
-            let ellipse_ring = |m: &mut Builder, x: f64| -> Vec<u32> {
-                angles
-                    .iter()
-                    .map(|&(c, s)| m.vertex(&f.to_pcs(&Vector3::new(x, a * c * st, b * s * st))))
-                    .collect()
-            };
-            match *seg {
-                Segment::Straight { length } => {
-                    let first = match prev.take() {
-                        Some((ring, _, true)) => ring,
-                        Some((ring, _, false)) => {
-                            // A bend before: the step belongs to this straight.
-                            let own = ellipse_ring(&mut m, 0.0);
-                            m.strip(&ring, &own, straight);
-                            own
-                        }
-                        None => ellipse_ring(&mut m, 0.0),
-                    };
-                    let rings = (length / res.straight_ring_spacing).ceil().max(1.0) as usize;
-                    let mut last = first;
-                    for i in 1..=rings {
-                        let ring = ellipse_ring(&mut m, length * i as f64 / rings as f64);
-                        m.strip(&last, &ring, straight);
-                        last = ring;
-                    }
-                    prev = Some((last, straight, true));
+        Ok(())
+    }
+}
+
+/// What every segment's rings share in [`Pipeline::mesh`]: the resolution, the ring
+/// angles φ_j = 2πj/n as (cos φ_j, sin φ_j), the straddle factor, the ellipse's
+/// semi-axes a, b and the bend tube's radius r (m).
+struct Rings<'a> {
+    res: &'a MeshResolution,
+    angles: Vec<(f64, f64)>,
+    st: f64,
+    a: f64,
+    b: f64,
+    r: f64,
+}
+
+/// The previous segment's last ring, its label, and whether it is an ellipse ring.
+type Joint = Option<(Vec<u32>, Part, bool)>;
+
+impl Rings<'_> {
+    /// The straddled ellipse ring at local x of frame `f`.
+    fn ellipse_ring(&self, m: &mut Builder, f: &SegmentFrame, x: f64) -> Vec<u32> {
+        let (a, b, st) = (self.a, self.b, self.st);
+        self.angles
+            .iter()
+            .map(|&(c, s)| m.vertex(&f.to_pcs(&Vector3::new(x, a * c * st, b * s * st))))
+            .collect()
+    }
+
+    /// The first ellipse ring of a straight or tee: the previous ellipse ring itself, or
+    /// a new one joined to a bend's ring by a strip labelled `straight` (the step belongs
+    /// to this segment).
+    fn first_ellipse_ring(
+        &self,
+        m: &mut Builder,
+        f: &SegmentFrame,
+        straight: Part,
+        prev: Joint,
+    ) -> Vec<u32> {
+        match prev {
+            Some((ring, _, true)) => ring,
+            Some((ring, _, false)) => {
+                let own = self.ellipse_ring(m, f, 0.0);
+                m.strip(&ring, &own, straight);
+                own
+            }
+            None => self.ellipse_ring(m, f, 0.0),
+        }
+    }
+
+    /// A straight of `length`: ellipse rings every `straight_ring_spacing` or less.
+    fn straight(
+        &self,
+        m: &mut Builder,
+        f: &SegmentFrame,
+        segment: u16,
+        length: f64,
+        prev: Joint,
+    ) -> (Vec<u32>, Part, bool) {
+        let straight = Part {
+            segment,
+            kind: PartKind::Straight,
+        };
+        let first = self.first_ellipse_ring(m, f, straight, prev);
+        let rings = (length / self.res.straight_ring_spacing).ceil().max(1.0) as usize;
+        let mut last = first;
+        for i in 1..=rings {
+            let ring = self.ellipse_ring(m, f, length * i as f64 / rings as f64);
+            m.strip(&last, &ring, straight);
+            last = ring;
+        }
+        (last, straight, true)
+    }
+
+    /// A bend (radius, angle, direction): circle rings at θ_i = iα/N, straddled about
+    /// the torus axis.
+    fn bend(
+        &self,
+        m: &mut Builder,
+        f: &SegmentFrame,
+        segment: u16,
+        (radius, angle, direction): (f64, f64, f64),
+        prev: Joint,
+    ) -> (Vec<u32>, Part, bool) {
+        let (r, st) = (self.r, self.st);
+        let label = Part {
+            segment,
+            kind: PartKind::Bend,
+        };
+        let (c, _) = f.bend_centre_and_turn(radius, angle, direction);
+        let nb = f.rotation * Vector3::new(0.0, direction.cos(), direction.sin());
+        let axis = Unit::new_normalize(f.axis().cross(&nb));
+        let steps = (angle / self.res.bend_step).ceil().max(1.0) as usize;
+        let dtheta = angle / steps as f64;
+        let ka = straddle_factor_for(dtheta);
+        // Ring 0 in the start plane, straddled about the torus axis.
+        let base: Vec<Vector3<f64>> = self
+            .angles
+            .iter()
+            .map(|&(cs, sn)| {
+                let p = f.to_pcs(&Vector3::new(0.0, r * cs * st, r * sn * st));
+                let v = p - c;
+                let h = v.dot(&axis);
+                let radial = v - axis.into_inner() * h;
+                radial * ka + axis.into_inner() * h
+            })
+            .collect();
+        let ring_at = |m: &mut Builder, i: usize| -> Vec<u32> {
+            let turn = Rotation3::from_axis_angle(&axis, dtheta * i as f64);
+            base.iter().map(|v| m.vertex(&(c + turn * v))).collect()
+        };
+        let first = ring_at(m, 0);
+        if let Some((ring, plabel, _)) = prev {
+            // The step belongs to the straight (or the earlier bend) before.
+            m.strip(&ring, &first, plabel);
+        }
+        let mut last = first;
+        for i in 1..=steps {
+            let ring = ring_at(m, i);
+            m.strip(&last, &ring, label);
+            last = ring;
+        }
+        (last, label, false)
+    }
+
+    /// A tee (length, branch diameter, direction): the main run with its opening, then
+    /// the branch tube from the intersection curve to its open end.
+    fn tee(
+        &self,
+        m: &mut Builder,
+        f: &SegmentFrame,
+        segment: u16,
+        (length, branch_diameter, direction): (f64, f64, f64),
+        prev: Joint,
+    ) -> (Vec<u32>, Part, bool) {
+        let (a, b, n, res) = (self.a, self.b, self.angles.len(), self.res);
+        let straight = Part {
+            segment,
+            kind: PartKind::Straight,
+        };
+        let rb = branch_diameter / 2.0;
+        let xc = 0.5 * length;
+        let nvec = Vector3::new(0.0, direction.cos(), direction.sin());
+        let u2 = Vector3::x().cross(&nvec);
+        let first = self.first_ellipse_ring(m, f, straight, prev);
+        // Ring positions: coarse, then fine over the opening, then coarse.
+        let margin = 2.0 * res.tee_ring_spacing;
+        let (w0, w1) = ((xc - rb - margin).max(0.0), (xc + rb + margin).min(length));
+        let mut xs = Vec::new();
+        push_range(&mut xs, 0.0, w0, res.straight_ring_spacing);
+        push_range(&mut xs, w0, w1, res.tee_ring_spacing);
+        push_range(&mut xs, w1, length, res.straight_ring_spacing);
+        // Whether the exact wall point of ring vertex (x, j) is in the footprint.
+        let inside = |x: f64, j: usize| {
+            let (cs, sn) = self.angles[j];
+            let p = Vector3::new(x - xc, a * cs, b * sn);
+            p.dot(&nvec) > 0.0 && p.x * p.x + p.dot(&u2).powi(2) < rb * rb
+        };
+        let mut last = first;
+        let mut last_x = 0.0;
+        for &x in &xs[1..] {
+            let ring = self.ellipse_ring(m, f, x);
+            for s in 0..n {
+                let s1 = (s + 1) % n;
+                let (i0, i1, j0, j1) = (last[s], last[s1], ring[s], ring[s1]);
+                let (a0, a1) = (inside(last_x, s), inside(last_x, s1));
+                let (b0, b1) = (inside(x, s), inside(x, s1));
+                if !(a0 && a1 && b1) {
+                    m.triangle([i0, i1, j1], straight);
                 }
-                Segment::Bend {
-                    radius,
-                    angle,
-                    direction,
-                } => {
-                    let label = Part {
-                        segment,
-                        kind: PartKind::Bend,
-                    };
-                    let (c, _) = f.bend_centre_and_turn(radius, angle, direction);
-                    let nb = f.rotation * Vector3::new(0.0, direction.cos(), direction.sin());
-                    let axis = Unit::new_normalize(f.axis().cross(&nb));
-                    let steps = (angle / res.bend_step).ceil().max(1.0) as usize;
-                    let dtheta = angle / steps as f64;
-                    let ka = straddle_factor_for(dtheta);
-                    // Ring 0 in the start plane, straddled about the torus axis.
-                    let base: Vec<Vector3<f64>> = angles
-                        .iter()
-                        .map(|&(cs, sn)| {
-                            let p = f.to_pcs(&Vector3::new(0.0, r * cs * st, r * sn * st));
-                            let v = p - c;
-                            let h = v.dot(&axis);
-                            let radial = v - axis.into_inner() * h;
-                            radial * ka + axis.into_inner() * h
-                        })
-                        .collect();
-                    let ring_at = |m: &mut Builder, i: usize| -> Vec<u32> {
-                        let turn = Rotation3::from_axis_angle(&axis, dtheta * i as f64);
-                        base.iter().map(|v| m.vertex(&(c + turn * v))).collect()
-                    };
-                    let first = ring_at(&mut m, 0);
-                    if let Some((ring, plabel, _)) = prev.take() {
-                        // The step belongs to the straight (or the earlier bend) before.
-                        m.strip(&ring, &first, plabel);
-                    }
-                    let mut last = first;
-                    for i in 1..=steps {
-                        let ring = ring_at(&mut m, i);
-                        m.strip(&last, &ring, label);
-                        last = ring;
-                    }
-                    prev = Some((last, label, false));
-                }
-                Segment::Tee {
-                    length,
-                    branch_diameter,
-                    direction,
-                } => {
-                    let rb = branch_diameter / 2.0;
-                    let xc = 0.5 * length;
-                    let nvec = Vector3::new(0.0, direction.cos(), direction.sin());
-                    let u2 = Vector3::x().cross(&nvec);
-                    let first = match prev.take() {
-                        Some((ring, _, true)) => ring,
-                        Some((ring, _, false)) => {
-                            let own = ellipse_ring(&mut m, 0.0);
-                            m.strip(&ring, &own, straight);
-                            own
-                        }
-                        None => ellipse_ring(&mut m, 0.0),
-                    };
-                    // Ring positions: coarse, then fine over the opening, then coarse.
-                    let margin = 2.0 * res.tee_ring_spacing;
-                    let (w0, w1) = ((xc - rb - margin).max(0.0), (xc + rb + margin).min(length));
-                    let mut xs = Vec::new();
-                    push_range(&mut xs, 0.0, w0, res.straight_ring_spacing);
-                    push_range(&mut xs, w0, w1, res.tee_ring_spacing);
-                    push_range(&mut xs, w1, length, res.straight_ring_spacing);
-                    // Whether the exact wall point of ring vertex (x, j) is in the footprint.
-                    let inside = |x: f64, j: usize| {
-                        let (cs, sn) = angles[j];
-                        let p = Vector3::new(x - xc, a * cs, b * sn);
-                        p.dot(&nvec) > 0.0 && p.x * p.x + p.dot(&u2).powi(2) < rb * rb
-                    };
-                    let mut last = first;
-                    let mut last_x = 0.0;
-                    for &x in &xs[1..] {
-                        let ring = ellipse_ring(&mut m, x);
-                        for s in 0..n {
-                            let s1 = (s + 1) % n;
-                            let (i0, i1, j0, j1) = (last[s], last[s1], ring[s], ring[s1]);
-                            let (a0, a1) = (inside(last_x, s), inside(last_x, s1));
-                            let (b0, b1) = (inside(x, s), inside(x, s1));
-                            if !(a0 && a1 && b1) {
-                                m.triangle([i0, i1, j1], straight);
-                            }
-                            if !(a0 && b1 && b0) {
-                                m.triangle([i0, j1, j0], straight);
-                            }
-                        }
-                        last = ring;
-                        last_x = x;
-                    }
-                    // The branch: generators from the intersection curve to the open end.
-                    let branch = Part {
-                        segment,
-                        kind: PartKind::Branch,
-                    };
-                    let reach = 1.0 / ((nvec.y / a).powi(2) + (nvec.z / b).powi(2)).sqrt();
-                    let w_end = reach + BRANCH_LENGTH;
-                    let qa = (nvec.y / a).powi(2) + (nvec.z / b).powi(2);
-                    let bottom: Vec<f64> = angles
-                        .iter()
-                        .map(|&(_, sn)| {
-                            // |w·n + ρ·u2| on the ellipse, ρ = r_b·st·sin ψ: the larger root.
-                            let rho = rb * st * sn;
-                            let qb = rho * (nvec.y * u2.y / (a * a) + nvec.z * u2.z / (b * b));
-                            let qc = rho * rho * ((u2.y / a).powi(2) + (u2.z / b).powi(2)) - 1.0;
-                            (-qb + (qb * qb - qa * qc).max(0.0).sqrt()) / qa
-                        })
-                        .collect();
-                    let min_bottom = bottom.iter().copied().fold(f64::INFINITY, f64::min);
-                    let rings = ((w_end - min_bottom) / res.straight_ring_spacing)
-                        .ceil()
-                        .max(1.0) as usize;
-                    let mut below: Option<Vec<u32>> = None;
-                    for i in 0..=rings {
-                        let t = i as f64 / rings as f64;
-                        let ring: Vec<u32> = angles
-                            .iter()
-                            .zip(&bottom)
-                            .map(|(&(cs, sn), &w0)| {
-                                let w = w0 + (w_end - w0) * t;
-                                let local = Vector3::new(xc, 0.0, 0.0)
-                                    + nvec * w
-                                    + (Vector3::x() * cs + u2 * sn) * (rb * st);
-                                m.vertex(&f.to_pcs(&local))
-                            })
-                            .collect();
-                        if let Some(l) = &below {
-                            m.strip(l, &ring, branch);
-                        }
-                        below = Some(ring);
-                    }
-                    prev = Some((last, straight, true));
+                if !(a0 && b1 && b0) {
+                    m.triangle([i0, j1, j0], straight);
                 }
             }
+            last = ring;
+            last_x = x;
         }
-        m.build()
+        self.branch(m, f, segment, (xc, rb, nvec, u2));
+        (last, straight, true)
+    }
+
+    /// A tee's branch tube: generators from the exact intersection curve of the two
+    /// cylinders (centre at local x = `xc`, radius `rb`, outward normal `nvec`, `u2` =
+    /// X × `nvec`) to the open end `BRANCH_LENGTH` beyond the main wall.
+    fn branch(
+        &self,
+        m: &mut Builder,
+        f: &SegmentFrame,
+        segment: u16,
+        (xc, rb, nvec, u2): (f64, f64, Vector3<f64>, Vector3<f64>),
+    ) {
+        let (a, b, st) = (self.a, self.b, self.st);
+        let branch = Part {
+            segment,
+            kind: PartKind::Branch,
+        };
+        let reach = 1.0 / ((nvec.y / a).powi(2) + (nvec.z / b).powi(2)).sqrt();
+        let w_end = reach + BRANCH_LENGTH;
+        let qa = (nvec.y / a).powi(2) + (nvec.z / b).powi(2);
+        let bottom: Vec<f64> = self
+            .angles
+            .iter()
+            .map(|&(_, sn)| {
+                // |w·n + ρ·u2| on the ellipse, ρ = r_b·st·sin ψ: the larger root.
+                let rho = rb * st * sn;
+                let qb = rho * (nvec.y * u2.y / (a * a) + nvec.z * u2.z / (b * b));
+                let qc = rho * rho * ((u2.y / a).powi(2) + (u2.z / b).powi(2)) - 1.0;
+                (-qb + (qb * qb - qa * qc).max(0.0).sqrt()) / qa
+            })
+            .collect();
+        let min_bottom = bottom.iter().copied().fold(f64::INFINITY, f64::min);
+        let rings = ((w_end - min_bottom) / self.res.straight_ring_spacing)
+            .ceil()
+            .max(1.0) as usize;
+        let mut below: Option<Vec<u32>> = None;
+        for i in 0..=rings {
+            let t = i as f64 / rings as f64;
+            let ring: Vec<u32> = self
+                .angles
+                .iter()
+                .zip(&bottom)
+                .map(|(&(cs, sn), &w0)| {
+                    let w = w0 + (w_end - w0) * t;
+                    let local = Vector3::new(xc, 0.0, 0.0)
+                        + nvec * w
+                        + (Vector3::x() * cs + u2 * sn) * (rb * st);
+                    m.vertex(&f.to_pcs(&local))
+                })
+                .collect();
+            if let Some(l) = &below {
+                m.strip(l, &ring, branch);
+            }
+            below = Some(ring);
+        }
     }
 }
 
