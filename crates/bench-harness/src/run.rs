@@ -123,28 +123,7 @@ pub const QUANTITIES: [Quantity; 8] = [
     },
 ];
 
-/// One row of `summary.csv`.
-#[derive(Clone, Debug, PartialEq)]
-pub struct SummaryRow {
-    /// The swept value as written in the scenario.
-    pub sweep_value: String,
-    /// Method name.
-    pub method: String,
-    /// Quantity name (dmax, …, time_ms).
-    pub quantity: String,
-    /// Its unit.
-    pub unit: String,
-    /// Statistics over the converged trials.
-    pub stats: Stats,
-    /// Trials that did not converge (or failed).
-    pub n_failed: usize,
-    /// √(mean over trials of the CRB variance): the physical limit of `stats.std`.
-    pub crb_std: Option<f64>,
-    /// Fraction of the converged trials whose |error| ≤ 1.96·(reported 1-σ): the
-    /// coverage of the nominal 95 % interval (parameters only; trials without a
-    /// reported 1-σ, e.g. an undetermined roll, count as not covered).
-    pub coverage95: Option<f64>,
-}
+pub use crate::stats::SummaryRow;
 
 /// Where and how to run.
 #[derive(Clone, Debug)]
@@ -1027,7 +1006,9 @@ pub(crate) fn finish_run(
         &dir.join("scenario.toml"),
         scenario.source.as_bytes(),
     )?);
-    files.extend(crate::plots::plot_all(scenario, summary, dir)?);
+    for png in crate::plots::plot_all(scenario, summary)? {
+        files.push(write_new(&dir.join(&png.name), &png.bytes)?);
+    }
     let wall_time_s = start.elapsed().as_secs_f64();
     let mut meta = metadata(scenario, trials, wall_time_s);
     meta.extend(extra);

@@ -87,3 +87,26 @@ mod tests {
         assert_eq!(Stats::of(&[2.0]).std, 0.0);
     }
 }
+
+/// One row of `summary.csv`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SummaryRow {
+    /// The swept value as written in the scenario.
+    pub sweep_value: String,
+    /// Method name.
+    pub method: String,
+    /// Quantity name (dmax, …, time_ms).
+    pub quantity: String,
+    /// Its unit.
+    pub unit: String,
+    /// Statistics over the converged trials.
+    pub stats: Stats,
+    /// Trials that did not converge (or failed).
+    pub n_failed: usize,
+    /// √(mean over trials of the CRB variance): the physical limit of `stats.std`.
+    pub crb_std: Option<f64>,
+    /// Fraction of the converged trials whose |error| ≤ 1.96·(reported 1-σ): the
+    /// coverage of the nominal 95 % interval (parameters only; trials without a
+    /// reported 1-σ, e.g. an undetermined roll, count as not covered).
+    pub coverage95: Option<f64>,
+}
