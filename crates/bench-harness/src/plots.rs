@@ -118,8 +118,8 @@ fn plain(m: u32, k: i32) -> String {
 
 /// The ticks of a log axis spanning [lo, hi] in log10 units: every m·10^k (m = 1…9)
 /// inside, as (position, label). Labelled: the decades when the axis spans more than
-/// three of them, the 1-2-5 sequence down to half a decade, every m below that (and every
-/// m whenever fewer than two ticks would be labelled).
+/// three of them, the 1-2-5 sequence down to one decade, 1-2-3-5 down to half a decade,
+/// every m below that (and every m whenever fewer than two ticks would be labelled).
 fn log_ticks(lo: f64, hi: f64) -> Vec<(f64, Option<String>)> {
     let span = hi - lo;
     let ticks: Vec<(f64, u32, i32)> = ((lo.floor() as i32)..=(hi.ceil() as i32))
@@ -130,8 +130,10 @@ fn log_ticks(lo: f64, hi: f64) -> Vec<(f64, Option<String>)> {
     let all = [1, 2, 3, 4, 5, 6, 7, 8, 9];
     let mut set: &[u32] = if span > 3.0 {
         &[1]
-    } else if span > 0.5 {
+    } else if span > 1.0 {
         &[1, 2, 5]
+    } else if span > 0.5 {
+        &[1, 2, 3, 5]
     } else {
         &all
     };
@@ -632,8 +634,13 @@ impl<'a> Sweep<'a> {
     }
 
     fn figure(&self, name: &str, title: String, grid: (usize, usize), ya: Axis) -> Figure<'_> {
-        // Panels of 700 × 500 px (460 wide beyond three columns), title and legend strip.
-        let width = if grid.1 > 3 { 460 } else { 700 };
+        // Panels 500 px high and 700 px wide (460 beyond three columns; a lone column
+        // 1000, so the figure's title fits), plus the title and the legend strip.
+        let width = match grid.1 {
+            1 => 1000,
+            2 | 3 => 700,
+            _ => 460,
+        };
         Figure {
             name: name.into(),
             title,
@@ -789,7 +796,8 @@ fn crb_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
             // The bound depends on the frame, not the method: the first method's rows.
             if let Some(m) = sw.methods.first().filter(|_| *q != "dmean") {
                 v.push(Series {
-                    name: "Cramér–Rao bound".into(),
+                    // `crb_std` is the bound for range noise, whatever the scenario's model.
+                    name: "Cramér–Rao bound for range noise".into(),
                     colour: REFERENCE,
                     points: sw.points(q, m, crb),
                     bars: false,
