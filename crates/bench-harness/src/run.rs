@@ -63,7 +63,7 @@ pub struct Quantity {
 const MM: f64 = 1e3;
 const DEG: f64 = 180.0 / std::f64::consts::PI;
 
-/// The error quantities of SPEC §6 (time_ms is summarised apart).
+/// The error quantities of `summary.csv` (time_ms is summarised apart).
 pub const QUANTITIES: [Quantity; 8] = [
     Quantity {
         name: "dmax",
@@ -149,7 +149,8 @@ pub struct RunReport {
     pub trial_errors: usize,
 }
 
-/// `trials.csv` columns: SPEC §6's, then the truth and estimate in full, the reported
+/// `trials.csv` columns: the error columns README lists first, then the truth and
+/// estimate in full, the reported
 /// 1-σ, the Cramér–Rao 1-σ and the solver's message.
 pub const TRIAL_COLUMNS: &[&str] = &[
     "sweep_variable",

@@ -1,4 +1,4 @@
-//! Statistics over the trials of one setting (SPEC §3): bias, spread, error range.
+//! Statistics over the trials of one setting (README, Conventions): bias, spread, error range.
 
 use std::path::Path;
 
