@@ -150,8 +150,7 @@ pub struct RunReport {
 }
 
 /// `trials.csv` columns: the error columns README lists first, then the truth and
-/// estimate in full, the reported
-/// 1-σ, the Cramér–Rao 1-σ and the solver's message.
+/// estimate in full, the reported 1-σ, the Cramér–Rao 1-σ and the solver's message.
 pub const TRIAL_COLUMNS: &[&str] = &[
     "sweep_variable",
     "sweep_value",
