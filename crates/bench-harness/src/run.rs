@@ -757,25 +757,13 @@ pub(crate) fn cpu_model() -> String {
         .unwrap_or_else(|| "unknown".into())
 }
 
-/// The workspace's commit and whether tracked files differ from it (`None` outside a
-/// git checkout).
+/// The commit of the workspace the binary was built from and whether its tracked files
+/// differed from it then, recorded by `build.rs` (`None` when built outside a git checkout).
 pub(crate) fn git_provenance() -> (Option<String>, Option<bool>) {
-    let Some(root) = workspace_root() else {
-        return (None, None);
-    };
-    let git = |args: &[&str]| {
-        std::process::Command::new("git")
-            .arg("-C")
-            .arg(&root)
-            .args(args)
-            .output()
-            .ok()
-            .filter(|o| o.status.success())
-            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
-    };
-    let commit = git(&["rev-parse", "HEAD"]);
-    let dirty = git(&["status", "--porcelain", "--untracked-files=no"]).map(|s| !s.is_empty());
-    (commit, dirty)
+    (
+        option_env!("EPD_GIT_COMMIT").map(str::to_string),
+        option_env!("EPD_GIT_DIRTY").map(|d| d == "true"),
+    )
 }
 
 /// Run `scenario` into `options.out`.
