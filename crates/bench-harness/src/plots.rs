@@ -855,24 +855,43 @@ pub fn plot_pipeline(
     points: &[crate::pipeline::ProfilePoint],
     sections: &[crate::pipeline::SectionRow],
 ) -> anyhow::Result<Vec<Png>> {
-    use crate::pipeline::METHODS;
-    use tof_sim::Pipe;
-    let name = &s.name;
-    let mut files = Vec::new();
-    let pick = |si: usize, m: &'static str, cal: bool| {
-        points
-            .iter()
-            .filter(move |p| p.section == si && p.method == m && p.calibrated == cal)
-    };
-    let reference = |label: &str, xs: (f64, f64), y: f64, colour: RGBColor| Series {
+    Ok(vec![
+        pipeline_diameters(s, points)?,
+        pipeline_section_errors(s, sections)?,
+        pipeline_profile(s, points)?,
+        pipeline_weights(s, sections)?,
+    ])
+}
+
+/// A dashed horizontal reference line from x = xs.0 to xs.1 at height y.
+fn reference(label: &str, xs: (f64, f64), y: f64, colour: RGBColor) -> Series {
+    Series {
         name: label.into(),
         colour,
         points: vec![(xs.0, y, y, y), (xs.1, y, y, y)],
         bars: false,
         marker_triangle: false,
         dashed: true,
+    }
+}
+
+/// The grey of the nominal values' reference lines in a pipeline's figures.
+const NOMINAL: RGBColor = RGBColor(90, 90, 90);
+
+/// `diameters.png` (Fig. 11): per-frame Dmax and Dmin of each section, calibrated,
+/// against the nominal ID and the truth.
+fn pipeline_diameters(
+    s: &crate::pipeline::PipelineScenario,
+    points: &[crate::pipeline::ProfilePoint],
+) -> anyhow::Result<Png> {
+    use crate::pipeline::METHODS;
+    let name = &s.name;
+    let grey = NOMINAL;
+    let pick = |si: usize, m: &'static str, cal: bool| {
+        points
+            .iter()
+            .filter(move |p| p.section == si && p.method == m && p.calibrated == cal)
     };
-    let grey = RGBColor(90, 90, 90);
     // Fig. 11: rows = sections, columns = Dmax, Dmin; calibrated estimates.
     let mut fig11: Vec<Vec<Series>> = Vec::new();
     let mut titles = Vec::new();
@@ -923,7 +942,7 @@ pub fn plot_pipeline(
             series: v,
         })
         .collect();
-    files.push(render(
+    render(
         Figure {
             name: "diameters.png".into(),
             title: format!("{name}: per-frame diameters (Fig. 11)"),
@@ -935,7 +954,17 @@ pub fn plot_pipeline(
             legend: Legend::PerPanel,
         },
         &panels,
-    )?);
+    )
+}
+
+/// `section_errors.png` (Fig. 12): bias and error range of Dmax, Dmin and the mean
+/// diameter per section, method and calibration.
+fn pipeline_section_errors(
+    s: &crate::pipeline::PipelineScenario,
+    sections: &[crate::pipeline::SectionRow],
+) -> anyhow::Result<Png> {
+    use crate::pipeline::METHODS;
+    let name = &s.name;
     // Fig. 12: rows = Dmax, Dmin, mean diameter; columns = without / with the table;
     // x = the section's nominal wall (mm).
     let mut fig12: Vec<Vec<Series>> = Vec::new();
@@ -987,7 +1016,7 @@ pub fn plot_pipeline(
             series: v,
         })
         .collect();
-    files.push(render(
+    render(
         Figure {
             name: "section_errors.png".into(),
             title: format!("{name}: errors per section (Fig. 12; line: bias, bars: min…max)"),
@@ -999,7 +1028,18 @@ pub fn plot_pipeline(
             legend: Legend::PerPanel,
         },
         &panels,
-    )?);
+    )
+}
+
+/// `profile.png`: mean diameter and ovality along the distance, with the depth table.
+fn pipeline_profile(
+    s: &crate::pipeline::PipelineScenario,
+    points: &[crate::pipeline::ProfilePoint],
+) -> anyhow::Result<Png> {
+    use crate::pipeline::METHODS;
+    use tof_sim::Pipe;
+    let name = &s.name;
+    let grey = NOMINAL;
     // Profile along the distance: mean diameter and ovality, with the table.
     // A dashed line over each section's stretch of the distance.
     let per_section = |label: &str, y: fn(&Pipe) -> f64| -> Vec<Series> {
@@ -1056,7 +1096,7 @@ pub fn plot_pipeline(
             dashed: false,
         });
     }
-    files.push(render(
+    render(
         Figure {
             name: "profile.png".into(),
             title: format!("{name}: pipe tally along the run (with the depth table)"),
@@ -1079,7 +1119,17 @@ pub fn plot_pipeline(
                 series: &oval,
             },
         ],
-    )?);
+    )
+}
+
+/// `weights.png`: the spread of each method over a section's frames against the
+/// heteroscedastic Cramér–Rao bound.
+fn pipeline_weights(
+    s: &crate::pipeline::PipelineScenario,
+    sections: &[crate::pipeline::SectionRow],
+) -> anyhow::Result<Png> {
+    use crate::pipeline::METHODS;
+    let name = &s.name;
     // Spread against the heteroscedastic Cramér–Rao bound.
     let mut spread: Vec<Vec<Series>> = Vec::new();
     let mut titles = Vec::new();
@@ -1144,7 +1194,7 @@ pub fn plot_pipeline(
             series: v,
         })
         .collect();
-    files.push(render(
+    render(
         Figure {
             name: "weights.png".into(),
             title: format!("{name}: spread per section against the Cramér–Rao bound"),
@@ -1156,8 +1206,7 @@ pub fn plot_pipeline(
             legend: Legend::PerPanel,
         },
         &panels,
-    )?);
-    Ok(files)
+    )
 }
 
 /// `approach.png` of an `[approach]` run: per distance, the mean-diameter error of the
