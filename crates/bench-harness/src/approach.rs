@@ -576,7 +576,8 @@ fn stage(s: &ApproachScenario, dir: &Path, progress: bool) -> anyhow::Result<App
     }
     files.push(finish(w, &path)?);
     files.push(write_new(&dir.join("scenario.toml"), s.source.as_bytes())?);
-    files.push(crate::plots::plot_approach(s, &rows, dir)?);
+    let png = crate::plots::plot_approach(s, &rows)?;
+    files.push(write_new(&dir.join(&png.name), &png.bytes)?);
     let (git_commit, git_dirty) = crate::run::git_provenance();
     let wall_time_s = start.elapsed().as_secs_f64();
     let meta = serde_json::json!({

@@ -1,7 +1,7 @@
-//! The scenario runner behind `bench-harness`: TOML scenarios (SPEC §6) that sweep one
-//! variable over simulated ToF frames, every listed estimator on the same clouds, written
-//! to `trials.csv`, `summary.csv`, metadata and PNG plots in the paper's style; a run
-//! split into shards (`--shard K/N`) and their merge ([`shard`]).
+//! The scenario runner behind `bench-harness`: TOML scenarios (README, Scenario files)
+//! that sweep one variable over simulated ToF frames, every listed estimator on the same
+//! clouds, written to `trials.csv`, `summary.csv`, metadata and PNG plots in the paper's
+//! style; a run split into shards (`--shard K/N`) and their merge ([`shard`]).
 #![deny(missing_docs)]
 
 pub mod approach;

@@ -1353,12 +1353,9 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
         &dir.join("depth_table.json"),
         table_file(&table, n_obs, s).to_json().as_bytes(),
     )?);
-    files.extend(crate::plots::plot_pipeline(
-        s,
-        &profile_points(&rows),
-        &sections,
-        dir,
-    )?);
+    for png in crate::plots::plot_pipeline(s, &profile_points(&rows), &sections)? {
+        files.push(write_new(&dir.join(&png.name), &png.bytes)?);
+    }
     let errors = rows.iter().filter(|r| r.status == "error").count();
     let (git_commit, git_dirty) = crate::run::git_provenance();
     let wall_time_s = start.elapsed().as_secs_f64();

@@ -1,18 +1,31 @@
 //! PNG plots in the paper's style: bias as line + markers, the error range (min…max) as
 //! error bars, one series per method. Text is drawn with DejaVu Sans embedded in the
 //! binary (no system fonts needed).
+//!
+//! This module only draws: it takes the data (summary rows, pipeline and approach rows)
+//! and returns encoded PNGs ([`Png`]); the run that made the data writes them.
 
-use std::path::{Path, PathBuf};
+use std::collections::HashMap;
 use std::sync::OnceLock;
 
 use anyhow::{Context, anyhow};
 use plotters::prelude::*;
 use plotters::style::FontStyle;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use crate::run::{SummaryRow, write_new};
 use crate::scenario::Scenario;
+use crate::stats::SummaryRow;
 
 const FONT: &str = "sans-serif";
+
+/// One encoded figure: its file name in the output folder and its PNG bytes.
+#[derive(Clone, Debug)]
+pub struct Png {
+    /// File name (`diameter_error.png`, …).
+    pub name: String,
+    /// The encoded image.
+    pub bytes: Vec<u8>,
+}
 
 fn register_font() -> anyhow::Result<()> {
     static DONE: OnceLock<bool> = OnceLock::new();
@@ -36,6 +49,11 @@ fn colour(method: &str) -> RGBColor {
     }
 }
 
+/// The colour of a reference line (a Cramér–Rao bound, a nominal or true value): grey,
+/// dashed and wider than the methods' lines, drawn beneath them so a method that sits on
+/// it stays visible.
+const REFERENCE: RGBColor = RGBColor(110, 110, 110);
+
 /// One series on a panel: name, colour, (x, centre, low, high) points.
 struct Series {
     name: String,
@@ -51,6 +69,16 @@ struct Panel<'a> {
     title: String,
     y_label: String,
     series: &'a [Series],
+}
+
+/// Where a figure's legend goes; either way it never covers data.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Legend {
+    /// One legend per panel, in headroom added above the data (panels whose series
+    /// differ, as a pipeline's sections).
+    PerPanel,
+    /// One strip under the figure's title for all panels (the same methods on each).
+    Shared,
 }
 
 /// Axis transform: the data are drawn on a linear axis, as log10 when `log`.
@@ -70,35 +98,119 @@ impl Axis {
             f64::NAN
         }
     }
-    fn label(&self, v: f64) -> String {
-        if self.log {
-            // Label the decades only, in plain numbers.
-            if (v - v.round()).abs() > 1e-9 {
-                return String::new();
-            }
-            let k = v.round() as i32;
-            if (-4..=6).contains(&k) {
-                format!("{}", 10f64.powi(k))
-            } else {
-                format!("1e{k}")
-            }
-        } else {
-            let s = format!("{v:.4}");
-            let s = s.trim_end_matches('0').trim_end_matches('.');
-            if s == "-0" { "0".into() } else { s.into() }
-        }
+}
+
+/// A linear axis's tick label: at most four decimals, no trailing zeros, no "-0".
+fn linear_label(v: f64) -> String {
+    let s = format!("{v:.4}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    if s == "-0" { "0".into() } else { s.into() }
+}
+
+/// m·10^k in plain digits (`0.02`, `500`), or `me k` beyond six decades.
+fn plain(m: u32, k: i32) -> String {
+    match k {
+        0..=6 => format!("{m}{}", "0".repeat(k as usize)),
+        -6..=-1 => format!("0.{}{m}", "0".repeat((-k - 1) as usize)),
+        _ => format!("{m}e{k}"),
     }
 }
 
-fn draw_panel(
+/// The ticks of a log axis spanning [lo, hi] in log10 units: every m·10^k (m = 1…9)
+/// inside, as (position, label). Labelled: the decades when the axis spans more than
+/// three of them, the 1-2-5 sequence down to one decade, 1-2-3-5 down to half a decade,
+/// every m below that (and every m whenever fewer than two ticks would be labelled).
+fn log_ticks(lo: f64, hi: f64) -> Vec<(f64, Option<String>)> {
+    let span = hi - lo;
+    let ticks: Vec<(f64, u32, i32)> = ((lo.floor() as i32)..=(hi.ceil() as i32))
+        .flat_map(|k| (1..=9u32).map(move |m| (k as f64 + f64::from(m).log10(), m, k)))
+        .filter(|&(t, _, _)| t >= lo && t <= hi)
+        .collect();
+    let labelled = |set: &[u32]| ticks.iter().filter(|t| set.contains(&t.1)).count();
+    let all = [1, 2, 3, 4, 5, 6, 7, 8, 9];
+    let mut set: &[u32] = if span > 3.0 {
+        &[1]
+    } else if span > 1.0 {
+        &[1, 2, 5]
+    } else if span > 0.5 {
+        &[1, 2, 3, 5]
+    } else {
+        &all
+    };
+    if labelled(set) < 2 {
+        set = if set == [1] { &[1, 2, 5] } else { &all };
+        if labelled(set) < 2 {
+            set = &all;
+        }
+    }
+    ticks
+        .into_iter()
+        .map(|(t, m, k)| (t, set.contains(&m).then(|| plain(m, k))))
+        .collect()
+}
+
+type Chart<'a, 'b> = ChartContext<
+    'a,
+    BitMapBackend<'b>,
+    Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+>;
+
+/// Grid lines, tick marks and labels of the log axes of a panel, drawn by hand (the mesh
+/// is built without labels on a log axis: plotters would put them at round log10 values).
+fn draw_log_ticks(
     area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
-    p: &Panel<'_>,
-    x_label: &str,
-    xa: Axis,
-    ya: Axis,
+    chart: &mut Chart<'_, '_>,
+    (xa, ya): (Axis, Axis),
+    (x0, x1, y0, y1): (f64, f64, f64, f64),
 ) -> anyhow::Result<()> {
-    let err = |e: String| anyhow!("plot `{}`: {e}", p.title);
-    let pts: Vec<(f64, f64)> = p
+    let e = |e: String| anyhow!("log axis: {e}");
+    let base = area.get_base_pixel();
+    let label_style = TextStyle::from((FONT, 13).into_font());
+    let grid = |labelled: bool| {
+        if labelled {
+            RGBColor(205, 205, 205)
+        } else {
+            RGBColor(238, 238, 238)
+        }
+    };
+    if ya.log {
+        for (t, label) in log_ticks(y0, y1) {
+            chart
+                .draw_series(LineSeries::new([(x0, t), (x1, t)], grid(label.is_some())))
+                .map_err(|x| e(x.to_string()))?;
+            if let Some(l) = label {
+                let (px, py) = chart.backend_coord(&(x0, t));
+                let (px, py) = (px - base.0, py - base.1);
+                area.draw(&PathElement::new([(px - 5, py), (px, py)], BLACK))
+                    .map_err(|x| e(x.to_string()))?;
+                let style = label_style.clone().pos(Pos::new(HPos::Right, VPos::Center));
+                area.draw(&Text::new(l, (px - 8, py), style))
+                    .map_err(|x| e(x.to_string()))?;
+            }
+        }
+    }
+    if xa.log {
+        for (t, label) in log_ticks(x0, x1) {
+            chart
+                .draw_series(LineSeries::new([(t, y0), (t, y1)], grid(label.is_some())))
+                .map_err(|x| e(x.to_string()))?;
+            if let Some(l) = label {
+                let (px, py) = chart.backend_coord(&(t, y0));
+                let (px, py) = (px - base.0, py - base.1);
+                area.draw(&PathElement::new([(px, py), (px, py + 5)], BLACK))
+                    .map_err(|x| e(x.to_string()))?;
+                let style = label_style.clone().pos(Pos::new(HPos::Center, VPos::Top));
+                area.draw(&Text::new(l, (px, py + 8), style))
+                    .map_err(|x| e(x.to_string()))?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The data's extent in drawn units, padded by 8 % (`None`: nothing to draw).
+fn extent(p: &Panel<'_>, xa: Axis, ya: Axis) -> Option<(f64, f64, f64, f64)> {
+    let finite: Vec<(f64, f64)> = p
         .series
         .iter()
         .flat_map(|s| {
@@ -106,19 +218,16 @@ fn draw_panel(
                 .iter()
                 .flat_map(|&(x, c, lo, hi)| [(x, c), (x, lo), (x, hi)])
         })
-        .collect();
-    let finite: Vec<(f64, f64)> = pts
-        .iter()
-        .map(|&(x, y)| (xa.f(x), ya.f(y)))
+        .map(|(x, y)| (xa.f(x), ya.f(y)))
         .filter(|(x, y)| x.is_finite() && y.is_finite())
         .collect();
     if finite.is_empty() {
-        return Ok(());
+        return None;
     }
-    let (mut x0, mut x1) = finite
+    let (x0, x1) = finite
         .iter()
         .fold((f64::MAX, f64::MIN), |(a, b), &(x, _)| (a.min(x), b.max(x)));
-    let (mut y0, mut y1) = finite
+    let (y0, y1) = finite
         .iter()
         .fold((f64::MAX, f64::MIN), |(a, b), &(_, y)| (a.min(y), b.max(y)));
     let dx = if x1 > x0 { 0.08 * (x1 - x0) } else { 0.5 };
@@ -127,11 +236,24 @@ fn draw_panel(
     } else {
         0.5 * y0.abs().max(1e-3)
     };
-    x0 -= dx;
-    x1 += dx;
-    y0 -= dy;
-    // Headroom above the data for the legend (upper left), one line per series.
-    y1 += dy + (y1 - y0) * (0.09 * p.series.len() as f64 + 0.04);
+    Some((x0 - dx, x1 + dx, y0 - dy, y1 + dy))
+}
+
+fn draw_panel(
+    area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
+    p: &Panel<'_>,
+    x_label: &str,
+    (xa, ya): (Axis, Axis),
+    legend: Legend,
+) -> anyhow::Result<()> {
+    let err = |e: String| anyhow!("plot `{}`: {e}", p.title);
+    let Some((x0, x1, y0, mut y1)) = extent(p, xa, ya) else {
+        return Ok(());
+    };
+    if legend == Legend::PerPanel {
+        // Headroom above the data for the legend (upper left), one line per series.
+        y1 += (y1 - y0) * (0.09 * p.series.len() as f64 + 0.04);
+    }
     let mut chart = ChartBuilder::on(area)
         .caption(&p.title, (FONT, 20))
         .margin(8)
@@ -143,13 +265,26 @@ fn draw_panel(
         .configure_mesh()
         .x_desc(x_label)
         .y_desc(&p.y_label)
-        .x_label_formatter(&|v| xa.label(*v))
-        .y_label_formatter(&|v| ya.label(*v))
+        // Fewer x labels on a narrow panel, so they do not run into each other.
+        .x_labels(match (xa.log, area.dim_in_pixel().0 < 600) {
+            (true, _) => 0,
+            (false, true) => 6,
+            (false, false) => 10,
+        })
+        .y_labels(if ya.log { 0 } else { 10 })
+        .x_label_formatter(&|v| linear_label(*v))
+        .y_label_formatter(&|v| linear_label(*v))
         .label_style((FONT, 13))
         .axis_desc_style((FONT, 15))
-        .light_line_style(RGBColor(235, 235, 235))
+        .light_line_style(RGBColor(238, 238, 238))
         .draw()
         .map_err(|e| err(e.to_string()))?;
+    draw_log_ticks(area, &mut chart, (xa, ya), (x0, x1, y0, y1))?;
+    if 0.0 > y0 && 0.0 < y1 && !ya.log {
+        chart
+            .draw_series(LineSeries::new(vec![(x0, 0.0), (x1, 0.0)], BLACK.mix(0.5)))
+            .map_err(|e| err(e.to_string()))?;
+    }
     // Spread the methods' error bars a little along x so they do not hide each other.
     let n = p.series.iter().filter(|s| s.bars).count().max(1) as f64;
     let step = 0.012 * (x1 - x0);
@@ -168,135 +303,211 @@ fn draw_panel(
         } else {
             0.0
         };
-        let c = s.colour;
-        let line: Vec<(f64, f64)> = s
-            .points
-            .iter()
-            .map(|&(x, m, _, _)| (xa.f(x) + shift, ya.f(m)))
-            .filter(|(x, y)| x.is_finite() && y.is_finite())
-            .collect();
-        if s.dashed {
-            chart
-                .draw_series(DashedLineSeries::new(line.clone(), 7, 5, c.stroke_width(2)))
-                .map_err(|e| err(e.to_string()))?
-                .label(s.name.clone())
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 8, y)], c.stroke_width(2))
-                });
-            continue;
-        }
-        // A missing value (NaN) breaks the line: no segment is drawn across a gap.
-        let mut segments: Vec<Vec<(f64, f64)>> = vec![vec![]];
-        for &(x, m, _, _) in &s.points {
-            let (px, py) = (xa.f(x) + shift, ya.f(m));
-            if px.is_finite() && py.is_finite() {
-                if let Some(v) = segments.last_mut() {
-                    v.push((px, py));
-                }
-            } else if segments.last().is_some_and(|v| !v.is_empty()) {
-                segments.push(vec![]);
+        draw_series(&mut chart, s, (xa, ya), shift).map_err(|e| err(e.to_string()))?;
+    }
+    if legend == Legend::PerPanel {
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font((FONT, 13))
+            .position(SeriesLabelPosition::UpperLeft)
+            .draw()
+            .map_err(|e| err(e.to_string()))?;
+    }
+    Ok(())
+}
+
+/// One series: a dashed reference line, or the method's line (broken at missing values)
+/// with markers and, when `bars`, its error bars; `shift` moves it along x (drawn units).
+fn draw_series(
+    chart: &mut Chart<'_, '_>,
+    s: &Series,
+    (xa, ya): (Axis, Axis),
+    shift: f64,
+) -> anyhow::Result<()> {
+    let e = |e: String| anyhow!("series `{}`: {e}", s.name);
+    let c = s.colour;
+    let line: Vec<(f64, f64)> = s
+        .points
+        .iter()
+        .map(|&(x, m, _, _)| (xa.f(x) + shift, ya.f(m)))
+        .filter(|(x, y)| x.is_finite() && y.is_finite())
+        .collect();
+    if s.dashed {
+        chart
+            .draw_series(DashedLineSeries::new(line, 9, 6, c.stroke_width(3)))
+            .map_err(|x| e(x.to_string()))?
+            .label(s.name.clone())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 8, y)], c.stroke_width(3)));
+        return Ok(());
+    }
+    // A missing value (NaN) breaks the line: no segment is drawn across a gap.
+    let mut segments: Vec<Vec<(f64, f64)>> = vec![vec![]];
+    for &(x, m, _, _) in &s.points {
+        let (px, py) = (xa.f(x) + shift, ya.f(m));
+        if px.is_finite() && py.is_finite() {
+            if let Some(v) = segments.last_mut() {
+                v.push((px, py));
             }
-        }
-        for (k, seg) in segments.into_iter().enumerate() {
-            let drawn = chart
-                .draw_series(LineSeries::new(seg, c.stroke_width(2)))
-                .map_err(|e| err(e.to_string()))?;
-            if k == 0 {
-                drawn.label(s.name.clone()).legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2))
-                });
-            }
-        }
-        if s.marker_triangle {
-            chart
-                .draw_series(line.iter().map(|&p| TriangleMarker::new(p, 5, c.filled())))
-                .map_err(|e| err(e.to_string()))?;
-        } else {
-            chart
-                .draw_series(line.iter().map(|&p| Circle::new(p, 4, c.filled())))
-                .map_err(|e| err(e.to_string()))?;
-        }
-        if s.bars {
-            chart
-                .draw_series(
-                    s.points
-                        .iter()
-                        .filter(|q| q.2.is_finite() && q.3.is_finite())
-                        .map(|&(x, m, lo, hi)| {
-                            ErrorBar::new_vertical(
-                                xa.f(x) + shift,
-                                ya.f(lo),
-                                ya.f(m),
-                                ya.f(hi),
-                                c.stroke_width(1),
-                                8,
-                            )
-                        }),
-                )
-                .map_err(|e| err(e.to_string()))?;
+        } else if segments.last().is_some_and(|v| !v.is_empty()) {
+            segments.push(vec![]);
         }
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font((FONT, 13))
-        .position(SeriesLabelPosition::UpperLeft)
-        .draw()
-        .map_err(|e| err(e.to_string()))?;
-    if 0.0 > y0 && 0.0 < y1 && !ya.log {
+    for (k, seg) in segments.into_iter().enumerate() {
+        let drawn = chart
+            .draw_series(LineSeries::new(seg, c.stroke_width(2)))
+            .map_err(|x| e(x.to_string()))?;
+        if k == 0 {
+            drawn.label(s.name.clone()).legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2))
+            });
+        }
+    }
+    if s.marker_triangle {
         chart
-            .draw_series(LineSeries::new(vec![(x0, 0.0), (x1, 0.0)], BLACK.mix(0.4)))
-            .map_err(|e| err(e.to_string()))?;
+            .draw_series(line.iter().map(|&p| TriangleMarker::new(p, 5, c.filled())))
+            .map_err(|x| e(x.to_string()))?;
+    } else {
+        chart
+            .draw_series(line.iter().map(|&p| Circle::new(p, 4, c.filled())))
+            .map_err(|x| e(x.to_string()))?;
+    }
+    if s.bars {
+        chart
+            .draw_series(
+                s.points
+                    .iter()
+                    .filter(|q| q.2.is_finite() && q.3.is_finite())
+                    .map(|&(x, m, lo, hi)| {
+                        ErrorBar::new_vertical(
+                            xa.f(x) + shift,
+                            ya.f(lo),
+                            ya.f(m),
+                            ya.f(hi),
+                            c.stroke_width(1),
+                            8,
+                        )
+                    }),
+            )
+            .map_err(|x| e(x.to_string()))?;
+    }
+    Ok(())
+}
+
+/// The legend strip of a [`Legend::Shared`] figure: each series name once, in order of
+/// appearance, centred on one line.
+fn draw_shared_legend(
+    area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
+    panels: &[Panel<'_>],
+) -> anyhow::Result<()> {
+    let e = |x: String| anyhow!("legend: {x}");
+    let mut seen: Vec<&Series> = Vec::new();
+    for s in panels.iter().flat_map(|p| p.series.iter()) {
+        if !seen.iter().any(|t| t.name == s.name) {
+            seen.push(s);
+        }
+    }
+    let style = TextStyle::from((FONT, 16).into_font()).pos(Pos::new(HPos::Left, VPos::Center));
+    let (sample, gap) = (34i32, 28i32);
+    let widths: Vec<i32> = seen
+        .iter()
+        .map(|s| {
+            area.estimate_text_size(&s.name, &style)
+                .map(|(w, _)| w as i32)
+                .map_err(|x| e(x.to_string()))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let total: i32 = widths.iter().map(|w| sample + 6 + w + gap).sum::<i32>() - gap;
+    let (w, h) = area.dim_in_pixel();
+    let y = h as i32 / 2;
+    let mut x = (w as i32 - total).max(0) / 2;
+    for (s, tw) in seen.iter().zip(widths) {
+        let c = s.colour;
+        if s.dashed {
+            for k in 0..3 {
+                let a = x + k * 13;
+                area.draw(&PathElement::new([(a, y), (a + 8, y)], c.stroke_width(3)))
+                    .map_err(|x| e(x.to_string()))?;
+            }
+        } else {
+            area.draw(&PathElement::new(
+                [(x, y), (x + sample, y)],
+                c.stroke_width(2),
+            ))
+            .map_err(|x| e(x.to_string()))?;
+            let mid = (x + sample / 2, y);
+            if s.marker_triangle {
+                area.draw(&TriangleMarker::new(mid, 5, c.filled()))
+                    .map_err(|x| e(x.to_string()))?;
+            } else {
+                area.draw(&Circle::new(mid, 4, c.filled()))
+                    .map_err(|x| e(x.to_string()))?;
+            }
+        }
+        area.draw(&Text::new(
+            s.name.clone(),
+            (x + sample + 6, y),
+            style.clone(),
+        ))
+        .map_err(|x| e(x.to_string()))?;
+        x += sample + 6 + tw + gap;
     }
     Ok(())
 }
 
 /// A figure: panels in a grid, one x axis description shared by all.
 struct Figure<'a> {
-    path: PathBuf,
+    name: String,
     title: String,
     grid: (usize, usize),
     size: (u32, u32),
     x_label: &'a str,
     xa: Axis,
     ya: Axis,
+    legend: Legend,
 }
 
-/// Render panels in a grid to a PNG file (written whole).
-fn render(fig: Figure<'_>, panels: &[Panel<'_>]) -> anyhow::Result<PathBuf> {
+/// Render panels in a grid to an encoded PNG.
+fn render(fig: Figure<'_>, panels: &[Panel<'_>]) -> anyhow::Result<Png> {
     let Figure {
-        path,
+        name,
         title,
         grid,
         size,
         x_label,
         xa,
         ya,
+        legend,
     } = fig;
     register_font()?;
     let mut buf = vec![0u8; (size.0 * size.1 * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
         root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
-        let root = root
+        let mut root = root
             .titled(&title, (FONT, 22))
             .map_err(|e| anyhow!("{e}"))?;
+        if legend == Legend::Shared {
+            let (strip, rest) = root.split_vertically(34);
+            draw_shared_legend(&strip, panels)?;
+            root = rest;
+        }
         let areas = root.split_evenly(grid);
         for (a, p) in areas.iter().zip(panels) {
-            draw_panel(a, p, x_label, xa, ya)?;
+            draw_panel(a, p, x_label, (xa, ya), legend)?;
         }
         root.present().map_err(|e| anyhow!("{e}"))?;
     }
-    let mut png_bytes = Vec::new();
+    let mut bytes = Vec::new();
     {
-        let mut enc = png::Encoder::new(&mut png_bytes, size.0, size.1);
+        let mut enc = png::Encoder::new(&mut bytes, size.0, size.1);
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
         let mut w = enc.write_header().context("PNG header")?;
         w.write_image_data(&buf).context("PNG data")?;
     }
-    write_new(&path, &png_bytes)
+    Ok(Png { name, bytes })
 }
 
 /// Numeric x of each swept value (its index when not a number).
@@ -341,228 +552,297 @@ fn axis_label(key: &str) -> String {
     }
 }
 
-/// Every plot of a scenario: diameter errors (Figs. 4, 5, 8; a second row without
-/// C-EPD, whose bias sets the scale), the mean-diameter error, pose errors (Fig. 6),
-/// time (Fig. 7; log–log over `points`) and the standard deviation of every parameter
-/// against the Cramér–Rao bound (dashed).
-pub fn plot_all(
-    scenario: &Scenario,
-    summary: &[SummaryRow],
-    out: &Path,
-) -> anyhow::Result<Vec<PathBuf>> {
-    let values: Vec<String> = scenario.sweeps.iter().map(|(v, _)| v.clone()).collect();
-    let x = xs(&values);
-    // The x of each swept value, looked up in constant time (10 000 values × every row
-    // of the summary would otherwise be quadratic); a repeated value keeps its first x.
-    let mut x_of = std::collections::HashMap::new();
-    for (v, &xi) in values.iter().zip(&x) {
-        x_of.entry(v.as_str()).or_insert(xi);
+/// Picks (centre, low, high) from a summary row.
+type Pick = fn(&SummaryRow) -> Option<(f64, f64, f64)>;
+
+/// The bias and the error range: (mean, min, max).
+const BIAS_AND_RANGE: Pick = |r| Some((r.stats.mean, r.stats.min, r.stats.max));
+
+/// What every figure of a sweep shares: its summary rows, the x of each swept value and
+/// the methods, in the scenario's order.
+struct Sweep<'a> {
+    name: &'a str,
+    summary: &'a [SummaryRow],
+    /// The x of each swept value, looked up in constant time (10 000 values × every row
+    /// of the summary would otherwise be quadratic); a repeated value keeps its first x.
+    x_of: HashMap<&'a str, f64>,
+    methods: Vec<String>,
+    x_label: String,
+    xa: Axis,
+    /// Trials were run one at a time (`time_ms` not contended).
+    timing: bool,
+}
+
+impl<'a> Sweep<'a> {
+    fn new(scenario: &'a Scenario, summary: &'a [SummaryRow]) -> Self {
+        let values: Vec<&str> = scenario.sweeps.iter().map(|(v, _)| v.as_str()).collect();
+        let owned: Vec<String> = values.iter().map(|v| (*v).to_string()).collect();
+        let x = xs(&owned);
+        let mut x_of = HashMap::new();
+        for (v, &xi) in values.iter().zip(&x) {
+            x_of.entry(*v).or_insert(xi);
+        }
+        let methods = scenario
+            .sweeps
+            .first()
+            .map(|(_, s)| s.methods.iter().map(|m| m.name().to_string()).collect())
+            .unwrap_or_default();
+        let log_x =
+            scenario.sweep_variable == "points" && x.iter().all(|&v| v > 0.0) && values.len() > 1;
+        Sweep {
+            name: &scenario.name,
+            summary,
+            x_of,
+            methods,
+            x_label: axis_label(&scenario.sweep_variable),
+            xa: Axis { log: log_x },
+            timing: scenario.timing,
+        }
     }
-    let xv = |v: &str| x_of.get(v).copied();
-    let methods: Vec<String> = scenario.sweeps[0]
-        .1
-        .methods
-        .iter()
-        .map(|m| m.name().to_string())
-        .collect();
-    let log_x =
-        scenario.sweep_variable == "points" && x.iter().all(|&v| v > 0.0) && values.len() > 1;
-    let xa = Axis { log: log_x };
-    let x_label = axis_label(&scenario.sweep_variable);
-    let select = |q: &str, m: &str| -> Vec<&SummaryRow> {
-        summary
-            .iter()
-            .filter(|r| r.quantity == q && r.method == m)
-            .collect()
-    };
-    // One series per method of quantity `q`: (centre, low, high) picked from each row.
-    type Pick = fn(&SummaryRow) -> Option<(f64, f64, f64)>;
-    let method_series = |q: &str, label: &str, bars: bool, pick: Pick| -> Vec<Series> {
-        methods
+
+    /// One series per method of quantity `q`, (centre, low, high) from `pick`.
+    fn series(&self, q: &str, bars: bool, pick: Pick) -> Vec<Series> {
+        self.methods
             .iter()
             .map(|m| Series {
-                name: format!("{} {label}", m.to_uppercase()),
+                name: m.to_uppercase(),
                 colour: colour(m),
-                points: select(q, m)
-                    .iter()
-                    .filter_map(|r| {
-                        let (c, lo, hi) = pick(r)?;
-                        Some((xv(&r.sweep_value)?, c, lo, hi))
-                    })
-                    .collect(),
+                points: self.points(q, m, pick),
                 bars,
                 marker_triangle: false,
                 dashed: false,
             })
             .collect()
-    };
-    let bias_and_range: Pick = |r| Some((r.stats.mean, r.stats.min, r.stats.max));
-    let error_series = |q: &str| method_series(q, "(bias, range)", true, bias_and_range);
-    let mut files = Vec::new();
-    let name = &scenario.name;
-    // Without C-EPD, whose bias sets the scale: the small biases of RU-EPD and ML-EPD.
-    let without_c = |v: Vec<Series>| -> Vec<Series> {
-        v.into_iter()
-            .filter(|s| !s.name.starts_with("C-EPD"))
-            .collect()
-    };
-    let has_c = methods.iter().any(|m| m == "c-epd") && methods.len() > 1;
-    let diameter_figure = |qs: &[(&str, &str)], file: &str, what: &str| {
-        let all: Vec<Vec<Series>> = qs.iter().map(|(q, _)| error_series(q)).collect();
-        let zoomed: Vec<Vec<Series>> = qs.iter().map(|(q, _)| without_c(error_series(q))).collect();
-        let mut panels: Vec<Panel<'_>> = qs
+    }
+
+    /// (x, centre, low, high) of quantity `q` and method `m`, one per swept value.
+    fn points(&self, q: &str, m: &str, pick: Pick) -> Vec<(f64, f64, f64, f64)> {
+        self.summary
             .iter()
-            .zip(&all)
-            .map(|((_, t), s)| Panel {
-                title: (*t).into(),
-                y_label: "error (mm)".into(),
-                series: s,
+            .filter(|r| r.quantity == q && r.method == m)
+            .filter_map(|r| {
+                let (c, lo, hi) = pick(r)?;
+                Some((*self.x_of.get(r.sweep_value.as_str())?, c, lo, hi))
             })
-            .collect();
-        if has_c {
-            panels.extend(qs.iter().zip(&zoomed).map(|((_, t), s)| Panel {
-                title: format!("{t}, without C-EPD"),
-                y_label: "error (mm)".into(),
-                series: s,
-            }));
+            .collect()
+    }
+
+    /// Whether C-EPD is one of several methods (its bias then sets an error plot's
+    /// scale, and a second row without it shows the others').
+    fn has_c(&self) -> bool {
+        self.methods.iter().any(|m| m == "c-epd") && self.methods.len() > 1
+    }
+
+    fn figure(&self, name: &str, title: String, grid: (usize, usize), ya: Axis) -> Figure<'_> {
+        // Panels 500 px high and 700 px wide (460 beyond three columns; a lone column
+        // 1000, so the figure's title fits), plus the title and the legend strip.
+        let width = match grid.1 {
+            1 => 1000,
+            2 | 3 => 700,
+            _ => 460,
+        };
+        Figure {
+            name: name.into(),
+            title,
+            grid,
+            size: (width * grid.1 as u32 + 40, 500 * grid.0 as u32 + 74),
+            x_label: &self.x_label,
+            xa: self.xa,
+            ya,
+            legend: Legend::Shared,
         }
-        let rows = if has_c { 2 } else { 1 };
-        render(
-            Figure {
-                path: out.join(file),
-                title: format!("{name}: {what} (line: bias, bars: min…max)"),
-                grid: (rows, qs.len()),
-                size: (700 * qs.len() as u32 + 40, 520 * rows as u32 + 40),
-                x_label: &x_label,
-                xa,
-                ya: Axis { log: false },
-            },
-            &panels,
-        )
-    };
-    files.push(diameter_figure(
-        &[("dmax", "major axis Dmax"), ("dmin", "minor axis Dmin")],
-        "diameter_error.png",
-        "diameter estimation error",
-    )?);
-    files.push(diameter_figure(
-        &[("dmean", "mean diameter (Dmax + Dmin)/2")],
-        "dmean_error.png",
-        "mean-diameter error",
-    )?);
-    let pose = [
-        error_series("roll"),
-        error_series("pitch"),
-        error_series("yaw"),
-        error_series("dy"),
-        error_series("dz"),
-    ];
-    let titles = [
-        ("roll θx", "deg"),
-        ("pitch θy", "deg"),
-        ("yaw θz", "deg"),
-        ("Y displacement δy", "mm"),
-        ("Z displacement δz", "mm"),
-    ];
-    let panels: Vec<Panel<'_>> = titles
+    }
+}
+
+/// An error figure (Figs. 4–6, 8): one panel per (quantity, title, unit), the bias as
+/// line and the error range as bars per method; when C-EPD is among several methods a
+/// second row repeats the panels without it, whose bias sets the first row's scale.
+fn error_figure(
+    sw: &Sweep<'_>,
+    qs: &[(&str, &str, &str)],
+    name: &str,
+    what: &str,
+) -> anyhow::Result<Png> {
+    let all: Vec<Vec<Series>> = qs
         .iter()
-        .zip(&pose)
-        .map(|((t, u), s)| Panel {
+        .map(|(q, _, _)| sw.series(q, true, BIAS_AND_RANGE))
+        .collect();
+    let without_c: Vec<Vec<Series>> = all
+        .iter()
+        .map(|v| {
+            v.iter()
+                .filter(|s| s.name != "C-EPD")
+                .map(Series::clone_line)
+                .collect()
+        })
+        .collect();
+    let mut panels: Vec<Panel<'_>> = qs
+        .iter()
+        .zip(&all)
+        .map(|((_, t, u), s)| Panel {
             title: (*t).into(),
             y_label: format!("error ({u})"),
             series: s,
         })
         .collect();
-    files.push(render(
-        Figure {
-            path: out.join("pose_error.png"),
-            title: format!("{name}: pose estimation error (line: bias, bars: min…max)"),
-            grid: (1, 5),
-            size: (2300, 520),
-            x_label: &x_label,
-            xa,
-            ya: Axis { log: false },
-        },
-        &panels,
-    )?);
-    let time = method_series("time_ms", "(mean, min…max)", true, bias_and_range);
-    files.push(render(
-        Figure {
-            path: out.join("time.png"),
-            title: format!(
-                "{name}: processing time of one estimate{}",
-                if scenario.timing {
-                    " (trials one at a time)"
-                } else {
-                    " (trials in parallel: contended)"
-                }
+    let rows = if sw.has_c() {
+        panels.extend(qs.iter().zip(&without_c).map(|((_, t, u), s)| Panel {
+            title: format!("{t}, without C-EPD"),
+            y_label: format!("error ({u})"),
+            series: s,
+        }));
+        2
+    } else {
+        1
+    };
+    render(
+        sw.figure(
+            name,
+            format!(
+                "{}: {what} (line: bias, bars: min…max over the trials)",
+                sw.name
             ),
-            grid: (1, 1),
-            size: (900, 600),
-            x_label: &x_label,
-            xa,
-            ya: Axis { log: log_x },
-        },
+            (rows, qs.len()),
+            Axis { log: false },
+        ),
+        &panels,
+    )
+}
+
+/// `diameter_error.png` (Figs. 4, 5, 8): errors of Dmax and Dmin.
+fn diameter_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
+    error_figure(
+        sw,
+        &[
+            ("dmax", "major axis Dmax", "mm"),
+            ("dmin", "minor axis Dmin", "mm"),
+        ],
+        "diameter_error.png",
+        "diameter estimation error",
+    )
+}
+
+/// `dmean_error.png`: error of the mean diameter (Dmax + Dmin)/2.
+fn dmean_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
+    error_figure(
+        sw,
+        &[("dmean", "mean diameter (Dmax + Dmin)/2", "mm")],
+        "dmean_error.png",
+        "mean-diameter error",
+    )
+}
+
+/// `pose_error.png` (Fig. 6): errors of roll, pitch, yaw, δy and δz.
+fn pose_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
+    error_figure(
+        sw,
+        &[
+            ("roll", "roll θx", "deg"),
+            ("pitch", "pitch θy", "deg"),
+            ("yaw", "yaw θz", "deg"),
+            ("dy", "Y displacement δy", "mm"),
+            ("dz", "Z displacement δz", "mm"),
+        ],
+        "pose_error.png",
+        "pose estimation error",
+    )
+}
+
+/// `time.png` (Fig. 7): time of one estimate call, mean and min…max; log–log over
+/// `points`.
+fn time_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
+    let time = sw.series("time_ms", true, BIAS_AND_RANGE);
+    let how = if sw.timing {
+        "trials one at a time"
+    } else {
+        "trials in parallel: contended"
+    };
+    let mut fig = sw.figure(
+        "time.png",
+        format!("{}: processing time of one estimate ({how})", sw.name),
+        (1, 1),
+        Axis { log: sw.xa.log },
+    );
+    fig.size = (900, 640);
+    render(
+        fig,
         &[Panel {
-            title: "estimate call".into(),
+            title: "estimate call (line: mean, bars: min…max)".into(),
             y_label: "time (ms)".into(),
             series: &time,
         }],
-    )?);
-    let crb_panels = [
+    )
+}
+
+/// `std_vs_crb.png`: the standard deviation of every parameter's estimates (and of the
+/// mean diameter) against the Cramér–Rao bound, dashed beneath (log scale).
+fn crb_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
+    let quantities = [
         ("dmax", "Dmax", "mm"),
         ("dmin", "Dmin", "mm"),
         ("dmean", "mean diameter (no bound)", "mm"),
         ("roll", "roll θx", "deg"),
         ("pitch", "pitch θy", "deg"),
         ("yaw", "yaw θz", "deg"),
-        ("dy", "δy", "mm"),
-        ("dz", "δz", "mm"),
+        ("dy", "Y displacement δy", "mm"),
+        ("dz", "Z displacement δz", "mm"),
     ];
-    let crb_series: Vec<Vec<Series>> = crb_panels
+    let std: Pick = |r| Some((r.stats.std, f64::NAN, f64::NAN));
+    let crb: Pick = |r| Some((r.crb_std?, f64::NAN, f64::NAN));
+    let series: Vec<Vec<Series>> = quantities
         .iter()
         .map(|(q, _, _)| {
-            let mut v = method_series(q, "std", false, |r| Some((r.stats.std, f64::NAN, f64::NAN)));
-            if let Some(m) = methods.first().filter(|_| *q != "dmean") {
+            let mut v = Vec::new();
+            // The bound depends on the frame, not the method: the first method's rows.
+            if let Some(m) = sw.methods.first().filter(|_| *q != "dmean") {
                 v.push(Series {
-                    name: "Cramér–Rao bound".into(),
-                    colour: RGBColor(0, 0, 0),
-                    points: select(q, m)
-                        .iter()
-                        .filter_map(|r| Some((xv(&r.sweep_value)?, r.crb_std?, f64::NAN, f64::NAN)))
-                        .collect(),
+                    // `crb_std` is the bound for range noise, whatever the scenario's model.
+                    name: "Cramér–Rao bound for range noise".into(),
+                    colour: REFERENCE,
+                    points: sw.points(q, m, crb),
                     bars: false,
                     marker_triangle: false,
                     dashed: true,
                 });
             }
+            v.extend(sw.series(q, false, std));
             v
         })
         .collect();
-    let panels: Vec<Panel<'_>> = crb_panels
+    let panels: Vec<Panel<'_>> = quantities
         .iter()
-        .zip(&crb_series)
+        .zip(&series)
         .map(|((_, t, u), s)| Panel {
             title: (*t).into(),
             y_label: format!("standard deviation ({u})"),
             series: s,
         })
         .collect();
-    files.push(render(
-        Figure {
-            path: out.join("std_vs_crb.png"),
-            title: format!(
-                "{name}: spread of the estimates against the Cramér–Rao bound (log scale)"
+    render(
+        sw.figure(
+            "std_vs_crb.png",
+            format!(
+                "{}: spread of the estimates over the trials against the Cramér–Rao bound (log scale)",
+                sw.name
             ),
-            grid: (2, 4),
-            size: (2200, 1000),
-            x_label: &x_label,
-            xa,
-            ya: Axis { log: true },
-        },
+            (2, 4),
+            Axis { log: true },
+        ),
         &panels,
-    )?);
-    Ok(files)
+    )
+}
+
+/// Every figure of a sweep, in [`crate::run::RUN_FILES`] order: `diameter_error.png`,
+/// `dmean_error.png`, `pose_error.png`, `time.png`, `std_vs_crb.png`.
+pub fn plot_all(scenario: &Scenario, summary: &[SummaryRow]) -> anyhow::Result<Vec<Png>> {
+    let sw = Sweep::new(scenario, summary);
+    Ok(vec![
+        diameter_figure(&sw)?,
+        dmean_figure(&sw)?,
+        pose_figure(&sw)?,
+        time_figure(&sw)?,
+        crb_figure(&sw)?,
+    ])
 }
 
 /// The figures of a pipeline run (see [`crate::pipeline`]): `diameters.png` (Fig. 11:
@@ -574,26 +854,44 @@ pub fn plot_pipeline(
     s: &crate::pipeline::PipelineScenario,
     points: &[crate::pipeline::ProfilePoint],
     sections: &[crate::pipeline::SectionRow],
-    out: &Path,
-) -> anyhow::Result<Vec<PathBuf>> {
-    use crate::pipeline::METHODS;
-    use tof_sim::Pipe;
-    let name = &s.name;
-    let mut files = Vec::new();
-    let pick = |si: usize, m: &'static str, cal: bool| {
-        points
-            .iter()
-            .filter(move |p| p.section == si && p.method == m && p.calibrated == cal)
-    };
-    let reference = |label: &str, xs: (f64, f64), y: f64, colour: RGBColor| Series {
+) -> anyhow::Result<Vec<Png>> {
+    Ok(vec![
+        pipeline_diameters(s, points)?,
+        pipeline_section_errors(s, sections)?,
+        pipeline_profile(s, points)?,
+        pipeline_weights(s, sections)?,
+    ])
+}
+
+/// A dashed horizontal reference line from x = xs.0 to xs.1 at height y.
+fn reference(label: &str, xs: (f64, f64), y: f64, colour: RGBColor) -> Series {
+    Series {
         name: label.into(),
         colour,
         points: vec![(xs.0, y, y, y), (xs.1, y, y, y)],
         bars: false,
         marker_triangle: false,
         dashed: true,
+    }
+}
+
+/// The grey of the nominal values' reference lines in a pipeline's figures.
+const NOMINAL: RGBColor = RGBColor(90, 90, 90);
+
+/// `diameters.png` (Fig. 11): per-frame Dmax and Dmin of each section, calibrated,
+/// against the nominal ID and the truth.
+fn pipeline_diameters(
+    s: &crate::pipeline::PipelineScenario,
+    points: &[crate::pipeline::ProfilePoint],
+) -> anyhow::Result<Png> {
+    use crate::pipeline::METHODS;
+    let name = &s.name;
+    let grey = NOMINAL;
+    let pick = |si: usize, m: &'static str, cal: bool| {
+        points
+            .iter()
+            .filter(move |p| p.section == si && p.method == m && p.calibrated == cal)
     };
-    let grey = RGBColor(90, 90, 90);
     // Fig. 11: rows = sections, columns = Dmax, Dmin; calibrated estimates.
     let mut fig11: Vec<Vec<Series>> = Vec::new();
     let mut titles = Vec::new();
@@ -644,18 +942,29 @@ pub fn plot_pipeline(
             series: v,
         })
         .collect();
-    files.push(render(
+    render(
         Figure {
-            path: out.join("diameters.png"),
+            name: "diameters.png".into(),
             title: format!("{name}: per-frame diameters (Fig. 11)"),
             grid: (s.sections.len(), 2),
             size: (1440, 480 * s.sections.len() as u32 + 40),
             x_label: "frame",
             xa: Axis { log: false },
             ya: Axis { log: false },
+            legend: Legend::PerPanel,
         },
         &panels,
-    )?);
+    )
+}
+
+/// `section_errors.png` (Fig. 12): bias and error range of Dmax, Dmin and the mean
+/// diameter per section, method and calibration.
+fn pipeline_section_errors(
+    s: &crate::pipeline::PipelineScenario,
+    sections: &[crate::pipeline::SectionRow],
+) -> anyhow::Result<Png> {
+    use crate::pipeline::METHODS;
+    let name = &s.name;
     // Fig. 12: rows = Dmax, Dmin, mean diameter; columns = without / with the table;
     // x = the section's nominal wall (mm).
     let mut fig12: Vec<Vec<Series>> = Vec::new();
@@ -707,18 +1016,30 @@ pub fn plot_pipeline(
             series: v,
         })
         .collect();
-    files.push(render(
+    render(
         Figure {
-            path: out.join("section_errors.png"),
+            name: "section_errors.png".into(),
             title: format!("{name}: errors per section (Fig. 12; line: bias, bars: min…max)"),
             grid: (3, 2),
             size: (1440, 1480),
             x_label: "nominal wall thickness of the section (mm)",
             xa: Axis { log: false },
             ya: Axis { log: false },
+            legend: Legend::PerPanel,
         },
         &panels,
-    )?);
+    )
+}
+
+/// `profile.png`: mean diameter and ovality along the distance, with the depth table.
+fn pipeline_profile(
+    s: &crate::pipeline::PipelineScenario,
+    points: &[crate::pipeline::ProfilePoint],
+) -> anyhow::Result<Png> {
+    use crate::pipeline::METHODS;
+    use tof_sim::Pipe;
+    let name = &s.name;
+    let grey = NOMINAL;
     // Profile along the distance: mean diameter and ovality, with the table.
     // A dashed line over each section's stretch of the distance.
     let per_section = |label: &str, y: fn(&Pipe) -> f64| -> Vec<Series> {
@@ -842,15 +1163,16 @@ pub fn plot_pipeline(
             dashed: false,
         });
     }
-    files.push(render(
+    render(
         Figure {
-            path: out.join("profile.png"),
+            name: "profile.png".into(),
             title: format!("{name}: pipe tally along the run (with the depth table)"),
             grid: (3, 1),
             size: (1440, 1400),
             x_label: "odometer distance (m)",
             xa: Axis { log: false },
             ya: Axis { log: false },
+            legend: Legend::PerPanel,
         },
         &[
             Panel {
@@ -870,7 +1192,17 @@ pub fn plot_pipeline(
                 series: &geometry,
             },
         ],
-    )?);
+    )
+}
+
+/// `weights.png`: the spread of each method over a section's frames against the
+/// heteroscedastic Cramér–Rao bound.
+fn pipeline_weights(
+    s: &crate::pipeline::PipelineScenario,
+    sections: &[crate::pipeline::SectionRow],
+) -> anyhow::Result<Png> {
+    use crate::pipeline::METHODS;
+    let name = &s.name;
     // Spread against the heteroscedastic Cramér–Rao bound.
     let mut spread: Vec<Vec<Series>> = Vec::new();
     let mut titles = Vec::new();
@@ -885,7 +1217,7 @@ pub fn plot_pipeline(
                 sections.iter().filter(|r| r.calibrated == cal).collect();
             let mut v = vec![Series {
                 name: "Cramér–Rao bound".into(),
-                colour: RGBColor(0, 0, 0),
+                colour: REFERENCE,
                 points: rows
                     .iter()
                     .filter(|r| r.method == "ml-epd")
@@ -935,19 +1267,19 @@ pub fn plot_pipeline(
             series: v,
         })
         .collect();
-    files.push(render(
+    render(
         Figure {
-            path: out.join("weights.png"),
+            name: "weights.png".into(),
             title: format!("{name}: spread per section against the Cramér–Rao bound"),
             grid: (2, 2),
             size: (1440, 1040),
             x_label: "nominal wall thickness of the section (mm)",
             xa: Axis { log: false },
             ya: Axis { log: true },
+            legend: Legend::PerPanel,
         },
         &panels,
-    )?);
-    Ok(files)
+    )
 }
 
 /// `approach.png` of an `[approach]` run: per distance, the mean-diameter error of the
@@ -956,8 +1288,7 @@ pub fn plot_pipeline(
 pub fn plot_approach(
     s: &crate::approach::ApproachScenario,
     rows: &[crate::approach::FrameRow],
-    out: &Path,
-) -> anyhow::Result<PathBuf> {
+) -> anyhow::Result<Png> {
     // (x, mean, min, max) of `f` over the frames of each distance, finite values only.
     let spread = |segmented: bool, f: fn(&crate::approach::FrameRow) -> f64| {
         s.distances_m
@@ -1071,7 +1402,7 @@ pub fn plot_approach(
     ];
     render(
         Figure {
-            path: out.join("approach.png"),
+            name: "approach.png".into(),
             title: format!(
                 "{}: mean, min and max over the frames at each distance",
                 s.name
@@ -1081,6 +1412,7 @@ pub fn plot_approach(
             x_label: "distance to the end of the straight section (m)",
             xa: Axis { log: false },
             ya: Axis { log: false },
+            legend: Legend::PerPanel,
         },
         &panels,
     )
@@ -1113,6 +1445,34 @@ mod tests {
         assert_eq!(axis_label("pipe.some_length_mm"), "some length (mm)");
         assert_eq!(axis_label("seed"), "seed");
         assert!(!axis_label("poses.tilt_deg").contains('.'));
+    }
+
+    #[test]
+    fn log_ticks_label_decades_or_the_1_2_5_sequence() {
+        let labels = |lo: f64, hi: f64| -> Vec<String> {
+            log_ticks(lo, hi).into_iter().filter_map(|t| t.1).collect()
+        };
+        // 0.01 … 100: four decades, decades only; 9 ticks per decade plus the last.
+        assert_eq!(labels(-2.0, 2.0), ["0.01", "0.1", "1", "10", "100"]);
+        assert_eq!(log_ticks(-2.0, 2.0).len(), 4 * 9 + 1);
+        // 0.015 … 0.25: the 1-2-5 sequence.
+        assert_eq!(
+            labels(0.015f64.log10(), 0.25f64.log10()),
+            ["0.02", "0.05", "0.1", "0.2"]
+        );
+        // 0.031 … 0.058: every m.
+        assert_eq!(labels(0.031f64.log10(), 0.058f64.log10()), ["0.04", "0.05"]);
+        // Ticks sit at log10(m·10^k).
+        let t = log_ticks(0.0, 1.0);
+        assert!((t[1].0 - 2f64.log10()).abs() < 1e-12 && t[1].1.as_deref() == Some("2"));
+    }
+
+    #[test]
+    fn plain_numbers_have_no_float_noise() {
+        assert_eq!(plain(3, -1), "0.3");
+        assert_eq!(plain(7, -3), "0.007");
+        assert_eq!(plain(5, 2), "500");
+        assert_eq!(plain(2, -9), "2e-9");
     }
 
     #[test]

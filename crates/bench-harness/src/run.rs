@@ -63,7 +63,7 @@ pub struct Quantity {
 const MM: f64 = 1e3;
 const DEG: f64 = 180.0 / std::f64::consts::PI;
 
-/// The error quantities of SPEC §6 (time_ms is summarised apart).
+/// The error quantities of `summary.csv` (time_ms is summarised apart).
 pub const QUANTITIES: [Quantity; 8] = [
     Quantity {
         name: "dmax",
@@ -123,28 +123,7 @@ pub const QUANTITIES: [Quantity; 8] = [
     },
 ];
 
-/// One row of `summary.csv`.
-#[derive(Clone, Debug, PartialEq)]
-pub struct SummaryRow {
-    /// The swept value as written in the scenario.
-    pub sweep_value: String,
-    /// Method name.
-    pub method: String,
-    /// Quantity name (dmax, …, time_ms).
-    pub quantity: String,
-    /// Its unit.
-    pub unit: String,
-    /// Statistics over the converged trials.
-    pub stats: Stats,
-    /// Trials that did not converge (or failed).
-    pub n_failed: usize,
-    /// √(mean over trials of the CRB variance): the physical limit of `stats.std`.
-    pub crb_std: Option<f64>,
-    /// Fraction of the converged trials whose |error| ≤ 1.96·(reported 1-σ): the
-    /// coverage of the nominal 95 % interval (parameters only; trials without a
-    /// reported 1-σ, e.g. an undetermined roll, count as not covered).
-    pub coverage95: Option<f64>,
-}
+pub use crate::stats::SummaryRow;
 
 /// Where and how to run.
 #[derive(Clone, Debug)]
@@ -170,8 +149,8 @@ pub struct RunReport {
     pub trial_errors: usize,
 }
 
-/// `trials.csv` columns: SPEC §6's, then the truth and estimate in full, the reported
-/// 1-σ, the Cramér–Rao 1-σ and the solver's message.
+/// `trials.csv` columns: the error columns README lists first, then the truth and
+/// estimate in full, the reported 1-σ, the Cramér–Rao 1-σ and the solver's message.
 pub const TRIAL_COLUMNS: &[&str] = &[
     "sweep_variable",
     "sweep_value",
@@ -788,25 +767,13 @@ pub(crate) fn cpu_model() -> String {
         .unwrap_or_else(|| "unknown".into())
 }
 
-/// The workspace's commit and whether tracked files differ from it (`None` outside a
-/// git checkout).
+/// The commit of the workspace the binary was built from and whether its tracked files
+/// differed from it then, recorded by `build.rs` (`None` when built outside a git checkout).
 pub(crate) fn git_provenance() -> (Option<String>, Option<bool>) {
-    let Some(root) = workspace_root() else {
-        return (None, None);
-    };
-    let git = |args: &[&str]| {
-        std::process::Command::new("git")
-            .arg("-C")
-            .arg(&root)
-            .args(args)
-            .output()
-            .ok()
-            .filter(|o| o.status.success())
-            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
-    };
-    let commit = git(&["rev-parse", "HEAD"]);
-    let dirty = git(&["status", "--porcelain", "--untracked-files=no"]).map(|s| !s.is_empty());
-    (commit, dirty)
+    (
+        option_env!("EPD_GIT_COMMIT").map(str::to_string),
+        option_env!("EPD_GIT_DIRTY").map(|d| d == "true"),
+    )
 }
 
 /// Run `scenario` into `options.out`.
@@ -1037,7 +1004,9 @@ pub(crate) fn finish_run(
         &dir.join("scenario.toml"),
         scenario.source.as_bytes(),
     )?);
-    files.extend(crate::plots::plot_all(scenario, summary, dir)?);
+    for png in crate::plots::plot_all(scenario, summary)? {
+        files.push(write_new(&dir.join(&png.name), &png.bytes)?);
+    }
     let wall_time_s = start.elapsed().as_secs_f64();
     let mut meta = metadata(scenario, trials, wall_time_s);
     meta.extend(extra);

@@ -1,4 +1,4 @@
-//! Scenario files (SPEC §6): one base setting and one swept variable, checked into
+//! Scenario files (README, Scenario files): one base setting and one swept variable, checked into
 //! [`Setting`]s before anything runs.
 
 use std::path::{Path, PathBuf};

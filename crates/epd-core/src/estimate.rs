@@ -211,7 +211,8 @@ pub type Sigmas = [Option<f64>; N_PARAMS];
 pub struct Estimate {
     /// The method used.
     pub method: Method,
-    /// The estimated β in canonical form (SPEC §3: Dmax ≥ Dmin, roll in [−90°, 90°)).
+    /// The estimated β in canonical form (README, Conventions: Dmax ≥ Dmin, roll in
+    /// [−90°, 90°)).
     pub params: Params,
     /// The data-only starting point of the solver.
     pub initial: Params,

@@ -12,7 +12,7 @@
 //! ML-EPD); [`EstimateOptions::with_fixed_diameters`] fits the pose of a pipe of known
 //! diameters.
 //!
-//! Equation numbers refer to the RU-EPD paper (see `SPEC.md`).
+//! Equation numbers refer to the RU-EPD paper (see the README).
 //!
 //! ```
 //! use epd_core::{Method, EstimateOptions, Params, estimate};

@@ -1,6 +1,6 @@
 //! The parameter vector β of eq. (2) and the SCS → PCS transform of eq. (3).
 //!
-//! Frames (SPEC §3):
+//! Frames (README, Conventions):
 //! - **SCS**, sensor coordinate system: origin at the sensor centre, X forward
 //!   (optical axis), Y right, Z up.
 //! - **PCS**, pipe coordinate system: X along the pipe axis, Y along the major axis and

@@ -1,4 +1,4 @@
-//! The symmetries of the elliptic-cylinder model (SPEC §3), the canonical form of an
+//! The symmetries of the elliptic-cylinder model (README, Conventions), the canonical form of an
 //! estimate, and errors against a ground truth taken modulo those symmetries.
 //!
 //! The same point cloud fits equally well after
@@ -61,9 +61,9 @@ pub struct Applied {
     pub reversed: bool,
 }
 
-/// The canonical member of the symmetry class of `p` (SPEC §3): Dmax ≥ Dmin and
+/// The canonical member of the symmetry class of `p` (README, Conventions): Dmax ≥ Dmin and
 /// θx in [−90°, 90°), with the PCS X axis pointing forward along the pipe (θz in
-/// [−90°, 90°); the end-for-end turn is a symmetry SPEC §3 leaves implicit).
+/// [−90°, 90°); the end-for-end turn is a further symmetry, see README's Conventions).
 pub fn canonicalize(p: &Params) -> Params {
     canonical_form(p).0
 }
@@ -139,7 +139,7 @@ fn rotation_distance(a: &Params, b: &Params) -> f64 {
     (a.rotation().matrix() - b.rotation().matrix()).norm()
 }
 
-/// Errors of `estimate` against `truth` under the symmetries (SPEC §3): the estimate is
+/// Errors of `estimate` against `truth` under the symmetries (README, Conventions): the estimate is
 /// canonicalised, then compared with the member of the truth's class whose rotation is
 /// closest to the estimate's.
 pub fn errors_against(estimate: &Params, truth: &Params) -> ParamErrors {

@@ -5,9 +5,9 @@
 //!     --od-in X --ovality O [--points N] --out frame.csv [--ply frame.ply] [--depth-png depth.png]
 //! ```
 //! Exit codes: 0 written, 1 an error (invalid pipe or noise, I/O), 2 wrong arguments.
-//! The pose of trial K is drawn from the paper's ranges (SPEC §5) with seed S; the pipe
+//! The pose of trial K is drawn from the paper's ranges (README, Conventions) with seed S; the pipe
 //! has a 12 mm wall. `--out` gets `x,y,z` (m, sensor frame) with a header line; the true
-//! β is printed as one JSON object (mm and degrees), in the canonical form of SPEC §3
+//! β is printed as one JSON object (mm and degrees), in the canonical form of README's Conventions
 //! (Dmax ≥ Dmin, roll in [−90°, 90°)), as estimates are.
 
 use std::path::PathBuf;
@@ -77,7 +77,7 @@ fn run(a: Args) -> anyhow::Result<()> {
     if let Some(p) = &a.depth_png {
         save_depth_png(p, &frame, sensor.max_range)?;
     }
-    // The truth in canonical form (SPEC §3), comparable with an estimate as printed.
+    // The truth in canonical form (README, Conventions), comparable with an estimate as printed.
     let truth = epd_core::canonicalize(&truth);
     let deg = 180.0 / std::f64::consts::PI;
     println!(

@@ -14,7 +14,7 @@ use crate::scene::Scene;
 use crate::sensor::{Pinhole, Sensor};
 
 /// Which random streams a frame uses: a frame is a pure function of these and the
-/// configuration (SPEC §5).
+/// configuration (README, Conventions).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub struct FrameSeed {
     /// The scenario seed.

@@ -1,7 +1,7 @@
 //! A Helios2-like 3D time-of-flight camera inside an elliptic pipe: rays cast with
 //! parry3d, Gaussian depth errors along the sensing lines, reproducible to the bit.
 //!
-//! Frames (SPEC §3): the SCS (sensor: X forward, Y right, Z up) and the PCS (pipe: X
+//! Frames (README, Conventions): the SCS (sensor: X forward, Y right, Z up) and the PCS (pipe: X
 //! along the axis, Y major axis, Z minor axis), related by eq. (3) of the RU-EPD paper
 //! through [`epd_core::Params`] — the one definition of the convention in the workspace.
 //!

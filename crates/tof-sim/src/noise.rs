@@ -1,4 +1,4 @@
-//! Depth-error models (SPEC §5) and the seeded, version-stable random streams.
+//! Depth-error models (README, Conventions) and the seeded, version-stable random streams.
 
 use rand::SeedableRng;
 use rand_pcg::Pcg64;

@@ -1,4 +1,4 @@
-//! The pipe: nominal size, wall and ovality (SPEC §5).
+//! The pipe: nominal size, wall and ovality (README, Conventions).
 
 use crate::error::SimError;
 

@@ -1,4 +1,4 @@
-//! Random sensor poses in the pipe (SPEC §5).
+//! Random sensor poses in the pipe (README, Conventions).
 
 use epd_core::Params;
 use rand::RngExt;

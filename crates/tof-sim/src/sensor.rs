@@ -1,4 +1,4 @@
-//! The pinhole ToF sensor (SPEC §5).
+//! The pinhole ToF sensor (README, Conventions).
 
 use nalgebra::Vector3;
 

@@ -1,5 +1,5 @@
 //! A small analytic point-cloud generator for epd-core's tests and benchmarks: pinhole
-//! rays (SPEC §5) intersected with the elliptic cylinder in closed form, with optional
+//! rays (README, Conventions) intersected with the elliptic cylinder in closed form, with optional
 //! Gaussian range noise along each ray. Independent of the estimators' code paths except
 //! for eq. (3) (`Params::rotation`), which has its own unit tests.
 #![allow(dead_code)]
