@@ -3,27 +3,16 @@
 //! binary (no system fonts needed).
 
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
 
 use anyhow::{Context, anyhow};
+use epd_io::font::FONT;
 use plotters::prelude::*;
-use plotters::style::FontStyle;
 
 use crate::run::{SummaryRow, write_new};
 use crate::scenario::Scenario;
 
-const FONT: &str = "sans-serif";
-
 fn register_font() -> anyhow::Result<()> {
-    static DONE: OnceLock<bool> = OnceLock::new();
-    let ok = DONE.get_or_init(|| {
-        plotters::style::register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok()
-    });
-    if *ok {
-        Ok(())
-    } else {
-        Err(anyhow!("cannot load the embedded DejaVu font"))
-    }
+    epd_io::font::register_font().map_err(|e| anyhow!(e))
 }
 
 fn colour(method: &str) -> RGBColor {

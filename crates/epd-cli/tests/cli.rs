@@ -145,11 +145,11 @@ fn bad_files_are_named_the_rest_processed_and_the_exit_code_is_1() {
     let dir = common::temp_dir("bad");
     let frame = common::frame(2, 3000);
     let mut good = Vec::new();
-    tof_sim::output::write_ply(
+    epd_io::ply::write(
         &mut good,
         &frame,
-        tof_sim::output::PlyFormat::BinaryLittleEndian,
-        tof_sim::output::PlyPrecision::F64,
+        epd_io::ply::PlyFormat::BinaryLittleEndian,
+        epd_io::ply::PlyPrecision::F64,
     )
     .unwrap();
     let good_path = write(&dir, "good.ply", &good);
