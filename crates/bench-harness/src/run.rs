@@ -986,7 +986,8 @@ pub(crate) fn finish_run(
 ) -> anyhow::Result<(Vec<PathBuf>, f64)> {
     let summary_path = dir.join("summary.csv");
     let mut summary_csv = create_new(&summary_path)?;
-    writeln!(summary_csv, "{}", SUMMARY_COLUMNS.join(",")).map_err(wrote(&summary_path))?;
+    writeln!(summary_csv, "{}", epd_io::csv::line(SUMMARY_COLUMNS))
+        .map_err(wrote(&summary_path))?;
     for row in summary {
         writeln!(
             summary_csv,
@@ -1021,7 +1022,7 @@ fn stage(
 ) -> anyhow::Result<Staged> {
     let trials_path = dir.join("trials.csv");
     let mut trials_csv = create_new(&trials_path)?;
-    writeln!(trials_csv, "{}", TRIAL_COLUMNS.join(",")).map_err(wrote(&trials_path))?;
+    writeln!(trials_csv, "{}", epd_io::csv::line(TRIAL_COLUMNS)).map_err(wrote(&trials_path))?;
     let bar = progress_bar(progress, (trials * scenario.sweeps.len()) as u64);
     let runner = TrialRunner::new(scenario, &bar);
     let all: Vec<usize> = (0..trials).collect();

@@ -80,11 +80,11 @@ fn simulate_then_estimate_recovers_the_truth() {
         .args(["--format", "csv"])
         .output()
         .unwrap();
-    let text = String::from_utf8_lossy(&o.stdout);
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let mut r = csv::Reader::from_reader(&o.stdout[..]);
+    let header = r.headers().unwrap().clone();
+    let header: Vec<&str> = header.iter().collect();
     assert!(header.contains(&"d_max_mm") && header.contains(&"sigma_dz_mm") && header[0] == "file");
-    assert_eq!(lines.count(), 3);
+    assert_eq!(r.records().map(Result::unwrap).count(), 3);
     // Text, with the wall thickness from a nominal OD.
     let o = epd()
         .arg("estimate")

@@ -241,7 +241,11 @@ fn ply_of_a_labelled_frame_has_segment_and_part() {
     .unwrap();
     let ascii = ply(&f, PlyFormat::Ascii, PlyPrecision::F64);
     let (head, body) = split_header(&ascii);
-    assert!(head.ends_with("property uint v\nproperty ushort segment\nproperty uchar part\n"));
+    assert!(
+        head.ends_with(
+            "property uint v\nproperty ushort segment\nproperty uchar part\nend_header\n"
+        )
+    );
     for (line, part) in std::str::from_utf8(body).unwrap().lines().zip(&f.part) {
         let tok: Vec<&str> = line.split(' ').collect();
         let p = part.unwrap();
