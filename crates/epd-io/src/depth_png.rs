@@ -94,7 +94,7 @@ pub fn write<W: Write>(w: W, frame: &Frame, max_range: f64) -> Result<(), WriteE
     encode_rgb(w, &rgb, size)
 }
 
-/// [`write`] into a file, written whole ([`crate::atomic::write_file_atomic`]).
+/// [`write()`] into a file, written whole ([`crate::atomic::write_file_atomic`]).
 pub fn save(path: &Path, frame: &Frame, max_range: f64) -> Result<(), WriteError> {
     let mut png = Vec::new();
     write(&mut png, frame, max_range)?;

@@ -8,7 +8,7 @@
 //! sum of its property sizes, an ASCII record at least one token per property; an element
 //! without properties holds no data and is skipped whatever its count.
 //!
-//! Writing ([`write`], [`save`]): a tof-sim [`Frame`] as ASCII or binary little-endian,
+//! Writing ([`write()`], [`save`]): a tof-sim [`Frame`] as ASCII or binary little-endian,
 //! with the `intensity`, `segment` and `part` properties when the frame has them.
 
 use crate::WriteError;
@@ -775,7 +775,7 @@ pub fn part_code(kind: PartKind) -> u8 {
     }
 }
 
-/// [`write`] into a file, written whole ([`crate::atomic::write_file_atomic`]).
+/// [`write()`] into a file, written whole ([`crate::atomic::write_file_atomic`]).
 pub fn save(
     path: &Path,
     frame: &Frame,
