@@ -536,43 +536,39 @@ fn stage(s: &ApproachScenario, dir: &Path, progress: bool) -> anyhow::Result<App
     }
     let frames_path = dir.join("frames.csv");
     let mut w = create_new(&frames_path)?;
-    writeln!(w, "{}", FRAME_COLUMNS.join(",")).map_err(wrote(&frames_path))?;
+    writeln!(w, "{}", epd_io::csv::line(FRAME_COLUMNS)).map_err(wrote(&frames_path))?;
     for r in &rows {
-        writeln!(
-            w,
-            "{},{},{},{},{},{},{},{},{},{}",
-            r.distance_m,
-            r.frame,
-            r.segmented,
-            r.geometry,
+        let row = [
+            r.distance_m.to_string(),
+            r.frame.to_string(),
+            r.segmented.to_string(),
+            r.geometry.to_string(),
             num(r.dmean_err_mm),
             num(r.straight_until_m),
             num(r.straight_until_err_mm),
             num(r.bend_radius_mm),
             num(r.bend_radius_err_pct),
-            num(r.direction_err_deg)
-        )
-        .map_err(wrote(&frames_path))?;
+            num(r.direction_err_deg),
+        ];
+        writeln!(w, "{}", epd_io::csv::line(row)).map_err(wrote(&frames_path))?;
     }
     let mut files = vec![finish(w, &frames_path)?];
     let summary = summarise(s, &rows);
     let path = dir.join("approach.csv");
     let mut w = create_new(&path)?;
-    writeln!(w, "{}", APPROACH_COLUMNS.join(",")).map_err(wrote(&path))?;
+    writeln!(w, "{}", epd_io::csv::line(APPROACH_COLUMNS)).map_err(wrote(&path))?;
     for r in &summary {
-        writeln!(
-            w,
-            "{},{},{},{},{},{},{},{}",
-            r.distance_m,
-            r.segmented,
-            r.n_frames,
-            r.n_found,
+        let row = [
+            r.distance_m.to_string(),
+            r.segmented.to_string(),
+            r.n_frames.to_string(),
+            r.n_found.to_string(),
             num(r.dmean_bias_mm),
             num(r.dmean_range_mm),
             num(r.straight_until_err_max_mm),
-            num(r.bend_radius_err_max_pct)
-        )
-        .map_err(wrote(&path))?;
+            num(r.bend_radius_err_max_pct),
+        ];
+        writeln!(w, "{}", epd_io::csv::line(row)).map_err(wrote(&path))?;
     }
     files.push(finish(w, &path)?);
     files.push(write_new(&dir.join("scenario.toml"), s.source.as_bytes())?);

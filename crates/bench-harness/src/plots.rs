@@ -6,17 +6,14 @@
 //! and returns encoded PNGs ([`Png`]); the run that made the data writes them.
 
 use std::collections::HashMap;
-use std::sync::OnceLock;
 
 use anyhow::{Context, anyhow};
+use epd_io::font::FONT;
 use plotters::prelude::*;
-use plotters::style::FontStyle;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use crate::scenario::Scenario;
 use crate::stats::SummaryRow;
-
-const FONT: &str = "sans-serif";
 
 /// One encoded figure: its file name in the output folder and its PNG bytes.
 #[derive(Clone, Debug)]
@@ -28,15 +25,7 @@ pub struct Png {
 }
 
 fn register_font() -> anyhow::Result<()> {
-    static DONE: OnceLock<bool> = OnceLock::new();
-    let ok = DONE.get_or_init(|| {
-        plotters::style::register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok()
-    });
-    if *ok {
-        Ok(())
-    } else {
-        Err(anyhow!("cannot load the embedded DejaVu font"))
-    }
+    epd_io::font::register_font().map_err(|e| anyhow!(e))
 }
 
 fn colour(method: &str) -> RGBColor {

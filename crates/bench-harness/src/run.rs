@@ -220,26 +220,11 @@ pub const SUMMARY_COLUMNS: &[&str] = &[
     "coverage95",
 ];
 
-/// A number for CSV: shortest round-trip text, empty for NaN/None.
-pub fn num(v: f64) -> String {
-    if v.is_finite() {
-        format!("{v}")
-    } else {
-        String::new()
-    }
-}
+/// A number for CSV: shortest round-trip text, empty for NaN/None (epd-io's rule).
+pub use epd_io::csv::num;
 
 fn opt(v: Option<f64>, scale: f64) -> String {
     v.map_or(String::new(), |x| num(x * scale))
-}
-
-/// Quote a CSV field when needed.
-pub fn field(s: &str) -> String {
-    if s.contains([',', '"', '\n']) {
-        format!("\"{}\"", s.replace('"', "\"\""))
-    } else {
-        s.to_string()
-    }
 }
 
 /// Set (by a signal handler) to stop a run at the next batch of trials.
@@ -252,22 +237,12 @@ pub struct Interrupted;
 
 /// Create `path` (which must not exist) for writing; the error names the file.
 pub(crate) fn create_new(path: &Path) -> anyhow::Result<BufWriter<File>> {
-    let f = std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(path)
-        .with_context(|| format!("cannot create {}", path.display()))?;
-    Ok(BufWriter::new(f))
+    epd_io::atomic::create_new(path).with_context(|| format!("cannot create {}", path.display()))
 }
 
 /// Flush and sync a file written with [`create_new`]; the error names the file.
 pub(crate) fn finish(w: BufWriter<File>, path: &Path) -> anyhow::Result<PathBuf> {
-    let f = w
-        .into_inner()
-        .map_err(|e| e.into_error())
-        .with_context(|| format!("cannot write {}", path.display()))?;
-    f.sync_all()
-        .with_context(|| format!("cannot write {}", path.display()))?;
+    epd_io::atomic::finish(w).with_context(|| format!("cannot write {}", path.display()))?;
     Ok(path.to_path_buf())
 }
 
@@ -511,8 +486,7 @@ fn holds_only_run_files(dir: &Path) -> bool {
 
 /// Flush a folder's entries to disk (renames and new files in it).
 fn sync_dir(dir: &Path) -> anyhow::Result<()> {
-    File::open(dir)
-        .and_then(|f| f.sync_all())
+    epd_io::atomic::sync_dir(dir)
         .with_context(|| format!("cannot sync the folder {}", dir.display()))
 }
 
@@ -625,8 +599,8 @@ pub(crate) fn trial_rows(
         let e = m.errors.as_ref();
         let est = m.estimate.as_ref();
         let mut f: Vec<String> = vec![
-            field(variable),
-            field(value),
+            variable.to_string(),
+            value.to_string(),
             t.trial.to_string(),
             m.method.name().into(),
             t.n_points.to_string(),
@@ -660,8 +634,8 @@ pub(crate) fn trial_rows(
         for i in 0..7 {
             f.push(opt(t.crb[i], scales[i]));
         }
-        f.push(field(&m.message));
-        writeln!(w, "{}", f.join(","))?;
+        f.push(m.message.clone());
+        writeln!(w, "{}", epd_io::csv::line(&f))?;
     }
     Ok(())
 }
@@ -734,9 +708,9 @@ pub(crate) fn summarise(
 
 pub(crate) fn summary_line(variable: &str, r: &SummaryRow) -> String {
     let s = &r.stats;
-    [
-        field(variable),
-        field(&r.sweep_value),
+    epd_io::csv::line([
+        variable.to_string(),
+        r.sweep_value.clone(),
         r.method.clone(),
         r.quantity.clone(),
         r.unit.clone(),
@@ -752,8 +726,7 @@ pub(crate) fn summary_line(variable: &str, r: &SummaryRow) -> String {
         num(s.sem()),
         r.crb_std.map_or(String::new(), num),
         r.coverage95.map_or(String::new(), num),
-    ]
-    .join(",")
+    ])
 }
 
 pub(crate) fn cpu_model() -> String {
@@ -990,7 +963,8 @@ pub(crate) fn finish_run(
 ) -> anyhow::Result<(Vec<PathBuf>, f64)> {
     let summary_path = dir.join("summary.csv");
     let mut summary_csv = create_new(&summary_path)?;
-    writeln!(summary_csv, "{}", SUMMARY_COLUMNS.join(",")).map_err(wrote(&summary_path))?;
+    writeln!(summary_csv, "{}", epd_io::csv::line(SUMMARY_COLUMNS))
+        .map_err(wrote(&summary_path))?;
     for row in summary {
         writeln!(
             summary_csv,
@@ -1027,7 +1001,7 @@ fn stage(
 ) -> anyhow::Result<Staged> {
     let trials_path = dir.join("trials.csv");
     let mut trials_csv = create_new(&trials_path)?;
-    writeln!(trials_csv, "{}", TRIAL_COLUMNS.join(",")).map_err(wrote(&trials_path))?;
+    writeln!(trials_csv, "{}", epd_io::csv::line(TRIAL_COLUMNS)).map_err(wrote(&trials_path))?;
     let bar = progress_bar(progress, (trials * scenario.sweeps.len()) as u64);
     let runner = TrialRunner::new(scenario, &bar);
     let all: Vec<usize> = (0..trials).collect();

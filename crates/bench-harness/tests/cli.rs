@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::{bin, temp_dir};
+use common::{bin, read_csv as csv, temp_dir};
 use std::path::{Path, PathBuf};
 
 const SMALL: &str = r#"
@@ -61,18 +61,6 @@ fn bad_scenarios_exit_2_name_the_key_and_write_nothing() {
     let o = bin().args(["x.toml", "--frobnicate"]).output().unwrap();
     assert_eq!(o.status.code(), Some(2));
     let _ = std::fs::remove_dir_all(&dir);
-}
-
-fn csv(path: &Path) -> (Vec<String>, Vec<Vec<String>>) {
-    let text = std::fs::read_to_string(path).unwrap();
-    let mut lines = text.lines();
-    let header = lines.next().unwrap().split(',').map(String::from).collect();
-    (
-        header,
-        lines
-            .map(|l| l.split(',').map(String::from).collect())
-            .collect(),
-    )
 }
 
 #[test]

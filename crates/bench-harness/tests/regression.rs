@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{temp_dir, workspace};
+use common::{read_csv, temp_dir, workspace};
 use std::collections::HashMap;
 use std::path::Path;
 
@@ -14,17 +14,11 @@ use bench_harness::{RunOptions, Scenario, SummaryRow, run};
 type Key = (String, String, String); // (sweep value, method, quantity)
 
 fn read_summary(path: &Path) -> HashMap<Key, HashMap<String, String>> {
-    let text = std::fs::read_to_string(path)
-        .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
-    lines
+    let (header, rows) = read_csv(path);
+    rows.into_iter()
         .map(|l| {
-            let row: HashMap<String, String> = header
-                .iter()
-                .zip(l.split(','))
-                .map(|(h, v)| (h.to_string(), v.to_string()))
-                .collect();
+            let row: HashMap<String, String> =
+                header.iter().zip(l).map(|(h, v)| (h.clone(), v)).collect();
             (
                 (
                     row["sweep_value"].clone(),

@@ -8,7 +8,7 @@
 
 mod common;
 
-use common::{temp_dir, workspace};
+use common::{read_csv, temp_dir, workspace};
 use std::path::Path;
 
 use bench_harness::{RunOptions, Scenario, run};
@@ -71,14 +71,11 @@ yaw_deg = [-15.0, 15.0]
         },
     )
     .unwrap();
-    let text = std::fs::read_to_string(out.join("trials.csv")).unwrap();
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let (header, rows) = read_csv(&out.join("trials.csv"));
     let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
     let (status, method, err) = (col("status"), col("method"), col("err_dmean_mm"));
     let mut converged = [0usize; 3];
-    for l in lines {
-        let f: Vec<&str> = l.split(',').collect();
+    for f in &rows {
         if f[status] != "converged" {
             continue;
         }
@@ -93,7 +90,7 @@ yaw_deg = [-15.0, 15.0]
         let bound = [40.0, 10.0, 2.0][m];
         assert!(
             e.abs() < bound,
-            "{} converged with a {e} mm error: {l}",
+            "{} converged with a {e} mm error: {f:?}",
             f[method]
         );
     }

@@ -10,7 +10,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use epd_cli::read::{Format, read_bytes};
 use epd_core::calibration::{CalibrationFrame, CalibrationSettings, calibrate};
 use epd_core::{EstimateOptions, Loss, LossScale, Method, estimate_weighted};
-use tof_sim::output::{PlyFormat, PlyPrecision, write_ply};
+use epd_io::ply::{PlyFormat, PlyPrecision, write as write_ply};
 use tof_sim::{
     FrameSeed, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, ToFPhysics, WallModel,
 };

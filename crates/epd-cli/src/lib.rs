@@ -1,9 +1,15 @@
-//! The library behind the `epd` tool: readers for real point-cloud files and the report
-//! formats. The binary is a thin layer of argument parsing over it.
+//! The library behind the `epd` tool: the estimate of a file, its report and the
+//! calibration table. The binary is a thin layer of argument parsing over it; the file
+//! formats (readers, JSON, CSV, atomic writes) are the `epd-io` crate's.
 #![deny(missing_docs)]
 
 pub mod estimate;
-pub mod read;
+/// The point-cloud readers, which live in `epd-io` (re-exported here for the tool's
+/// users: the Python package, the tests).
+pub mod read {
+    pub use epd_io::read::*;
+    pub use epd_io::{pcd, ply, text};
+}
 pub mod report;
 pub mod shard;
 pub mod simulate;

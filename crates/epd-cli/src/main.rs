@@ -34,7 +34,6 @@ use epd_cli::report::{FileReport, columns};
 use epd_cli::shard::ShardSpec;
 use epd_cli::table::CalibrationTable;
 use epd_core::calibration::{CalibrationFrame, CalibrationSettings, calibrate};
-use epd_core::report::json_object;
 use epd_core::{EstimateOptions, Loss, LossScale, Method};
 use indicatif::ProgressBar;
 use rayon::prelude::*;
@@ -553,7 +552,7 @@ fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
     let mut open = true;
     // Shards 2..N leave the header out: their outputs concatenate into one table.
     if args.format == OutputFormat::Csv && args.shard.is_none_or(|s| s.k() == 1) {
-        open = write(&mut sink, &columns().join(","))?;
+        open = write(&mut sink, &epd_io::csv::line(columns()))?;
     }
     let batch = 2 * rayon::current_num_threads().max(1);
     for chunk in files.chunks(batch) {
@@ -753,7 +752,7 @@ fn run_calibrate(a: &CalibrateArgs) -> anyhow::Result<ExitCode> {
         n_observations: n_obs as u64,
     };
     let json = cal.to_json();
-    tof_sim::output::write_file_atomic(&a.out, |w| std::io::Write::write_all(w, json.as_bytes()))?;
+    epd_io::atomic::write_bytes_atomic(&a.out, json.as_bytes())?;
     if !a.quiet {
         let t = &cal.table;
         let filled = t.count.iter().filter(|&&c| c > 0).count();
@@ -782,8 +781,8 @@ fn run_calibrate(a: &CalibrateArgs) -> anyhow::Result<ExitCode> {
 
 fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
     use epd_cli::simulate::{PoseOverride, SimulateError, SimulateSettings, Simulator};
+    use epd_io::ply::{PlyFormat, PlyPrecision};
     use tof_sim::NoiseModel;
-    use tof_sim::output::{PlyFormat, PlyPrecision, save_ply, write_file_atomic};
     let (out, frames) = (a.out.clone(), a.frames);
     let format = match a.ply {
         PlyArg::Binary => PlyFormat::BinaryLittleEndian,
@@ -818,11 +817,9 @@ fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
     for k in 0..frames {
         sim.frame(k, &mut frame)?;
         let stem = format!("frame_{k:04}");
-        save_ply(&out.join(format!("{stem}.ply")), &frame, format, precision)?;
-        let json = format!("{}\n", json_object(&sim.truth(k, &frame)));
-        write_file_atomic(&out.join(format!("{stem}.json")), |w| {
-            std::io::Write::write_all(w, json.as_bytes())
-        })?;
+        epd_io::ply::save(&out.join(format!("{stem}.ply")), &frame, format, precision)?;
+        let json = format!("{}\n", epd_io::json::object(&sim.truth(k, &frame)));
+        epd_io::atomic::write_bytes_atomic(&out.join(format!("{stem}.json")), json.as_bytes())?;
         bar.inc(1);
     }
     bar.finish_and_clear();

@@ -2,7 +2,7 @@
 //! the `estimate` example) or CSV (the same names as columns).
 
 use epd_core::Estimate;
-use epd_core::report::{Field, estimate_fields, json_object};
+use epd_core::report::{ESTIMATE_KEYS, FIRST_RESULT_KEY, Field, estimate_fields};
 
 /// What `epd estimate` found for one file.
 #[derive(Clone, Debug)]
@@ -111,36 +111,12 @@ const CONTEXT_KEYS: [&str; 16] = [
     "bend_direction_deg",
 ];
 
-/// The keys of `epd_core::report::estimate_fields`, for the rows of failed files.
-const KEYS: [&str; 21] = [
-    "method",
-    "status",
-    "status_reason",
-    "iterations",
-    "n_points",
-    "n_dropped",
-    "d_max_mm",
-    "d_min_mm",
-    "roll_deg",
-    "pitch_deg",
-    "yaw_deg",
-    "dy_mm",
-    "dz_mm",
-    "roll_determined",
-    "sigma_d_max_mm",
-    "sigma_d_min_mm",
-    "sigma_roll_deg",
-    "sigma_pitch_deg",
-    "sigma_yaw_deg",
-    "sigma_dy_mm",
-    "sigma_dz_mm",
-];
-
 /// Whether a key's value is a result, withheld (null) unless the estimate converged:
 /// the estimate's keys from `d_max_mm` on (diameters, pose, `roll_determined`, the 1-σ),
 /// the RMS residual and the wall thickness.
 fn is_result(key: &str) -> bool {
-    KEYS[6..].contains(&key) || ["rms_residual_mm", "wall_thickness_est_mm"].contains(&key)
+    ESTIMATE_KEYS[FIRST_RESULT_KEY..].contains(&key)
+        || ["rms_residual_mm", "wall_thickness_est_mm"].contains(&key)
 }
 
 impl FileReport {
@@ -234,7 +210,7 @@ impl FileReport {
                 f.push(("error", Field::Null));
             }
             Err(msg) => {
-                for k in KEYS {
+                for k in ESTIMATE_KEYS {
                     f.push((
                         k,
                         if k == "status" {
@@ -255,16 +231,12 @@ impl FileReport {
 
     /// One JSON object.
     pub fn json(&self) -> String {
-        json_object(&self.fields())
+        epd_io::json::object(&self.fields())
     }
 
-    /// One CSV row, in the order of [`columns`].
+    /// One CSV row (no final newline), in the order of [`columns`].
     pub fn csv(&self) -> String {
-        self.fields()
-            .iter()
-            .map(|(_, v)| v.csv())
-            .collect::<Vec<_>>()
-            .join(",")
+        epd_io::csv::fields_line(&self.fields())
     }
 
     /// A few readable lines.
@@ -362,7 +334,6 @@ mod tests {
     /// The withheld results start at the diameters and take in every 1-σ.
     #[test]
     fn results_are_the_diameters_pose_and_uncertainties() {
-        assert_eq!(KEYS[6], "d_max_mm");
         for k in [
             "d_max_mm",
             "dz_mm",
@@ -416,6 +387,8 @@ mod tests {
         };
         let keys: Vec<&str> = ok.fields().into_iter().map(|(k, _)| k).collect();
         assert_eq!(keys, columns());
+        // epd-core's fields of an estimate follow its key list, after `file`.
+        assert_eq!(keys[1..=ESTIMATE_KEYS.len()], ESTIMATE_KEYS);
         // With a survey: the same keys.
         let mut surveyed = ok.clone();
         if let Ok(e) = &mut surveyed.outcome {

@@ -80,11 +80,11 @@ fn simulate_then_estimate_recovers_the_truth() {
         .args(["--format", "csv"])
         .output()
         .unwrap();
-    let text = String::from_utf8_lossy(&o.stdout);
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let mut r = csv::Reader::from_reader(&o.stdout[..]);
+    let header = r.headers().unwrap().clone();
+    let header: Vec<&str> = header.iter().collect();
     assert!(header.contains(&"d_max_mm") && header.contains(&"sigma_dz_mm") && header[0] == "file");
-    assert_eq!(lines.count(), 3);
+    assert_eq!(r.records().map(Result::unwrap).count(), 3);
     // Text, with the wall thickness from a nominal OD.
     let o = epd()
         .arg("estimate")
@@ -145,11 +145,11 @@ fn bad_files_are_named_the_rest_processed_and_the_exit_code_is_1() {
     let dir = common::temp_dir("bad");
     let frame = common::frame(2, 3000);
     let mut good = Vec::new();
-    tof_sim::output::write_ply(
+    epd_io::ply::write(
         &mut good,
         &frame,
-        tof_sim::output::PlyFormat::BinaryLittleEndian,
-        tof_sim::output::PlyPrecision::F64,
+        epd_io::ply::PlyFormat::BinaryLittleEndian,
+        epd_io::ply::PlyPrecision::F64,
     )
     .unwrap();
     let good_path = write(&dir, "good.ply", &good);

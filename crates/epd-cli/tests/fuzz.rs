@@ -14,10 +14,10 @@ mod common;
 mod peak_alloc;
 
 use epd_cli::read::{Format, PointCloud, read_bytes, read_path};
+use epd_io::ply::{PlyFormat, PlyPrecision, write as write_ply};
 use proptest::prelude::*;
 use std::path::PathBuf;
 use std::time::Duration;
-use tof_sim::output::{PlyFormat, PlyPrecision, write_csv, write_ply};
 
 #[global_allocator]
 static ALLOC: peak_alloc::PeakAlloc = peak_alloc::PeakAlloc;
@@ -206,7 +206,7 @@ fn make_seeds() -> Vec<(Format, Vec<u8>)> {
     assert_eq!(read_bytes(Format::Pcd, &b).unwrap().points.len(), n);
     v.push((Format::Pcd, b));
     let mut csv = Vec::new();
-    write_csv(&mut csv, &frame).unwrap();
+    epd_io::csv::write_points(&mut csv, &frame.measured).unwrap();
     v.push((Format::Text, csv));
     v.push((Format::Text, common::xyz(&frame)));
     let mut pts = format!("{}\n", frame.measured.len());

@@ -7,7 +7,7 @@ mod common;
 
 use epd_cli::read::{Format, read_bytes};
 use epd_core::{EstimateOptions, Method, errors_against, estimate};
-use tof_sim::output::{PlyFormat, PlyPrecision, write_csv, write_ply};
+use epd_io::ply::{PlyFormat, PlyPrecision, write as write_ply};
 
 fn files(frame: &tof_sim::Frame) -> Vec<(&'static str, Format, Vec<u8>, f64)> {
     let ply = |f, p| {
@@ -16,7 +16,7 @@ fn files(frame: &tof_sim::Frame) -> Vec<(&'static str, Format, Vec<u8>, f64)> {
         v
     };
     let mut csv = Vec::new();
-    write_csv(&mut csv, frame).unwrap();
+    epd_io::csv::write_points(&mut csv, &frame.measured).unwrap();
     vec![
         (
             "ply binary f64",

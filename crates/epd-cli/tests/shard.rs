@@ -32,18 +32,18 @@ fn json_without_timings(text: &str) -> Vec<serde_json::Value> {
         .collect()
 }
 
-/// CSV lines without the timing columns (no field here holds a comma: the files
-/// estimate cleanly).
+/// CSV records (the header first) without the timing columns, read with the `csv` crate.
 fn csv_without_timings(text: &str) -> Vec<Vec<String>> {
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let mut r = csv::Reader::from_reader(text.as_bytes());
+    let header = r.headers().unwrap().clone();
     let drop: Vec<usize> = TIMINGS
         .iter()
-        .map(|k| header.iter().position(|h| h == k).unwrap())
+        .map(|k| header.iter().position(|h| h == *k).unwrap())
         .collect();
-    text.lines()
-        .map(|l| {
-            l.split(',')
+    std::iter::once(header)
+        .chain(r.records().map(Result::unwrap))
+        .map(|rec| {
+            rec.iter()
                 .enumerate()
                 .filter(|(i, _)| !drop.contains(i))
                 .map(|(_, f)| f.to_string())

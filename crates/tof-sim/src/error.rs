@@ -29,15 +29,6 @@ pub enum SimError {
     /// The pipe geometry could not be built.
     #[error("cannot build the pipe mesh: {0}")]
     Mesh(String),
-    /// Writing a file failed.
-    #[error("cannot write {what}: {source}")]
-    Io {
-        /// What was being written.
-        what: String,
-        /// The underlying error.
-        #[source]
-        source: std::sync::Arc<std::io::Error>,
-    },
 }
 
 impl SimError {
@@ -50,14 +41,6 @@ impl SimError {
             field,
             value: value.to_string(),
             reason,
-        }
-    }
-
-    /// An I/O error while writing `what`.
-    pub fn io(what: impl Into<String>, e: std::io::Error) -> Self {
-        SimError::Io {
-            what: what.into(),
-            source: std::sync::Arc::new(e),
         }
     }
 }

@@ -31,7 +31,6 @@ pub mod error;
 pub mod frame;
 pub mod mesh;
 pub mod noise;
-pub mod output;
 pub mod physics;
 pub mod pipe;
 pub mod pipeline;

@@ -5,7 +5,6 @@ use std::f64::consts::TAU;
 
 use epd_core::Params;
 use nalgebra::Vector3;
-use tof_sim::output::{PlyFormat, PlyPrecision, write_ply};
 use tof_sim::physics::SPEED_OF_LIGHT;
 use tof_sim::{
     Frame, FrameSeed, Noise, NoiseModel, Pipe, PoseRanges, Scene, Sensor, Subsample, ToFPhysics,
@@ -349,82 +348,7 @@ fn invalid_pixels_are_zeros_with_intensity_zero() {
             f.len()
         );
         assert!(of_kind > 1000, "{of_kind}");
-        // The PLY holds them as zeros with intensity 0.
-        let mut ply = Vec::new();
-        write_ply(&mut ply, &f, PlyFormat::Ascii, PlyPrecision::F64).unwrap();
-        let text = String::from_utf8(ply).unwrap();
-        let zeros = text.lines().filter(|l| l.starts_with("0 0 0 ")).count();
-        assert_eq!(zeros, invalid);
-        assert!(
-            text.lines()
-                .filter(|l| l.starts_with("0 0 0 "))
-                .all(|l| l.ends_with(" 0"))
-        );
     }
-}
-
-#[test]
-fn ply_has_an_intensity_property_only_with_the_physical_model() {
-    let truth = PoseRanges::default()
-        .sample(&Pipe::paper_20in(), 2, 3)
-        .unwrap();
-    let scene = Scene::new(&truth, WallModel::Exact, 6.0).unwrap();
-    let sensor = Sensor::helios2();
-    let f = simulate(
-        &sensor,
-        &scene,
-        &with(ToFPhysics::helios2()),
-        Subsample::Points(500),
-        FrameSeed::default(),
-    )
-    .unwrap();
-    let split = |b: &[u8]| {
-        let end = b.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
-        (
-            String::from_utf8(b[..end].to_vec()).unwrap(),
-            b[end..].to_vec(),
-        )
-    };
-    let mut bin = Vec::new();
-    write_ply(
-        &mut bin,
-        &f,
-        PlyFormat::BinaryLittleEndian,
-        PlyPrecision::F64,
-    )
-    .unwrap();
-    let (h, body) = split(&bin);
-    assert!(h.ends_with("property uint v\nproperty float intensity\nend_header\n"));
-    let rec = 3 * 8 + 2 * 4 + 4;
-    assert_eq!(body.len(), 500 * rec);
-    for i in 0..500 {
-        let at = i * rec + 32;
-        let v = f32::from_le_bytes(body[at..at + 4].try_into().unwrap());
-        assert_eq!(v.to_bits(), f.intensity[i].to_bits());
-    }
-    let mut asc = Vec::new();
-    write_ply(&mut asc, &f, PlyFormat::Ascii, PlyPrecision::F32).unwrap();
-    let (h, body) = split(&asc);
-    assert!(h.contains("property float intensity\n"));
-    for (line, want) in String::from_utf8(body).unwrap().lines().zip(&f.intensity) {
-        let cols: Vec<&str> = line.split(' ').collect();
-        assert_eq!(cols.len(), 6);
-        assert_eq!(cols[5].parse::<f32>().unwrap(), *want);
-    }
-    // The plain model: NaN intensities, no property.
-    let g = simulate(
-        &sensor,
-        &scene,
-        &Noise::range(0.01),
-        Subsample::Points(500),
-        FrameSeed::default(),
-    )
-    .unwrap();
-    assert!(g.intensity.iter().all(|i| i.is_nan()));
-    assert!(g.sigma.iter().all(|&s| s == 0.01));
-    let mut plain = Vec::new();
-    write_ply(&mut plain, &g, PlyFormat::Ascii, PlyPrecision::F64).unwrap();
-    assert!(!split(&plain).0.contains("intensity"));
 }
 
 /// Row gaps closed and subsampling keep every list aligned: each kept point equals the

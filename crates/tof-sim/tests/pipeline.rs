@@ -11,7 +11,6 @@ use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
 use common::oracle::Exact;
 use epd_core::Params;
 use nalgebra::{Matrix3, Point3, Vector3};
-use tof_sim::output::{PlyFormat, PlyPrecision, write_ply};
 use tof_sim::{
     FrameSeed, MeshResolution, Noise, Part, PartKind, Pipeline, Scene, Segment, Sensor, SimError,
     Subsample, ToFPhysics, WallModel, simulate,
@@ -649,56 +648,4 @@ fn frames_keep_parts_aligned() {
             kind: PartKind::Straight
         })
     );
-}
-
-/// A labelled frame's PLY carries `segment` and `part` per point, in both encodings.
-#[test]
-fn ply_of_a_labelled_frame_has_segment_and_part() {
-    let p = elbow(0.49, 0.48, 1.0, 0.0);
-    let truth = pose(&p, 0.0, 0.0, 0.0, 0.0, 0.0);
-    let res = MeshResolution {
-        segments: 256,
-        bend_step: 0.02,
-        ..MeshResolution::default()
-    };
-    let scene = Scene::pipeline(&truth, &p, &res).unwrap();
-    let f = simulate(
-        &Sensor::helios2(),
-        &scene,
-        &Noise::range(0.01),
-        Subsample::Points(300),
-        FrameSeed::default(),
-    )
-    .unwrap();
-    let mut ascii = Vec::new();
-    write_ply(&mut ascii, &f, PlyFormat::Ascii, PlyPrecision::F64).unwrap();
-    let text = String::from_utf8(ascii).unwrap();
-    let (head, body) = text.split_once("end_header\n").unwrap();
-    assert!(head.ends_with("property uint v\nproperty ushort segment\nproperty uchar part\n"));
-    for (line, part) in body.lines().zip(&f.part) {
-        let tok: Vec<&str> = line.split(' ').collect();
-        let p = part.unwrap();
-        assert_eq!(tok[5].parse::<u16>().unwrap(), p.segment);
-        assert_eq!(
-            tok[6].parse::<u8>().unwrap(),
-            tof_sim::output::part_code(p.kind)
-        );
-    }
-    let mut bin = Vec::new();
-    write_ply(
-        &mut bin,
-        &f,
-        PlyFormat::BinaryLittleEndian,
-        PlyPrecision::F32,
-    )
-    .unwrap();
-    let at = bin.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
-    let rec = 3 * 4 + 2 * 4 + 2 + 1;
-    assert_eq!(bin.len() - at, rec * f.len());
-    for (i, part) in f.part.iter().enumerate() {
-        let r = &bin[at + i * rec..at + (i + 1) * rec];
-        let p = part.unwrap();
-        assert_eq!(u16::from_le_bytes([r[20], r[21]]), p.segment);
-        assert_eq!(r[22], tof_sim::output::part_code(p.kind));
-    }
 }

@@ -9,7 +9,7 @@
 //! `intensity` (4 columns), `r g b` (6) or `intensity r g b` (7). Binary data are refused
 //! with the offset of the first byte that is not text.
 
-use super::{PointCloud, ReadError, err, quote};
+use crate::read::{PointCloud, ReadError, err, quote};
 
 const F: &str = "CSV";
 

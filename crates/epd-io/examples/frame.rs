@@ -1,7 +1,7 @@
 //! Simulate one Helios2-like frame in a pipe and write its measured points.
 //!
 //! ```text
-//! cargo run --release -p tof-sim --example frame -- --seed S --trial K --sigma M \
+//! cargo run --release -p epd-io --example frame -- --seed S --trial K --sigma M \
 //!     --od-in X --ovality O [--points N] --out frame.csv [--ply frame.ply] [--depth-png depth.png]
 //! ```
 //! Exit codes: 0 written, 1 an error (invalid pipe or noise, I/O), 2 wrong arguments.
@@ -13,9 +13,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use tof_sim::output::{
-    PlyFormat, PlyPrecision, save_depth_png, save_ply, write_csv, write_file_atomic,
-};
+use epd_io::ply::{PlyFormat, PlyPrecision};
 use tof_sim::{FrameSeed, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, WallModel, simulate};
 
 /// Simulate one Helios2-like frame in a pipe (12 mm wall) and write its points; print
@@ -70,12 +68,12 @@ fn run(a: Args) -> anyhow::Result<()> {
         sweep_index: 0,
     };
     let frame = simulate(&sensor, &scene, &Noise::range(a.sigma), sub, seeds)?;
-    write_file_atomic(&a.out, |w| write_csv(w, &frame))?;
+    epd_io::atomic::write_file_atomic(&a.out, |w| epd_io::csv::write_points(w, &frame.measured))?;
     if let Some(p) = &a.ply {
-        save_ply(p, &frame, PlyFormat::BinaryLittleEndian, PlyPrecision::F64)?;
+        epd_io::ply::save(p, &frame, PlyFormat::BinaryLittleEndian, PlyPrecision::F64)?;
     }
     if let Some(p) = &a.depth_png {
-        save_depth_png(p, &frame, sensor.max_range)?;
+        epd_io::depth_png::save(p, &frame, sensor.max_range)?;
     }
     // The truth in canonical form (README, Conventions), comparable with an estimate as printed.
     let truth = epd_core::canonicalize(&truth);

@@ -10,10 +10,7 @@
 //! Formats the readers do not read (LAS, LAZ, E57, VTK, archives…) are recognised by their
 //! first bytes, else by their extension, and refused with a message saying so.
 
-pub mod pcd;
-pub mod ply;
-pub mod text;
-
+use crate::{pcd, ply, text};
 use std::io::{BufRead, BufReader, Cursor, Read};
 use std::path::Path;
 

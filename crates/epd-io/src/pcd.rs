@@ -4,7 +4,7 @@
 //! arithmetic and checked against the bytes that follow the header before anything is
 //! reserved; a `binary_compressed` size is checked against what LZF can expand to.
 
-use super::{PointCloud, ReadError, Scalar, err, quote, split_header};
+use crate::read::{PointCloud, ReadError, Scalar, err, quote, split_header};
 
 const F: &str = "PCD";
 

@@ -1,13 +1,22 @@
-//! Stanford PLY: `format ascii 1.0`, `binary_little_endian 1.0`, `binary_big_endian 1.0`.
-//! The `vertex` element must have `x`, `y`, `z` (any scalar type, each once); its other
+//! Stanford PLY, read and written.
+//!
+//! Reading ([`read`], [`read_path`]): `format ascii 1.0`, `binary_little_endian 1.0`,
+//! `binary_big_endian 1.0`. The `vertex` element must have `x`, `y`, `z` (any scalar type, each once); its other
 //! scalar properties are kept. Elements before it (faces…) are read past, elements after
 //! it are not read. Every element count is checked against the bytes that follow the
 //! header before anything is reserved or looped over: a binary record takes at least the
 //! sum of its property sizes, an ASCII record at least one token per property; an element
 //! without properties holds no data and is skipped whatever its count.
+//!
+//! Writing ([`write()`], [`save`]): a tof-sim [`Frame`] as ASCII or binary little-endian,
+//! with the `intensity`, `segment` and `part` properties when the frame has them.
 
-use super::{MAX_HEADER_LINES, PointCloud, ReadError, Scalar, err, quote, split_header};
-use std::io::BufRead;
+use crate::WriteError;
+use crate::read::{MAX_HEADER_LINES, PointCloud, ReadError, Scalar, err, quote, split_header};
+use std::io::{BufRead, Write};
+use std::path::Path;
+use tof_sim::Frame;
+use tof_sim::pipeline::PartKind;
 
 const F: &str = "PLY";
 
@@ -585,7 +594,7 @@ pub(crate) fn read_stream<R: BufRead>(
         }
         let mut line = raw.get(start..).unwrap_or_default();
         if lines.is_empty() {
-            line = super::strip_bom(line);
+            line = crate::read::strip_bom(line);
         }
         let Ok(text) = std::str::from_utf8(line) else {
             return Ok(Stream::Whole(raw));
@@ -628,9 +637,150 @@ pub(crate) fn read_stream<R: BufRead>(
     Ok(Stream::Done(cloud))
 }
 
-/// Read a PLY file from disk (whatever its extension). Like [`super::read_path`]: regular
-/// files only, at most [`super::MAX_INPUT_BYTES`]; binary files whose vertices come first
+/// Read a PLY file from disk (whatever its extension). Like [`crate::read::read_path`]: regular
+/// files only, at most [`crate::read::MAX_INPUT_BYTES`]; binary files whose vertices come first
 /// with scalar properties only are decoded as they stream in.
 pub fn read_path(path: &std::path::Path) -> Result<PointCloud, String> {
-    super::read_path_as(path, Some(super::Format::Ply))
+    crate::read::read_path_as(path, Some(crate::read::Format::Ply))
+}
+
+// ---- Writing ----
+
+/// PLY encodings.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PlyFormat {
+    /// `format ascii 1.0`.
+    Ascii,
+    /// `format binary_little_endian 1.0`.
+    BinaryLittleEndian,
+}
+
+/// Scalar type of the coordinates in a PLY file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PlyPrecision {
+    /// `float` (32-bit).
+    F32,
+    /// `double` (64-bit).
+    F64,
+}
+
+/// Write `frame`'s measured points (SCS, m) with their pixel (u, v) as PLY, plus a
+/// `property float intensity` (camera counts) after v when the frame has any finite
+/// intensity (the physical sensor model; the plain model's intensities are NaN and are
+/// not written). Invalid pixels are written as they are held: x = y = z = 0, intensity 0.
+///
+/// A frame with labels ([`Frame::part`], a pipeline scene) gets two more properties at
+/// the end, `property ushort segment` (the index in `Pipeline::segments`) and
+/// `property uchar part` (the [`part_code`]: 0 no wall, 1 straight, 2 bend, 3 branch),
+/// described in a header comment. Frames without labels are written as before.
+pub fn write<W: Write>(
+    w: &mut W,
+    frame: &Frame,
+    format: PlyFormat,
+    precision: PlyPrecision,
+) -> std::io::Result<()> {
+    let fmt = match format {
+        PlyFormat::Ascii => "ascii",
+        PlyFormat::BinaryLittleEndian => "binary_little_endian",
+    };
+    let ty = match precision {
+        PlyPrecision::F32 => "float",
+        PlyPrecision::F64 => "double",
+    };
+    let t = &frame.truth;
+    let with_intensity = frame.intensity.len() == frame.measured.len()
+        && frame.intensity.iter().any(|i| i.is_finite());
+    let with_part = !frame.part.is_empty() && frame.part.len() == frame.measured.len();
+    write!(
+        w,
+        "ply\nformat {fmt} 1.0\ncomment tof-sim frame: measured points in the sensor frame (m; X forward, Y right, Z up)\n\
+         comment truth d_max_m {} d_min_m {} roll_rad {} pitch_rad {} yaw_rad {} dy_m {} dz_m {}\n\
+         {}element vertex {}\nproperty {ty} x\nproperty {ty} y\nproperty {ty} z\nproperty uint u\nproperty uint v\n{}{}end_header\n",
+        t.d_max,
+        t.d_min,
+        t.roll,
+        t.pitch,
+        t.yaw,
+        t.dy,
+        t.dz,
+        if with_part {
+            "comment part: what the pixel's ray hit, 0 no wall, 1 straight, 2 bend, 3 branch; segment: its index in the pipeline\n"
+        } else {
+            ""
+        },
+        frame.measured.len(),
+        if with_intensity {
+            "property float intensity\n"
+        } else {
+            ""
+        },
+        if with_part {
+            "property ushort segment\nproperty uchar part\n"
+        } else {
+            ""
+        }
+    )?;
+    for (i, (p, px)) in frame.measured.iter().zip(&frame.pixels).enumerate() {
+        match (format, precision) {
+            (PlyFormat::Ascii, PlyPrecision::F64) => {
+                write!(w, "{} {} {} {} {}", p[0], p[1], p[2], px[0], px[1])?
+            }
+            (PlyFormat::Ascii, PlyPrecision::F32) => write!(
+                w,
+                "{} {} {} {} {}",
+                p[0] as f32, p[1] as f32, p[2] as f32, px[0], px[1]
+            )?,
+            (PlyFormat::BinaryLittleEndian, prec) => {
+                for c in p {
+                    match prec {
+                        PlyPrecision::F64 => w.write_all(&c.to_le_bytes())?,
+                        PlyPrecision::F32 => w.write_all(&(*c as f32).to_le_bytes())?,
+                    }
+                }
+                w.write_all(&px[0].to_le_bytes())?;
+                w.write_all(&px[1].to_le_bytes())?;
+            }
+        }
+        match format {
+            PlyFormat::Ascii if with_intensity => write!(w, " {}", frame.intensity[i])?,
+            PlyFormat::Ascii => {}
+            PlyFormat::BinaryLittleEndian if with_intensity => {
+                w.write_all(&frame.intensity[i].to_le_bytes())?
+            }
+            PlyFormat::BinaryLittleEndian => {}
+        }
+        if with_part {
+            let (segment, code) = frame.part[i].map_or((0, 0), |p| (p.segment, part_code(p.kind)));
+            match format {
+                PlyFormat::Ascii => write!(w, " {segment} {code}")?,
+                PlyFormat::BinaryLittleEndian => {
+                    w.write_all(&segment.to_le_bytes())?;
+                    w.write_all(&[code])?;
+                }
+            }
+        }
+        if format == PlyFormat::Ascii {
+            writeln!(w)?;
+        }
+    }
+    Ok(())
+}
+
+/// The PLY code of a part kind: 1 straight, 2 bend, 3 branch (0 is "no wall").
+pub fn part_code(kind: PartKind) -> u8 {
+    match kind {
+        PartKind::Straight => 1,
+        PartKind::Bend => 2,
+        PartKind::Branch => 3,
+    }
+}
+
+/// [`write()`] into a file, written whole ([`crate::atomic::write_file_atomic`]).
+pub fn save(
+    path: &Path,
+    frame: &Frame,
+    format: PlyFormat,
+    precision: PlyPrecision,
+) -> Result<(), WriteError> {
+    crate::atomic::write_file_atomic(path, |w| write(w, frame, format, precision))
 }

@@ -1,7 +1,7 @@
 //! Estimate pipe diameters and sensor pose from a CSV point cloud.
 //!
 //! ```text
-//! cargo run --release -p epd-core --example estimate -- FILE.csv [--method ml-epd|ru-epd|c-epd]
+//! cargo run --release -p epd-io --example estimate -- FILE.csv [--method ml-epd|ru-epd|c-epd]
 //! ```
 //! Exit codes: 0 converged, 1 an error or a fit that did not converge (its status is
 //! printed), 2 wrong arguments.
@@ -14,8 +14,8 @@ use std::time::Instant;
 
 use std::io::Write;
 
-use anyhow::{Context, bail};
-use epd_core::report::{Field, estimate_fields, json_object};
+use anyhow::Context;
+use epd_core::report::{Field, estimate_fields};
 use epd_core::{EstimateOptions, Method, estimate, rms_range_residual};
 
 /// Estimate pipe diameters and sensor pose from a CSV point cloud (x,y,z in metres,
@@ -35,33 +35,21 @@ fn parse_method(s: &str) -> Result<Method, String> {
     s.parse().map_err(|e: epd_core::EpdError| e.to_string())
 }
 
-/// Read `x,y,z` rows; the first line may be a header.
+/// Read the points of a CSV/XYZ file (or of standard input) with the `epd` tool's text
+/// reader: the first line may be a header.
 fn read_csv(path: &str) -> anyhow::Result<Vec<[f64; 3]>> {
-    let text = if path == "-" {
-        std::io::read_to_string(std::io::stdin().lock()).context("cannot read standard input")?
+    let cloud = if path == "-" {
+        epd_io::read_from(
+            std::io::stdin().lock(),
+            Some(epd_io::Format::Text),
+            epd_io::MAX_INPUT_BYTES,
+        )
+        .map_err(|e| anyhow::anyhow!("cannot read standard input: {e}"))?
     } else {
-        std::fs::read_to_string(path).with_context(|| format!("cannot read `{path}`"))?
+        epd_io::read_path(std::path::Path::new(path))
+            .map_err(|e| anyhow::anyhow!("cannot read `{path}`: {e}"))?
     };
-    let mut pts = Vec::new();
-    for (i, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-        let parsed: Result<Vec<f64>, _> = fields.iter().map(|f| f.parse::<f64>()).collect();
-        match parsed {
-            Ok(v) if v.len() == 3 => pts.push([v[0], v[1], v[2]]),
-            Ok(v) => bail!(
-                "{path}:{}: expected 3 values x,y,z, found {}",
-                i + 1,
-                v.len()
-            ),
-            Err(_) if i == 0 && pts.is_empty() => continue, // header
-            Err(e) => bail!("{path}:{}: `{line}` is not x,y,z numbers ({e})", i + 1),
-        }
-    }
-    Ok(pts)
+    Ok(cloud.points)
 }
 
 fn run(cli: Cli) -> anyhow::Result<bool> {
@@ -75,7 +63,7 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
     let rms = rms_range_residual(&points, &est.params).map_or(Field::Null, |v| Field::Num(v * 1e3));
     fields.push(("rms_residual_mm", rms));
     fields.push(("elapsed_ms", Field::Num(elapsed_ms)));
-    let json = json_object(&fields);
+    let json = epd_io::json::object(&fields);
     let mut out = std::io::stdout().lock();
     match writeln!(out, "{json}").and_then(|()| out.flush()) {
         // A closed pipe: the reader went away; not an error of ours.

@@ -1,0 +1,121 @@
+//! CSV written through the `csv` crate with one rule for the whole workspace: comma
+//! delimited, `\n` after each record, a field quoted (with `"` doubled) exactly when it
+//! holds a comma, a quote, `\n` or `\r`. Numbers are their shortest round-trip decimal
+//! text (Rust's `Display`, no exponent), empty for NaN, ±∞ and no value.
+
+use std::borrow::Cow;
+use std::io::Write;
+
+use epd_core::report::Field;
+
+/// A CSV writer with the workspace's rule (see the module).
+pub fn writer<W: Write>(w: W) -> ::csv::Writer<W> {
+    ::csv::WriterBuilder::new()
+        .delimiter(b',')
+        .terminator(::csv::Terminator::Any(b'\n'))
+        .quote_style(::csv::QuoteStyle::Necessary)
+        .has_headers(false)
+        .from_writer(w)
+}
+
+/// A `csv` error as an I/O error (what the writers here return).
+pub fn io_error(e: ::csv::Error) -> std::io::Error {
+    match e.into_kind() {
+        ::csv::ErrorKind::Io(e) => e,
+        other => std::io::Error::other(format!("{other:?}")),
+    }
+}
+
+/// One record as a line of text, without the final `\n`.
+pub fn line<I, T>(fields: I) -> String
+where
+    I: IntoIterator<Item = T>,
+    T: AsRef<[u8]>,
+{
+    let mut w = writer(Vec::new());
+    // Writing into memory cannot fail.
+    let bytes = w
+        .write_record(fields)
+        .ok()
+        .and_then(|()| w.into_inner().ok())
+        .unwrap_or_default();
+    let mut text = String::from_utf8_lossy(&bytes).into_owned();
+    if text.ends_with('\n') {
+        text.pop();
+    }
+    text
+}
+
+/// A number as CSV text: the shortest decimal that reads back to `v`, empty when `v` is
+/// not finite.
+pub fn num(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v}")
+    } else {
+        String::new()
+    }
+}
+
+/// A report value as CSV text (before quoting): numbers as [`num`], empty for no value.
+pub fn field(f: &Field) -> Cow<'_, str> {
+    match f {
+        Field::Num(v) => Cow::Owned(num(*v)),
+        Field::Null => Cow::Borrowed(""),
+        Field::Int(v) => Cow::Owned(v.to_string()),
+        Field::Bool(b) => Cow::Borrowed(if *b { "true" } else { "false" }),
+        Field::Text(s) => Cow::Borrowed(s),
+    }
+}
+
+/// The values of report fields as one CSV line (no final `\n`), in their order.
+pub fn fields_line(fields: &[(&str, Field)]) -> String {
+    line(fields.iter().map(|(_, v)| field(v).into_owned()))
+}
+
+/// Points (m, sensor frame) as CSV: a header `x,y,z`, then one point per line.
+pub fn write_points<W: Write>(w: &mut W, points: &[[f64; 3]]) -> std::io::Result<()> {
+    let mut c = writer(w);
+    c.write_record(["x", "y", "z"]).map_err(io_error)?;
+    for p in points {
+        c.write_record(p.map(|v| format!("{v}")))
+            .map_err(io_error)?;
+    }
+    c.flush()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_quoting_rule() {
+        assert_eq!(line(["a", "b c", ""]), "a,b c,");
+        assert_eq!(line(["a,b", "say \"hi\""]), "\"a,b\",\"say \"\"hi\"\"\"");
+        assert_eq!(line(["x\ny", "x\ry"]), "\"x\ny\",\"x\ry\"");
+    }
+
+    #[test]
+    fn report_values() {
+        let f = [
+            ("a", Field::Num(1.5)),
+            ("b", Field::Num(f64::NAN)),
+            ("c", Field::Text("x,y".into())),
+            ("d", Field::Bool(true)),
+            ("e", Field::Int(7)),
+            ("f", Field::Null),
+            ("g", Field::Num(1e-7)),
+        ];
+        assert_eq!(fields_line(&f), "1.5,,\"x,y\",true,7,,0.0000001");
+        assert_eq!(num(f64::INFINITY), "");
+    }
+
+    #[test]
+    fn points_with_a_header() {
+        let mut out = Vec::new();
+        write_points(&mut out, &[[1.0, -0.25, 3e-5], [0.0, 0.0, 0.0]]).unwrap();
+        assert_eq!(
+            String::from_utf8(out).unwrap(),
+            "x,y,z\n1,-0.25,0.00003\n0,0,0\n"
+        );
+    }
+}

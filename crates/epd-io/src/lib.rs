@@ -1,0 +1,63 @@
+//! The file formats of the EPD workspace, in one place: every encoding that tof-sim's
+//! frames, the `epd` tool and the bench harness read or write.
+//!
+//! - [`read`]: format detection and the readers' common types ([`PointCloud`],
+//!   [`ReadError`]); the readers themselves in [`ply`], [`pcd`] and [`text`].
+//! - [`ply`]: PLY read and write (ASCII, binary; `intensity`, `segment`, `part`).
+//! - [`csv`]: CSV written through the `csv` crate, one quoting rule; numbers as
+//!   shortest round-trip text; a frame's points as `x,y,z`.
+//! - [`json`]: JSON through `serde_json`, numbers as shortest round-trip decimals; a
+//!   report's fields ([`epd_core::report::Field`]) as one object.
+//! - [`atomic`]: a file written whole (temporary file, fsync of the file and of its
+//!   folder, rename).
+//! - [`depth_png`]: a frame's depth image with its colour bar, drawn with plotters in
+//!   the figures' [`font`].
+//!
+//! epd-core knows no encoding: it gives a report as (key, value) data, and this crate
+//! encodes it. Arrows: epd-core ← tof-sim ← epd-io ← epd-cli, bench-harness.
+#![deny(missing_docs)]
+
+pub mod atomic;
+pub mod csv;
+pub mod depth_png;
+pub mod font;
+pub mod json;
+pub mod pcd;
+pub mod ply;
+pub mod read;
+pub mod text;
+
+pub use read::{Format, MAX_INPUT_BYTES, PointCloud, ReadError, read_bytes, read_from, read_path};
+
+/// Writing a file failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum WriteError {
+    /// An I/O error while writing `what` (a path, or a description).
+    #[error("cannot write {what}: {source}")]
+    Io {
+        /// What was being written.
+        what: String,
+        /// The underlying error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A figure could not be drawn.
+    #[error("cannot draw {what}: {message}")]
+    Draw {
+        /// The figure.
+        what: String,
+        /// The drawing back end's message.
+        message: String,
+    },
+}
+
+impl WriteError {
+    /// An I/O error while writing `what`.
+    pub fn io(what: impl Into<String>, source: std::io::Error) -> Self {
+        WriteError::Io {
+            what: what.into(),
+            source,
+        }
+    }
+}
