@@ -1033,8 +1033,17 @@ fn frame_rows(
     let intensity: Vec<f64> = frame.intensity.iter().map(|&i| i as f64).collect();
     let mut corrected = frame.measured.clone();
     let (_, table_sigma) = table.correct_with_sigmas(&mut corrected, &intensity)?;
-    let sv = survey(&corrected, Method::MlEpd, &opts, &SegmentOptions::default())
-        .context("the geometry survey")?;
+    let sv = survey(&corrected, Method::MlEpd, &opts, &SegmentOptions::default()).with_context(
+        || {
+            format!(
+                "the geometry survey of {} frame {} at {:.2} m ({} valid points)",
+                s.place_name(plan.place),
+                plan.index,
+                plan.x,
+                corrected.iter().filter(|p| **p != [0.0; 3]).count()
+            )
+        },
+    )?;
     let report = GeometryReport::of(&sv);
     let geometry = Geometry {
         found: report.layout,

@@ -401,7 +401,11 @@ pub fn segment(
             let Ok(start) = estimate(&close, method, options) else {
                 continue;
             };
-            let (f, p, r) = refine(pts, start, method, options, seg)?;
+            // A start that cannot be refined (its cut leaves too few points) is one that
+            // did not find a straight section: the frame keeps its first verdict.
+            let Ok((f, p, r)) = refine(pts, start, method, options, seg) else {
+                continue;
+            };
             rounds += r;
             if !at_start(&p) {
                 (fit, prof) = (f, p);
