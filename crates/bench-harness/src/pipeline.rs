@@ -1061,28 +1061,6 @@ fn frame_rows(
             SegmentOptions::default().margin_m,
         )
     });
-    let pick = |v: &[[f64; 3]]| -> Vec<[f64; 3]> {
-        match &keep {
-            None => v.to_vec(),
-            Some(k) => v
-                .iter()
-                .zip(k)
-                .filter(|(_, k)| **k)
-                .map(|(p, _)| *p)
-                .collect(),
-        }
-    };
-    let pick_f = |v: &[f64]| -> Vec<f64> {
-        match &keep {
-            None => v.to_vec(),
-            Some(k) => v
-                .iter()
-                .zip(k)
-                .filter(|(_, k)| **k)
-                .map(|(p, _)| *p)
-                .collect(),
-        }
-    };
     // The Cramér–Rao bound of the heteroscedastic model over the valid pixels in the gate
     // on the sensor's straight pipe (before any bend; none in a bend).
     let first_bend = local.as_ref().and_then(|p| {
@@ -1116,16 +1094,22 @@ fn frame_rows(
     };
     let mut rows = Vec::new();
     for calibrated in [false, true] {
-        let pts = pick(if calibrated {
-            &corrected
-        } else {
-            &frame.measured
-        });
-        let sigma = pick_f(if calibrated {
-            &table_sigma
-        } else {
-            &frame.sigma
-        });
+        let pts = kept(
+            keep.as_deref(),
+            if calibrated {
+                &corrected
+            } else {
+                &frame.measured
+            },
+        );
+        let sigma = kept(
+            keep.as_deref(),
+            if calibrated {
+                &table_sigma
+            } else {
+                &frame.sigma
+            },
+        );
         for method in METHODS {
             let result = match method {
                 _ if withheld => None,
@@ -1162,6 +1146,19 @@ fn frame_rows(
         }
     }
     Ok(rows)
+}
+
+/// The entries of `v` whose `keep` flag is set (all of them without flags).
+fn kept<T: Copy>(keep: Option<&[bool]>, v: &[T]) -> Vec<T> {
+    match keep {
+        None => v.to_vec(),
+        Some(k) => v
+            .iter()
+            .zip(k)
+            .filter(|(_, k)| **k)
+            .map(|(p, _)| *p)
+            .collect(),
+    }
 }
 
 /// Two-sided 95 % quantile of Student's t with ν degrees of freedom (Cornish–Fisher

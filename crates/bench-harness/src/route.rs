@@ -180,9 +180,6 @@ impl Route {
         let elbow = self.in_elbow(x);
         // Start behind the sensor, and behind the fitting the sensor stands in.
         let mut start = x - BEHIND_M;
-        if let Some((f, _)) = elbow {
-            start = f.at_m - BEHIND_M;
-        }
         if let Some(f) = self.fittings.iter().find(|f| f.at_m <= x && x < f.end_m()) {
             start = start.min(f.at_m - BEHIND_M);
         }

@@ -195,7 +195,7 @@ pub fn fit_bend(
 /// elliptic cylinder y²/a² + z²/b² = 1, with s = f/|∇f| for f = y²/a² + z²/b² − 1
 /// and n = ∇f/|∇f| (points on the axis skipped); NaN when none is usable.
 fn straight_robust_sigma(rays: &[(Vector3<f64>, Vector3<f64>)], (a, b): (f64, f64)) -> f64 {
-    let mut e: Vec<f64> = rays
+    let e: Vec<f64> = rays
         .iter()
         .filter_map(|(q, d)| {
             let f = (q.y / a).powi(2) + (q.z / b).powi(2) - 1.0;
@@ -206,12 +206,17 @@ fn straight_robust_sigma(rays: &[(Vector3<f64>, Vector3<f64>)], (a, b): (f64, f6
         })
         .filter(|v| v.is_finite())
         .collect();
+    mad_sigma(e).unwrap_or(f64::NAN)
+}
+
+/// 1.4826·MAD of `e` (the normal σ of its robust spread); `None` when empty.
+fn mad_sigma(mut e: Vec<f64>) -> Option<f64> {
     if e.is_empty() {
-        return f64::NAN;
+        return None;
     }
     let med = crate::check::quantile(&mut e, 0.5);
     let mut dev: Vec<f64> = e.iter().map(|x| (x - med).abs()).collect();
-    1.4826 * crate::check::quantile(&mut dev, 0.5)
+    Some(1.4826 * crate::check::quantile(&mut dev, 0.5))
 }
 
 /// eᵢ = s(q)/|n·d|: the distance along the ray from q to the wall, to first order.
@@ -225,17 +230,11 @@ fn residual(t: &Torus, q: &Vector3<f64>, d: &Vector3<f64>) -> Option<f64> {
 
 fn robust_sigma(rays: &[(Vector3<f64>, Vector3<f64>)], g: &BendGeometry) -> Option<f64> {
     let t = g.torus()?;
-    let mut e: Vec<f64> = rays
+    let e: Vec<f64> = rays
         .iter()
         .filter_map(|(q, d)| residual(&t, q, d))
         .collect();
-    if e.is_empty() {
-        return None;
-    }
-    let med = crate::check::quantile(&mut e, 0.5);
-    let mut dev: Vec<f64> = e.iter().map(|x| (x - med).abs()).collect();
-    let s = 1.4826 * crate::check::quantile(&mut dev, 0.5);
-    (s > 0.0 && s.is_finite()).then_some(s)
+    mad_sigma(e).filter(|s| *s > 0.0 && s.is_finite())
 }
 
 /// The bend's least squares in θ over the rays' points.
