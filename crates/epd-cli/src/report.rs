@@ -125,15 +125,17 @@ impl FileReport {
     pub fn failure(&self) -> Option<String> {
         match &self.outcome {
             Err(msg) => Some(msg.clone()),
+            // In a bend the straight fit has no straight section to stand on: that is the
+            // reason, whatever the fit did.
+            Ok(e) if e.geometry.as_ref().and_then(|g| g.withheld()).is_some() => {
+                e.geometry.as_ref().and_then(|g| g.withheld())
+            }
             Ok(e) if !e.estimate.status.is_converged() => Some(format!(
                 "{} {}: {}",
                 e.estimate.method,
                 e.estimate.status.name(),
                 e.estimate.status.reason()
             )),
-            Ok(e) if e.geometry.as_ref().and_then(|g| g.withheld()).is_some() => {
-                e.geometry.as_ref().and_then(|g| g.withheld())
-            }
             Ok(_) => None,
         }
     }
@@ -144,8 +146,9 @@ impl FileReport {
     pub fn fields(&self) -> Vec<(&'static str, Field)> {
         let mut f = self.all_fields();
         let withheld = match &self.outcome {
-            Ok(e) if !e.estimate.status.is_converged() => Some(e.estimate.status.reason()),
-            Ok(e) => e.geometry.as_ref().and_then(|g| g.withheld()),
+            Ok(e) => e.geometry.as_ref().and_then(|g| g.withheld()).or_else(|| {
+                (!e.estimate.status.is_converged()).then(|| e.estimate.status.reason())
+            }),
             Err(_) => None,
         };
         if let Some(why) = withheld {
@@ -243,6 +246,14 @@ impl FileReport {
     pub fn text(&self) -> String {
         match &self.outcome {
             Err(msg) => format!("{}: error: {msg}", self.file),
+            Ok(e) if e.geometry.as_ref().and_then(|g| g.withheld()).is_some() => format!(
+                "{}: {} — no result",
+                self.file,
+                e.geometry
+                    .as_ref()
+                    .and_then(|g| g.withheld())
+                    .unwrap_or_default()
+            ),
             Ok(e) if !e.estimate.status.is_converged() => format!(
                 "{}: {} {} after {} iterations, {} points: {} — no result",
                 self.file,
@@ -251,14 +262,6 @@ impl FileReport {
                 e.estimate.iterations,
                 e.estimate.n_points,
                 e.estimate.status.reason()
-            ),
-            Ok(e) if e.geometry.as_ref().and_then(|g| g.withheld()).is_some() => format!(
-                "{}: {} — no result",
-                self.file,
-                e.geometry
-                    .as_ref()
-                    .and_then(|g| g.withheld())
-                    .unwrap_or_default()
             ),
             Ok(e) => {
                 let est = &e.estimate;
@@ -410,5 +413,15 @@ mod tests {
         let get = |k: &str| f.iter().find(|(n, _)| *n == k).unwrap().1.clone();
         assert_eq!(get("d_max_mm"), Field::Null);
         assert!(matches!(get("error"), Field::Text(t) if t.contains("in a bend")));
+        // In a bend, a straight fit that did not converge either: the bend is the reason
+        // given everywhere (the fit on a few centimetres of straight wall means nothing).
+        if let Ok(e) = &mut surveyed.outcome {
+            e.estimate.status = epd_core::FitStatus::IterationLimit;
+        }
+        let f = surveyed.fields();
+        let get = |k: &str| f.iter().find(|(n, _)| *n == k).unwrap().1.clone();
+        assert!(matches!(get("error"), Field::Text(t) if t.contains("in a bend")));
+        assert!(surveyed.failure().is_some_and(|t| t.contains("in a bend")));
+        assert!(surveyed.text().contains("in a bend"));
     }
 }
