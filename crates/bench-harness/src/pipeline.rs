@@ -1444,6 +1444,7 @@ fn profile_points(rows: &[Row]) -> Vec<ProfilePoint> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use epd_core::segment::Layout;
 
     #[test]
     fn student_t_quantiles() {
@@ -1451,5 +1452,41 @@ mod tests {
         for (nu, t) in [(9.0, 2.262_157), (49.0, 2.009_575), (1000.0, 1.962_339)] {
             assert!((t95(nu) - t).abs() / t < 2e-3, "{nu}: {}", t95(nu));
         }
+    }
+
+    /// Regression: with a 256-cell mesh, the frame 0.4 m before the elbow made the
+    /// survey's near-point restart cut the straight section to too few points, and the
+    /// whole survey failed ("only 0 usable points") instead of saying `in_bend`.
+    #[test]
+    fn the_frame_before_the_elbow_is_surveyed_with_a_coarse_mesh() {
+        let path = Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../scenarios/pipeline_run.toml"
+        ));
+        let source = std::fs::read_to_string(path).expect("the committed scenario");
+        let source = source.replace("[pipeline]\n", "[pipeline]\nmesh_segments = 256\n");
+        let s = PipelineScenario::parse(path, &source).expect("a valid scenario");
+        let plan = s
+            .plans()
+            .into_iter()
+            .find(|p| (p.x - 17.6).abs() < 1e-9)
+            .expect("a frame at 17.6 m");
+        let (_, frame, _) = s.frame(&plan).expect("the frame");
+        let (table, _) = calibrate(&s).expect("the rig's table");
+        let intensity: Vec<f64> = frame.intensity.iter().map(|&i| i as f64).collect();
+        let mut corrected = frame.measured.clone();
+        table
+            .correct_with_sigmas(&mut corrected, &intensity)
+            .expect("the table applies");
+        let opts = options(s.range_gate).expect("options");
+        let sv = survey(&corrected, Method::MlEpd, &opts, &SegmentOptions::default())
+            .expect("a verdict, not an error");
+        // The elbow starts 0.4 m ahead: the survey must see a bend (today it says the
+        // sensor is already in it, and the estimate is withheld).
+        let layout = sv.segmentation.layout;
+        assert!(
+            matches!(layout, Layout::InBend | Layout::BendAhead),
+            "{layout:?}"
+        );
     }
 }
