@@ -34,7 +34,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
-use epd_core::segment::{Layout, SegmentOptions, clock_angle_deg, survey};
+use epd_core::segment::{SegmentOptions, clock_angle_deg, survey};
 use epd_core::{EstimateOptions, Loss, Method, Params, estimate};
 use rayon::prelude::*;
 use serde::Deserialize;
@@ -372,7 +372,7 @@ fn frame_rows(s: &ApproachScenario, di: usize, k: usize) -> anyhow::Result<[Fram
         frame: k,
         segmented: true,
         geometry: seg.layout.name(),
-        dmean_err_mm: if seg.layout == Layout::InBend {
+        dmean_err_mm: if seg.straight_withheld {
             nan
         } else {
             err(&seg.straight.params)

@@ -397,6 +397,9 @@ pub fn estimate_points(
         ))
     });
     let est = match (&sigmas, &survey) {
+        // No straight section to fit on its own (in a bend, or its end too close): the
+        // report withholds the estimate and says why; nothing more to fit.
+        (_, Some(s)) if s.segmentation.straight_withheld => s.segmentation.straight,
         // The survey's straight estimate is the (unweighted) estimate on the straight
         // section's points: all of them when nothing lies ahead.
         (None, Some(s)) => s.segmentation.straight,

@@ -54,6 +54,9 @@ pub struct GeometryReport {
     pub bend_angle_deg: Option<f64>,
     /// The bend's direction as a clock angle seen from the sensor (deg: 0 up, 90 right).
     pub bend_direction_deg: Option<f64>,
+    /// Whether the straight estimate is withheld (in a bend, or too little straight
+    /// pipe in view before what lies ahead).
+    pub straight_withheld: bool,
 }
 
 impl GeometryReport {
@@ -69,15 +72,34 @@ impl GeometryReport {
             bend_direction_deg: s
                 .bend
                 .map(|b| epd_core::segment::clock_angle_deg(&beta, b.geometry.direction)),
+            straight_withheld: seg.straight_withheld,
         }
     }
 
-    /// Why the straight estimate is withheld: the sensor is in the bend.
+    /// Why the straight estimate is withheld: the sensor is in the bend, or what lies
+    /// ahead starts too close for the straight pipe before it to be measured.
     pub fn withheld(&self) -> Option<String> {
-        (self.layout == "in_bend").then(|| {
-            "the sensor is in a bend: no straight section in view to estimate (geometry \
-             in_bend)"
-                .to_string()
+        if self.layout == "in_bend" {
+            return Some(
+                "the sensor is in a bend: no straight section in view to estimate (geometry \
+                 in_bend)"
+                    .to_string(),
+            );
+        }
+        self.straight_withheld.then(|| {
+            let what = if self.layout == "tee_ahead" {
+                "a tee's branch opening"
+            } else {
+                "a bend"
+            };
+            let at = self
+                .straight_until_m
+                .map_or(String::new(), |x| format!(" {x:.2} m ahead"));
+            format!(
+                "{what} starts{at}: too little straight pipe in view before it (within the \
+                 range gate) to estimate (geometry {})",
+                self.layout
+            )
         })
     }
 }
@@ -401,6 +423,7 @@ mod tests {
                 bend_radius_mm: Some(762.0),
                 bend_angle_deg: Some(60.0),
                 bend_direction_deg: Some(90.0),
+                straight_withheld: false,
             });
         }
         let keys: Vec<&str> = surveyed.fields().into_iter().map(|(k, _)| k).collect();
@@ -415,6 +438,7 @@ mod tests {
         assert!(matches!(get("error"), Field::Text(t) if t.contains("in a bend")));
         // In a bend, a straight fit that did not converge either: the bend is the reason
         // given everywhere (the fit on a few centimetres of straight wall means nothing).
+        let converged = ok.outcome.as_ref().map(|e| e.estimate.status).unwrap();
         if let Ok(e) = &mut surveyed.outcome {
             e.estimate.status = epd_core::FitStatus::IterationLimit;
         }
@@ -423,5 +447,19 @@ mod tests {
         assert!(matches!(get("error"), Field::Text(t) if t.contains("in a bend")));
         assert!(surveyed.failure().is_some_and(|t| t.contains("in a bend")));
         assert!(surveyed.text().contains("in a bend"));
+        // A tee 0.35 m ahead, too close for the straight pipe before it: withheld, with
+        // where the opening starts.
+        if let Ok(e) = &mut surveyed.outcome {
+            e.estimate.status = converged;
+            let g = e.geometry.as_mut().unwrap();
+            (g.layout, g.straight_until_m, g.straight_withheld) = ("tee_ahead", Some(0.35), true);
+        }
+        let f = surveyed.fields();
+        let get = |k: &str| f.iter().find(|(n, _)| *n == k).unwrap().1.clone();
+        assert_eq!(get("d_min_mm"), Field::Null);
+        let why = "a tee's branch opening starts 0.35 m ahead: too little straight pipe";
+        assert!(matches!(get("error"), Field::Text(t) if t.contains(why)));
+        assert!(surveyed.failure().is_some_and(|t| t.contains(why)));
+        assert!(surveyed.text().contains(why));
     }
 }

@@ -15,7 +15,10 @@
 //! pipe, however tilted, has none; a bend moves its tube toward its centre of curvature
 //! (the wall on that side out, the opposite wall in), a tee's opening lets the points on
 //! its side run outward. A slice departs when its shift exceeds `threshold_sigmas` of its
-//! own standard error and `min_shift_m`, in `persistence` consecutive slices. The
+//! own standard error and `min_shift_m`, or when one sector's median lies that far
+//! *outside* the harmonic fit (a *bump*: the opening's one or two sectors, whose rays
+//! run on to the branch's far wall, are imprecise medians that the weighted harmonic
+//! hardly follows), in `persistence` consecutive slices. The
 //! departure is then located to the first departing slice's edge refined by the
 //! shift's growth (a bend's centreline leaves the axis as R_b − √(R_b² − s²) at an axial
 //! distance s past its start), the straight pipe refitted on the points before it (less
@@ -147,6 +150,21 @@ pub struct Slice {
     pub shift_se_m: f64,
     /// Median deviation of the sector opposite the shift (m), NaN without points.
     pub opposite_m: f64,
+    /// The largest outward excess of one sector's median over the slice's harmonic fit
+    /// c₀ + c₁cos ψ + c₂sin ψ (m), NaN without a fit: a branch opening lets the rays
+    /// that cross it run on to the branch's far wall, so its one or two sectors lie far
+    /// outside the wall while the rest of the slice stays on it, a local bump that the
+    /// first harmonic, weighted by the sectors' precisions, hardly follows.
+    pub bump_m: f64,
+    /// Standard error of `bump_m` (the sector median's and the fit's there) (m).
+    pub bump_se_m: f64,
+    /// Polar angle ψ of the bump's sector centre, from +Y toward +Z (rad).
+    pub bump_psi: f64,
+    /// Whether the bump's sector had a usable median in the slice before: the wall was
+    /// in view on that side before the bump. When it was not, an opening may begin
+    /// where the view does not reach, and the points before the bump may hold some of
+    /// it.
+    pub bump_follows_wall: bool,
 }
 
 impl Slice {
@@ -161,9 +179,21 @@ impl Slice {
     }
 
     /// Whether the shift is significant under `o`.
-    pub fn departs(&self, o: &SegmentOptions) -> bool {
+    pub fn shifts(&self, o: &SegmentOptions) -> bool {
         let s = self.shift();
         self.n_sectors >= 6 && s > o.min_shift_m && s > o.threshold_sigmas * self.shift_se_m
+    }
+
+    /// Whether one sector's outward bump is significant under `o` (same thresholds as
+    /// the shift).
+    pub fn bumps(&self, o: &SegmentOptions) -> bool {
+        let b = self.bump_m;
+        self.n_sectors >= 6 && b > o.min_shift_m && b > o.threshold_sigmas * self.bump_se_m
+    }
+
+    /// Whether the slice departs from the straight pipe: a significant shift or bump.
+    pub fn departs(&self, o: &SegmentOptions) -> bool {
+        self.shifts(o) || self.bumps(o)
     }
 }
 
@@ -176,8 +206,14 @@ pub struct Segmentation {
     /// `None` when the straight section runs out of view or no straight section is in
     /// view.
     pub straight_until: Option<f64>,
-    /// The straight section's estimate, on its points only.
+    /// The straight section's estimate, on its points only — unless
+    /// `straight_withheld`.
     pub straight: Estimate,
+    /// Whether `straight` must not be reported: the sensor is in a bend
+    /// ([`Layout::InBend`]), or the straight section ends so close ahead that too few of
+    /// its points (within the range gate) remain to fit it on its own; then `straight`
+    /// is the last fit made, on points beyond its end too.
+    pub straight_withheld: bool,
     /// Clean points beyond the straight section's end (its bend or tee), in the SCS.
     pub beyond: Vec<[f64; 3]>,
     /// Direction of the departure in the straight fit's cross-section: the angle from
@@ -244,7 +280,7 @@ pub fn profile(points: &[[f64; 3]], beta: &Params, o: &SegmentOptions) -> Vec<Sl
         let k = ((psi.rem_euclid(tau) / tau * ns as f64) as usize).min(ns - 1);
         cells[i * ns + k].push(d);
     }
-    (0..n_slices)
+    let mut slices: Vec<Slice> = (0..n_slices)
         .map(|i| {
             slice_stats(
                 &mut cells[i * ns..(i + 1) * ns],
@@ -252,7 +288,14 @@ pub fn profile(points: &[[f64; 3]], beta: &Params, o: &SegmentOptions) -> Vec<Sl
                 o,
             )
         })
-        .collect()
+        .collect();
+    for (i, s) in slices.iter_mut().enumerate().skip(1) {
+        if s.bump_psi.is_finite() {
+            let k = ((s.bump_psi / tau * ns as f64) as usize).min(ns - 1);
+            s.bump_follows_wall = cells[(i - 1) * ns + k].len() >= o.min_points;
+        }
+    }
+    slices
 }
 
 /// One slice's statistics from its sectors' deviations.
@@ -286,6 +329,10 @@ fn slice_stats(sectors: &mut [Vec<f64>], start_m: f64, o: &SegmentOptions) -> Sl
         shift_m: [f64::NAN; 2],
         shift_se_m: f64::NAN,
         opposite_m: f64::NAN,
+        bump_m: f64::NAN,
+        bump_se_m: f64::NAN,
+        bump_psi: f64::NAN,
+        bump_follows_wall: false,
     };
     if meds.len() < 3 {
         return out;
@@ -313,6 +360,17 @@ fn slice_stats(sectors: &mut [Vec<f64>], start_m: f64, o: &SegmentOptions) -> Sl
     } else {
         (0.5 * (inv[(1, 1)] + inv[(2, 2)])).sqrt()
     };
+    // The sector furthest outside the harmonic fit, in units of its standard error.
+    let mut best = f64::NEG_INFINITY;
+    for &(psi, m, var) in &meds {
+        let row = Vector3::new(1.0, psi.cos(), psi.sin());
+        let excess = m - row.dot(&c);
+        let se = (var + (row.transpose() * inv * row)[0].max(0.0)).sqrt();
+        if excess / se > best {
+            best = excess / se;
+            (out.bump_m, out.bump_se_m, out.bump_psi) = (excess, se, psi);
+        }
+    }
     let dir = c[2].atan2(c[1]);
     let opp = ((dir + std::f64::consts::PI).rem_euclid(tau) / tau * ns as f64) as usize % ns;
     out.opposite_m = by_sector[opp];
@@ -327,17 +385,30 @@ fn first_departure(profile: &[Slice], o: &SegmentOptions) -> Option<usize> {
     })
 }
 
+/// What [`refine`] reached.
+struct Refined {
+    /// The last fit.
+    fit: Estimate,
+    /// Its departure profile.
+    profile: Vec<Slice>,
+    /// Fits made.
+    rounds: usize,
+    /// The end (PCS x, m) whose points before it (less the margin) the last fit used;
+    /// `None` when it used every point.
+    cut: Option<f64>,
+}
+
 /// From the straight fit `fit`: the departure, a refit on the points before it, until
-/// the departure stops moving (at most `max_rounds` refits). Returns the last fit, its
-/// profile and the fits made.
+/// the departure stops moving (at most `max_rounds` refits).
 fn refine(
     pts: &[[f64; 3]],
     mut fit: Estimate,
     method: Method,
     options: &EstimateOptions,
     seg: &SegmentOptions,
-) -> Result<(Estimate, Vec<Slice>, usize), EpdError> {
+) -> Result<Refined, EpdError> {
     let mut end: Option<f64> = None;
+    let mut cut: Option<f64> = None;
     let mut rounds = 1;
     let mut prof = profile(pts, &fit.params, seg);
     loop {
@@ -354,20 +425,31 @@ fn refine(
         let Some(x_end) = end else {
             // The departure vanished with the last refit: fit all points again.
             fit = estimate(pts, method, options)?;
+            cut = None;
             rounds += 1;
             prof = profile(pts, &fit.params, seg);
             continue;
         };
         let before = axial_select(pts, &fit.params, |x| x < x_end - seg.margin_m);
+        // Too little straight pipe left to refit (too few points before the end, or
+        // none of them within the range gate): the sensor is in the bend.
         if before.len() < 1000 {
-            // Too little straight pipe left to refit: the sensor is in the bend.
             break;
         }
-        fit = estimate(&before, method, options)?;
+        let Ok(refit) = estimate(&before, method, options) else {
+            break;
+        };
+        fit = refit;
+        cut = Some(x_end);
         rounds += 1;
         prof = profile(pts, &fit.params, seg);
     }
-    Ok((fit, prof, rounds))
+    Ok(Refined {
+        fit,
+        profile: prof,
+        rounds,
+        cut,
+    })
 }
 
 /// The straight section, its end and what lies beyond, by refitting on the points
@@ -382,7 +464,12 @@ pub fn segment(
     let cloud = clean(points);
     let pts: &[[f64; 3]] = &cloud.points;
     let first = estimate(pts, method, options)?;
-    let (mut fit, mut prof, mut rounds) = refine(pts, first, method, options, seg)?;
+    let Refined {
+        mut fit,
+        profile: mut prof,
+        mut rounds,
+        mut cut,
+    } = refine(pts, first, method, options, seg)?;
     // A departure from the very first slices: either the sensor is in the bend, or a
     // bend close ahead dragged the first fit (on every point) off the straight pipe.
     // Start again from the near points only (forward coordinate within 1.0, then 0.6 m)
@@ -403,33 +490,55 @@ pub fn segment(
             };
             // A start that cannot be refined (its cut leaves too few points) is one that
             // did not find a straight section: the frame keeps its first verdict.
-            let Ok((f, p, r)) = refine(pts, start, method, options, seg) else {
+            let Ok(r) = refine(pts, start, method, options, seg) else {
                 continue;
             };
-            rounds += r;
-            if !at_start(&p) {
-                (fit, prof) = (f, p);
+            rounds += r.rounds;
+            if !at_start(&r.profile) {
+                (fit, prof, cut) = (r.fit, r.profile, r.cut);
                 break;
             }
         }
     }
     let departure = first_departure(&prof, seg);
     let straight_until = departure.map(|i| locate_end(&prof, i, seg));
-    let direction = departure.map(|i| {
-        // The departure's direction from the first few departing slices, weighted by
-        // their shifts.
-        let (sy, sz) = prof[i..(i + 4).min(prof.len())]
-            .iter()
-            .filter(|s| s.departs(seg))
-            .fold((0.0, 0.0), |(y, z), s| (y + s.shift_m[0], z + s.shift_m[1]));
-        sz.atan2(sy)
-    });
+    let direction = departure.map(|i| departure_direction(&prof[i..], seg));
     let x_first = prof.first().map_or(0.0, |s| s.start_m);
     let layout = match (departure, straight_until) {
         (None, _) | (_, None) => Layout::Straight,
         (Some(_), Some(x)) if x <= x_first + seg.slice_m => Layout::InBend,
         (Some(i), Some(_)) => classify(&prof[i..], seg),
     };
+    // The straight estimate must come from the straight section's points alone. When
+    // the last refit could not be cut at the end found (too few points before it, or
+    // none within the range gate), try once more; failing that, the estimate is
+    // withheld: the sensor is too close to the end to measure the straight pipe.
+    let mut withheld = layout == Layout::InBend;
+    // A departure by a bump (a branch opening) on a side of the wall that was not in
+    // view just before it: the opening may begin where the view does not reach, and
+    // the straight section's points may hold some of it.
+    if let Some(i) = departure
+        && !withheld
+        && !prof[i].shifts(seg)
+        && !prof[opening_slice(&prof, i)].bump_follows_wall
+    {
+        withheld = true;
+    }
+    if let (Some(x), false) = (straight_until, withheld)
+        && !cut.is_some_and(|c| c <= x + 0.5 * seg.slice_m)
+    {
+        let before = axial_select(pts, &fit.params, |a| a < x - seg.margin_m);
+        let refit = (before.len() >= 1000)
+            .then(|| estimate(&before, method, options).ok())
+            .flatten();
+        match refit {
+            Some(refit) => {
+                fit = refit;
+                rounds += 1;
+            }
+            None => withheld = true,
+        }
+    }
     // The fits ran on the clean points: the invalid ones count as dropped, as in
     // `estimate`.
     fit.n_dropped += cloud.dropped;
@@ -445,6 +554,7 @@ pub fn segment(
             straight_until
         },
         straight: fit,
+        straight_withheld: withheld,
         beyond,
         direction,
         profile: prof,
@@ -482,19 +592,68 @@ fn axial_select(points: &[[f64; 3]], beta: &Params, keep: impl Fn(f64) -> bool) 
         .collect()
 }
 
+/// Where a branch opening starts, from the first departing slice `i`: that slice's near
+/// edge, or up to two slices earlier while the slice before shows a bump in the same
+/// sector above [`EDGE_SIGMAS`] of its standard error (without the `min_shift_m` floor).
+/// The opening's first centimetres depart weakly: near its edge the rays that cross it
+/// run far up the branch, where the camera drops most of them as too faint.
+fn opening_start(profile: &[Slice], i: usize) -> f64 {
+    profile[opening_slice(profile, i)].start_m
+}
+
+/// The slice where a branch opening starts ([`opening_start`]).
+fn opening_slice(profile: &[Slice], i: usize) -> usize {
+    let psi = profile[i].bump_psi;
+    let mut j = i;
+    while j > 0 && i - j < 2 {
+        let p = &profile[j - 1];
+        let weak_bump = p.n_sectors >= 6
+            && (p.bump_psi - psi).abs() < 1e-9
+            && p.bump_m > EDGE_SIGMAS * p.bump_se_m;
+        if !weak_bump {
+            break;
+        }
+        j -= 1;
+    }
+    j
+}
+
+/// A slice before an opening's first departing slice belongs to the opening when its
+/// bump, in the same sector, exceeds this many standard errors.
+const EDGE_SIGMAS: f64 = 3.0;
+
+/// The departure's direction (angle from the PCS +Y toward +Z, rad) from the first few
+/// slices of the departing `run`: their shifts' sum over the slices that shift, else
+/// the first bump's sector.
+fn departure_direction(run: &[Slice], o: &SegmentOptions) -> f64 {
+    let (sy, sz) = run
+        .iter()
+        .take(4)
+        .filter(|s| s.shifts(o))
+        .fold((0.0, 0.0), |(y, z), s| (y + s.shift_m[0], z + s.shift_m[1]));
+    if sy != 0.0 || sz != 0.0 {
+        return sz.atan2(sy);
+    }
+    run.iter().find(|s| s.bumps(o)).map_or(0.0, |s| s.bump_psi)
+}
+
 /// The axial coordinate where the departure starts, from the first departing slice
-/// `i`: the shift along the departure's direction u (that of the departing run) over
+/// `i`. A departure by a bump only (a branch opening, which starts abruptly) starts at
+/// slice `i`'s near edge. Otherwise, the shift along the departure's direction u (that of the departing run) over
 /// the run and three slices before it, fitted by c·(x − x₀)² for x > x₀ and 0 before
 /// (the leading order of R − √(R² − (x − x₀)²), a bend's centreline leaving the axis);
 /// x₀ on a grid of slice/20 steps from three slices before slice `i` to its far edge,
 /// c ≥ 0 by weighted least squares for each x₀. A tee, whose shift jumps, gives the x₀
 /// where the jump is best placed.
 fn locate_end(profile: &[Slice], i: usize, o: &SegmentOptions) -> f64 {
+    if !profile[i].shifts(o) {
+        return opening_start(profile, i);
+    }
     let lo_i = i.saturating_sub(3);
     let hi_i = (i + 6).min(profile.len());
     let (uy, uz) = profile[i..hi_i]
         .iter()
-        .filter(|s| s.departs(o))
+        .filter(|s| s.shifts(o))
         .fold((0.0, 0.0), |(y, z), s| (y + s.shift_m[0], z + s.shift_m[1]));
     let norm = uy.hypot(uz);
     let (uy, uz) = if norm > 0.0 {
@@ -538,10 +697,11 @@ fn locate_end(profile: &[Slice], i: usize, o: &SegmentOptions) -> f64 {
     best.1
 }
 
-/// Bend or tee, from the departing slices: a bend pulls the wall opposite its shift
-/// inward (that sector's median goes below minus a third of the shift) in most of them.
+/// Bend or tee, from the slices of the departing run that shift: a bend pulls the wall
+/// opposite its shift inward (that sector's median goes below minus a third of the
+/// shift) in most of them. A departure by bumps alone is a tee.
 fn classify(run: &[Slice], o: &SegmentOptions) -> Layout {
-    let departing: Vec<&Slice> = run.iter().take(8).filter(|s| s.departs(o)).collect();
+    let departing: Vec<&Slice> = run.iter().take(8).filter(|s| s.shifts(o)).collect();
     let pulled = departing
         .iter()
         .filter(|s| s.opposite_m.is_finite() && s.opposite_m < -s.shift() / 3.0)
@@ -592,6 +752,15 @@ pub fn survey(
             bend: None,
         });
     };
+    // An opening is at most the branch's diameter long, and a branch is no wider than
+    // the main pipe: the wall must be back within a diameter and the resuming slices.
+    let straight = s.straight.params;
+    let within = straight.d_max + RESUMED_SLICES as f64 * seg.slice_m;
+    if first_departure(&s.profile, seg).is_some_and(|i| resumes(&s.profile[i..], seg, within)) {
+        // The wall comes back onto the straight pipe beyond the departure: the main run
+        // goes on past an opening.
+        return Ok(tee(s, seg));
+    }
     let beta = s.straight.params;
     let d_mean = 0.5 * (beta.d_max + beta.d_min);
     let start = crate::bend::start_from(&beta, end, dir, 1.5 * d_mean);
@@ -611,19 +780,61 @@ pub fn survey(
             s.straight_until = Some(b.geometry.start);
             s.direction = Some(b.geometry.direction);
         }
-        None => {
-            // A branch opening starts abruptly: at the near edge of the first departing
-            // slice (within one slice), not where a bend's growth would start.
-            s.layout = Layout::TeeAhead;
-            if let Some(i) = first_departure(&s.profile, seg) {
-                s.straight_until = Some(s.profile[i].start_m);
-            }
-        }
+        None => return Ok(tee(s, seg)),
     }
     Ok(Survey {
         segmentation: s,
         bend: accepted,
     })
+}
+
+/// The survey's verdict for a tee. A branch opening starts abruptly: at the near edge
+/// of the first departing slice (within one slice), not where a bend's growth would
+/// start.
+fn tee(mut s: Segmentation, seg: &SegmentOptions) -> Survey {
+    s.layout = Layout::TeeAhead;
+    if let Some(i) = first_departure(&s.profile, seg) {
+        s.straight_until = Some(opening_start(&s.profile, i));
+    }
+    Survey {
+        segmentation: s,
+        bend: None,
+    }
+}
+
+/// Slices back on the straight pipe, in a row, that show the wall resumes after a
+/// departure.
+const RESUMED_SLICES: usize = 4;
+
+/// Whether the wall comes back onto the straight pipe after the departing `run`
+/// (which starts at a departing slice) within `within_m` of its start:
+/// [`RESUMED_SLICES`] consecutive slices, each with enough sectors for a fit, that
+/// neither depart nor widen (|c₀| within `2·min_shift_m` or `threshold_sigmas` of the
+/// shift's standard error). A bend never resumes (its tube moves ever further off the
+/// straight axis; far past its start, where the tube has turned away, the points lie
+/// well inside the straight wall); a tee's main run does, past an opening no longer
+/// than the branch's diameter.
+fn resumes(run: &[Slice], o: &SegmentOptions, within_m: f64) -> bool {
+    let Some(x0) = run.first().map(|s| s.start_m) else {
+        return false;
+    };
+    let mut in_row = 0;
+    for s in run.iter().skip_while(|s| s.departs(o)) {
+        if s.start_m > x0 + within_m {
+            break;
+        }
+        let on_wall =
+            s.widening_m.abs() <= (2.0 * o.min_shift_m).max(o.threshold_sigmas * s.shift_se_m);
+        if s.departs(o) || s.n_sectors < 6 || !s.shift().is_finite() || !on_wall {
+            in_row = 0;
+            continue;
+        }
+        in_row += 1;
+        if in_row >= RESUMED_SLICES {
+            return true;
+        }
+    }
+    false
 }
 
 /// The clock angle (deg, [0, 360)) of a direction of the straight fit's cross-section
@@ -643,5 +854,72 @@ pub fn straight_mask(points: &[[f64; 3]], beta: &Params, end: f64, margin: f64) 
     match model_axial(points, beta) {
         Some(x) => x.into_iter().map(|x| x < end - margin).collect(),
         None => vec![false; points.len()],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A slice at `x` with a shift (m) toward +Y and a bump (m), standard errors 0.1 mm.
+    fn slice(x: f64, shift: f64, bump: f64) -> Slice {
+        Slice {
+            start_m: x,
+            n_points: 1000,
+            n_sectors: 12,
+            widening_m: 0.0,
+            shift_m: [shift, 0.0],
+            shift_se_m: 1e-4,
+            opposite_m: -shift,
+            bump_m: bump,
+            bump_se_m: 1e-4,
+            bump_psi: 0.5,
+            bump_follows_wall: true,
+        }
+    }
+
+    #[test]
+    fn a_bump_departs_and_is_a_tee_that_resumes() {
+        let o = SegmentOptions::default();
+        // Wall, an opening (bumps of 30 mm) over three slices, wall again.
+        let mut prof: Vec<Slice> = (0..12).map(|i| slice(0.05 * i as f64, 0.0, 0.0)).collect();
+        for s in &mut prof[4..7] {
+            s.bump_m = 0.03;
+        }
+        // The slice before the opening: a weak bump (5σ, under min_shift) on its side.
+        prof[3].bump_m = 5e-4;
+        let i = first_departure(&prof, &o).unwrap();
+        assert_eq!(i, 4);
+        assert!(!prof[i].shifts(&o) && prof[i].bumps(&o));
+        assert_eq!(opening_slice(&prof, i), 3);
+        assert_eq!(locate_end(&prof, i, &o), prof[3].start_m);
+        assert_eq!(classify(&prof[i..], &o), Layout::TeeAhead);
+        assert!(resumes(&prof[i..], &o, 0.5));
+        // Three slices of wall after it are not enough to say it resumes, nor is a wall
+        // farther than `within` from the departure.
+        assert!(!resumes(&prof[i..10], &o, 0.5));
+        assert!(!resumes(&prof[i..], &o, 0.1));
+        // Nor a wall well inside the straight one (a bend's tube, turned away).
+        let mut inside = prof.clone();
+        for s in &mut inside[7..] {
+            s.widening_m = -0.05;
+        }
+        assert!(!resumes(&inside[i..], &o, 0.5));
+    }
+
+    #[test]
+    fn a_growing_shift_never_resumes() {
+        let o = SegmentOptions::default();
+        // A bend: the shift grows as (x − x₀)²/(2R) past x₀ = 0.2 m, R = 0.76 m.
+        let prof: Vec<Slice> = (0..20)
+            .map(|i| {
+                let x = 0.05 * i as f64;
+                slice(x, (x - 0.2).max(0.0).powi(2) / 1.52, 0.0)
+            })
+            .collect();
+        let i = first_departure(&prof, &o).unwrap();
+        assert!(prof[i].shifts(&o));
+        assert!(!resumes(&prof[i..], &o, 1.0));
+        assert_eq!(classify(&prof[i..], &o), Layout::BendAhead);
     }
 }
