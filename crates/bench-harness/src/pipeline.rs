@@ -28,6 +28,7 @@ use std::time::Instant;
 use anyhow::Context;
 use epd_cli::report::GeometryReport;
 use epd_cli::table::CalibrationTable;
+use epd_core::FitOutcome;
 use epd_core::calibration::{CalibrationFrame, CalibrationSettings};
 use epd_core::segment::{SegmentOptions, straight_mask, survey};
 use epd_core::{
@@ -912,6 +913,28 @@ struct Geometry {
     truth: TruthAhead,
 }
 
+/// What became of one method's estimate on one frame (`status` in `profile.csv`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum FrameStatus {
+    /// The estimator ran: how its fit ended.
+    Fit(FitOutcome),
+    /// Not estimated: the survey found no straight section to fit on its own.
+    Withheld,
+    /// The estimator returned an error (too few points, …).
+    Error,
+}
+
+impl FrameStatus {
+    /// The name in `profile.csv`: the fit's outcome, `withheld` or `error`.
+    fn name(self) -> &'static str {
+        match self {
+            FrameStatus::Fit(o) => o.name(),
+            FrameStatus::Withheld => "withheld",
+            FrameStatus::Error => "error",
+        }
+    }
+}
+
 /// One estimate of one frame.
 #[derive(Clone, Debug)]
 struct Row {
@@ -923,7 +946,7 @@ struct Row {
     distance_m: f64,
     method: &'static str,
     calibrated: bool,
-    status: String,
+    status: FrameStatus,
     /// Dmax, Dmin (m) when converged.
     d: Option<(f64, f64)>,
     truth: (f64, f64),
@@ -1119,15 +1142,15 @@ fn frame_rows(
                 _ => Some(estimate_weighted(&pts, &sigma, Method::MlEpd, &opts)),
             };
             let (status, d, n_points) = match result {
-                None => ("withheld".to_string(), None, 0),
+                None => (FrameStatus::Withheld, None, 0),
                 Some(Ok(e)) => (
-                    e.status.name().to_string(),
+                    FrameStatus::Fit(e.status.outcome()),
                     e.status
                         .is_converged()
                         .then_some((e.params.d_max, e.params.d_min)),
                     e.n_points,
                 ),
-                Some(Err(_)) => ("error".to_string(), None, 0),
+                Some(Err(_)) => (FrameStatus::Error, None, 0),
             };
             rows.push(Row {
                 section: plan.place,
@@ -1252,7 +1275,7 @@ fn profile_line(s: &PipelineScenario, r: &Row) -> String {
         num(r.distance_m),
         r.method.to_string(),
         r.calibrated.to_string(),
-        r.status.clone(),
+        r.status.name().to_string(),
         opt(dmax),
         opt(dmin),
         opt(dmean),
@@ -1362,7 +1385,10 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
     for png in crate::plots::plot_pipeline(s, &profile_points(&rows), &sections)? {
         files.push(write_new(&dir.join(&png.name), &png.bytes)?);
     }
-    let errors = rows.iter().filter(|r| r.status == "error").count();
+    let errors = rows
+        .iter()
+        .filter(|r| r.status == FrameStatus::Error)
+        .count();
     let (git_commit, git_dirty) = crate::run::git_provenance();
     let wall_time_s = start.elapsed().as_secs_f64();
     let meta = serde_json::json!({
