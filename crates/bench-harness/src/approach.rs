@@ -67,15 +67,15 @@ struct Keys {
     distances_m: Vec<f64>,
     frames: usize,
     sigma_m: f64,
-    #[serde(default = "twenty")]
+    #[serde(default = "crate::defaults::nominal_od_in")]
     nominal_od_in: f64,
-    #[serde(default = "twelve")]
+    #[serde(default = "crate::defaults::wall_mm")]
     wall_mm: f64,
-    #[serde(default = "two_percent")]
+    #[serde(default = "crate::defaults::ovality")]
     ovality: f64,
-    #[serde(default = "one_and_a_half")]
+    #[serde(default = "crate::defaults::bend_radius_d")]
     bend_radius_d: f64,
-    #[serde(default = "ninety")]
+    #[serde(default = "crate::defaults::bend_angle_deg")]
     bend_angle_deg: f64,
     #[serde(default = "forty")]
     direction_deg: f64,
@@ -83,21 +83,6 @@ struct Keys {
     branch_diameter_mm: f64,
 }
 
-fn twenty() -> f64 {
-    20.0
-}
-fn twelve() -> f64 {
-    12.0
-}
-fn two_percent() -> f64 {
-    0.02
-}
-fn one_and_a_half() -> f64 {
-    1.5
-}
-fn ninety() -> f64 {
-    90.0
-}
 fn forty() -> f64 {
     40.0
 }

@@ -189,7 +189,7 @@ fn default_methods() -> Vec<String> {
 #[serde(deny_unknown_fields)]
 struct File {
     name: String,
-    #[serde(default = "one")]
+    #[serde(default = "crate::defaults::seed")]
     seed: u64,
     #[serde(default = "hundred", deserialize_with = "trials_key")]
     trials: usize,
@@ -230,9 +230,6 @@ fn default_loss_scale() -> f64 {
     0.05
 }
 
-fn one() -> u64 {
-    1
-}
 fn hundred() -> usize {
     100
 }
@@ -274,9 +271,9 @@ struct PipeFile {
 impl Default for PipeFile {
     fn default() -> Self {
         Self {
-            nominal_od_in: 20.0,
-            wall_thickness_mm: 12.0,
-            ovality: 0.02,
+            nominal_od_in: crate::defaults::nominal_od_in(),
+            wall_thickness_mm: crate::defaults::wall_mm(),
+            ovality: crate::defaults::ovality(),
         }
     }
 }
