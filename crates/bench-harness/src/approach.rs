@@ -529,7 +529,7 @@ fn write_frames_csv(dir: &Path, rows: &[FrameRow]) -> anyhow::Result<PathBuf> {
         ];
         writeln!(w, "{}", epd_io::csv::line(row)).map_err(wrote(&frames_path))?;
     }
-    Ok(finish(w, &frames_path)?)
+    finish(w, &frames_path)
 }
 
 /// `approach.csv`: one row per distance and fit ([`APPROACH_COLUMNS`]).
@@ -550,7 +550,7 @@ fn write_approach_csv(dir: &Path, summary: &[ApproachRow]) -> anyhow::Result<Pat
         ];
         writeln!(w, "{}", epd_io::csv::line(row)).map_err(wrote(&path))?;
     }
-    Ok(finish(w, &path)?)
+    finish(w, &path)
 }
 
 fn stage(s: &ApproachScenario, dir: &Path, progress: bool) -> anyhow::Result<ApproachReport> {

@@ -1302,8 +1302,10 @@ pub fn plot_approach(
     rows: &[crate::approach::FrameRow],
 ) -> anyhow::Result<Png> {
     type Column = fn(&crate::approach::FrameRow) -> f64;
-    // Per panel: title, y label, and its series: name, colour, with the survey, value.
-    let layout: [(&str, &str, &[(&str, RGBColor, bool, Column)]); 4] = [
+    /// A series: name, colour, with the survey, value.
+    type Bars = (&'static str, RGBColor, bool, Column);
+    // Per panel: title, y label, and its series.
+    let layout: [(&str, &str, &[Bars]); 4] = [
         (
             "mean-diameter error",
             "error (mm)",
