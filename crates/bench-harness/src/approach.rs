@@ -67,15 +67,15 @@ struct Keys {
     distances_m: Vec<f64>,
     frames: usize,
     sigma_m: f64,
-    #[serde(default = "twenty")]
+    #[serde(default = "crate::defaults::nominal_od_in")]
     nominal_od_in: f64,
-    #[serde(default = "twelve")]
+    #[serde(default = "crate::defaults::wall_mm")]
     wall_mm: f64,
-    #[serde(default = "two_percent")]
+    #[serde(default = "crate::defaults::ovality")]
     ovality: f64,
-    #[serde(default = "one_and_a_half")]
+    #[serde(default = "crate::defaults::bend_radius_d")]
     bend_radius_d: f64,
-    #[serde(default = "ninety")]
+    #[serde(default = "crate::defaults::bend_angle_deg")]
     bend_angle_deg: f64,
     #[serde(default = "forty")]
     direction_deg: f64,
@@ -83,26 +83,79 @@ struct Keys {
     branch_diameter_mm: f64,
 }
 
-fn twenty() -> f64 {
-    20.0
-}
-fn twelve() -> f64 {
-    12.0
-}
-fn two_percent() -> f64 {
-    0.02
-}
-fn one_and_a_half() -> f64 {
-    1.5
-}
-fn ninety() -> f64 {
-    90.0
-}
 fn forty() -> f64 {
     40.0
 }
 fn three_hundred() -> f64 {
     300.0
+}
+
+impl Keys {
+    /// The feature ahead, checked against `pipe`; else (key, message).
+    fn feature(&self, pipe: &Pipe) -> Result<Feature, (&'static str, String)> {
+        match self.kind.as_str() {
+            "elbow" => {
+                let radius = self.bend_radius_d * pipe.outer_diameter();
+                if !(radius > 0.6 * pipe.d_max() && radius.is_finite()) {
+                    return Err((
+                        "approach.bend_radius_d",
+                        format!(
+                            "{}: the bend radius must exceed the tube's",
+                            self.bend_radius_d
+                        ),
+                    ));
+                }
+                if !(self.bend_angle_deg > 0.0 && self.bend_angle_deg <= 180.0) {
+                    return Err((
+                        "approach.bend_angle_deg",
+                        format!("{}: must lie in (0, 180]", self.bend_angle_deg),
+                    ));
+                }
+                Ok(Feature::Elbow {
+                    radius,
+                    angle: self.bend_angle_deg.to_radians(),
+                })
+            }
+            "tee" => {
+                let d = self.branch_diameter_mm * 1e-3;
+                if !(d > 0.0 && d <= pipe.d_min()) {
+                    return Err((
+                        "approach.branch_diameter_mm",
+                        format!(
+                            "{}: must be > 0 and at most the pipe's",
+                            self.branch_diameter_mm
+                        ),
+                    ));
+                }
+                Ok(Feature::Tee { branch_diameter: d })
+            }
+            other => Err(("approach.kind", format!("`{other}`: expected elbow or tee"))),
+        }
+    }
+
+    /// The run's size and noise: distances in (0, 20] m, 1 to 1000 frames, σ ≤ 0.2 m.
+    fn check_run(&self) -> Result<(), (&'static str, String)> {
+        if self.distances_m.is_empty() || self.distances_m.iter().any(|d| !(*d > 0.0 && *d <= 20.0))
+        {
+            return Err((
+                "approach.distances_m",
+                format!("{:?}: one or more distances in (0, 20] m", self.distances_m),
+            ));
+        }
+        if !(1..=1000).contains(&self.frames) {
+            return Err((
+                "approach.frames",
+                format!("{}: must lie in [1, 1000]", self.frames),
+            ));
+        }
+        if !(self.sigma_m >= 0.0 && self.sigma_m <= 0.2) {
+            return Err((
+                "approach.sigma_m",
+                format!("{}: must lie in [0, 0.2] m", self.sigma_m),
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// What the sensor approaches.
@@ -165,67 +218,8 @@ impl ApproachScenario {
         };
         pipe.validate()
             .map_err(|e| invalid("approach.nominal_od_in/wall_mm/ovality", e.to_string()))?;
-        let feature = match k.kind.as_str() {
-            "elbow" => {
-                let radius = k.bend_radius_d * pipe.outer_diameter();
-                if !(radius > 0.6 * pipe.d_max() && radius.is_finite()) {
-                    return Err(invalid(
-                        "approach.bend_radius_d",
-                        format!(
-                            "{}: the bend radius must exceed the tube's",
-                            k.bend_radius_d
-                        ),
-                    ));
-                }
-                if !(k.bend_angle_deg > 0.0 && k.bend_angle_deg <= 180.0) {
-                    return Err(invalid(
-                        "approach.bend_angle_deg",
-                        format!("{}: must lie in (0, 180]", k.bend_angle_deg),
-                    ));
-                }
-                Feature::Elbow {
-                    radius,
-                    angle: k.bend_angle_deg.to_radians(),
-                }
-            }
-            "tee" => {
-                let d = k.branch_diameter_mm * 1e-3;
-                if !(d > 0.0 && d <= pipe.d_min()) {
-                    return Err(invalid(
-                        "approach.branch_diameter_mm",
-                        format!(
-                            "{}: must be > 0 and at most the pipe's",
-                            k.branch_diameter_mm
-                        ),
-                    ));
-                }
-                Feature::Tee { branch_diameter: d }
-            }
-            other => {
-                return Err(invalid(
-                    "approach.kind",
-                    format!("`{other}`: expected elbow or tee"),
-                ));
-            }
-        };
-        if k.distances_m.is_empty() || k.distances_m.iter().any(|d| !(*d > 0.0 && *d <= 20.0)) {
-            return Err(invalid(
-                "approach.distances_m",
-                format!("{:?}: one or more distances in (0, 20] m", k.distances_m),
-            ));
-        }
-        if !(1..=1000).contains(&k.frames) {
-            return Err(invalid(
-                "approach.frames",
-                format!("{}: must lie in [1, 1000]", k.frames),
-            ));
-        }
-        if !(k.sigma_m >= 0.0 && k.sigma_m <= 0.2) {
-            return Err(invalid(
-                "approach.sigma_m",
-                format!("{}: must lie in [0, 0.2] m", k.sigma_m),
-            ));
-        }
+        let feature = k.feature(&pipe).map_err(|(key, m)| invalid(key, m))?;
+        k.check_run().map_err(|(key, m)| invalid(key, m))?;
         Ok(Self {
             name: f.name,
             seed: f.seed,
@@ -515,6 +509,50 @@ pub fn run_approach(
     write_run(out, |dir| stage(s, dir, progress))
 }
 
+/// `frames.csv`: one row per frame and fit ([`FRAME_COLUMNS`]).
+fn write_frames_csv(dir: &Path, rows: &[FrameRow]) -> anyhow::Result<PathBuf> {
+    let frames_path = dir.join("frames.csv");
+    let mut w = create_new(&frames_path)?;
+    writeln!(w, "{}", epd_io::csv::line(FRAME_COLUMNS)).map_err(wrote(&frames_path))?;
+    for r in rows {
+        let row = [
+            r.distance_m.to_string(),
+            r.frame.to_string(),
+            r.segmented.to_string(),
+            r.geometry.to_string(),
+            num(r.dmean_err_mm),
+            num(r.straight_until_m),
+            num(r.straight_until_err_mm),
+            num(r.bend_radius_mm),
+            num(r.bend_radius_err_pct),
+            num(r.direction_err_deg),
+        ];
+        writeln!(w, "{}", epd_io::csv::line(row)).map_err(wrote(&frames_path))?;
+    }
+    finish(w, &frames_path)
+}
+
+/// `approach.csv`: one row per distance and fit ([`APPROACH_COLUMNS`]).
+fn write_approach_csv(dir: &Path, summary: &[ApproachRow]) -> anyhow::Result<PathBuf> {
+    let path = dir.join("approach.csv");
+    let mut w = create_new(&path)?;
+    writeln!(w, "{}", epd_io::csv::line(APPROACH_COLUMNS)).map_err(wrote(&path))?;
+    for r in summary {
+        let row = [
+            r.distance_m.to_string(),
+            r.segmented.to_string(),
+            r.n_frames.to_string(),
+            r.n_found.to_string(),
+            num(r.dmean_bias_mm),
+            num(r.dmean_range_mm),
+            num(r.straight_until_err_max_mm),
+            num(r.bend_radius_err_max_pct),
+        ];
+        writeln!(w, "{}", epd_io::csv::line(row)).map_err(wrote(&path))?;
+    }
+    finish(w, &path)
+}
+
 fn stage(s: &ApproachScenario, dir: &Path, progress: bool) -> anyhow::Result<ApproachReport> {
     let start = Instant::now();
     let mut rows = Vec::new();
@@ -534,43 +572,9 @@ fn stage(s: &ApproachScenario, dir: &Path, progress: bool) -> anyhow::Result<App
             rows.extend(d.with_context(|| format!("{} m ahead", s.distances_m[di]))?);
         }
     }
-    let frames_path = dir.join("frames.csv");
-    let mut w = create_new(&frames_path)?;
-    writeln!(w, "{}", epd_io::csv::line(FRAME_COLUMNS)).map_err(wrote(&frames_path))?;
-    for r in &rows {
-        let row = [
-            r.distance_m.to_string(),
-            r.frame.to_string(),
-            r.segmented.to_string(),
-            r.geometry.to_string(),
-            num(r.dmean_err_mm),
-            num(r.straight_until_m),
-            num(r.straight_until_err_mm),
-            num(r.bend_radius_mm),
-            num(r.bend_radius_err_pct),
-            num(r.direction_err_deg),
-        ];
-        writeln!(w, "{}", epd_io::csv::line(row)).map_err(wrote(&frames_path))?;
-    }
-    let mut files = vec![finish(w, &frames_path)?];
+    let mut files = vec![write_frames_csv(dir, &rows)?];
     let summary = summarise(s, &rows);
-    let path = dir.join("approach.csv");
-    let mut w = create_new(&path)?;
-    writeln!(w, "{}", epd_io::csv::line(APPROACH_COLUMNS)).map_err(wrote(&path))?;
-    for r in &summary {
-        let row = [
-            r.distance_m.to_string(),
-            r.segmented.to_string(),
-            r.n_frames.to_string(),
-            r.n_found.to_string(),
-            num(r.dmean_bias_mm),
-            num(r.dmean_range_mm),
-            num(r.straight_until_err_max_mm),
-            num(r.bend_radius_err_max_pct),
-        ];
-        writeln!(w, "{}", epd_io::csv::line(row)).map_err(wrote(&path))?;
-    }
-    files.push(finish(w, &path)?);
+    files.push(write_approach_csv(dir, &summary)?);
     files.push(write_new(&dir.join("scenario.toml"), s.source.as_bytes())?);
     let png = crate::plots::plot_approach(s, &rows)?;
     files.push(write_new(&dir.join(&png.name), &png.bytes)?);

@@ -5,6 +5,7 @@
 #![deny(missing_docs)]
 
 pub mod approach;
+mod defaults;
 pub mod pipeline;
 pub mod plots;
 pub mod route;

@@ -282,16 +282,47 @@ fn merge_main(a: &MergeArgs) -> ExitCode {
                     a.out.display()
                 );
             }
-            if report.trial_errors > 0 {
-                eprintln!(
-                    "{} trials or estimates could not be made (status `error` in trials.csv)",
-                    report.trial_errors
-                );
-                return ExitCode::FAILURE;
-            }
-            ExitCode::SUCCESS
+            trial_errors_exit(report.trial_errors)
         }
         Err(e) => failed(&e, "merge"),
+    }
+}
+
+/// The exit code of a finished run or merge: 1, saying so, when `trial_errors` trials or
+/// estimates could not be made.
+fn trial_errors_exit(trial_errors: usize) -> ExitCode {
+    if trial_errors > 0 {
+        eprintln!(
+            "{trial_errors} trials or estimates could not be made (status `error` in trials.csv)"
+        );
+        return ExitCode::FAILURE;
+    }
+    ExitCode::SUCCESS
+}
+
+/// The scenario's name in messages (`<stdin>` for `-`) and its text; `Err` the exit code.
+fn scenario_text(arg: &Path) -> Result<(PathBuf, String), ExitCode> {
+    let path = if arg.as_os_str() == "-" {
+        PathBuf::from("<stdin>")
+    } else {
+        arg.to_path_buf()
+    };
+    let text = if arg.as_os_str() == "-" {
+        read_scenario(&path, std::io::stdin().lock())
+    } else {
+        std::fs::File::open(&path)
+            .map_err(|source| ScenarioError::Read {
+                path: path.clone(),
+                source,
+            })
+            .and_then(|f| read_scenario(&path, f))
+    };
+    match text {
+        Ok(t) => Ok((path, t)),
+        Err(e) => {
+            eprintln!("error: {e}");
+            Err(ExitCode::from(2))
+        }
     }
 }
 
@@ -311,28 +342,9 @@ fn main() -> ExitCode {
         eprintln!("error: the scenario file is missing: bench-harness SCENARIO.toml");
         return ExitCode::from(2);
     };
-    let trials = cli.trials.map(NonZeroUsize::get);
-    let path = if scenario_arg.as_os_str() == "-" {
-        PathBuf::from("<stdin>")
-    } else {
-        scenario_arg.clone()
-    };
-    let text = if scenario_arg.as_os_str() == "-" {
-        read_scenario(&path, std::io::stdin().lock())
-    } else {
-        std::fs::File::open(&path)
-            .map_err(|source| ScenarioError::Read {
-                path: path.clone(),
-                source,
-            })
-            .and_then(|f| read_scenario(&path, f))
-    };
-    let text = match text {
+    let (path, text) = match scenario_text(&scenario_arg) {
         Ok(t) => t,
-        Err(e) => {
-            eprintln!("error: {e}");
-            return ExitCode::from(2);
-        }
+        Err(code) => return code,
     };
     if is_pipeline(&text) {
         return run_pipeline_main(&cli, &path, &text);
@@ -340,7 +352,13 @@ fn main() -> ExitCode {
     if is_approach(&text) {
         return run_approach_main(&cli, &path, &text);
     }
-    let scenario = match Scenario::parse(&path, &text) {
+    run_sweep_main(&cli, &path, &text)
+}
+
+/// A sweep run (a scenario without `[pipeline]` or `[approach]`), whole or one shard.
+fn run_sweep_main(cli: &Cli, path: &Path, text: &str) -> ExitCode {
+    let trials = cli.trials.map(NonZeroUsize::get);
+    let scenario = match Scenario::parse(path, text) {
         Ok(s) => s,
         Err(e) => {
             eprintln!("error: {e}");
@@ -356,7 +374,7 @@ fn main() -> ExitCode {
     if let Err(code) = start_workers(cli.threads) {
         return code;
     }
-    let out = cli.out.unwrap_or_else(|| match cli.shard {
+    let out = cli.out.clone().unwrap_or_else(|| match cli.shard {
         None => default_output(&scenario.name),
         Some(s) => default_output(&format!("{}-shard-{}-of-{}", scenario.name, s.k(), s.n())),
     });
@@ -385,14 +403,7 @@ fn main() -> ExitCode {
                     out.display()
                 );
             }
-            if report.trial_errors > 0 {
-                eprintln!(
-                    "{} trials or estimates could not be made (status `error` in trials.csv)",
-                    report.trial_errors
-                );
-                return ExitCode::FAILURE;
-            }
-            ExitCode::SUCCESS
+            trial_errors_exit(report.trial_errors)
         }
         Err(e) => failed(&e, &scenario.name),
     }

@@ -28,11 +28,16 @@ fn register_font() -> anyhow::Result<()> {
     epd_io::font::register_font().map_err(|e| anyhow!(e))
 }
 
+/// The palette's red, blue and green (matplotlib's tab10).
+const RED: RGBColor = RGBColor(214, 39, 40);
+const BLUE: RGBColor = RGBColor(31, 119, 180);
+const GREEN: RGBColor = RGBColor(44, 160, 44);
+
 fn colour(method: &str) -> RGBColor {
     match method {
-        "c-epd" => RGBColor(214, 39, 40),
-        "ru-epd" => RGBColor(31, 119, 180),
-        "ml-epd" => RGBColor(44, 160, 44),
+        "c-epd" => RED,
+        "ru-epd" => BLUE,
+        "ml-epd" => GREEN,
         "ml-epd-w" => RGBColor(148, 103, 189),
         _ => RGBColor(80, 80, 80),
     }
@@ -1020,58 +1025,58 @@ fn pipeline_section_errors(
     )
 }
 
-/// `profile.png`: mean diameter and ovality along the distance, with the depth table.
-fn pipeline_profile(
+/// A point of a series: (x, y, bar low, bar high).
+type Point = (f64, f64, f64, f64);
+
+/// A break in a line.
+const GAP: Point = (f64::NAN, f64::NAN, f64::NAN, f64::NAN);
+
+/// A dashed grey line at `y(pipe)` over each section's stretch of the distance.
+fn section_references(
     s: &crate::pipeline::PipelineScenario,
-    points: &[crate::pipeline::ProfilePoint],
-) -> anyhow::Result<Png> {
-    use crate::pipeline::METHODS;
-    use tof_sim::Pipe;
-    let name = &s.name;
-    let grey = NOMINAL;
-    // Profile along the distance: mean diameter and ovality, with the table.
-    // A dashed line over each section's stretch of the distance.
-    let per_section = |label: &str, y: fn(&Pipe) -> f64| -> Vec<Series> {
-        s.sections
-            .iter()
-            .map(|sec| {
-                let x1 = sec.start_m + (s.frames_per_section as f64 - 1.0) * s.frame_spacing_m;
-                reference(
-                    &format!("{label} {}", sec.name),
-                    (sec.start_m, x1),
-                    y(&sec.pipe),
-                    grey,
-                )
-            })
-            .collect()
-    };
-    let nominal = per_section("nominal ID", |p| p.inner_diameter() * 1e3);
-    // Along the distance (sections and the frames between them), with a break (NaN)
-    // where the place changes and where an estimate is withheld.
-    let gap = (f64::NAN, f64::NAN, f64::NAN, f64::NAN);
-    let mut driven: Vec<&crate::pipeline::ProfilePoint> =
-        points.iter().filter(|p| p.calibrated).collect();
-    driven.sort_by(|a, b| a.distance_m.total_cmp(&b.distance_m));
-    let along = |m: &str, f: fn((f64, f64)) -> f64| -> Vec<(f64, f64, f64, f64)> {
-        let mut v = Vec::new();
-        let mut place = None;
-        for p in driven.iter().filter(|p| p.method == m) {
-            if place.is_some_and(|q| q != p.section) {
-                v.push(gap);
-            }
-            place = Some(p.section);
-            v.push(p.d_mm.map_or(gap, |d| {
-                let y = f(d);
-                (p.distance_m, y, y, y)
-            }));
+    label: &str,
+    y: fn(&tof_sim::Pipe) -> f64,
+) -> Vec<Series> {
+    s.sections
+        .iter()
+        .map(|sec| {
+            let x1 = sec.start_m + (s.frames_per_section as f64 - 1.0) * s.frame_spacing_m;
+            reference(
+                &format!("{label} {}", sec.name),
+                (sec.start_m, x1),
+                y(&sec.pipe),
+                NOMINAL,
+            )
+        })
+        .collect()
+}
+
+/// `f` of the diameters (Dmax, Dmin) of method `m` along the distance (`driven`: sorted
+/// by distance), broken where the place changes and where an estimate is withheld.
+fn along_distance(
+    driven: &[&crate::pipeline::ProfilePoint],
+    m: &str,
+    f: fn((f64, f64)) -> f64,
+) -> Vec<Point> {
+    let mut v = Vec::new();
+    let mut place = None;
+    for p in driven.iter().filter(|p| p.method == m) {
+        if place.is_some_and(|q| q != p.section) {
+            v.push(GAP);
         }
-        v
-    };
-    // The geometry ahead, once per frame: the survey's distance to the straight section's
-    // end by its verdict, a bend's frames at 0, and the route's truth.
-    let frames: Vec<&&crate::pipeline::ProfilePoint> =
-        driven.iter().filter(|p| p.method == "ml-epd").collect();
-    let found = |layout: &str| -> Vec<(f64, f64, f64, f64)> {
+        place = Some(p.section);
+        v.push(p.d_mm.map_or(GAP, |d| {
+            let y = f(d);
+            (p.distance_m, y, y, y)
+        }));
+    }
+    v
+}
+
+/// The geometry ahead, once per frame: the survey's distance to the straight section's
+/// end by its verdict, a bend's frames at 0, and the route's truth.
+fn geometry_ahead(frames: &[&crate::pipeline::ProfilePoint]) -> Vec<Series> {
+    let found = |layout: &str| -> Vec<Point> {
         frames
             .iter()
             .filter(|p| p.geometry == layout)
@@ -1081,15 +1086,15 @@ fn pipeline_profile(
                 } else {
                     p.straight_until_m.unwrap_or(f64::NAN)
                 };
-                [(p.distance_m, y, y, y), gap]
+                [(p.distance_m, y, y, y), GAP]
             })
             .collect()
     };
     // Broken where the truth changes from one fitting to the next.
-    let mut truth_line: Vec<(f64, f64, f64, f64)> = Vec::new();
+    let mut truth_line: Vec<Point> = Vec::new();
     for (k, p) in frames.iter().enumerate() {
         if k > 0 && frames[k - 1].truth.geometry != p.truth.geometry {
-            truth_line.push(gap);
+            truth_line.push(GAP);
         }
         let y = match (p.truth.geometry, p.truth.straight_until_m) {
             ("in_bend", _) => 0.0,
@@ -1098,64 +1103,52 @@ fn pipeline_profile(
         };
         truth_line.push((p.distance_m, y, y, y));
     }
-    let geometry = vec![
-        Series {
-            name: "truth (0: in the bend)".into(),
-            colour: RGBColor(150, 150, 150),
-            points: truth_line,
-            bars: false,
-            marker_triangle: false,
-            dashed: false,
-        },
-        Series {
-            name: "found: bend ahead".into(),
-            colour: RGBColor(31, 119, 180),
-            points: found("bend_ahead"),
-            bars: false,
-            marker_triangle: true,
-            dashed: false,
-        },
-        Series {
-            name: "found: tee ahead".into(),
-            colour: RGBColor(214, 39, 40),
-            points: found("tee_ahead"),
-            bars: false,
-            marker_triangle: false,
-            dashed: false,
-        },
-        Series {
-            name: "found: in a bend (withheld)".into(),
-            colour: RGBColor(44, 160, 44),
-            points: found("in_bend"),
-            bars: false,
-            marker_triangle: true,
-            dashed: false,
-        },
-    ];
-    let mut dmean = nominal;
-    let mut oval = per_section("true ovality", |p| p.ovality * 100.0);
+    vec![
+        Series::line(
+            "truth (0: in the bend)",
+            RGBColor(150, 150, 150),
+            truth_line,
+            false,
+        ),
+        Series::line("found: bend ahead", BLUE, found("bend_ahead"), true),
+        Series::line("found: tee ahead", RED, found("tee_ahead"), false),
+        Series::line("found: in a bend (withheld)", GREEN, found("in_bend"), true),
+    ]
+}
+
+/// `profile.png`: mean diameter and ovality along the distance, with the depth table.
+fn pipeline_profile(
+    s: &crate::pipeline::PipelineScenario,
+    points: &[crate::pipeline::ProfilePoint],
+) -> anyhow::Result<Png> {
+    use crate::pipeline::METHODS;
+    // Along the distance: the sections and the frames between them.
+    let mut driven: Vec<&crate::pipeline::ProfilePoint> =
+        points.iter().filter(|p| p.calibrated).collect();
+    driven.sort_by(|a, b| a.distance_m.total_cmp(&b.distance_m));
+    let frames: Vec<&crate::pipeline::ProfilePoint> = driven
+        .iter()
+        .copied()
+        .filter(|p| p.method == "ml-epd")
+        .collect();
+    let geometry = geometry_ahead(&frames);
+    let mut dmean = section_references(s, "nominal ID", |p| p.inner_diameter() * 1e3);
+    let mut oval = section_references(s, "true ovality", |p| p.ovality * 100.0);
     for m in METHODS {
-        dmean.push(Series {
-            name: m.to_uppercase(),
-            colour: colour(m),
-            points: along(m, |d| 0.5 * (d.0 + d.1)),
-            bars: false,
-            marker_triangle: m == "ml-epd-w",
-            dashed: false,
-        });
-        oval.push(Series {
-            name: m.to_uppercase(),
-            colour: colour(m),
-            points: along(m, |d| 100.0 * (d.0 - d.1) / (0.5 * (d.0 + d.1))),
-            bars: false,
-            marker_triangle: m == "ml-epd-w",
-            dashed: false,
-        });
+        let triangles = m == "ml-epd-w";
+        let (name, c) = (m.to_uppercase(), colour(m));
+        let mean = along_distance(&driven, m, |d| 0.5 * (d.0 + d.1));
+        dmean.push(Series::line(name.clone(), c, mean, triangles));
+        let ovality = along_distance(&driven, m, |d| 100.0 * (d.0 - d.1) / (0.5 * (d.0 + d.1)));
+        oval.push(Series::line(name, c, ovality, triangles));
     }
     render(
         Figure {
             name: "profile.png".into(),
-            title: format!("{name}: pipe tally along the run (with the depth table)"),
+            title: format!(
+                "{}: pipe tally along the run (with the depth table)",
+                s.name
+            ),
             grid: (3, 1),
             size: (1440, 1400),
             x_label: "odometer distance (m)",
@@ -1184,19 +1177,50 @@ fn pipeline_profile(
     )
 }
 
+/// A section row's (std, Cramér–Rao bound) of one diameter (mm).
+type Spread = fn(&crate::pipeline::SectionRow) -> (f64, f64);
+
+/// One panel of `weights.png`: the bound (from the ML-EPD rows) and each method's std
+/// of `rows`, against the section's wall thickness.
+fn spread_series(rows: &[&crate::pipeline::SectionRow], f: Spread) -> Vec<Series> {
+    let points = |m: &str, pick: fn((f64, f64)) -> f64| -> Vec<Point> {
+        rows.iter()
+            .filter(|r| r.method == m)
+            .map(|r| {
+                let c = pick(f(r));
+                (r.wall_true_mm, c, c, c)
+            })
+            .collect()
+    };
+    let mut v = vec![Series {
+        name: "Cramér–Rao bound".into(),
+        colour: REFERENCE,
+        points: points("ml-epd", |(_, crb)| crb),
+        bars: false,
+        marker_triangle: false,
+        dashed: true,
+    }];
+    for m in crate::pipeline::METHODS {
+        let std = points(m, |(std, _)| std);
+        v.push(Series::line(
+            m.to_uppercase(),
+            colour(m),
+            std,
+            m == "ml-epd-w",
+        ));
+    }
+    v
+}
+
 /// `weights.png`: the spread of each method over a section's frames against the
 /// heteroscedastic Cramér–Rao bound.
 fn pipeline_weights(
     s: &crate::pipeline::PipelineScenario,
     sections: &[crate::pipeline::SectionRow],
 ) -> anyhow::Result<Png> {
-    use crate::pipeline::METHODS;
-    let name = &s.name;
-    // Spread against the heteroscedastic Cramér–Rao bound.
     let mut spread: Vec<Vec<Series>> = Vec::new();
     let mut titles = Vec::new();
-    type S = fn(&crate::pipeline::SectionRow) -> (f64, f64);
-    let ss: [(&str, S); 2] = [
+    let ss: [(&str, Spread); 2] = [
         ("Dmax", |r| (r.dmax.std, r.crb.0)),
         ("Dmin", |r| (r.dmin.std, r.crb.1)),
     ];
@@ -1204,39 +1228,7 @@ fn pipeline_weights(
         for cal in [false, true] {
             let rows: Vec<&crate::pipeline::SectionRow> =
                 sections.iter().filter(|r| r.calibrated == cal).collect();
-            let mut v = vec![Series {
-                name: "Cramér–Rao bound".into(),
-                colour: REFERENCE,
-                points: rows
-                    .iter()
-                    .filter(|r| r.method == "ml-epd")
-                    .map(|r| {
-                        let c = f(r).1;
-                        (r.wall_true_mm, c, c, c)
-                    })
-                    .collect(),
-                bars: false,
-                marker_triangle: false,
-                dashed: true,
-            }];
-            for m in METHODS {
-                v.push(Series {
-                    name: m.to_uppercase(),
-                    colour: colour(m),
-                    points: rows
-                        .iter()
-                        .filter(|r| r.method == m)
-                        .map(|r| {
-                            let c = f(r).0;
-                            (r.wall_true_mm, c, c, c)
-                        })
-                        .collect(),
-                    bars: false,
-                    marker_triangle: m == "ml-epd-w",
-                    dashed: false,
-                });
-            }
-            spread.push(v);
+            spread.push(spread_series(&rows, f));
             titles.push(format!(
                 "std of {label} over the frames, {}",
                 if cal {
@@ -1259,7 +1251,10 @@ fn pipeline_weights(
     render(
         Figure {
             name: "weights.png".into(),
-            title: format!("{name}: spread per section against the Cramér–Rao bound"),
+            title: format!(
+                "{}: spread per section against the Cramér–Rao bound",
+                s.name
+            ),
             grid: (2, 2),
             size: (1440, 1040),
             x_label: "nominal wall thickness of the section (mm)",
@@ -1271,6 +1266,34 @@ fn pipeline_weights(
     )
 }
 
+/// (distance, mean, min, max) of `f` over the frames of each distance with the survey
+/// (`segmented`) or without, finite values only; distances without any left out.
+fn spread_by_distance(
+    s: &crate::approach::ApproachScenario,
+    rows: &[crate::approach::FrameRow],
+    segmented: bool,
+    f: fn(&crate::approach::FrameRow) -> f64,
+) -> Vec<Point> {
+    s.distances_m
+        .iter()
+        .filter_map(|&d| {
+            let v: Vec<f64> = rows
+                .iter()
+                .filter(|r| r.distance_m == d && r.segmented == segmented)
+                .map(f)
+                .filter(|v| v.is_finite())
+                .collect();
+            if v.is_empty() {
+                return None;
+            }
+            let mean = v.iter().sum::<f64>() / v.len() as f64;
+            let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            Some((d, mean, lo, hi))
+        })
+        .collect()
+}
+
 /// `approach.png` of an `[approach]` run: per distance, the mean-diameter error of the
 /// plain fit and of the survey's straight estimate (mean, bars from min to max over the
 /// frames), the error of `straight_until_m`, the bend radius's error and the direction's.
@@ -1278,117 +1301,63 @@ pub fn plot_approach(
     s: &crate::approach::ApproachScenario,
     rows: &[crate::approach::FrameRow],
 ) -> anyhow::Result<Png> {
-    // (x, mean, min, max) of `f` over the frames of each distance, finite values only.
-    let spread = |segmented: bool, f: fn(&crate::approach::FrameRow) -> f64| {
-        s.distances_m
-            .iter()
-            .filter_map(|&d| {
-                let v: Vec<f64> = rows
-                    .iter()
-                    .filter(|r| r.distance_m == d && r.segmented == segmented)
-                    .map(f)
-                    .filter(|v| v.is_finite())
-                    .collect();
-                if v.is_empty() {
-                    return None;
-                }
-                let mean = v.iter().sum::<f64>() / v.len() as f64;
-                let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
-                let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-                Some((d, mean, lo, hi))
-            })
-            .collect::<Vec<_>>()
-    };
-    let series = |name: &str, c: RGBColor, points| Series {
-        name: name.into(),
-        colour: c,
-        points,
-        bars: true,
-        marker_triangle: false,
-        dashed: false,
-    };
-    let zero = {
-        let lo = s.distances_m.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = s
-            .distances_m
-            .iter()
-            .copied()
-            .fold(f64::NEG_INFINITY, f64::max);
-        Series {
-            name: "0".into(),
-            colour: RGBColor(90, 90, 90),
-            points: vec![(lo, 0.0, 0.0, 0.0), (hi, 0.0, 0.0, 0.0)],
-            bars: false,
-            marker_triangle: false,
-            dashed: true,
-        }
-    };
-    let red = RGBColor(214, 39, 40);
-    let green = RGBColor(44, 160, 44);
-    let p0 = vec![
-        zero.clone_line(),
-        series(
-            "one fit on every point",
-            red,
-            spread(false, |r| r.dmean_err_mm),
+    type Column = fn(&crate::approach::FrameRow) -> f64;
+    /// A series: name, colour, with the survey, value.
+    type Bars = (&'static str, RGBColor, bool, Column);
+    // Per panel: title, y label, and its series.
+    let layout: [(&str, &str, &[Bars]); 4] = [
+        (
+            "mean-diameter error",
+            "error (mm)",
+            &[
+                ("one fit on every point", RED, false, |r| r.dmean_err_mm),
+                ("straight section only", GREEN, true, |r| r.dmean_err_mm),
+            ],
         ),
-        series(
-            "straight section only",
-            green,
-            spread(true, |r| r.dmean_err_mm),
+        (
+            "mean-diameter error, segmented (zoom)",
+            "error (mm)",
+            &[("straight section only", GREEN, true, |r| r.dmean_err_mm)],
+        ),
+        (
+            "end of the straight section",
+            "error (mm)",
+            &[("straight_until_m", GREEN, true, |r| r.straight_until_err_mm)],
+        ),
+        (
+            "bend radius (%) and direction (deg) errors",
+            "error (% / deg)",
+            &[
+                ("bend radius", GREEN, true, |r| r.bend_radius_err_pct),
+                ("direction (deg)", BLUE, true, |r| r.direction_err_deg),
+            ],
         ),
     ];
-    let p0b = vec![
-        zero.clone_line(),
-        series(
-            "straight section only",
-            green,
-            spread(true, |r| r.dmean_err_mm),
-        ),
-    ];
-    let p1 = vec![
-        zero.clone_line(),
-        series(
-            "straight_until_m",
-            green,
-            spread(true, |r| r.straight_until_err_mm),
-        ),
-    ];
-    let p2 = vec![
-        zero.clone_line(),
-        series(
-            "bend radius",
-            green,
-            spread(true, |r| r.bend_radius_err_pct),
-        ),
-        series(
-            "direction (deg)",
-            RGBColor(31, 119, 180),
-            spread(true, |r| r.direction_err_deg),
-        ),
-    ];
-    let panels = [
-        Panel {
-            title: "mean-diameter error".into(),
-            y_label: "error (mm)".into(),
-            series: &p0,
-        },
-        Panel {
-            title: "mean-diameter error, segmented (zoom)".into(),
-            y_label: "error (mm)".into(),
-            series: &p0b,
-        },
-        Panel {
-            title: "end of the straight section".into(),
-            y_label: "error (mm)".into(),
-            series: &p1,
-        },
-        Panel {
-            title: "bend radius (%) and direction (deg) errors".into(),
-            y_label: "error (% / deg)".into(),
-            series: &p2,
-        },
-    ];
+    let lo = s.distances_m.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = s
+        .distances_m
+        .iter()
+        .copied()
+        .fold(f64::NEG_INFINITY, f64::max);
+    let series: Vec<Vec<Series>> = layout
+        .iter()
+        .map(|(_, _, list)| {
+            let zero = reference("0", (lo, hi), 0.0, RGBColor(90, 90, 90));
+            let bars = list.iter().map(|&(name, c, segmented, f)| {
+                Series::bars(name, c, spread_by_distance(s, rows, segmented, f))
+            });
+            std::iter::once(zero).chain(bars).collect()
+        })
+        .collect();
+    let panels: Vec<Panel<'_>> = layout
+        .iter()
+        .zip(&series)
+        .map(|((title, y_label, _), v)| Panel {
+            title: (*title).into(),
+            y_label: (*y_label).into(),
+            series: v,
+        })
+        .collect();
     render(
         Figure {
             name: "approach.png".into(),
@@ -1408,6 +1377,35 @@ pub fn plot_approach(
 }
 
 impl Series {
+    /// A solid line through `points`, without bars; triangle markers if `triangles`.
+    fn line(
+        name: impl Into<String>,
+        colour: RGBColor,
+        points: Vec<Point>,
+        triangles: bool,
+    ) -> Series {
+        Series {
+            name: name.into(),
+            colour,
+            points,
+            bars: false,
+            marker_triangle: triangles,
+            dashed: false,
+        }
+    }
+
+    /// Means through `points` with bars from their min to their max.
+    fn bars(name: impl Into<String>, colour: RGBColor, points: Vec<Point>) -> Series {
+        Series {
+            name: name.into(),
+            colour,
+            points,
+            bars: true,
+            marker_triangle: false,
+            dashed: false,
+        }
+    }
+
     /// A copy of a reference line.
     fn clone_line(&self) -> Series {
         Series {

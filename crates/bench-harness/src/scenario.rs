@@ -189,7 +189,7 @@ fn default_methods() -> Vec<String> {
 #[serde(deny_unknown_fields)]
 struct File {
     name: String,
-    #[serde(default = "one")]
+    #[serde(default = "crate::defaults::seed")]
     seed: u64,
     #[serde(default = "hundred", deserialize_with = "trials_key")]
     trials: usize,
@@ -230,9 +230,6 @@ fn default_loss_scale() -> f64 {
     0.05
 }
 
-fn one() -> u64 {
-    1
-}
 fn hundred() -> usize {
     100
 }
@@ -274,9 +271,9 @@ struct PipeFile {
 impl Default for PipeFile {
     fn default() -> Self {
         Self {
-            nominal_od_in: 20.0,
-            wall_thickness_mm: 12.0,
-            ovality: 0.02,
+            nominal_od_in: crate::defaults::nominal_od_in(),
+            wall_thickness_mm: crate::defaults::wall_mm(),
+            ovality: crate::defaults::ovality(),
         }
     }
 }
@@ -493,40 +490,11 @@ impl Scenario {
         };
         let table: toml::Table = toml::from_str(source).map_err(parse_err)?;
         let base: File = toml::from_str(source).map_err(parse_err)?;
-        if base.name.is_empty()
-            || base.name.contains(['/', '\\'])
-            || base.name == "."
-            || base.name == ".."
-        {
-            return Err(invalid(
-                "name",
-                format!("= \"{}\": must be a plain folder name", base.name),
-            ));
-        }
+        check_name(&base.name).map_err(|(key, msg)| invalid(&key, msg))?;
         // `trials` was checked against [1, MAX_TRIALS] as it was read.
         let (variable, values) = match &base.sweep {
             Some(s) => {
-                if s.values.is_empty() {
-                    return Err(invalid(
-                        "sweep.values",
-                        "is empty: list at least one value".into(),
-                    ));
-                }
-                if s.values.len() > MAX_SWEEP_VALUES {
-                    return Err(invalid(
-                        "sweep.values",
-                        format!("has {} values: at most {MAX_SWEEP_VALUES}", s.values.len()),
-                    ));
-                }
-                if s.variable.starts_with("sweep")
-                    || ["name", "seed", "trials", "methods", "timing"]
-                        .contains(&s.variable.as_str())
-                {
-                    return Err(invalid(
-                        "sweep.variable",
-                        format!("= \"{}\": cannot be swept", s.variable),
-                    ));
-                }
+                check_sweep(s).map_err(|(key, msg)| invalid(&key, msg))?;
                 (s.variable.clone(), s.values.clone())
             }
             None => ("none".to_string(), vec![]),
@@ -578,6 +546,43 @@ impl Scenario {
     }
 }
 
+/// `name` becomes a folder: not empty, no path separator, not `.` or `..`.
+fn check_name(name: &str) -> Result<(), KeyError> {
+    if name.is_empty() || name.contains(['/', '\\']) || name == "." || name == ".." {
+        return Err(key_err(
+            "name",
+            format!("= \"{name}\": must be a plain folder name"),
+        ));
+    }
+    Ok(())
+}
+
+/// `[sweep]`: 1 to [`MAX_SWEEP_VALUES`] values of a key that can be swept (not the run's
+/// own keys: `name`, `seed`, `trials`, `methods`, `timing`, `sweep.*`).
+fn check_sweep(s: &SweepFile) -> Result<(), KeyError> {
+    if s.values.is_empty() {
+        return Err(key_err(
+            "sweep.values",
+            "is empty: list at least one value".into(),
+        ));
+    }
+    if s.values.len() > MAX_SWEEP_VALUES {
+        return Err(key_err(
+            "sweep.values",
+            format!("has {} values: at most {MAX_SWEEP_VALUES}", s.values.len()),
+        ));
+    }
+    if s.variable.starts_with("sweep")
+        || ["name", "seed", "trials", "methods", "timing"].contains(&s.variable.as_str())
+    {
+        return Err(key_err(
+            "sweep.variable",
+            format!("= \"{}\": cannot be swept", s.variable),
+        ));
+    }
+    Ok(())
+}
+
 /// The limits on one run's work: `trials` ≤ [`MAX_TRIALS`] and trials × swept values ×
 /// methods ≤ [`MAX_ESTIMATES`]; `key` names where `trials` came from.
 fn check_work(
@@ -609,88 +614,22 @@ fn check_work(
     Ok(())
 }
 
-/// File units → a checked [`Setting`], or (key, message).
-fn to_setting(f: &File) -> Result<Setting, (String, String)> {
-    let err = |key: &str, msg: String| (key.to_string(), msg);
-    let mut methods = Vec::new();
-    for m in &f.methods {
-        let method: Method = m
-            .parse()
-            .map_err(|e: epd_core::EpdError| err("methods", e.to_string()))?;
-        if !methods.contains(&method) {
-            methods.push(method);
-        }
-    }
-    if methods.is_empty() {
-        return Err(err(
-            "methods",
-            "is empty: list at least one of c-epd, ru-epd, ml-epd".into(),
-        ));
-    }
-    for (key, v) in [
-        ("sensor.width", f.sensor.width),
-        ("sensor.height", f.sensor.height),
-    ] {
-        if !(1..=MAX_SENSOR_SIDE).contains(&v) {
-            return Err(err(
-                key,
-                format!("= {v}: must lie in [1, {MAX_SENSOR_SIDE}] pixels"),
-            ));
-        }
-    }
-    if let Points::N(n) = f.points
-        && !(MIN_POINTS..=MAX_POINTS).contains(&n)
-    {
-        return Err(err(
-            "points",
-            format!("= {n}: must be \"all\" or an integer in [{MIN_POINTS}, {MAX_POINTS}]"),
-        ));
-    }
-    let sensor = Sensor {
-        width: f.sensor.width,
-        height: f.sensor.height,
-        fov_h: f.sensor.fov_h_deg.to_radians(),
-        fov_v: f.sensor.fov_v_deg.to_radians(),
-        min_range: f.sensor.min_range_m,
-        max_range: f.sensor.max_range_m,
-    };
-    let pipe = Pipe {
-        nominal_od_in: f.pipe.nominal_od_in,
-        wall_thickness: f.pipe.wall_thickness_mm * 1e-3,
-        ovality: f.pipe.ovality,
-    };
-    let model = match f.noise.model.as_str() {
-        "range" => NoiseModel::Range,
-        "isotropic" => NoiseModel::Isotropic,
-        other => {
-            return Err(err(
-                "noise.model",
-                format!("= \"{other}\": must be \"range\" or \"isotropic\""),
-            ));
-        }
-    };
-    let noise = Noise {
-        model,
-        sigma: f.noise.sigma_m,
-        outlier_fraction: f.noise.outlier_fraction,
-        far_outlier_fraction: f.noise.far_outlier_fraction,
-        bias_b0: f.noise.bias_b0_m,
-        bias_b1: f.noise.bias_b1,
-        physics: None,
-    };
-    let r = |a: [f64; 2]| (a[0].to_radians(), a[1].to_radians());
-    let mm = |a: [f64; 2]| (a[0] * 1e-3, a[1] * 1e-3);
-    let poses = PoseRanges {
-        roll: r(f.poses.roll_deg),
-        pitch: r(f.poses.pitch_deg),
-        yaw: r(f.poses.yaw_deg),
-        dy: mm(f.poses.dy_mm),
-        dz: mm(f.poses.dz_mm),
-        tilt: f.poses.tilt_deg.map(|t| match t {
-            TiltFile::Fixed(v) => r([v, v]),
-            TiltFile::Range(a) => r(a),
-        }),
-    };
+/// A scenario error: the key and what is wrong with it.
+type KeyError = (String, String);
+
+fn key_err(key: &str, msg: String) -> KeyError {
+    (key.to_string(), msg)
+}
+
+/// File units → a checked [`Setting`], or (key, message). Checked in the order of the
+/// steps below, so a file with several errors names the first.
+fn to_setting(f: &File) -> Result<Setting, KeyError> {
+    let methods = parse_methods(&f.methods)?;
+    check_sizes(f)?;
+    let sensor = f.sensor.to_sensor();
+    let pipe = f.pipe.to_pipe();
+    let noise = f.noise.to_noise()?;
+    let poses = f.poses.to_ranges();
     let sim = |e: tof_sim::SimError| match e {
         tof_sim::SimError::Invalid {
             field,
@@ -703,27 +642,12 @@ fn to_setting(f: &File) -> Result<Setting, (String, String)> {
     pipe.validate().map_err(sim)?;
     noise.validate().map_err(sim)?;
     poses.validate().map_err(sim)?;
-    // The largest offsets must keep the sensor inside the pipe.
-    let (a, b) = (pipe.d_max() / 2.0, pipe.d_min() / 2.0);
-    let dy = poses.dy.0.abs().max(poses.dy.1.abs());
-    let dz = poses.dz.0.abs().max(poses.dz.1.abs());
-    if (dy / a).powi(2) + (dz / b).powi(2) >= 1.0 {
-        return Err(err(
-            "poses.dy_mm",
-            format!(
-                "and poses.dz_mm reach ({:.0}, {:.0}) mm: outside the pipe (semi-axes {:.0} × {:.0} mm)",
-                dy * 1e3,
-                dz * 1e3,
-                a * 1e3,
-                b * 1e3
-            ),
-        ));
-    }
+    check_sensor_inside(&pipe, &poses)?;
     let loss_scale_auto = match f.loss_scale.as_str() {
         "fixed" => false,
         "auto" => true,
         other => {
-            return Err(err(
+            return Err(key_err(
                 "loss_scale",
                 format!("= \"{other}\": must be \"fixed\" or \"auto\""),
             ));
@@ -733,7 +657,7 @@ fn to_setting(f: &File) -> Result<Setting, (String, String)> {
         None => None,
         Some([lo, hi]) if lo >= 0.0 && hi > lo && hi.is_finite() => Some((lo, hi)),
         Some([lo, hi]) => {
-            return Err(err(
+            return Err(key_err(
                 "range_gate_m",
                 format!("= [{lo}, {hi}]: need 0 ≤ min < max, finite"),
             ));
@@ -745,7 +669,7 @@ fn to_setting(f: &File) -> Result<Setting, (String, String)> {
         } else {
             "loss_scale_m"
         };
-        err(key, e.to_string())
+        key_err(key, e.to_string())
     })?;
     Ok(Setting {
         sensor,
@@ -758,6 +682,141 @@ fn to_setting(f: &File) -> Result<Setting, (String, String)> {
         loss_scale_auto,
         range_gate,
     })
+}
+
+/// `methods`: the names parsed, duplicates dropped, in the order listed; at least one.
+fn parse_methods(names: &[String]) -> Result<Vec<Method>, KeyError> {
+    let mut methods = Vec::new();
+    for m in names {
+        let method: Method = m
+            .parse()
+            .map_err(|e: epd_core::EpdError| key_err("methods", e.to_string()))?;
+        if !methods.contains(&method) {
+            methods.push(method);
+        }
+    }
+    if methods.is_empty() {
+        return Err(key_err(
+            "methods",
+            "is empty: list at least one of c-epd, ru-epd, ml-epd".into(),
+        ));
+    }
+    Ok(methods)
+}
+
+/// The limits on a frame's size: sensor sides ≤ [`MAX_SENSOR_SIDE`], `points` in
+/// [[`MIN_POINTS`], [`MAX_POINTS`]].
+fn check_sizes(f: &File) -> Result<(), KeyError> {
+    for (key, v) in [
+        ("sensor.width", f.sensor.width),
+        ("sensor.height", f.sensor.height),
+    ] {
+        if !(1..=MAX_SENSOR_SIDE).contains(&v) {
+            return Err(key_err(
+                key,
+                format!("= {v}: must lie in [1, {MAX_SENSOR_SIDE}] pixels"),
+            ));
+        }
+    }
+    if let Points::N(n) = f.points
+        && !(MIN_POINTS..=MAX_POINTS).contains(&n)
+    {
+        return Err(key_err(
+            "points",
+            format!("= {n}: must be \"all\" or an integer in [{MIN_POINTS}, {MAX_POINTS}]"),
+        ));
+    }
+    Ok(())
+}
+
+/// The largest offsets must keep the sensor inside the pipe: (δy/a)² + (δz/b)² < 1 for
+/// the semi-axes a = D_max/2, b = D_min/2.
+fn check_sensor_inside(pipe: &Pipe, poses: &PoseRanges) -> Result<(), KeyError> {
+    let (a, b) = (pipe.d_max() / 2.0, pipe.d_min() / 2.0);
+    let dy = poses.dy.0.abs().max(poses.dy.1.abs());
+    let dz = poses.dz.0.abs().max(poses.dz.1.abs());
+    if (dy / a).powi(2) + (dz / b).powi(2) >= 1.0 {
+        return Err(key_err(
+            "poses.dy_mm",
+            format!(
+                "and poses.dz_mm reach ({:.0}, {:.0}) mm: outside the pipe (semi-axes {:.0} × {:.0} mm)",
+                dy * 1e3,
+                dz * 1e3,
+                a * 1e3,
+                b * 1e3
+            ),
+        ));
+    }
+    Ok(())
+}
+
+impl SensorFile {
+    /// Degrees → radians.
+    fn to_sensor(&self) -> Sensor {
+        Sensor {
+            width: self.width,
+            height: self.height,
+            fov_h: self.fov_h_deg.to_radians(),
+            fov_v: self.fov_v_deg.to_radians(),
+            min_range: self.min_range_m,
+            max_range: self.max_range_m,
+        }
+    }
+}
+
+impl PipeFile {
+    /// Wall thickness mm → m.
+    fn to_pipe(&self) -> Pipe {
+        Pipe {
+            nominal_od_in: self.nominal_od_in,
+            wall_thickness: self.wall_thickness_mm * 1e-3,
+            ovality: self.ovality,
+        }
+    }
+}
+
+impl NoiseFile {
+    /// The noise model by name (`range` or `isotropic`).
+    fn to_noise(&self) -> Result<Noise, KeyError> {
+        let model = match self.model.as_str() {
+            "range" => NoiseModel::Range,
+            "isotropic" => NoiseModel::Isotropic,
+            other => {
+                return Err(key_err(
+                    "noise.model",
+                    format!("= \"{other}\": must be \"range\" or \"isotropic\""),
+                ));
+            }
+        };
+        Ok(Noise {
+            model,
+            sigma: self.sigma_m,
+            outlier_fraction: self.outlier_fraction,
+            far_outlier_fraction: self.far_outlier_fraction,
+            bias_b0: self.bias_b0_m,
+            bias_b1: self.bias_b1,
+            physics: None,
+        })
+    }
+}
+
+impl PosesFile {
+    /// Degrees → radians, mm → m; a fixed tilt as the range [t, t].
+    fn to_ranges(&self) -> PoseRanges {
+        let r = |a: [f64; 2]| (a[0].to_radians(), a[1].to_radians());
+        let mm = |a: [f64; 2]| (a[0] * 1e-3, a[1] * 1e-3);
+        PoseRanges {
+            roll: r(self.roll_deg),
+            pitch: r(self.pitch_deg),
+            yaw: r(self.yaw_deg),
+            dy: mm(self.dy_mm),
+            dz: mm(self.dz_mm),
+            tilt: self.tilt_deg.map(|t| match t {
+                TiltFile::Fixed(v) => r([v, v]),
+                TiltFile::Range(a) => r(a),
+            }),
+        }
+    }
 }
 
 #[cfg(test)]

@@ -522,6 +522,69 @@ pub fn run_shard(
     })
 }
 
+impl ShardManifest {
+    /// The manifest of shard `shard` of `scenario` run with `trials` per setting:
+    /// `n_trials` trials written, `trial_errors` of them with an error, in `wall_time_s`.
+    fn new(
+        scenario: &Scenario,
+        shard: ShardSpec,
+        trials: usize,
+        n_trials: usize,
+        trial_errors: usize,
+        wall_time_s: f64,
+    ) -> Self {
+        let (_, git_dirty) = git_provenance();
+        ShardManifest {
+            format: SHARD_FORMAT.into(),
+            shard: shard.k(),
+            shards: shard.n(),
+            partition: PARTITION.into(),
+            scenario: scenario.name.clone(),
+            scenario_file: scenario.path.display().to_string(),
+            scenario_sha256: scenario_sha256(&scenario.source),
+            seed: scenario.seed,
+            trials_per_setting: trials,
+            settings: scenario.sweeps.len(),
+            methods: scenario.sweeps[0]
+                .1
+                .methods
+                .iter()
+                .map(|m| m.name().to_string())
+                .collect(),
+            n_trials,
+            trial_errors,
+            code: CodeVersion::current(),
+            git_dirty,
+            threads: rayon::current_num_threads(),
+            cpu_model: cpu_model(),
+            host: host_name(),
+            wall_time_s,
+        }
+    }
+}
+
+/// A shard's `metadata.json`: a run's, with the shard and how the trials were split.
+fn shard_metadata(
+    scenario: &Scenario,
+    trials: usize,
+    shard: ShardSpec,
+    n_trials: usize,
+    wall_time_s: f64,
+) -> serde_json::Map<String, serde_json::Value> {
+    let mut meta = metadata(scenario, trials, wall_time_s);
+    meta.insert("shard".into(), shard.to_string().into());
+    meta.insert(
+        "sharding".into(),
+        format!(
+            "one shard of a sharded run: trial g = setting index × trials + trial is in shard \
+             (g mod N) + 1; {n_trials} trials here. Merge the N shard folders with \
+             `bench-harness merge D_1 … D_N --out M`"
+        )
+        .into(),
+    );
+    meta
+}
+
 fn stage_shard(
     scenario: &Scenario,
     progress: bool,
@@ -571,48 +634,12 @@ fn stage_shard(
         scenario.source.as_bytes(),
     )?);
     let wall_time_s = start.elapsed().as_secs_f64();
-    let (_, git_dirty) = git_provenance();
-    let manifest = ShardManifest {
-        format: SHARD_FORMAT.into(),
-        shard: shard.k(),
-        shards: shard.n(),
-        partition: PARTITION.into(),
-        scenario: scenario.name.clone(),
-        scenario_file: scenario.path.display().to_string(),
-        scenario_sha256: scenario_sha256(&scenario.source),
-        seed: scenario.seed,
-        trials_per_setting: trials,
-        settings,
-        methods: scenario.sweeps[0]
-            .1
-            .methods
-            .iter()
-            .map(|m| m.name().to_string())
-            .collect(),
-        n_trials: written,
-        trial_errors,
-        code: CodeVersion::current(),
-        git_dirty,
-        threads: rayon::current_num_threads(),
-        cpu_model: cpu_model(),
-        host: host_name(),
-        wall_time_s,
-    };
+    let manifest = ShardManifest::new(scenario, shard, trials, written, trial_errors, wall_time_s);
     files.push(write_new(
         &dir.join(MANIFEST_FILE),
         serde_json::to_string_pretty(&manifest)?.as_bytes(),
     )?);
-    let mut meta = metadata(scenario, trials, wall_time_s);
-    meta.insert("shard".into(), shard.to_string().into());
-    meta.insert(
-        "sharding".into(),
-        format!(
-            "one shard of a sharded run: trial g = setting index × trials + trial is in shard \
-             (g mod N) + 1; {n_trials} trials here. Merge the N shard folders with \
-             `bench-harness merge D_1 … D_N --out M`"
-        )
-        .into(),
-    );
+    let meta = shard_metadata(scenario, trials, shard, n_trials, wall_time_s);
     files.push(write_new(
         &dir.join("metadata.json"),
         serde_json::to_string_pretty(&meta)?.as_bytes(),
@@ -707,66 +734,72 @@ fn read_manifest(dir: &Path) -> Result<ShardManifest, MergeError> {
 /// most telling first (code, seed, trials, scenario, count, duplicates, missing).
 fn check_shards(dirs: &[PathBuf], manifests: &[ShardManifest]) -> Result<(), MergeError> {
     let (a, m0) = (&dirs[0], &manifests[0]);
-    for (b, m) in dirs.iter().zip(manifests).skip(1) {
-        if m.code != m0.code {
-            return Err(MergeError::Code {
-                a: a.clone(),
-                a_code: m0.code.to_string(),
-                b: b.clone(),
-                b_code: m.code.to_string(),
-            });
-        }
+    // The first other shard that differs from the first in `differs`.
+    let first_other = |differs: fn(&ShardManifest, &ShardManifest) -> bool| {
+        dirs.iter()
+            .zip(manifests)
+            .skip(1)
+            .find(|(_, m)| differs(m, m0))
+            .map(|(b, m)| (a.clone(), b.clone(), m))
+    };
+    if let Some((a, b, m)) = first_other(|m, m0| m.code != m0.code) {
+        return Err(MergeError::Code {
+            a,
+            a_code: m0.code.to_string(),
+            b,
+            b_code: m.code.to_string(),
+        });
     }
-    for (b, m) in dirs.iter().zip(manifests).skip(1) {
-        if m.seed != m0.seed {
-            return Err(MergeError::Seed {
-                a: a.clone(),
-                a_seed: m0.seed,
-                b: b.clone(),
-                b_seed: m.seed,
-            });
-        }
+    if let Some((a, b, m)) = first_other(|m, m0| m.seed != m0.seed) {
+        return Err(MergeError::Seed {
+            a,
+            a_seed: m0.seed,
+            b,
+            b_seed: m.seed,
+        });
     }
-    for (b, m) in dirs.iter().zip(manifests).skip(1) {
-        if m.trials_per_setting != m0.trials_per_setting {
-            return Err(MergeError::Trials {
-                a: a.clone(),
-                a_trials: m0.trials_per_setting,
-                b: b.clone(),
-                b_trials: m.trials_per_setting,
-            });
-        }
+    if let Some((a, b, m)) = first_other(|m, m0| m.trials_per_setting != m0.trials_per_setting) {
+        return Err(MergeError::Trials {
+            a,
+            a_trials: m0.trials_per_setting,
+            b,
+            b_trials: m.trials_per_setting,
+        });
     }
-    for (b, m) in dirs.iter().zip(manifests).skip(1) {
-        if m.scenario_sha256 != m0.scenario_sha256 || m.scenario != m0.scenario {
-            let what = |m: &ShardManifest| {
-                format!(
-                    "`{}` ({}, sha256 {})",
-                    m.scenario,
-                    m.scenario_file,
-                    m.scenario_sha256.chars().take(16).collect::<String>()
-                )
-            };
-            return Err(MergeError::Scenario {
-                a: a.clone(),
-                a_scenario: what(m0),
-                b: b.clone(),
-                b_scenario: what(m),
-            });
-        }
+    let scenario_differs = |m: &ShardManifest, m0: &ShardManifest| {
+        m.scenario_sha256 != m0.scenario_sha256 || m.scenario != m0.scenario
+    };
+    if let Some((a, b, m)) = first_other(scenario_differs) {
+        let what = |m: &ShardManifest| {
+            format!(
+                "`{}` ({}, sha256 {})",
+                m.scenario,
+                m.scenario_file,
+                m.scenario_sha256.chars().take(16).collect::<String>()
+            )
+        };
+        return Err(MergeError::Scenario {
+            a,
+            a_scenario: what(m0),
+            b,
+            b_scenario: what(m),
+        });
     }
-    for (b, m) in dirs.iter().zip(manifests).skip(1) {
-        if m.shards != m0.shards {
-            return Err(MergeError::Count {
-                a: a.clone(),
-                a_k: m0.shard,
-                a_n: m0.shards,
-                b: b.clone(),
-                b_k: m.shard,
-                b_n: m.shards,
-            });
-        }
+    if let Some((a, b, m)) = first_other(|m, m0| m.shards != m0.shards) {
+        return Err(MergeError::Count {
+            a,
+            a_k: m0.shard,
+            a_n: m0.shards,
+            b,
+            b_k: m.shard,
+            b_n: m.shards,
+        });
     }
+    check_complete(dirs, manifests, m0.shards)
+}
+
+/// Every shard 1 … `n` given once: the first shard given twice, else the missing ones.
+fn check_complete(dirs: &[PathBuf], manifests: &[ShardManifest], n: u64) -> Result<(), MergeError> {
     let mut seen: HashMap<u64, &PathBuf> = HashMap::new();
     for (d, m) in dirs.iter().zip(manifests) {
         if let Some(first) = seen.insert(m.shard, d) {
@@ -778,11 +811,11 @@ fn check_shards(dirs: &[PathBuf], manifests: &[ShardManifest]) -> Result<(), Mer
             });
         }
     }
-    let missing: Vec<u64> = (1..=m0.shards).filter(|k| !seen.contains_key(k)).collect();
+    let missing: Vec<u64> = (1..=n).filter(|k| !seen.contains_key(k)).collect();
     if !missing.is_empty() {
         return Err(MergeError::Missing {
             missing,
-            n: m0.shards,
+            n,
             given: dirs.len(),
         });
     }
@@ -993,39 +1026,12 @@ fn stage_merge(
         for r in &mut readers {
             parts.push(r.take_setting(si, methods, keep_open)?.into_iter());
         }
-        let mut results: Vec<TrialRecord> = Vec::with_capacity(trials);
-        for t in 0..trials {
-            let g = si as u64 * trials as u64 + t as u64;
-            let k = (g % n as u64) as usize;
-            let record = parts[k].next().filter(|r| r.trial == t && r.setting == si);
-            let Some(record) = record else {
-                return Err(MergeError::Damaged {
-                    dir: shards[k].0.clone(),
-                    why: format!(
-                        "{RECORDS_FILE}: trial {t} of setting {si} ({} = {value}) is missing or out of order",
-                        scenario.sweep_variable
-                    ),
-                }
-                .into());
-            };
-            trial_rows(&mut trials_csv, &scenario.sweep_variable, value, &record)
+        let results = interleave(&mut parts, shards, scenario, si, trials, |record| {
+            trial_rows(&mut trials_csv, &scenario.sweep_variable, value, record)
                 .map_err(wrote(&trials_path))?;
             trial_errors += record.errors();
-            results.push(record);
-        }
-        for (k, rest) in parts.iter_mut().enumerate() {
-            if let Some(extra) = rest.next() {
-                return Err(MergeError::Damaged {
-                    dir: shards[k].0.clone(),
-                    why: format!(
-                        "{RECORDS_FILE}: trial {} of setting {si} does not belong to shard {}/{n}",
-                        extra.trial,
-                        k + 1
-                    ),
-                }
-                .into());
-            }
-        }
+            Ok(())
+        })?;
         summary.extend(summarise(value, &setting.methods, &results));
     }
     // Nothing may follow the last setting.
@@ -1044,6 +1050,70 @@ fn stage_merge(
         }
     }
     let mut files = vec![finish(trials_csv, &trials_path)?];
+    let extra = merge_metadata(shards);
+    let (rest, wall_time_s) = finish_run(scenario, &summary, trials, dir, start, extra)?;
+    files.extend(rest);
+    Ok(StagedMerge {
+        summary,
+        files,
+        wall_time_s,
+        trial_errors,
+    })
+}
+
+/// Setting `si`'s records in the unsharded run's order, trial g = si × trials + t taken
+/// from shard (g mod N) + 1's `parts`, each passed to `emit` as it is taken; an error if
+/// one is missing or out of order, or if a shard has records left over.
+fn interleave(
+    parts: &mut [std::vec::IntoIter<TrialRecord>],
+    shards: &[(&PathBuf, &ShardManifest)],
+    scenario: &Scenario,
+    si: usize,
+    trials: usize,
+    mut emit: impl FnMut(&TrialRecord) -> anyhow::Result<()>,
+) -> anyhow::Result<Vec<TrialRecord>> {
+    let n = shards.len();
+    let value = &scenario.sweeps[si].0;
+    let mut results: Vec<TrialRecord> = Vec::with_capacity(trials);
+    for t in 0..trials {
+        let g = si as u64 * trials as u64 + t as u64;
+        let k = (g % n as u64) as usize;
+        let record = parts[k].next().filter(|r| r.trial == t && r.setting == si);
+        let Some(record) = record else {
+            return Err(MergeError::Damaged {
+                dir: shards[k].0.clone(),
+                why: format!(
+                    "{RECORDS_FILE}: trial {t} of setting {si} ({} = {value}) is missing or out of order",
+                    scenario.sweep_variable
+                ),
+            }
+            .into());
+        };
+        emit(&record)?;
+        results.push(record);
+    }
+    for (k, rest) in parts.iter_mut().enumerate() {
+        if let Some(extra) = rest.next() {
+            return Err(MergeError::Damaged {
+                dir: shards[k].0.clone(),
+                why: format!(
+                    "{RECORDS_FILE}: trial {} of setting {si} does not belong to shard {}/{n}",
+                    extra.trial,
+                    k + 1
+                ),
+            }
+            .into());
+        }
+    }
+    Ok(results)
+}
+
+/// What a merged run's `metadata.json` adds to a run's: the shards, how the trials were
+/// split, and each shard's own times, threads and host.
+fn merge_metadata(
+    shards: &[(&PathBuf, &ShardManifest)],
+) -> serde_json::Map<String, serde_json::Value> {
+    let n = shards.len();
     let shard_times: Vec<f64> = shards.iter().map(|(_, m)| m.wall_time_s).collect();
     let mut extra = serde_json::Map::new();
     extra.insert("shards".into(), n.into());
@@ -1083,14 +1153,7 @@ fn stage_merge(
             .collect::<Vec<_>>()
             .into(),
     );
-    let (rest, wall_time_s) = finish_run(scenario, &summary, trials, dir, start, extra)?;
-    files.extend(rest);
-    Ok(StagedMerge {
-        summary,
-        files,
-        wall_time_s,
-        trial_errors,
-    })
+    extra
 }
 
 #[cfg(test)]

@@ -103,27 +103,7 @@ fn run_with(
     sweep_index: usize,
     frame: &mut Frame,
 ) -> TrialResult {
-    let fail = |truth: Params, e: String| TrialResult {
-        trial,
-        n_points: 0,
-        truth,
-        crb: [None; N_PARAMS],
-        methods: setting
-            .methods
-            .iter()
-            .map(|&m| MethodResult {
-                method: m,
-                status: None,
-                message: e.clone(),
-                iterations: 0,
-                time_ms: 0.0,
-                estimate: None,
-                sigma: [None; N_PARAMS],
-                errors: None,
-            })
-            .collect(),
-        error: Some(e),
-    };
+    let fail = |truth: Params, e: String| TrialResult::failed(setting, trial, truth, e);
     let nan = Params {
         d_max: f64::NAN,
         d_min: f64::NAN,
@@ -158,17 +138,7 @@ fn run_with(
     }
     let crb =
         cramer_rao_bound(&frame.exact, &truth, setting.noise.sigma).unwrap_or([None; N_PARAMS]);
-    let mut opts = EstimateOptions::default()
-        .with_loss(setting.loss)
-        .unwrap_or_default()
-        .with_loss_scale(if setting.loss_scale_auto {
-            LossScale::Auto
-        } else {
-            LossScale::Fixed
-        });
-    if let Some((lo, hi)) = setting.range_gate {
-        opts = opts.with_range_gate(lo, hi).unwrap_or(opts);
-    }
+    let opts = estimate_options(setting);
     let methods = setting
         .methods
         .iter()
@@ -176,28 +146,7 @@ fn run_with(
             let t0 = Instant::now();
             let est = estimate(&frame.measured, m, &opts);
             let time_ms = t0.elapsed().as_secs_f64() * 1e3;
-            match est {
-                Ok(e) => MethodResult {
-                    method: m,
-                    status: Some(e.status),
-                    message: e.status.reason(),
-                    iterations: e.iterations,
-                    time_ms,
-                    estimate: Some(e.params),
-                    sigma: e.sigma,
-                    errors: Some(errors_against(&e.params, &truth)),
-                },
-                Err(err) => MethodResult {
-                    method: m,
-                    status: None,
-                    message: err.to_string(),
-                    iterations: 0,
-                    time_ms,
-                    estimate: None,
-                    sigma: [None; N_PARAMS],
-                    errors: None,
-                },
-            }
+            MethodResult::of(m, est, &truth, time_ms)
         })
         .collect();
     TrialResult {
@@ -207,6 +156,80 @@ fn run_with(
         crb,
         methods,
         error: None,
+    }
+}
+
+/// The estimator's options of a setting: its loss, the loss's scale fixed or from the
+/// residuals, its range gate.
+fn estimate_options(setting: &Setting) -> EstimateOptions {
+    let opts = EstimateOptions::default()
+        .with_loss(setting.loss)
+        .unwrap_or_default()
+        .with_loss_scale(if setting.loss_scale_auto {
+            LossScale::Auto
+        } else {
+            LossScale::Fixed
+        });
+    match setting.range_gate {
+        Some((lo, hi)) => opts.with_range_gate(lo, hi).unwrap_or(opts),
+        None => opts,
+    }
+}
+
+impl MethodResult {
+    /// Method `method`'s result: its estimate `est` against `truth` (under the
+    /// symmetries), or the error; `time_ms` the estimate call's wall time.
+    fn of(
+        method: Method,
+        est: Result<epd_core::Estimate, epd_core::EpdError>,
+        truth: &Params,
+        time_ms: f64,
+    ) -> Self {
+        match est {
+            Ok(e) => MethodResult {
+                method,
+                status: Some(e.status),
+                message: e.status.reason(),
+                iterations: e.iterations,
+                time_ms,
+                estimate: Some(e.params),
+                sigma: e.sigma,
+                errors: Some(errors_against(&e.params, truth)),
+            },
+            Err(err) => MethodResult::error(method, err.to_string(), time_ms),
+        }
+    }
+
+    /// No estimate: status `error` with `message`.
+    fn error(method: Method, message: String, time_ms: f64) -> Self {
+        MethodResult {
+            method,
+            status: None,
+            message,
+            iterations: 0,
+            time_ms,
+            estimate: None,
+            sigma: [None; N_PARAMS],
+            errors: None,
+        }
+    }
+}
+
+impl TrialResult {
+    /// A trial whose frame could not be made (why: `e`): every method an error.
+    fn failed(setting: &Setting, trial: usize, truth: Params, e: String) -> Self {
+        TrialResult {
+            trial,
+            n_points: 0,
+            truth,
+            crb: [None; N_PARAMS],
+            methods: setting
+                .methods
+                .iter()
+                .map(|&m| MethodResult::error(m, e.clone(), 0.0))
+                .collect(),
+            error: Some(e),
+        }
     }
 }
 

@@ -344,34 +344,20 @@ pub fn estimate_points(
         points = Cow::Owned(points.into_owned());
     }
     let t1 = Instant::now();
-    // The calibration moves each point along its ray; its spread gives each point's σ.
     let mut n_calibrated = None;
     let mut sigmas: Option<Cow<'_, [f64]>> = sigma.map(Cow::Borrowed);
     if let Some(cal) = &cfg.calibration {
-        let Some(i) = intensity else {
-            return Err(format!(
-                "no per-point `intensity` given; {CALIBRATION_NEEDS_INTENSITY}"
-            ));
-        };
-        let pts = points.to_mut();
-        let moved = if cfg.weighted {
-            if sigma.is_some() {
-                return Err(
-                    "per-point σ given with a weighting depth table: give one or the other \
-                     (or the table unweighted)"
-                        .into(),
-                );
-            }
-            let (moved, s) = cal
-                .table
-                .correct_with_sigmas(pts, i)
-                .map_err(|e| e.to_string())?;
-            sigmas = Some(Cow::Owned(s));
-            moved
-        } else {
-            cal.table.correct(pts, i).map_err(|e| e.to_string())?
-        };
+        let (moved, table_sigmas) = correct_by_table(
+            cal,
+            cfg.weighted,
+            points.to_mut(),
+            intensity,
+            sigma.is_some(),
+        )?;
         n_calibrated = Some(moved);
+        if let Some(s) = table_sigmas {
+            sigmas = Some(Cow::Owned(s));
+        }
     }
     // Invalid pixels (NaN, inf, zeros) are dropped and counted by the estimator; the
     // range gate keeps points by their model range (see EstimateOptions).
@@ -396,66 +382,22 @@ pub fn estimate_points(
             margin,
         ))
     });
-    let est = match (&sigmas, &survey) {
-        // No straight section to fit on its own (in a bend, or its end too close): the
-        // report withholds the estimate and says why; nothing more to fit.
-        (_, Some(s)) if s.segmentation.straight_withheld => s.segmentation.straight,
-        // The survey's straight estimate is the (unweighted) estimate on the straight
-        // section's points: all of them when nothing lies ahead.
-        (None, Some(s)) => s.segmentation.straight,
-        (None, None) => estimate(kept, cfg.method, &cfg.options).map_err(failed)?,
-        (Some(sig), _) => match &mask {
-            // Weighted, on the straight section's points only.
-            Some(keep) => {
-                let (p, w): (Vec<[f64; 3]>, Vec<f64>) = kept
-                    .iter()
-                    .zip(sig.iter())
-                    .zip(keep)
-                    .filter(|(_, k)| **k)
-                    .map(|((p, w), _)| (*p, *w))
-                    .unzip();
-                estimate_weighted(&p, &w, cfg.method, &cfg.options).map_err(failed)?
-            }
-            None => estimate_weighted(kept, sig, cfg.method, &cfg.options).map_err(failed)?,
-        },
-    };
+    let est = fit_straight(
+        kept,
+        sigmas.as_deref(),
+        survey.as_ref(),
+        mask.as_deref(),
+        cfg,
+    )
+    .map_err(failed)?;
     let geometry = survey.as_ref().map(GeometryReport::of);
     let elapsed_ms = t1.elapsed().as_secs_f64() * 1e3;
-    let n_out_of_range = est.n_out_of_gate;
-    let loss_scale_m = match (est.method, est.loss.scale()) {
-        (_, None) => f64::NAN,
-        // C-EPD's residual r_c ≈ 2δ/R: back to metres of radial error.
-        (Method::CEpd, Some(k)) => k * (est.params.d_max + est.params.d_min) / 8.0,
-        (_, Some(k)) => k,
-    };
-    // The straight section's points (all of them when nothing lies ahead), gated.
-    let straight: Vec<[f64; 3]>;
-    let kept: &[[f64; 3]] = match &mask {
-        None => kept,
-        Some(keep) => {
-            straight = kept
-                .iter()
-                .zip(keep)
-                .filter(|(_, k)| **k)
-                .map(|(p, _)| *p)
-                .collect();
-            &straight
-        }
-    };
-    let gated: Vec<[f64; 3]>;
-    let fitted: &[[f64; 3]] = match cfg.options.range_gate() {
-        None => kept,
-        Some((lo, hi)) => {
-            gated = epd_core::gate_by_model_range(kept, &est.params, lo, hi);
-            &gated
-        }
-    };
     Ok(FileEstimate {
-        loss: (cfg.loss.clone(), loss_scale_m),
-        rms_residual_mm: rms_range_residual(fitted, &est.params).map(|v| v * 1e3),
+        loss: (cfg.loss.clone(), radial_loss_scale_m(&est)),
+        rms_residual_mm: straight_rms_mm(kept, mask.as_deref(), &est, cfg),
+        n_out_of_range: est.n_out_of_gate,
         estimate: est,
         n_read,
-        n_out_of_range,
         elapsed_ms,
         read_ms,
         nominal_od_mm: cfg.nominal_od_mm,
@@ -463,6 +405,110 @@ pub fn estimate_points(
         weighted: sigmas.is_some(),
         geometry,
     })
+}
+
+/// The depth table's correction in place: each point moved along its ray by the table's
+/// offset at its range and `intensity`; with a weighting table also each point's σᵢ
+/// (refused when per-point σ are `sigma_given` too). The number of points moved.
+fn correct_by_table(
+    cal: &CalibrationTable,
+    weighted: bool,
+    points: &mut [[f64; 3]],
+    intensity: Option<&[f64]>,
+    sigma_given: bool,
+) -> Result<(usize, Option<Vec<f64>>), String> {
+    let Some(i) = intensity else {
+        return Err(format!(
+            "no per-point `intensity` given; {CALIBRATION_NEEDS_INTENSITY}"
+        ));
+    };
+    if !weighted {
+        let moved = cal.table.correct(points, i).map_err(|e| e.to_string())?;
+        return Ok((moved, None));
+    }
+    if sigma_given {
+        return Err(
+            "per-point σ given with a weighting depth table: give one or the other \
+             (or the table unweighted)"
+                .into(),
+        );
+    }
+    let (moved, s) = cal
+        .table
+        .correct_with_sigmas(points, i)
+        .map_err(|e| e.to_string())?;
+    Ok((moved, Some(s)))
+}
+
+/// The estimate on the straight section's points (those `mask` keeps; all of them when
+/// nothing lies ahead): unweighted, the survey's own straight estimate when there is a
+/// survey; weighted by `sigmas` when given.
+fn fit_straight(
+    points: &[[f64; 3]],
+    sigmas: Option<&[f64]>,
+    survey: Option<&epd_core::segment::Survey>,
+    mask: Option<&[bool]>,
+    cfg: &EstimateConfig,
+) -> Result<epd_core::Estimate, epd_core::EpdError> {
+    match (sigmas, survey, mask) {
+        // No straight section to fit on its own (in a bend, or its end too close): the
+        // report withholds the estimate and says why; nothing more to fit.
+        (_, Some(s), _) if s.segmentation.straight_withheld => Ok(s.segmentation.straight),
+        // The survey's straight estimate is the (unweighted) estimate on the straight
+        // section's points: all of them when nothing lies ahead.
+        (None, Some(s), _) => Ok(s.segmentation.straight),
+        (None, None, _) => estimate(points, cfg.method, &cfg.options),
+        (Some(sig), _, Some(keep)) => {
+            let (p, w): (Vec<[f64; 3]>, Vec<f64>) = points
+                .iter()
+                .zip(sig)
+                .zip(keep)
+                .filter(|(_, k)| **k)
+                .map(|((p, w), _)| (*p, *w))
+                .unzip();
+            estimate_weighted(&p, &w, cfg.method, &cfg.options)
+        }
+        (Some(sig), _, None) => estimate_weighted(points, sig, cfg.method, &cfg.options),
+    }
+}
+
+/// The loss's scale in metres of radial error (NaN without a loss). C-EPD's residual
+/// r_c ≈ 2δ/R: its scale k is k·(D_max + D_min)/8 m.
+fn radial_loss_scale_m(est: &epd_core::Estimate) -> f64 {
+    match (est.method, est.loss.scale()) {
+        (_, None) => f64::NAN,
+        (Method::CEpd, Some(k)) => k * (est.params.d_max + est.params.d_min) / 8.0,
+        (_, Some(k)) => k,
+    }
+}
+
+/// RMS range residual (mm) of the straight section's points (those `mask` keeps; all of
+/// them when nothing lies ahead) within the range gate, about the estimate.
+fn straight_rms_mm(
+    points: &[[f64; 3]],
+    mask: Option<&[bool]>,
+    est: &epd_core::Estimate,
+    cfg: &EstimateConfig,
+) -> Option<f64> {
+    let straight: Cow<'_, [[f64; 3]]> = match mask {
+        None => Cow::Borrowed(points),
+        Some(keep) => points
+            .iter()
+            .zip(keep)
+            .filter(|(_, k)| **k)
+            .map(|(p, _)| *p)
+            .collect(),
+    };
+    let fitted: Cow<'_, [[f64; 3]]> = match cfg.options.range_gate() {
+        None => straight,
+        Some((lo, hi)) => Cow::Owned(epd_core::gate_by_model_range(
+            &straight,
+            &est.params,
+            lo,
+            hi,
+        )),
+    };
+    rms_range_residual(&fitted, &est.params).map(|v| v * 1e3)
 }
 
 #[cfg(test)]

@@ -5,7 +5,7 @@
 
 pub mod estimate;
 /// The point-cloud readers, which live in `epd-io` (re-exported here for the tool's
-/// users: the Python package, the tests).
+/// users: the binary, the Python package, the benchmarks).
 pub mod read {
     pub use epd_io::read::*;
     pub use epd_io::{pcd, ply, text};

@@ -523,20 +523,56 @@ fn shard_files(files: &[PathBuf], shard: Option<ShardSpec>) -> anyhow::Result<Ve
     Ok(sorted.drain(block).collect())
 }
 
-fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
-    let cfg = estimate_config(args)?;
-    let files = shard_files(&args.files, args.shard)?;
-    if let Some(n) = args.threads {
+/// Start rayon's global pool with `threads` workers (unset: one per core).
+fn start_threads(threads: Option<NonZeroUsize>) -> anyhow::Result<()> {
+    if let Some(n) = threads {
         rayon::ThreadPoolBuilder::new()
             .num_threads(n.get())
             .build_global()
             .context("cannot start the worker threads")?;
     }
-    let bar = if args.quiet {
+    Ok(())
+}
+
+/// A progress bar over `n` files on standard error, hidden with `--quiet`.
+fn progress(quiet: bool, n: usize) -> ProgressBar {
+    if quiet {
         ProgressBar::hidden()
     } else {
-        ProgressBar::new(files.len() as u64)
+        ProgressBar::new(n as u64)
+    }
+}
+
+/// Flush the output; a reader that went away before the last flush is not an error of ours.
+fn finish_output(sink: Sink) -> anyhow::Result<()> {
+    let Err(e) = sink.finish() else {
+        return Ok(());
     };
+    let pipe = e
+        .chain()
+        .any(|c| c.downcast_ref::<std::io::Error>().is_some_and(closed_pipe));
+    if pipe { Ok(()) } else { Err(e) }
+}
+
+/// Exit 0 if no file failed, else list them (unless `quiet`) and exit 1.
+fn failures_exit(failed: &[String], total: usize, quiet: bool) -> ExitCode {
+    if failed.is_empty() {
+        return ExitCode::SUCCESS;
+    }
+    if !quiet {
+        eprintln!("{} of {total} files failed:", failed.len());
+        for f in failed {
+            eprintln!("  {f}");
+        }
+    }
+    ExitCode::FAILURE
+}
+
+fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
+    let cfg = estimate_config(args)?;
+    let files = shard_files(&args.files, args.shard)?;
+    start_threads(args.threads)?;
+    let bar = progress(args.quiet, files.len());
     if let Some(out) = &args.output {
         check_output_path(out, &args.files, "-o")?;
     }
@@ -594,28 +630,15 @@ fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
         result?;
     }
     bar.finish_and_clear();
-    if open && let Err(e) = sink.finish() {
-        // A reader that went away before the last flush is not an error of ours.
-        let pipe = e
-            .chain()
-            .any(|c| c.downcast_ref::<std::io::Error>().is_some_and(closed_pipe));
-        if !pipe {
-            return Err(e);
-        }
+    if open {
+        finish_output(sink)?;
     }
-    if failed.is_empty() {
-        return Ok(ExitCode::SUCCESS);
-    }
-    if !args.quiet {
-        eprintln!("{} of {} files failed:", failed.len(), files.len());
-        for f in &failed {
-            eprintln!("  {f}");
-        }
-    }
-    Ok(ExitCode::FAILURE)
+    Ok(failures_exit(&failed, files.len(), args.quiet))
 }
 
-fn run_calibrate(a: &CalibrateArgs) -> anyhow::Result<ExitCode> {
+/// Check `epd calibrate`'s arguments (exit 2 on a bad one); the known inner diameters
+/// (D_max, D_min) in m.
+fn calibrate_known(a: &CalibrateArgs) -> anyhow::Result<(f64, f64)> {
     let d_max = a.known_id_mm * 1e-3;
     let d_min = a.known_dmin_mm.unwrap_or(a.known_id_mm) * 1e-3;
     if !(a.known_id_mm > 0.0 && a.known_id_mm.is_finite()) {
@@ -654,24 +677,15 @@ fn run_calibrate(a: &CalibrateArgs) -> anyhow::Result<ExitCode> {
         )));
     }
     check_output_path(&a.out, &a.files, "--out")?;
-    if let Some(n) = a.threads {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(n.get())
-            .build_global()
-            .context("cannot start the worker threads")?;
-    }
-    let gate = (a.min_range, a.max_range);
-    let options = EstimateOptions::default()
-        .with_loss(Loss::from_name("cauchy", DEFAULT_LOSS_SCALE_M)?)?
-        .with_loss_scale(LossScale::Auto);
+    Ok((d_max, d_min))
+}
+
+/// Every calibration file's points and intensities (the table is binned by intensity),
+/// read in parallel, or why not.
+fn read_calibration_files(a: &CalibrateArgs) -> Vec<Result<(PointCloud, Vec<f64>), String>> {
     let input: InputConfig = (&a.input).into();
-    let bar = if a.quiet {
-        ProgressBar::hidden()
-    } else {
-        ProgressBar::new(a.files.len() as u64)
-    };
-    // Every frame is read first: the table and the poses are refined together.
-    let read: Vec<Result<(PointCloud, Vec<f64>), String>> = a
+    let bar = progress(a.quiet, a.files.len());
+    let read = a
         .files
         .par_iter()
         .with_max_len(1)
@@ -685,6 +699,75 @@ fn run_calibrate(a: &CalibrateArgs) -> anyhow::Result<ExitCode> {
         })
         .collect();
     bar.finish_and_clear();
+    read
+}
+
+/// Print each frame's fitted pose (unless `quiet`) and add the frames whose fit failed
+/// to `failed`; the number of frames used.
+fn report_calibration_fits(
+    names: &[String],
+    fits: &[Result<epd_core::Estimate, epd_core::EpdError>],
+    quiet: bool,
+    failed: &mut Vec<String>,
+) -> usize {
+    let deg = 180.0 / std::f64::consts::PI;
+    let mut used = 0;
+    for (name, fit) in names.iter().zip(fits) {
+        match fit {
+            Ok(est) => {
+                used += 1;
+                if !quiet {
+                    let p = est.params;
+                    eprintln!(
+                        "{name}: pose roll {:.2}° pitch {:.3}° yaw {:.3}° δy {:.1} mm δz {:.1} mm, \
+                         {} points",
+                        p.roll * deg,
+                        p.pitch * deg,
+                        p.yaw * deg,
+                        p.dy * 1e3,
+                        p.dz * 1e3,
+                        est.n_points,
+                    );
+                }
+            }
+            Err(e) => failed.push(format!("{name}: {e}")),
+        }
+    }
+    used
+}
+
+/// One line on the written table: its bins, how many hold data, what it was made from and
+/// the range of its offsets.
+fn print_table_summary(out: &Path, cal: &CalibrationTable) {
+    let t = &cal.table;
+    let filled = t.count.iter().filter(|&&c| c > 0).count();
+    let (lo, hi) = t
+        .offset_m
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
+            (l.min(v), h.max(v))
+        });
+    eprintln!(
+        "{}: {} × {} bins ({filled} filled) from {} frames and {} points; offsets \
+         {:.1} to {:.1} mm",
+        out.display(),
+        t.range.n,
+        t.log_intensity.n,
+        cal.frames,
+        cal.n_observations,
+        lo * 1e3,
+        hi * 1e3
+    );
+}
+
+fn run_calibrate(a: &CalibrateArgs) -> anyhow::Result<ExitCode> {
+    let (d_max, d_min) = calibrate_known(a)?;
+    start_threads(a.threads)?;
+    let options = EstimateOptions::default()
+        .with_loss(Loss::from_name("cauchy", DEFAULT_LOSS_SCALE_M)?)?
+        .with_loss_scale(LossScale::Auto);
+    // Every frame is read first: the table and the poses are refined together.
+    let read = read_calibration_files(a);
     let mut failed = Vec::new();
     let mut names = Vec::new();
     let mut frames = Vec::new();
@@ -711,66 +794,26 @@ fn run_calibrate(a: &CalibrateArgs) -> anyhow::Result<ExitCode> {
     }
     let settings = CalibrationSettings {
         known: (d_max, d_min),
-        gate,
+        gate: (a.min_range, a.max_range),
         bins: (a.range_bins, a.intensity_bins),
         min_count: a.min_count.max(1),
         passes: a.passes as usize,
     };
     let cal = calibrate(&frames, &settings, &options)
         .with_context(|| format!("no table written to {}", a.out.display()))?;
-    let deg = 180.0 / std::f64::consts::PI;
-    let mut used = 0;
-    for (name, fit) in names.iter().zip(&cal.fits) {
-        match fit {
-            Ok(est) => {
-                used += 1;
-                if !a.quiet {
-                    let p = est.params;
-                    eprintln!(
-                        "{name}: pose roll {:.2}° pitch {:.3}° yaw {:.3}° δy {:.1} mm δz {:.1} mm, \
-                         {} points",
-                        p.roll * deg,
-                        p.pitch * deg,
-                        p.yaw * deg,
-                        p.dy * 1e3,
-                        p.dz * 1e3,
-                        est.n_points,
-                    );
-                }
-            }
-            Err(e) => failed.push(format!("{name}: {e}")),
-        }
-    }
+    let used = report_calibration_fits(&names, &cal.fits, a.quiet, &mut failed);
     for f in &failed {
         eprintln!("skipped {f}");
     }
-    let n_obs = cal.n_observations;
     let cal = CalibrationTable {
         table: cal.table,
         known: (d_max, d_min),
         frames: used,
-        n_observations: n_obs as u64,
+        n_observations: cal.n_observations as u64,
     };
-    let json = cal.to_json();
-    epd_io::atomic::write_bytes_atomic(&a.out, json.as_bytes())?;
+    epd_io::atomic::write_bytes_atomic(&a.out, cal.to_json().as_bytes())?;
     if !a.quiet {
-        let t = &cal.table;
-        let filled = t.count.iter().filter(|&&c| c > 0).count();
-        let (lo, hi) = t
-            .offset_m
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
-                (l.min(v), h.max(v))
-            });
-        eprintln!(
-            "{}: {} × {} bins ({filled} filled) from {used} frames and {n_obs} points; offsets \
-             {:.1} to {:.1} mm",
-            a.out.display(),
-            t.range.n,
-            t.log_intensity.n,
-            lo * 1e3,
-            hi * 1e3
-        );
+        print_table_summary(&a.out, &cal);
     }
     Ok(if failed.is_empty() {
         ExitCode::SUCCESS

@@ -285,70 +285,87 @@ impl FileReport {
                 e.estimate.n_points,
                 e.estimate.status.reason()
             ),
-            Ok(e) => {
-                let est = &e.estimate;
-                let p = est.params;
-                let s = |i: usize, k: f64| {
-                    est.sigma[i].map_or("undetermined".to_string(), |v| format!("±{:.3}", v * k))
-                };
-                let deg = 180.0 / std::f64::consts::PI;
-                let mut t = format!(
-                    "{}: {} {} after {} iterations, {} points ({} invalid dropped, {} out of range)\n  \
-                     Dmax {:.2} mm {}  Dmin {:.2} mm {}\n  \
-                     roll {:.2}° {}  pitch {:.3}° {}  yaw {:.3}° {}\n  \
-                     δy {:.2} mm {}  δz {:.2} mm {}\n  \
-                     rms range residual {} mm, estimate {:.1} ms, read {:.1} ms",
-                    self.file,
-                    est.method,
-                    est.status.name(),
-                    est.iterations,
-                    est.n_points,
-                    est.n_dropped,
-                    e.n_out_of_range,
-                    p.d_max * 1e3,
-                    s(0, 1e3),
-                    p.d_min * 1e3,
-                    s(1, 1e3),
-                    p.roll * deg,
-                    s(2, deg),
-                    p.pitch * deg,
-                    s(3, deg),
-                    p.yaw * deg,
-                    s(4, deg),
-                    p.dy * 1e3,
-                    s(5, 1e3),
-                    p.dz * 1e3,
-                    s(6, 1e3),
-                    e.rms_residual_mm.map_or("-".into(), |v| format!("{v:.2}")),
-                    e.elapsed_ms,
-                    e.read_ms,
-                );
-                if let Some(od) = e.nominal_od_mm {
-                    t.push_str(&format!(
-                        "\n  wall thickness ≈ {:.2} mm (nominal OD {od:.1} mm − mean ID)/2",
-                        (od - 0.5 * (p.d_max + p.d_min) * 1e3) / 2.0
-                    ));
-                }
-                if let Some(g) = &e.geometry {
-                    t.push_str(&format!("\n  geometry: {}", g.layout));
-                    if let Some(x) = g.straight_until_m {
-                        t.push_str(&format!(
-                            " — the straight section ends {x:.3} m ahead; the estimate uses \
-                             its points only"
-                        ));
-                    }
-                    if let (Some(r), Some(a), Some(c)) =
-                        (g.bend_radius_mm, g.bend_angle_deg, g.bend_direction_deg)
-                    {
-                        t.push_str(&format!(
-                            "\n  bend: radius {r:.0} mm, {a:.0}° seen so far, toward {c:.0}° \
-                             (clock angle from the sensor: 0 up, 90 right)"
-                        ));
-                    }
-                }
-                t
-            }
+            Ok(e) => e.text(&self.file),
         }
+    }
+}
+
+impl FileEstimate {
+    /// The readable lines of a converged estimate of `file`: the parameters with their
+    /// standard deviations, the fit's figures, the wall thickness and the geometry ahead.
+    fn text(&self, file: &str) -> String {
+        let est = &self.estimate;
+        let p = est.params;
+        let s = |i: usize, k: f64| {
+            est.sigma[i].map_or("undetermined".to_string(), |v| format!("±{:.3}", v * k))
+        };
+        let deg = 180.0 / std::f64::consts::PI;
+        let mut t = format!(
+            "{}: {} {} after {} iterations, {} points ({} invalid dropped, {} out of range)\n  \
+             Dmax {:.2} mm {}  Dmin {:.2} mm {}\n  \
+             roll {:.2}° {}  pitch {:.3}° {}  yaw {:.3}° {}\n  \
+             δy {:.2} mm {}  δz {:.2} mm {}\n  \
+             rms range residual {} mm, estimate {:.1} ms, read {:.1} ms",
+            file,
+            est.method,
+            est.status.name(),
+            est.iterations,
+            est.n_points,
+            est.n_dropped,
+            self.n_out_of_range,
+            p.d_max * 1e3,
+            s(0, 1e3),
+            p.d_min * 1e3,
+            s(1, 1e3),
+            p.roll * deg,
+            s(2, deg),
+            p.pitch * deg,
+            s(3, deg),
+            p.yaw * deg,
+            s(4, deg),
+            p.dy * 1e3,
+            s(5, 1e3),
+            p.dz * 1e3,
+            s(6, 1e3),
+            self.rms_residual_mm
+                .map_or("-".into(), |v| format!("{v:.2}")),
+            self.elapsed_ms,
+            self.read_ms,
+        );
+        if let Some(od) = self.nominal_od_mm {
+            t.push_str(&format!(
+                "\n  wall thickness ≈ {:.2} mm (nominal OD {od:.1} mm − mean ID)/2",
+                (od - 0.5 * (p.d_max + p.d_min) * 1e3) / 2.0
+            ));
+        }
+        if let Some(g) = &self.geometry {
+            t.push_str(&g.text());
+        }
+        t
+    }
+}
+
+impl GeometryReport {
+    /// The text report's geometry lines (each begins with a newline).
+    fn text(&self) -> String {
+        let mut t = format!("\n  geometry: {}", self.layout);
+        if let Some(x) = self.straight_until_m {
+            t.push_str(&format!(
+                " — the straight section ends {x:.3} m ahead; the estimate uses \
+                 its points only"
+            ));
+        }
+        if let (Some(r), Some(a), Some(c)) = (
+            self.bend_radius_mm,
+            self.bend_angle_deg,
+            self.bend_direction_deg,
+        ) {
+            t.push_str(&format!(
+                "\n  bend: radius {r:.0} mm, {a:.0}° seen so far, toward {c:.0}° \
+                 (clock angle from the sensor: 0 up, 90 right)"
+            ));
+        }
+        t
     }
 }
 

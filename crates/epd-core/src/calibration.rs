@@ -338,6 +338,32 @@ pub struct DepthTable {
     pub count: Vec<u64>,
 }
 
+/// The offsets of the usable observations (finite, intensity > 0, inside both axes) by
+/// bin: bin k = range bin × log-intensity bins + log-intensity bin.
+fn bin_offsets(obs: &[Observation], bins: &TableBins, cells: usize) -> Vec<Vec<f64>> {
+    let ni = bins.log_intensity.n;
+    let mut per_bin: Vec<Vec<f64>> = vec![Vec::new(); cells];
+    for o in obs {
+        if !(o.model_range_m.is_finite()
+            && o.offset_m.is_finite()
+            && o.intensity.is_finite()
+            && o.intensity > 0.0)
+        {
+            continue;
+        }
+        let (lo, hi) = (bins.range.lo, bins.range.hi);
+        let li = o.intensity.ln();
+        if !(lo..=hi).contains(&o.model_range_m)
+            || !(bins.log_intensity.lo..=bins.log_intensity.hi).contains(&li)
+        {
+            continue;
+        }
+        let k = bins.range.bin(o.model_range_m) * ni + bins.log_intensity.bin(li);
+        per_bin[k].push(o.offset_m);
+    }
+    per_bin
+}
+
 impl DepthTable {
     /// The table from calibration observations.
     ///
@@ -359,29 +385,14 @@ impl DepthTable {
             .ok_or_else(|| {
                 EpdError::InvalidOption(format!("{nr} × {ni} bins: at most 2²⁰ bins"))
             })?;
-        let mut per_bin: Vec<Vec<f64>> = vec![Vec::new(); cells];
-        for o in obs {
-            if !(o.model_range_m.is_finite()
-                && o.offset_m.is_finite()
-                && o.intensity.is_finite()
-                && o.intensity > 0.0)
-            {
-                continue;
-            }
-            let (lo, hi) = (bins.range.lo, bins.range.hi);
-            let li = o.intensity.ln();
-            if !(lo..=hi).contains(&o.model_range_m)
-                || !(bins.log_intensity.lo..=bins.log_intensity.hi).contains(&li)
-            {
-                continue;
-            }
-            let k = bins.range.bin(o.model_range_m) * ni + bins.log_intensity.bin(li);
-            per_bin[k].push(o.offset_m);
-        }
-        let mut offset_m = vec![f64::NAN; cells];
-        let mut spread_m = vec![f64::NAN; cells];
-        let mut count = vec![0u64; cells];
-        for (k, v) in per_bin.iter_mut().enumerate() {
+        let mut table = Self {
+            range: bins.range,
+            log_intensity: bins.log_intensity,
+            offset_m: vec![f64::NAN; cells],
+            spread_m: vec![f64::NAN; cells],
+            count: vec![0u64; cells],
+        };
+        for (k, v) in bin_offsets(obs, bins, cells).iter_mut().enumerate() {
             if v.len() < bins.min_count.max(1) {
                 continue;
             }
@@ -390,24 +401,35 @@ impl DepthTable {
                 // All offsets alike: too few distinct points to know the noise there.
                 continue;
             }
-            offset_m[k] = mean;
-            spread_m[k] = spread;
-            count[k] = v.len() as u64;
+            table.offset_m[k] = mean;
+            table.spread_m[k] = spread;
+            table.count[k] = v.len() as u64;
         }
-        let filled: Vec<usize> = (0..cells).filter(|&k| count[k] > 0).collect();
-        if filled.is_empty() {
+        let Some(first_filled) = table.count.iter().position(|&c| c > 0) else {
             return Err(EpdError::InvalidOption(format!(
                 "no bin of the depth table holds {} observations with a spread: record more \
                  frames or use fewer bins",
                 bins.min_count.max(1)
             )));
-        }
-        // Empty bins: from the nearest filled bin of the same range row (the range sets
-        // the wiggling; in a pipe each range sees a narrow band of intensities), then
-        // whole empty rows from the nearest filled row.
+        };
+        table.fill_empty_bins(first_filled);
+        Ok(table)
+    }
+
+    /// Empty bins: from the nearest filled bin of the same range row (the range sets
+    /// the wiggling; in a pipe each range sees a narrow band of intensities), then
+    /// whole empty rows from the nearest filled row (`first_filled`: a filled bin).
+    fn fill_empty_bins(&mut self, first_filled: usize) {
+        let (nr, ni) = (self.range.n, self.log_intensity.n);
+        let Self {
+            offset_m,
+            spread_m,
+            count,
+            ..
+        } = self;
         let row_filled = |i: usize, count: &[u64]| (0..ni).any(|j| count[i * ni + j] > 0);
         for i in 0..nr {
-            if !row_filled(i, &count) {
+            if !row_filled(i, count) {
                 continue;
             }
             for j in 0..ni {
@@ -422,28 +444,21 @@ impl DepthTable {
                 spread_m[i * ni + j] = spread_m[i * ni + near];
             }
         }
-        let rows: Vec<usize> = (0..nr).filter(|&i| row_filled(i, &count)).collect();
+        let rows: Vec<usize> = (0..nr).filter(|&i| row_filled(i, count)).collect();
         for i in 0..nr {
-            if row_filled(i, &count) {
+            if row_filled(i, count) {
                 continue;
             }
             let near = rows
                 .iter()
                 .copied()
                 .min_by_key(|&f| (f.abs_diff(i), f))
-                .unwrap_or(filled[0] / ni);
+                .unwrap_or(first_filled / ni);
             for j in 0..ni {
                 offset_m[i * ni + j] = offset_m[near * ni + j];
                 spread_m[i * ni + j] = spread_m[near * ni + j];
             }
         }
-        Ok(Self {
-            range: bins.range,
-            log_intensity: bins.log_intensity,
-            offset_m,
-            spread_m,
-            count,
-        })
     }
 
     /// Check a table read from elsewhere: axes valid, one finite value per bin.

@@ -518,25 +518,8 @@ fn fit_cloud(
     let kind = method.residual();
     let fit = problem(cloud, kind, loss, fixed);
     let (canonical, eq) = canonical_equations(&Params::from_array(x.into()), &rep, &fit, options);
-    // Degrees of freedom: N minus the fitted parameters.
-    let n_free = fixed.iter().filter(|&&f| !f).count();
-    let dof = n.saturating_sub(n_free).max(1) as f64;
-    let (sigma, cov, raw_cost) = if loss == Loss::Squared {
-        let (s, c) = covariance(&eq, eq.cost / dof);
-        (s, c, eq.cost)
-    } else {
-        sandwich_uncertainty(cloud, kind, loss, fixed, &canonical, dof)
-    };
-    let roll_determined = roll_is_determined(
-        &canonical,
-        &sigma,
-        cov.as_ref(),
-        options.fixed_diameters.is_some(),
-    );
-    let mut sigma = sigma;
-    if !roll_determined {
-        sigma[2] = None;
-    }
+    let (sigma, roll_determined, raw_cost) =
+        uncertainty(cloud, kind, loss, fixed, &canonical, &eq, options);
     let (diagnostics, implausible) = match assess(stage_pts.points, &canonical) {
         Ok(d) => (Some(d), d.verdict(&canonical)),
         Err(i) => (None, Some(i)),
@@ -557,6 +540,40 @@ fn fit_cloud(
         sigma,
         roll_determined,
     })
+}
+
+/// The 1-σ of the canonical estimate, with N minus the fitted parameters as degrees of
+/// freedom: σ̂²·(JᵀJ)⁻¹ for least squares ([`covariance`]), the sandwich for a robust
+/// loss ([`sandwich_uncertainty`]); roll's withheld when roll is undetermined
+/// ([`roll_is_determined`]). Also whether it is, and the raw cost Σ rᵢ² without the
+/// loss (for [`Estimate::rms_residual`]).
+fn uncertainty(
+    cloud: View<'_>,
+    kind: Residual,
+    loss: Loss,
+    fixed: [bool; N_PARAMS],
+    canonical: &Params,
+    eq: &NormalEquations<N_PARAMS>,
+    options: &EstimateOptions,
+) -> (Sigmas, bool, f64) {
+    let n_free = fixed.iter().filter(|&&f| !f).count();
+    let dof = cloud.len().saturating_sub(n_free).max(1) as f64;
+    let (mut sigma, cov, raw_cost) = if loss == Loss::Squared {
+        let (s, c) = covariance(eq, eq.cost / dof);
+        (s, c, eq.cost)
+    } else {
+        sandwich_uncertainty(cloud, kind, loss, fixed, canonical, dof)
+    };
+    let roll_determined = roll_is_determined(
+        canonical,
+        &sigma,
+        cov.as_ref(),
+        options.fixed_diameters.is_some(),
+    );
+    if !roll_determined {
+        sigma[2] = None;
+    }
+    (sigma, roll_determined, raw_cost)
 }
 
 /// The data-only start ([`initial_guess`]); with held diameters, the guess in canonical

@@ -94,6 +94,97 @@ fn scalar(name: &str) -> Option<Scalar> {
     })
 }
 
+/// One header line after `ply`, split in words: an `element` or `property` line adds to
+/// `elements`; a `format` line gives the encoding; `bad` makes the error of this line.
+fn header_line(
+    words: &[&str],
+    elements: &mut Vec<Element>,
+    bad: impl Fn(&str) -> ReadError,
+) -> Result<Option<Encoding>, ReadError> {
+    match words {
+        [] => {}
+        ["comment", ..] | ["obj_info", ..] | ["end_header"] => {}
+        ["format", f, _version] => {
+            return Ok(Some(match *f {
+                "ascii" => Encoding::Ascii,
+                "binary_little_endian" => Encoding::Binary { little: true },
+                "binary_big_endian" => Encoding::Binary { little: false },
+                _ => return Err(bad("unknown format")),
+            }));
+        }
+        ["element", name, count] => {
+            let count: u64 = count
+                .parse()
+                .map_err(|_| bad("the element count is not a whole number from 0 to 2^64 - 1"))?;
+            if *name == "vertex" && elements.iter().any(|e| e.name == "vertex") {
+                return Err(bad("a second `vertex` element"));
+            }
+            elements.push(Element {
+                name: name.to_string(),
+                count,
+                props: Vec::new(),
+            });
+        }
+        ["property", "list", c, t, name] => {
+            let el = elements
+                .last_mut()
+                .ok_or_else(|| bad("a property before any element"))?;
+            let count = scalar(c).ok_or_else(|| bad("unknown list count type"))?;
+            let item = scalar(t).ok_or_else(|| bad("unknown list item type"))?;
+            if matches!(count, Scalar::F32 | Scalar::F64) {
+                return Err(bad("a list count must be an integer type"));
+            }
+            el.props.push(Property::List {
+                name: name.to_string(),
+                count,
+                item,
+            });
+        }
+        ["property", t, name] => {
+            let el = elements
+                .last_mut()
+                .ok_or_else(|| bad("a property before any element"))?;
+            let ty = scalar(t).ok_or_else(|| bad("unknown property type"))?;
+            el.props.push(Property::Scalar {
+                name: name.to_string(),
+                ty,
+            });
+        }
+        _ => return Err(bad("not a PLY header line")),
+    }
+    Ok(None)
+}
+
+/// The indices of the vertex element's scalar properties x, y and z; an error if one is
+/// missing or a property is named twice.
+fn vertex_xyz(vertex: &Element) -> Result<[usize; 3], ReadError> {
+    let mut seen = std::collections::HashSet::new();
+    for p in &vertex.props {
+        if !seen.insert(p.name()) {
+            return Err(err(
+                F,
+                format!(
+                    "the vertex element has property `{}` twice",
+                    quote(p.name())
+                ),
+            ));
+        }
+    }
+    let find = |n: &str| {
+        vertex
+            .props
+            .iter()
+            .position(|p| matches!(p, Property::Scalar { name, .. } if name == n))
+    };
+    match (find("x"), find("y"), find("z")) {
+        (Some(x), Some(y), Some(z)) => Ok([x, y, z]),
+        _ => Err(err(
+            F,
+            "the vertex element lacks scalar properties x, y and z",
+        )),
+    }
+}
+
 /// A parsed header: the encoding, the elements, the index of `vertex` and those of its
 /// `x`, `y`, `z` properties.
 struct Header {
@@ -118,56 +209,8 @@ impl Header {
                     format!("header line {}: {what}: `{}`", i + 1, quote(line)),
                 )
             };
-            match words.as_slice() {
-                [] => {}
-                ["comment", ..] | ["obj_info", ..] | ["end_header"] => {}
-                ["format", f, _version] => {
-                    encoding = Some(match *f {
-                        "ascii" => Encoding::Ascii,
-                        "binary_little_endian" => Encoding::Binary { little: true },
-                        "binary_big_endian" => Encoding::Binary { little: false },
-                        _ => return Err(bad("unknown format")),
-                    })
-                }
-                ["element", name, count] => {
-                    let count: u64 = count.parse().map_err(|_| {
-                        bad("the element count is not a whole number from 0 to 2^64 - 1")
-                    })?;
-                    if *name == "vertex" && elements.iter().any(|e| e.name == "vertex") {
-                        return Err(bad("a second `vertex` element"));
-                    }
-                    elements.push(Element {
-                        name: name.to_string(),
-                        count,
-                        props: Vec::new(),
-                    });
-                }
-                ["property", "list", c, t, name] => {
-                    let el = elements
-                        .last_mut()
-                        .ok_or_else(|| bad("a property before any element"))?;
-                    let count = scalar(c).ok_or_else(|| bad("unknown list count type"))?;
-                    let item = scalar(t).ok_or_else(|| bad("unknown list item type"))?;
-                    if matches!(count, Scalar::F32 | Scalar::F64) {
-                        return Err(bad("a list count must be an integer type"));
-                    }
-                    el.props.push(Property::List {
-                        name: name.to_string(),
-                        count,
-                        item,
-                    });
-                }
-                ["property", t, name] => {
-                    let el = elements
-                        .last_mut()
-                        .ok_or_else(|| bad("a property before any element"))?;
-                    let ty = scalar(t).ok_or_else(|| bad("unknown property type"))?;
-                    el.props.push(Property::Scalar {
-                        name: name.to_string(),
-                        ty,
-                    });
-                }
-                _ => return Err(bad("not a PLY header line")),
+            if let Some(e) = header_line(&words, &mut elements, bad)? {
+                encoding = Some(e);
             }
         }
         let encoding = encoding.ok_or_else(|| err(F, "the header has no `format` line"))?;
@@ -175,34 +218,7 @@ impl Header {
             .iter()
             .position(|e| e.name == "vertex")
             .ok_or_else(|| err(F, "no `vertex` element"))?;
-        let vertex = &elements[vi];
-        let mut seen = std::collections::HashSet::new();
-        for p in &vertex.props {
-            if !seen.insert(p.name()) {
-                return Err(err(
-                    F,
-                    format!(
-                        "the vertex element has property `{}` twice",
-                        quote(p.name())
-                    ),
-                ));
-            }
-        }
-        let find = |n: &str| {
-            vertex
-                .props
-                .iter()
-                .position(|p| matches!(p, Property::Scalar { name, .. } if name == n))
-        };
-        let xyz = match (find("x"), find("y"), find("z")) {
-            (Some(x), Some(y), Some(z)) => [x, y, z],
-            _ => {
-                return Err(err(
-                    F,
-                    "the vertex element lacks scalar properties x, y and z",
-                ));
-            }
-        };
+        let xyz = vertex_xyz(&elements[vi])?;
         Ok(Header {
             encoding,
             elements,
@@ -679,6 +695,29 @@ pub fn write<W: Write>(
     format: PlyFormat,
     precision: PlyPrecision,
 ) -> std::io::Result<()> {
+    let with_intensity = frame.intensity.len() == frame.measured.len()
+        && frame.intensity.iter().any(|i| i.is_finite());
+    let with_part = !frame.part.is_empty() && frame.part.len() == frame.measured.len();
+    write_header(w, frame, format, precision, with_intensity, with_part)?;
+    for (i, (p, px)) in frame.measured.iter().zip(&frame.pixels).enumerate() {
+        let intensity = with_intensity.then(|| frame.intensity[i]);
+        let part =
+            with_part.then(|| frame.part[i].map_or((0, 0), |p| (p.segment, part_code(p.kind))));
+        write_vertex(w, format, precision, p, px, intensity, part)?;
+    }
+    Ok(())
+}
+
+/// The header of [`write()`]: the frame's truth in a comment, then the vertex element's
+/// properties x, y, z, u, v and, when written, intensity, segment and part.
+fn write_header<W: Write>(
+    w: &mut W,
+    frame: &Frame,
+    format: PlyFormat,
+    precision: PlyPrecision,
+    with_intensity: bool,
+    with_part: bool,
+) -> std::io::Result<()> {
     let fmt = match format {
         PlyFormat::Ascii => "ascii",
         PlyFormat::BinaryLittleEndian => "binary_little_endian",
@@ -688,9 +727,6 @@ pub fn write<W: Write>(
         PlyPrecision::F64 => "double",
     };
     let t = &frame.truth;
-    let with_intensity = frame.intensity.len() == frame.measured.len()
-        && frame.intensity.iter().any(|i| i.is_finite());
-    let with_part = !frame.part.is_empty() && frame.part.len() == frame.measured.len();
     write!(
         w,
         "ply\nformat {fmt} 1.0\ncomment tof-sim frame: measured points in the sensor frame (m; X forward, Y right, Z up)\n\
@@ -719,49 +755,55 @@ pub fn write<W: Write>(
         } else {
             ""
         }
-    )?;
-    for (i, (p, px)) in frame.measured.iter().zip(&frame.pixels).enumerate() {
-        match (format, precision) {
-            (PlyFormat::Ascii, PlyPrecision::F64) => {
-                write!(w, "{} {} {} {} {}", p[0], p[1], p[2], px[0], px[1])?
-            }
-            (PlyFormat::Ascii, PlyPrecision::F32) => write!(
-                w,
-                "{} {} {} {} {}",
-                p[0] as f32, p[1] as f32, p[2] as f32, px[0], px[1]
-            )?,
-            (PlyFormat::BinaryLittleEndian, prec) => {
-                for c in p {
-                    match prec {
-                        PlyPrecision::F64 => w.write_all(&c.to_le_bytes())?,
-                        PlyPrecision::F32 => w.write_all(&(*c as f32).to_le_bytes())?,
-                    }
-                }
-                w.write_all(&px[0].to_le_bytes())?;
-                w.write_all(&px[1].to_le_bytes())?;
-            }
+    )
+}
+
+/// One vertex of [`write()`]: the point `p` (SCS, m), its pixel, and the intensity and
+/// (segment, part code) when the file has them.
+fn write_vertex<W: Write>(
+    w: &mut W,
+    format: PlyFormat,
+    precision: PlyPrecision,
+    p: &[f64; 3],
+    px: &[u32; 2],
+    intensity: Option<f32>,
+    part: Option<(u16, u8)>,
+) -> std::io::Result<()> {
+    match (format, precision) {
+        (PlyFormat::Ascii, PlyPrecision::F64) => {
+            write!(w, "{} {} {} {} {}", p[0], p[1], p[2], px[0], px[1])?
         }
-        match format {
-            PlyFormat::Ascii if with_intensity => write!(w, " {}", frame.intensity[i])?,
-            PlyFormat::Ascii => {}
-            PlyFormat::BinaryLittleEndian if with_intensity => {
-                w.write_all(&frame.intensity[i].to_le_bytes())?
-            }
-            PlyFormat::BinaryLittleEndian => {}
-        }
-        if with_part {
-            let (segment, code) = frame.part[i].map_or((0, 0), |p| (p.segment, part_code(p.kind)));
-            match format {
-                PlyFormat::Ascii => write!(w, " {segment} {code}")?,
-                PlyFormat::BinaryLittleEndian => {
-                    w.write_all(&segment.to_le_bytes())?;
-                    w.write_all(&[code])?;
+        (PlyFormat::Ascii, PlyPrecision::F32) => write!(
+            w,
+            "{} {} {} {} {}",
+            p[0] as f32, p[1] as f32, p[2] as f32, px[0], px[1]
+        )?,
+        (PlyFormat::BinaryLittleEndian, prec) => {
+            for c in p {
+                match prec {
+                    PlyPrecision::F64 => w.write_all(&c.to_le_bytes())?,
+                    PlyPrecision::F32 => w.write_all(&(*c as f32).to_le_bytes())?,
                 }
             }
+            w.write_all(&px[0].to_le_bytes())?;
+            w.write_all(&px[1].to_le_bytes())?;
         }
-        if format == PlyFormat::Ascii {
-            writeln!(w)?;
+    }
+    match (format, intensity) {
+        (_, None) => {}
+        (PlyFormat::Ascii, Some(i)) => write!(w, " {i}")?,
+        (PlyFormat::BinaryLittleEndian, Some(i)) => w.write_all(&i.to_le_bytes())?,
+    }
+    match (format, part) {
+        (_, None) => {}
+        (PlyFormat::Ascii, Some((segment, code))) => write!(w, " {segment} {code}")?,
+        (PlyFormat::BinaryLittleEndian, Some((segment, code))) => {
+            w.write_all(&segment.to_le_bytes())?;
+            w.write_all(&[code])?;
         }
+    }
+    if format == PlyFormat::Ascii {
+        writeln!(w)?;
     }
     Ok(())
 }

@@ -106,54 +106,25 @@ fn header_names(f: &[&str], line_no: usize) -> Result<Vec<String>, ReadError> {
 /// Read delimited text.
 pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
     let text = decode(bytes)?;
-    let mut cloud = PointCloud::default();
-    let mut columns: Option<[usize; 3]> = None;
-    let mut names: Vec<String> = Vec::new();
-    let mut width = None;
-    // Point-count lines (PTS, ASC): the count of the current scan and its rows so far.
-    let mut scan: Option<(u64, u64)> = None;
+    let mut r = Reader::default();
     for (i, raw) in text.lines().enumerate() {
         let line = raw.trim();
         if line.is_empty() || line.starts_with('#') {
             continue;
         }
-        let f = fields(line);
         if let Some(comment) = line.strip_prefix("//") {
-            // CloudCompare writes its header as a comment: `//X,Y,Z,R,G,B`.
-            let f = fields(comment);
-            if width.is_none() && names.is_empty() {
-                let n = header_names(&f, i + 1)?;
-                let pos = |c: &str| n.iter().position(|v| v == c);
-                if let (Some(x), Some(y), Some(z)) = (pos("x"), pos("y"), pos("z")) {
-                    columns = Some([x, y, z]);
-                    names = n;
-                }
-            }
+            r.comment_header(comment, i + 1)?;
             continue;
         }
-        if let [one] = f.as_slice()
-            && let Ok(count) = one.parse::<u64>()
-        {
-            // A point count alone on a line: at the start, or after a complete scan of a
-            // file that started with one.
-            let starts = width.is_none() && cloud.points.is_empty() && scan.is_none();
-            let next_scan = scan.is_some_and(|(n, rows)| rows == n);
-            if starts || next_scan {
-                scan = Some((count, 0));
-                continue;
-            }
+        let f = fields(line);
+        if r.point_count(&f) {
+            continue;
         }
         let nums: Result<Vec<f64>, _> = f.iter().map(|s| s.parse::<f64>()).collect();
-        let v = match nums {
-            Ok(v) => v,
-            Err(_) if cloud.points.is_empty() && width.is_none() && names.is_empty() => {
-                // A header line.
-                names = header_names(&f, i + 1)?;
-                let pos = |n: &str| names.iter().position(|c| c == n);
-                if let (Some(x), Some(y), Some(z)) = (pos("x"), pos("y"), pos("z")) {
-                    columns = Some([x, y, z]);
-                }
-                continue;
+        match nums {
+            Ok(v) => r.row(&v, i + 1)?,
+            Err(_) if r.cloud.points.is_empty() && r.width.is_none() && r.names.is_empty() => {
+                r.header(&f, i + 1)?;
             }
             Err(_) => {
                 return Err(err(
@@ -161,53 +132,96 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
                     format!("line {}: `{}` is not a row of numbers", i + 1, quote(line)),
                 ));
             }
-        };
-        let [cx, cy, cz] = columns.unwrap_or([0, 1, 2]);
+        }
+    }
+    Ok(r.cloud)
+}
+
+/// What the lines read so far say.
+#[derive(Default)]
+struct Reader {
+    cloud: PointCloud,
+    /// The columns of x, y and z, when a header names them (else the first three).
+    columns: Option<[usize; 3]>,
+    /// The header's column names (lowercase), if there is a header.
+    names: Vec<String>,
+    /// Values per row, set by the first row.
+    width: Option<usize>,
+    /// Point-count lines (PTS, ASC): the count of the current scan and its rows so far.
+    scan: Option<(u64, u64)>,
+}
+
+impl Reader {
+    /// A `//` comment: CloudCompare writes its header as one (`//X,Y,Z,R,G,B`), taken
+    /// when it names x, y and z and comes before any row or other header.
+    fn comment_header(&mut self, comment: &str, line_no: usize) -> Result<(), ReadError> {
+        let f = fields(comment);
+        if self.width.is_none() && self.names.is_empty() {
+            let n = header_names(&f, line_no)?;
+            let pos = |c: &str| n.iter().position(|v| v == c);
+            if let (Some(x), Some(y), Some(z)) = (pos("x"), pos("y"), pos("z")) {
+                self.columns = Some([x, y, z]);
+                self.names = n;
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether `f` is a point count alone on a line at the start, or after a complete
+    /// scan of a file that started with one; it then starts a scan.
+    fn point_count(&mut self, f: &[&str]) -> bool {
+        if let [one] = f
+            && let Ok(count) = one.parse::<u64>()
+        {
+            let starts =
+                self.width.is_none() && self.cloud.points.is_empty() && self.scan.is_none();
+            let next_scan = self.scan.is_some_and(|(n, rows)| rows == n);
+            if starts || next_scan {
+                self.scan = Some((count, 0));
+                return true;
+            }
+        }
+        false
+    }
+
+    /// A header line: its names, and the columns of x, y and z when it names them.
+    fn header(&mut self, f: &[&str], line_no: usize) -> Result<(), ReadError> {
+        self.names = header_names(f, line_no)?;
+        let pos = |n: &str| self.names.iter().position(|c| c == n);
+        if let (Some(x), Some(y), Some(z)) = (pos("x"), pos("y"), pos("z")) {
+            self.columns = Some([x, y, z]);
+        }
+        Ok(())
+    }
+
+    /// One row of numbers: a point and its extra values.
+    fn row(&mut self, v: &[f64], line_no: usize) -> Result<(), ReadError> {
+        let [cx, cy, cz] = self.columns.unwrap_or([0, 1, 2]);
         let need = cx.max(cy).max(cz) + 1;
         if v.len() < need {
             return Err(err(
                 F,
                 format!(
-                    "line {}: {} values, at least {need} expected (x, y, z)",
-                    i + 1,
+                    "line {line_no}: {} values, at least {need} expected (x, y, z)",
                     v.len()
                 ),
             ));
         }
-        match width {
-            None => {
-                width = Some(v.len());
-                // PTS columns after x, y, z.
-                let pts: &[&str] = match (scan.is_some() && names.is_empty(), v.len()) {
-                    (true, 4) => &["intensity"],
-                    (true, 6) => &["r", "g", "b"],
-                    (true, 7) => &["intensity", "r", "g", "b"],
-                    _ => &[],
-                };
-                for c in 0..v.len() {
-                    if c != cx && c != cy && c != cz {
-                        let name = names
-                            .get(c)
-                            .cloned()
-                            .or_else(|| pts.get(c.wrapping_sub(3)).map(|s| s.to_string()))
-                            .unwrap_or_else(|| format!("column{}", c + 1));
-                        cloud.extra.push((name, Vec::new()));
-                    }
-                }
-            }
+        match self.width {
+            None => self.first_row(v.len(), [cx, cy, cz]),
             Some(w) if w != v.len() => {
                 return Err(err(
                     F,
-                    format!("line {}: {} values, the first row had {w}", i + 1, v.len()),
+                    format!("line {line_no}: {} values, the first row had {w}", v.len()),
                 ));
             }
             _ => {}
         }
-        if let Some((_, rows)) = &mut scan {
+        if let Some((_, rows)) = &mut self.scan {
             *rows += 1;
         }
-        cloud.points.push([v[cx], v[cy], v[cz]]);
-        let mut extra = cloud.extra.iter_mut();
+        self.cloud.points.push([v[cx], v[cy], v[cz]]);
+        let mut extra = self.cloud.extra.iter_mut();
         for (c, val) in v.iter().enumerate() {
             if c != cx
                 && c != cy
@@ -217,8 +231,31 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
                 values.push(*val);
             }
         }
+        Ok(())
     }
-    Ok(cloud)
+
+    /// The first row sets the width and names the columns other than x, y, z: by the
+    /// header, else by PTS's layout after a point count, else `columnN`.
+    fn first_row(&mut self, width: usize, [cx, cy, cz]: [usize; 3]) {
+        self.width = Some(width);
+        let pts: &[&str] = match (self.scan.is_some() && self.names.is_empty(), width) {
+            (true, 4) => &["intensity"],
+            (true, 6) => &["r", "g", "b"],
+            (true, 7) => &["intensity", "r", "g", "b"],
+            _ => &[],
+        };
+        for c in 0..width {
+            if c != cx && c != cy && c != cz {
+                let name = self
+                    .names
+                    .get(c)
+                    .cloned()
+                    .or_else(|| pts.get(c.wrapping_sub(3)).map(|s| s.to_string()))
+                    .unwrap_or_else(|| format!("column{}", c + 1));
+                self.cloud.extra.push((name, Vec::new()));
+            }
+        }
+    }
 }
 
 #[cfg(test)]

@@ -280,7 +280,26 @@ fn estimate<'py>(
             format: None,
         },
     };
-    let input = if points.is_instance_of::<PyString>() || has_fspath(points)? {
+    let input = take_input(points, intensity, sigma, &settings)?;
+    match input {
+        Input::File(path) => estimate_file_dict(py, &path, &settings),
+        Input::Array {
+            points,
+            intensity,
+            sigma,
+        } => estimate_array_dict(py, &points, intensity.as_ref(), sigma.as_ref(), &settings),
+    }
+}
+
+/// What `estimate` fits: the file `points` names (a `str` or `os.PathLike`), or the
+/// array `points` with its per-point `intensity` and `sigma`; `ValueError` for a mix.
+fn take_input<'py>(
+    points: &Bound<'py, PyAny>,
+    intensity: Option<&Bound<'py, PyAny>>,
+    sigma: Option<&Bound<'py, PyAny>>,
+    settings: &EstimateSettings,
+) -> PyResult<Input<'py>> {
+    if points.is_instance_of::<PyString>() || has_fspath(points)? {
         let path: PathBuf = points.extract()?;
         if path.as_os_str() == "-" {
             return Err(PyValueError::new_err(
@@ -293,76 +312,81 @@ fn estimate<'py>(
                  properties",
             ));
         }
-        Input::File(path)
-    } else {
-        let points = take_points(points)?;
-        if points.array.len() == 0 {
-            return Err(PyValueError::new_err("the array holds no points"));
-        }
-        if sigma.is_some() && settings.calibration.is_some() && !unweighted {
-            return Err(PyValueError::new_err(
-                "sigma= and a weighting calibration= both give per-point σ: pass one, or \
-                 unweighted=True",
-            ));
-        }
-        Input::Array {
-            points,
-            intensity: intensity.map(|a| take_values(a, "intensity")).transpose()?,
-            sigma: sigma.map(|a| take_values(a, "sigma")).transpose()?,
-        }
-    };
-    let config = |settings: &EstimateSettings| {
-        EstimateConfig::new(settings).map_err(|e| match &e {
-            epd_cli::estimate::ConfigError::Calibration { path, .. } => {
-                Failure::File(path.clone(), e.to_string())
-            }
-            epd_cli::estimate::ConfigError::Setting(m) => Failure::Value(m.clone()),
-        })
-    };
-    match &input {
-        Input::File(path) => {
-            let report: FileReport = py
-                .detach(|| -> Result<FileReport, Failure> {
-                    Ok(estimate_file(path, &config(&settings)?))
-                })
-                .map_err(|f| f.into_py_err())?;
-            match &report.outcome {
-                Ok(_) => fields_dict(py, &report.fields(), false),
-                Err(msg) => Err(file_error(path, msg.clone())),
-            }
-        }
-        Input::Array {
-            points,
-            intensity,
-            sigma,
-        } => {
-            let pts = rows(&points.array)?;
-            let i = intensity
-                .as_ref()
-                .map(|t| values(&t.array, "intensity"))
-                .transpose()?;
-            let s = sigma
-                .as_ref()
-                .map(|t| values(&t.array, "sigma"))
-                .transpose()?;
-            let outcome = py
-                .detach(|| -> Result<FileEstimate, Failure> {
-                    let cfg = config(&settings)?;
-                    let t0 = Instant::now();
-                    let pts: Cow<'_, [[f64; 3]]> =
-                        sensor_metres(pts, cfg.input.units, cfg.input.frame)
-                            .map_err(Failure::Value)?;
-                    let read_ms = t0.elapsed().as_secs_f64() * 1e3;
-                    estimate_points(pts, i, s, &cfg, read_ms).map_err(Failure::Value)
-                })
-                .map_err(|f| f.into_py_err())?;
-            let report = FileReport {
-                file: String::new(),
-                outcome: Ok(outcome),
-            };
-            fields_dict(py, &report.fields(), true)
-        }
+        return Ok(Input::File(path));
     }
+    let points = take_points(points)?;
+    if points.array.len() == 0 {
+        return Err(PyValueError::new_err("the array holds no points"));
+    }
+    if sigma.is_some() && settings.calibration.is_some() && !settings.unweighted {
+        return Err(PyValueError::new_err(
+            "sigma= and a weighting calibration= both give per-point σ: pass one, or \
+             unweighted=True",
+        ));
+    }
+    Ok(Input::Array {
+        points,
+        intensity: intensity.map(|a| take_values(a, "intensity")).transpose()?,
+        sigma: sigma.map(|a| take_values(a, "sigma")).transpose()?,
+    })
+}
+
+/// The tool's checked configuration of `settings` (the depth table read), or why not.
+fn estimate_config(settings: &EstimateSettings) -> Result<EstimateConfig, Failure> {
+    EstimateConfig::new(settings).map_err(|e| match &e {
+        epd_cli::estimate::ConfigError::Calibration { path, .. } => {
+            Failure::File(path.clone(), e.to_string())
+        }
+        epd_cli::estimate::ConfigError::Setting(m) => Failure::Value(m.clone()),
+    })
+}
+
+/// `estimate` of a file, as `epd estimate FILE` (the GIL released).
+fn estimate_file_dict<'py>(
+    py: Python<'py>,
+    path: &Path,
+    settings: &EstimateSettings,
+) -> PyResult<Bound<'py, PyDict>> {
+    let report: FileReport = py
+        .detach(|| -> Result<FileReport, Failure> {
+            Ok(estimate_file(path, &estimate_config(settings)?))
+        })
+        .map_err(|f| f.into_py_err())?;
+    match &report.outcome {
+        Ok(_) => fields_dict(py, &report.fields(), false),
+        Err(msg) => Err(file_error(path, msg.clone())),
+    }
+}
+
+/// `estimate` of arrays: the points converted to metres in the sensor frame, then fitted
+/// as the tool fits a file's (the GIL released).
+fn estimate_array_dict<'py>(
+    py: Python<'py>,
+    points: &Taken<PyReadonlyArray2<'py, f64>>,
+    intensity: Option<&Taken<PyReadonlyArray1<'py, f64>>>,
+    sigma: Option<&Taken<PyReadonlyArray1<'py, f64>>>,
+    settings: &EstimateSettings,
+) -> PyResult<Bound<'py, PyDict>> {
+    let pts = rows(&points.array)?;
+    let i = intensity
+        .map(|t| values(&t.array, "intensity"))
+        .transpose()?;
+    let s = sigma.map(|t| values(&t.array, "sigma")).transpose()?;
+    let outcome = py
+        .detach(|| -> Result<FileEstimate, Failure> {
+            let cfg = estimate_config(settings)?;
+            let t0 = Instant::now();
+            let pts: Cow<'_, [[f64; 3]]> =
+                sensor_metres(pts, cfg.input.units, cfg.input.frame).map_err(Failure::Value)?;
+            let read_ms = t0.elapsed().as_secs_f64() * 1e3;
+            estimate_points(pts, i, s, &cfg, read_ms).map_err(Failure::Value)
+        })
+        .map_err(|f| f.into_py_err())?;
+    let report = FileReport {
+        file: String::new(),
+        outcome: Ok(outcome),
+    };
+    fields_dict(py, &report.fields(), true)
 }
 
 /// An error found with the GIL released, turned into a Python exception afterwards.
@@ -460,24 +484,8 @@ fn simulate<'py>(
     dz_mm: Option<f64>,
     return_properties: bool,
 ) -> PyResult<Bound<'py, PyAny>> {
-    let noise = match noise {
-        "range" => tof_sim::NoiseModel::Range,
-        "isotropic" => tof_sim::NoiseModel::Isotropic,
-        other => {
-            return Err(PyValueError::new_err(format!(
-                "noise={other:?}: expected \"range\" or \"isotropic\""
-            )));
-        }
-    };
-    let helios2 = match sensor {
-        "plain" => false,
-        "helios2" => true,
-        other => {
-            return Err(PyValueError::new_err(format!(
-                "sensor={other:?}: expected \"plain\" or \"helios2\""
-            )));
-        }
-    };
+    let noise = parse_noise(noise)?;
+    let helios2 = parse_sensor(sensor)?;
     let points = match points {
         None => None,
         Some(n) => Some(NonZeroUsize::new(n).ok_or_else(|| {
@@ -514,25 +522,52 @@ fn simulate<'py>(
         })
         .map_err(|e| PyValueError::new_err(e.to_string()))?;
     let truth = fields_dict(py, &truth, false)?;
-    let props = PyDict::new(py);
     if return_properties {
-        let col = |i: usize| frame.pixels.iter().map(|p| f64::from(p[i])).collect();
-        props.set_item("u", PyArray1::from_vec(py, col(0)))?;
-        props.set_item("v", PyArray1::from_vec(py, col(1)))?;
-        // As the PLY file: an intensity property only when the model gives one.
-        if frame.intensity.len() == frame.measured.len()
-            && frame.intensity.iter().any(|i| i.is_finite())
-        {
-            let i: Vec<f64> = frame.intensity.iter().map(|&v| f64::from(v)).collect();
-            props.set_item("intensity", PyArray1::from_vec(py, i))?;
-        }
-    }
-    let pts = points_array(py, frame.measured)?;
-    if return_properties {
+        let props = frame_properties(py, &frame)?;
+        let pts = points_array(py, frame.measured)?;
         Ok((pts, truth, props).into_pyobject(py)?.into_any())
     } else {
+        let pts = points_array(py, frame.measured)?;
         Ok((pts, truth).into_pyobject(py)?.into_any())
     }
+}
+
+/// `simulate`'s `noise=`: "range" or "isotropic".
+fn parse_noise(noise: &str) -> PyResult<tof_sim::NoiseModel> {
+    match noise {
+        "range" => Ok(tof_sim::NoiseModel::Range),
+        "isotropic" => Ok(tof_sim::NoiseModel::Isotropic),
+        other => Err(PyValueError::new_err(format!(
+            "noise={other:?}: expected \"range\" or \"isotropic\""
+        ))),
+    }
+}
+
+/// `simulate`'s `sensor=`: whether it is "helios2" (else "plain").
+fn parse_sensor(sensor: &str) -> PyResult<bool> {
+    match sensor {
+        "plain" => Ok(false),
+        "helios2" => Ok(true),
+        other => Err(PyValueError::new_err(format!(
+            "sensor={other:?}: expected \"plain\" or \"helios2\""
+        ))),
+    }
+}
+
+/// The frame's per-point properties as the PLY file has them: `u`, `v` and, when the
+/// model gives one, `intensity`.
+fn frame_properties<'py>(py: Python<'py>, frame: &tof_sim::Frame) -> PyResult<Bound<'py, PyDict>> {
+    let props = PyDict::new(py);
+    let col = |i: usize| frame.pixels.iter().map(|p| f64::from(p[i])).collect();
+    props.set_item("u", PyArray1::from_vec(py, col(0)))?;
+    props.set_item("v", PyArray1::from_vec(py, col(1)))?;
+    if frame.intensity.len() == frame.measured.len()
+        && frame.intensity.iter().any(|i| i.is_finite())
+    {
+        let i: Vec<f64> = frame.intensity.iter().map(|&v| f64::from(v)).collect();
+        props.set_item("intensity", PyArray1::from_vec(py, i))?;
+    }
+    Ok(props)
 }
 
 /// Pipe elliptical diameters and sensor pose from 3D time-of-flight point clouds.

@@ -112,94 +112,66 @@ impl ToFPhysics {
 
     /// Check every field; the error names the first bad one (scenario key style).
     pub fn validate(&self) -> Result<(), SimError> {
-        let finite_pos = |v: f64| v.is_finite() && v > 0.0;
-        let finite_nonneg = |v: f64| v.is_finite() && v >= 0.0;
-        if !(finite_pos(self.reflectivity) && self.reflectivity <= 1.0) {
-            return Err(SimError::invalid(
+        use Rule::{Finite, NonNegative, Positive};
+        let (r, extra) = (self.reflectivity, self.multipath_extra_path_m);
+        let l = self.unambiguous_range();
+        // (key, value, rule), in checking order.
+        let checks = [
+            (
                 "sensor_model.reflectivity",
-                self.reflectivity,
-                "must lie in (0, 1]",
-            ));
-        }
-        if !finite_nonneg(self.sigma_ref_m) {
-            return Err(SimError::invalid(
-                "sensor_model.sigma_ref_m",
-                self.sigma_ref_m,
-                "must be a finite number ≥ 0",
-            ));
-        }
-        if !finite_nonneg(self.ambient) {
-            return Err(SimError::invalid(
-                "sensor_model.ambient",
-                self.ambient,
-                "must be a finite number ≥ 0",
-            ));
-        }
-        if !finite_pos(self.min_amplitude) {
-            return Err(SimError::invalid(
-                "sensor_model.min_amplitude",
-                self.min_amplitude,
-                "must be a finite number > 0",
-            ));
-        }
-        if !(self.saturation_amplitude > self.min_amplitude) {
-            return Err(SimError::invalid(
+                r,
+                Rule::Holds(r.is_finite() && r > 0.0 && r <= 1.0, "must lie in (0, 1]"),
+            ),
+            ("sensor_model.sigma_ref_m", self.sigma_ref_m, NonNegative),
+            ("sensor_model.ambient", self.ambient, NonNegative),
+            ("sensor_model.min_amplitude", self.min_amplitude, Positive),
+            (
                 "sensor_model.saturation_amplitude",
                 self.saturation_amplitude,
-                "must be greater than sensor_model.min_amplitude (may be infinite)",
-            ));
-        }
-        if !finite_pos(self.intensity_scale) {
-            return Err(SimError::invalid(
+                Rule::Holds(
+                    self.saturation_amplitude > self.min_amplitude,
+                    "must be greater than sensor_model.min_amplitude (may be infinite)",
+                ),
+            ),
+            (
                 "sensor_model.intensity_scale",
                 self.intensity_scale,
-                "must be a finite number > 0",
-            ));
-        }
-        if !finite_pos(self.modulation_hz) {
-            return Err(SimError::invalid(
-                "sensor_model.modulation_hz",
-                self.modulation_hz,
-                "must be a finite number > 0",
-            ));
-        }
-        if !finite_nonneg(self.wiggle_amplitude_m) {
-            return Err(SimError::invalid(
+                Positive,
+            ),
+            ("sensor_model.modulation_hz", self.modulation_hz, Positive),
+            (
                 "sensor_model.wiggle_amplitude_m",
                 self.wiggle_amplitude_m,
-                "must be a finite number ≥ 0",
-            ));
-        }
-        if !self.wiggle_phase_rad.is_finite() {
-            return Err(SimError::invalid(
+                NonNegative,
+            ),
+            (
                 "sensor_model.wiggle_phase_rad",
                 self.wiggle_phase_rad,
-                "must be finite",
-            ));
-        }
-        if !self.amplitude_offset_m_per_ln.is_finite() {
-            return Err(SimError::invalid(
+                Finite,
+            ),
+            (
                 "sensor_model.amplitude_offset_m_per_ln",
                 self.amplitude_offset_m_per_ln,
-                "must be finite",
-            ));
-        }
-        if !finite_nonneg(self.multipath_ratio) {
-            return Err(SimError::invalid(
+                Finite,
+            ),
+            (
                 "sensor_model.multipath_ratio",
                 self.multipath_ratio,
-                "must be a finite number ≥ 0",
-            ));
-        }
-        let extra = self.multipath_extra_path_m;
-        if !(finite_nonneg(extra) && extra < 0.5 * self.unambiguous_range()) {
-            return Err(SimError::invalid(
+                NonNegative,
+            ),
+            (
                 "sensor_model.multipath_extra_path_m",
                 extra,
-                "must lie in [0, L/2), L = c/(2·sensor_model.modulation_hz)",
-            ));
+                Rule::Holds(
+                    extra.is_finite() && extra >= 0.0 && extra < 0.5 * l,
+                    "must lie in [0, L/2), L = c/(2·sensor_model.modulation_hz)",
+                ),
+            ),
+        ];
+        match checks.into_iter().find(|(_, v, rule)| !rule.holds(*v)) {
+            Some((key, value, rule)) => Err(SimError::invalid(key, value, rule.reason())),
+            None => Ok(()),
         }
-        Ok(())
     }
 
     /// The unambiguous range L = c/(2 f_mod) (m).
@@ -274,6 +246,39 @@ impl ToFPhysics {
     /// (ρ + `multipath_ratio`)/r², below `min_amplitude` past √((ρ + ratio)/min).
     pub fn max_valid_range(&self) -> f64 {
         ((self.reflectivity + self.multipath_ratio) / self.min_amplitude).sqrt()
+    }
+}
+
+/// What a valid value of a [`ToFPhysics`] field is.
+#[derive(Clone, Copy)]
+enum Rule {
+    /// A finite number > 0.
+    Positive,
+    /// A finite number ≥ 0.
+    NonNegative,
+    /// A finite number.
+    Finite,
+    /// Valid when the condition holds; else the reason.
+    Holds(bool, &'static str),
+}
+
+impl Rule {
+    fn holds(self, v: f64) -> bool {
+        match self {
+            Rule::Positive => v.is_finite() && v > 0.0,
+            Rule::NonNegative => v.is_finite() && v >= 0.0,
+            Rule::Finite => v.is_finite(),
+            Rule::Holds(ok, _) => ok,
+        }
+    }
+
+    fn reason(self) -> &'static str {
+        match self {
+            Rule::Positive => "must be a finite number > 0",
+            Rule::NonNegative => "must be a finite number ≥ 0",
+            Rule::Finite => "must be finite",
+            Rule::Holds(_, reason) => reason,
+        }
     }
 }
 

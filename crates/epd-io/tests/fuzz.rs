@@ -13,8 +13,8 @@
 mod common;
 mod peak_alloc;
 
-use epd_cli::read::{Format, PointCloud, read_bytes, read_path};
 use epd_io::ply::{PlyFormat, PlyPrecision, write as write_ply};
+use epd_io::read::{Format, PointCloud, read_bytes, read_path};
 use proptest::prelude::*;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -195,10 +195,7 @@ fn make_seeds() -> Vec<(Format, Vec<u8>)> {
         }
     }
     let comp = lzf_compress(&raw);
-    assert_eq!(
-        epd_cli::read::pcd::lzf_decompress(&comp, raw.len()).unwrap(),
-        raw
-    );
+    assert_eq!(epd_io::pcd::lzf_decompress(&comp, raw.len()).unwrap(), raw);
     let mut b = format!("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\nHEIGHT 1\nPOINTS {n}\nDATA binary_compressed\n").into_bytes();
     b.extend((comp.len() as u32).to_le_bytes());
     b.extend((raw.len() as u32).to_le_bytes());

@@ -5,7 +5,7 @@
 mod common;
 mod peak_alloc;
 
-use epd_cli::read::{Format, PointCloud, read_bytes, read_path};
+use epd_io::read::{Format, PointCloud, read_bytes, read_path};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -366,7 +366,7 @@ fn file_larger_than_the_cap() {
     let dir = Dir::new("big");
     let path = dir.0.join("big.ply");
     let f = std::fs::File::create(&path).unwrap();
-    if f.set_len(epd_cli::read::MAX_INPUT_BYTES + 1).is_err() {
+    if f.set_len(epd_io::read::MAX_INPUT_BYTES + 1).is_err() {
         eprintln!("no sparse files here: skipped");
         return;
     }
@@ -380,7 +380,7 @@ fn file_larger_than_the_cap() {
 #[test]
 fn endless_stream_stops_at_the_cap() {
     let (r, cost) = peak_alloc::bounded(Duration::from_secs(10), || {
-        epd_cli::read::read_from(std::io::repeat(b'1'), None, 1 << 20)
+        epd_io::read::read_from(std::io::repeat(b'1'), None, 1 << 20)
     });
     check_cost("endless stream", &cost);
     let e = r.unwrap_err();
@@ -392,7 +392,7 @@ fn stream_with_a_huge_ply_count() {
     for (count, cap) in [("1000000000000", 1u64 << 32), ("100000000", 1 << 32)] {
         let b = ply_binary(count, 36);
         let (r, cost) = peak_alloc::bounded(Duration::from_secs(10), move || {
-            epd_cli::read::read_from(&b[..], None, cap)
+            epd_io::read::read_from(&b[..], None, cap)
         });
         check_cost("stream", &cost);
         let e = r.unwrap_err();
@@ -402,7 +402,7 @@ fn stream_with_a_huge_ply_count() {
 
 #[test]
 fn stream_formats_by_first_bytes_or_hint() {
-    let read = |b: &[u8], hint| epd_cli::read::read_from(b, hint, 1 << 20);
+    let read = |b: &[u8], hint| epd_io::read::read_from(b, hint, 1 << 20);
     let ply = format!("ply\nformat ascii 1.0\nelement vertex 1\n{PLY_XYZ_F32}end_header\n1 2 3\n");
     assert_eq!(read(ply.as_bytes(), None).unwrap().points, [[1., 2., 3.]]);
     assert_eq!(read(b"1,2,3\n", None).unwrap().points, [[1., 2., 3.]]);

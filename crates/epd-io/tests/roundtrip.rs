@@ -5,9 +5,9 @@
 
 mod common;
 
-use epd_cli::read::{Format, read_bytes};
 use epd_core::{EstimateOptions, Method, errors_against, estimate};
 use epd_io::ply::{PlyFormat, PlyPrecision, write as write_ply};
+use epd_io::read::{Format, read_bytes};
 
 fn files(frame: &tof_sim::Frame) -> Vec<(&'static str, Format, Vec<u8>, f64)> {
     let ply = |f, p| {
@@ -131,7 +131,7 @@ fn streaming_file_reader_equals_the_in_memory_one() {
         let path = dir.join(name);
         std::fs::write(&path, &bytes).unwrap();
         assert_eq!(
-            epd_cli::read::read_path(&path).unwrap(),
+            epd_io::read::read_path(&path).unwrap(),
             read_bytes(Format::Ply, &bytes).unwrap(),
             "{name}"
         );
@@ -166,7 +166,7 @@ fn ply_big_endian_and_other_elements() {
 fn lzf_back_references() {
     // "abcabcabc": 3 literals, then a back reference of length 6 at distance 3.
     let comp = [2u8, b'a', b'b', b'c', (4 << 5), 2];
-    let out = epd_cli::read::pcd::lzf_decompress(&comp, 9).unwrap();
+    let out = epd_io::pcd::lzf_decompress(&comp, 9).unwrap();
     assert_eq!(out, b"abcabcabc");
-    assert!(epd_cli::read::pcd::lzf_decompress(&[(1 << 5), 9], 3).is_err());
+    assert!(epd_io::pcd::lzf_decompress(&[(1 << 5), 9], 3).is_err());
 }
