@@ -108,7 +108,7 @@ pub const SECTION_COLUMNS: &[&str] = &[
 #[serde(deny_unknown_fields)]
 struct SectionFile {
     name: String,
-    #[serde(default = "twenty")]
+    #[serde(default = "crate::defaults::nominal_od_in")]
     nominal_od_in: f64,
     wall_mm: f64,
     #[serde(default)]
@@ -213,14 +213,11 @@ struct PipelineFile {
 #[serde(deny_unknown_fields)]
 struct File {
     name: String,
-    #[serde(default = "one")]
+    #[serde(default = "crate::defaults::seed")]
     seed: u64,
     pipeline: PipelineFile,
 }
 
-fn twenty() -> f64 {
-    20.0
-}
 fn twenty_frames() -> usize {
     20
 }
@@ -253,9 +250,6 @@ fn gate() -> [f64; 2] {
 }
 fn helios2() -> String {
     "helios2".into()
-}
-fn one() -> u64 {
-    1
 }
 fn five_twelve() -> usize {
     512
@@ -432,8 +426,10 @@ fn parse_route(
                             .into(),
                     );
                 }
-                let rd = f.bend_radius_d.unwrap_or(1.5);
-                let angle = f.angle_deg.unwrap_or(90.0);
+                let rd = f
+                    .bend_radius_d
+                    .unwrap_or_else(crate::defaults::bend_radius_d);
+                let angle = f.angle_deg.unwrap_or_else(crate::defaults::bend_angle_deg);
                 if !(0.75..=50.0).contains(&rd) {
                     return bad(
                         "bend_radius_d",
