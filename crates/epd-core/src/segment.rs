@@ -385,6 +385,25 @@ fn first_departure(profile: &[Slice], o: &SegmentOptions) -> Option<usize> {
     })
 }
 
+/// The straight pipe refitted on the points (SCS) whose ray meets the wall of `beta`
+/// before `end − margin` ([`axial_select`]); `None` when too little straight pipe is
+/// left for it: fewer than 1000 such points, or an estimate that fails on them (none
+/// within the range gate, …).
+fn refit_before(
+    pts: &[[f64; 3]],
+    beta: &Params,
+    end: f64,
+    method: Method,
+    options: &EstimateOptions,
+    seg: &SegmentOptions,
+) -> Option<Estimate> {
+    let before = axial_select(pts, beta, |x| x < end - seg.margin_m);
+    if before.len() < 1000 {
+        return None;
+    }
+    estimate(&before, method, options).ok()
+}
+
 /// What [`refine`] reached.
 struct Refined {
     /// The last fit.
@@ -430,13 +449,8 @@ fn refine(
             prof = profile(pts, &fit.params, seg);
             continue;
         };
-        let before = axial_select(pts, &fit.params, |x| x < x_end - seg.margin_m);
-        // Too little straight pipe left to refit (too few points before the end, or
-        // none of them within the range gate): the sensor is in the bend.
-        if before.len() < 1000 {
-            break;
-        }
-        let Ok(refit) = estimate(&before, method, options) else {
+        // Too little straight pipe left to refit: the sensor is in the bend.
+        let Some(refit) = refit_before(pts, &fit.params, x_end, method, options, seg) else {
             break;
         };
         fit = refit;
@@ -527,11 +541,7 @@ pub fn segment(
     if let (Some(x), false) = (straight_until, withheld)
         && !cut.is_some_and(|c| c <= x + 0.5 * seg.slice_m)
     {
-        let before = axial_select(pts, &fit.params, |a| a < x - seg.margin_m);
-        let refit = (before.len() >= 1000)
-            .then(|| estimate(&before, method, options).ok())
-            .flatten();
-        match refit {
+        match refit_before(pts, &fit.params, x, method, options, seg) {
             Some(refit) => {
                 fit = refit;
                 rounds += 1;

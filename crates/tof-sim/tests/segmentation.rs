@@ -57,6 +57,20 @@ fn options() -> EstimateOptions {
         .unwrap()
 }
 
+/// The Helios2 model's range-dependent noise and invalid pixels, without its systematic
+/// errors (wiggling, intensity offset, multipath: what a depth table removes).
+fn camera_noise() -> Noise {
+    Noise {
+        physics: Some(ToFPhysics {
+            wiggle_amplitude_m: 0.0,
+            amplitude_offset_m_per_ln: 0.0,
+            multipath_ratio: 0.0,
+            ..ToFPhysics::helios2()
+        }),
+        ..Noise::none()
+    }
+}
+
 fn mean_diameter_error_mm(est: &Params, truth: &Params) -> f64 {
     0.5e3 * ((est.d_max + est.d_min) - (truth.d_max + truth.d_min))
 }
@@ -134,16 +148,7 @@ fn noisy_elbow_is_cut_off_the_straight_estimate() {
 /// the same points tells it from a tee; the same comparison keeps a tee a tee.
 #[test]
 fn range_dependent_noise_keeps_the_elbow_an_elbow() {
-    let physics = ToFPhysics {
-        wiggle_amplitude_m: 0.0,
-        amplitude_offset_m_per_ln: 0.0,
-        multipath_ratio: 0.0,
-        ..ToFPhysics::helios2()
-    };
-    let noise = Noise {
-        physics: Some(physics),
-        ..Noise::none()
-    };
+    let noise = camera_noise();
     let cast = |p: &Pipeline, k: u64| {
         let mut truth = PoseRanges::default()
             .sample(&Pipe::paper_20in(), 9, k)
@@ -250,16 +255,7 @@ fn tee_is_told_from_a_bend() {
 /// 5 of its own 1-σ; one such frame, before the rule on the wall's view, was 9σ off).
 #[test]
 fn a_close_tee_under_the_cameras_noise_is_found_or_withheld() {
-    let physics = ToFPhysics {
-        wiggle_amplitude_m: 0.0,
-        amplitude_offset_m_per_ln: 0.0,
-        multipath_ratio: 0.0,
-        ..ToFPhysics::helios2()
-    };
-    let noise = Noise {
-        physics: Some(physics),
-        ..Noise::none()
-    };
+    let noise = camera_noise();
     let pipe = Pipe::paper_20in();
     let tee = |ahead: f64| Pipeline {
         d_max: pipe.d_max(),
