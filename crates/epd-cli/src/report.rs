@@ -81,8 +81,8 @@ impl GeometryReport {
     pub fn withheld(&self) -> Option<String> {
         if self.layout == "in_bend" {
             return Some(
-                "the sensor is in a bend: no straight section in view to estimate (geometry \
-                 in_bend)"
+                "the sensor is in a bend, or a fitting starts where its view of the wall \
+                 begins: no straight section in view to estimate (geometry in_bend)"
                     .to_string(),
             );
         }
