@@ -194,15 +194,12 @@ pub fn fit_bend(
 /// 1.4826·MAD of the first-order range errors eᵢ = sᵢ/|n·d| of PCS points q to the
 /// elliptic cylinder y²/a² + z²/b² = 1, with s = f/|∇f| for f = y²/a² + z²/b² − 1
 /// and n = ∇f/|∇f| (points on the axis skipped); NaN when none is usable.
-fn straight_robust_sigma(rays: &[(Vector3<f64>, Vector3<f64>)], (a, b): (f64, f64)) -> f64 {
+fn straight_robust_sigma(rays: &[(Vector3<f64>, Vector3<f64>)], axes: (f64, f64)) -> f64 {
     let e: Vec<f64> = rays
         .iter()
         .filter_map(|(q, d)| {
-            let f = (q.y / a).powi(2) + (q.z / b).powi(2) - 1.0;
-            let g = Vector3::new(0.0, 2.0 * q.y / (a * a), 2.0 * q.z / (b * b));
-            let gn = g.norm();
-            let cos = (g.dot(d) / gn).abs();
-            (gn > 0.0 && cos > 1e-6).then(|| f / gn / cos)
+            let (s, cos) = straight_offset(q, d, axes)?;
+            (cos > 1e-6).then(|| s / cos)
         })
         .filter(|v| v.is_finite())
         .collect();
@@ -271,44 +268,8 @@ impl NormalEquationsProblem<4> for BendProblem<'_> {
             .collect::<Option<_>>()?;
         let mut eq = NormalEquations::zero();
         for (q, d) in self.rays {
-            // The exact range error where the ray meets the wall at a usable angle; the
-            // first-order one otherwise (a point never leaves the sum because its ray
-            // misses: the fit could otherwise lower its cost by turning rays away).
-            let exact = if self.exact {
-                self.range_error(&g, &t0, q, d).and_then(|(e, hit)| {
-                    let nd = t0.normal(&hit)?.dot(d);
-                    (nd.abs() >= 0.05).then_some((e, hit, nd))
-                })
-            } else {
-                None
-            };
-            let (e, j) = if let Some((e, hit, nd)) = exact {
-                // The hit moves along the ray as the wall moves: t(θ) with
-                // s(o + t·d; θ) = 0, so ∂t/∂θ = −(∂s/∂θ)/(n·d) and ∂e/∂θ = −∂t/∂θ.
-                let mut j = [0.0; 4];
-                for k in 0..4 {
-                    let (a, b) = (&shifted[k].0, &shifted[k].1);
-                    let ds = (a.signed_distance(&hit) - b.signed_distance(&hit)) / (2.0 * h);
-                    j[k] = ds / nd;
-                }
-                (e, j)
-            } else {
-                let Some(e) = residual(&t0, q, d) else {
-                    continue;
-                };
-                let mut j = [0.0; 4];
-                let mut ok = true;
-                for k in 0..4 {
-                    let (a, b) = (&shifted[k].0, &shifted[k].1);
-                    match (residual(a, q, d), residual(b, q, d)) {
-                        (Some(ea), Some(eb)) => j[k] = (ea - eb) / (2.0 * h),
-                        _ => ok = false,
-                    }
-                }
-                if !ok {
-                    continue;
-                }
-                (e, j)
+            let Some((e, j)) = self.residual_and_gradient(&g, &t0, &shifted, h, q, d) else {
+                continue;
             };
             let (c, wg, wh) = self.loss.cost_and_weights(e);
             eq.push_weighted(e, &j, c, wg, wh);
@@ -319,6 +280,68 @@ impl NormalEquationsProblem<4> for BendProblem<'_> {
 }
 
 impl BendProblem<'_> {
+    /// One ray's residual and its gradient in θ, given the torus `t0` at θ and the tori
+    /// `shifted` at θ ± h·e_k.
+    ///
+    /// Exact stage: the range error to the wall the ray meets ([`Self::range_error`]).
+    /// On the straight pipe it does not depend on θ (gradient 0); on the joint step,
+    /// e = ‖q − o‖ − (x₀ − o_x)/d_x, so ∂e/∂x₀ = −1/d_x; on the torus the hit moves along
+    /// the ray as the wall moves: t(θ) with s(o + t·d; θ) = 0, so ∂t/∂θ = −(∂s/∂θ)/(n·d)
+    /// and ∂e/∂θ = −∂t/∂θ. A ray that meets the torus at a grazing angle (|n·d| < 0.05) or
+    /// not at all takes the first-order error (a point never leaves the sum because its
+    /// ray misses: the fit could otherwise lower its cost by turning rays away).
+    ///
+    /// First-order stage (and that fallback): eᵢ = s(qᵢ)/|n·d| to the torus, or to the
+    /// straight pipe (θ-independent) when the ray leaves the straight pipe before x₀.
+    fn residual_and_gradient(
+        &self,
+        g: &BendGeometry,
+        t0: &Torus,
+        shifted: &[(Torus, Torus)],
+        h: f64,
+        q: &Vector3<f64>,
+        d: &Vector3<f64>,
+    ) -> Option<(f64, [f64; 4])> {
+        if self.exact
+            && let Some((e, hit, wall)) = self.range_error(g, t0, q, d)
+        {
+            match wall {
+                Wall::Straight => return Some((e, [0.0; 4])),
+                Wall::Step => return Some((e, [-1.0 / d.x, 0.0, 0.0, 0.0])),
+                Wall::Torus => {
+                    if let Some(nd) = t0.normal(&hit).map(|n| n.dot(d))
+                        && nd.abs() >= 0.05
+                    {
+                        let mut j = [0.0; 4];
+                        for (k, (a, b)) in shifted.iter().enumerate() {
+                            let ds =
+                                (a.signed_distance(&hit) - b.signed_distance(&hit)) / (2.0 * h);
+                            j[k] = ds / nd;
+                        }
+                        return Some((e, j));
+                    }
+                }
+            }
+        }
+        if self.leaves_straight_before(g, d) {
+            let (s, cos) = straight_offset(q, d, self.semi_axes)?;
+            let e = s / cos.max(0.05);
+            return e.is_finite().then_some((e, [0.0; 4]));
+        }
+        let e = residual(t0, q, d)?;
+        let mut j = [0.0; 4];
+        for (k, (a, b)) in shifted.iter().enumerate() {
+            j[k] = (residual(a, q, d)? - residual(b, q, d)?) / (2.0 * h);
+        }
+        Some((e, j))
+    }
+
+    /// Whether the ray o + τ·d leaves the straight pipe before the bend's start plane.
+    fn leaves_straight_before(&self, g: &BendGeometry, d: &Vector3<f64>) -> bool {
+        self.straight_exit(d)
+            .is_some_and(|tau| self.origin.x + tau * d.x < g.start)
+    }
+
     /// The range at which the ray o + τ·d leaves the straight pipe's elliptic cylinder
     /// y²/a² + z²/b² = 1 (the positive root of the quadratic in τ), `None` for a ray
     /// along the axis.
@@ -333,24 +356,36 @@ impl BendProblem<'_> {
     }
 
     /// e = ‖q − o‖ − t: the measured range minus the range t at which the ray from the
-    /// sensor o through the measured point q meets the bend's wall from inside, with the
-    /// wall point o + t·d: the nearest crossing of the ring torus where the ray leaves
-    /// the tube (n·d > 0) at a turned angle in [0, π] (the ring's other parts are not
-    /// the bend). `None` when no crossing within three times the measured range
-    /// qualifies.
+    /// sensor o through the measured point q meets the modelled wall, with the wall point
+    /// o + t·d and which wall it is:
+    /// - the straight pipe's elliptic cylinder where the ray leaves it before the bend's
+    ///   start plane x = x₀;
+    /// - the joint step in that plane where the ray crosses it inside the ellipse but
+    ///   outside the bend's circular tube (an oval pipe steps from its ellipse to the
+    ///   bend's circle there, as tof-sim's pipelines do);
+    /// - else the nearest crossing of the ring torus where the ray leaves the tube
+    ///   (n·d > 0) at a turned angle in [0, π] (the ring's other parts are not the bend).
+    ///
+    /// `None` when no torus crossing within three times the measured range qualifies.
     fn range_error(
         &self,
         geometry: &BendGeometry,
         t: &Torus,
         q: &Vector3<f64>,
         d: &Vector3<f64>,
-    ) -> Option<(f64, Vector3<f64>)> {
+    ) -> Option<(f64, Vector3<f64>, Wall)> {
         let range = (q - self.origin).norm();
-        // Before the bend's start plane the wall is the straight pipe's.
         if let Some(tau) = self.straight_exit(d)
             && self.origin.x + tau * d.x < geometry.start
         {
-            return Some((range - tau, self.origin + d * tau));
+            return Some((range - tau, self.origin + d * tau, Wall::Straight));
+        }
+        if d.x > 0.0 {
+            let tau = (geometry.start - self.origin.x) / d.x;
+            let w = self.origin + d * tau;
+            if tau > 0.0 && w.y.hypot(w.z) > geometry.tube_radius {
+                return Some((range - tau, w, Wall::Step));
+            }
         }
         let crossings = t.ray_crossings(&self.origin, d, 3.0 * range);
         let hit = crossings.as_slice().iter().find_map(|&tau| {
@@ -359,8 +394,29 @@ impl BendProblem<'_> {
             let a = geometry.turned(&w);
             (leaving && (0.0..=std::f64::consts::PI).contains(&a)).then_some(tau)
         })?;
-        Some((range - hit, self.origin + d * hit))
+        Some((range - hit, self.origin + d * hit, Wall::Torus))
     }
+}
+
+/// The wall a ray meets in the bend's model ([`BendProblem::range_error`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Wall {
+    /// The straight pipe before the bend's start plane.
+    Straight,
+    /// The joint step in the start plane, from the straight's ellipse to the bend's circle.
+    Step,
+    /// The bend's torus.
+    Torus,
+}
+
+/// The first-order offset of the PCS point q from the elliptic cylinder
+/// y²/a² + z²/b² = 1 and the cosine of its ray (direction d) with the wall's normal:
+/// (s, |n·d|) with s = f/|∇f|, f = y²/a² + z²/b² − 1, n = ∇f/|∇f|; `None` on the axis.
+fn straight_offset(q: &Vector3<f64>, d: &Vector3<f64>, (a, b): (f64, f64)) -> Option<(f64, f64)> {
+    let f = (q.y / a).powi(2) + (q.z / b).powi(2) - 1.0;
+    let g = Vector3::new(0.0, 2.0 * q.y / (a * a), 2.0 * q.z / (b * b));
+    let gn = g.norm();
+    (gn > 0.0).then(|| (f / gn, (g.dot(d) / gn).abs()))
 }
 
 /// A bend's start from a segmentation: the straight fit's end, the departure's
@@ -372,5 +428,102 @@ pub fn start_from(straight: &Params, end: f64, direction: f64, radius: f64) -> B
         direction,
         radius,
         tube_radius: 0.25 * (straight.d_max + straight.d_min),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An oval 20" pipe (semi-axes 250 / 245 mm) whose 90°-type bend (R = 762 mm, round
+    /// tube r = 247.5 mm) starts 1 m ahead toward φ = 0.7 rad; the sensor off the axis.
+    fn problem(rays: &[(Vector3<f64>, Vector3<f64>)]) -> (BendProblem<'_>, BendGeometry) {
+        let g = BendGeometry {
+            start: 1.0,
+            direction: 0.7,
+            radius: 0.762,
+            tube_radius: 0.2475,
+        };
+        let p = BendProblem {
+            origin: Vector3::new(0.0, 0.01, -0.02),
+            semi_axes: (0.25, 0.245),
+            exact: true,
+            rays,
+            loss: Loss::Squared,
+        };
+        (p, g)
+    }
+
+    /// Rays from the sensor toward `targets`, their measured points 1 cm past the wall.
+    fn rays_toward(targets: &[Vector3<f64>]) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+        let (p, g) = problem(&[]);
+        let t = g.torus().unwrap();
+        targets
+            .iter()
+            .filter_map(|w| {
+                let d = (w - p.origin).normalize();
+                let far = p.origin + d * 10.0;
+                let (_, hit, _) = p.range_error(&g, &t, &far, &d)?;
+                Some((hit + d * 0.01, d))
+            })
+            .collect()
+    }
+
+    /// Each wall's gradient of the exact range error matches central differences of the
+    /// range error itself (the ray re-cast at θ ± h), and every kind of wall is met: the
+    /// straight pipe, the joint step (inside the ellipse, outside the round tube) and the
+    /// torus.
+    #[test]
+    fn range_error_gradients_match_finite_differences() {
+        let mut targets = vec![
+            Vector3::new(0.5, 0.25, 0.0),    // straight, before the start plane
+            Vector3::new(0.6, 0.0, -0.245),  // straight, minor axis
+            Vector3::new(1.0, 0.249, 0.0),   // the step: 0.2475 < y < 0.25 at x₀
+            Vector3::new(1.0, -0.2488, 0.0), // the step on the other side
+        ];
+        for k in 0..12 {
+            let a = k as f64 * std::f64::consts::TAU / 12.0;
+            targets.push(Vector3::new(1.4, 0.3 * a.cos() + 0.2, 0.3 * a.sin() + 0.2));
+        }
+        let rays = rays_toward(&targets);
+        let (p, g) = problem(&rays);
+        let t0 = g.torus().unwrap();
+        let h = 1e-4;
+        let x = g.to_vector();
+        let shifted: Vec<(Torus, Torus)> = (0..4)
+            .map(|k| {
+                let (mut a, mut b) = (x, x);
+                a[k] += h;
+                b[k] -= h;
+                let ga = BendGeometry::from_vector(&a);
+                let gb = BendGeometry::from_vector(&b);
+                (ga.torus().unwrap(), gb.torus().unwrap())
+            })
+            .collect();
+        let mut seen = [false; 3];
+        for (q, d) in &rays {
+            let (_, _, wall) = p.range_error(&g, &t0, q, d).unwrap();
+            seen[wall as usize] = true;
+            let (e, j) = p.residual_and_gradient(&g, &t0, &shifted, h, q, d).unwrap();
+            let (e_direct, _, _) = p.range_error(&g, &t0, q, d).unwrap();
+            assert_eq!(e, e_direct, "{wall:?}");
+            let step = 1e-6;
+            for k in 0..4 {
+                let (mut a, mut b) = (x, x);
+                a[k] += step;
+                b[k] -= step;
+                let (ga, gb) = (BendGeometry::from_vector(&a), BendGeometry::from_vector(&b));
+                let (ea, _, wa) = p.range_error(&ga, &ga.torus().unwrap(), q, d).unwrap();
+                let (eb, _, wb) = p.range_error(&gb, &gb.torus().unwrap(), q, d).unwrap();
+                assert_eq!((wa, wb), (wall, wall), "the ray stays on its wall");
+                let fd = (ea - eb) / (2.0 * step);
+                assert!(
+                    (j[k] - fd).abs() <= 1e-4 * fd.abs().max(1.0),
+                    "{wall:?} ∂e/∂θ{k}: {} vs {fd}",
+                    j[k]
+                );
+            }
+        }
+        assert_eq!(seen, [true; 3], "straight, step and torus rays");
     }
 }

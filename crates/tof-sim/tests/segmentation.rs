@@ -141,6 +141,45 @@ fn noisy_elbow_is_cut_off_the_straight_estimate() {
     );
 }
 
+/// With σ = 30 mm along the rays, the elbow 2 and 3 m ahead: seen from afar at a grazing
+/// angle, the bend radius stays within the goal's 2 % and the end within 5 cm. (Before
+/// the bend model had the oval pipe's joint step, the rays crossing that step met a far
+/// part of the ring torus in the model; their jumps held the fit in false minima with x₀
+/// early and R up to 4.5 % high.)
+#[test]
+fn a_far_elbow_under_noise_keeps_its_radius() {
+    // At 3 m the departure is near the detection limit: a frame may read `straight`
+    // (the approach run finds 5 of 6 there); every frame at 2 m finds it.
+    for (ahead, least_found) in [(2.0, 3), (3.0, 2)] {
+        let p = elbow(ahead);
+        let mut found = 0;
+        for k in 0..3 {
+            let (pts, _) = frame(&p, k, 0.03);
+            let s = survey(&pts, Method::MlEpd, &options(), &SegmentOptions::default()).unwrap();
+            let seg = &s.segmentation;
+            if seg.layout == Layout::Straight {
+                continue;
+            }
+            found += 1;
+            assert_eq!(seg.layout, Layout::BendAhead, "{ahead} m, frame {k}");
+            let until = seg.straight_until.unwrap();
+            assert!(
+                (until - ahead).abs() < 0.05,
+                "{ahead} m, frame {k}: straight until {until}"
+            );
+            let r = s.bend.unwrap().geometry.radius;
+            assert!(
+                (r / 0.762 - 1.0).abs() < 0.02,
+                "{ahead} m, frame {k}: bend radius {r}"
+            );
+        }
+        assert!(
+            found >= least_found,
+            "{ahead} m: bend found in {found} of 3 frames"
+        );
+    }
+}
+
 /// The Helios2 model's range-dependent noise alone (σ ∝ √(A+B)/A: the bend, farther
 /// away and seen more obliquely, is several times noisier than the straight section):
 /// the elbow 2 m ahead is still found as a bend. Its torus misses by more than twice the
