@@ -527,6 +527,21 @@ impl DepthTable {
         a * (1.0 - fi) + b * fi
     }
 
+    /// Whether the table observed the measured range r (m) and intensity I: (r, ln I)
+    /// inside both axes, in a bin that held observations. Elsewhere its offset is a
+    /// neighbouring bin's (see [`DepthTable::build`]): a guess for returns the rig never
+    /// showed, such as a bend's wall beyond the rig's ranges or brighter at the same range.
+    pub fn covers(&self, range_m: f64, intensity: f64) -> bool {
+        let li = log_of(intensity);
+        let inside = (self.range.lo..=self.range.hi).contains(&range_m)
+            && (self.log_intensity.lo..=self.log_intensity.hi).contains(&li);
+        inside
+            && self
+                .count
+                .get(self.range.bin(range_m) * self.log_intensity.n + self.log_intensity.bin(li))
+                .is_some_and(|&c| c > 0)
+    }
+
     /// The systematic range error T(r, I) at measured range r (m) and intensity I (camera units).
     /// A non-positive or non-finite intensity reads as the lowest intensity bin.
     pub fn offset_at(&self, range_m: f64, intensity: f64) -> f64 {
@@ -913,6 +928,10 @@ mod tests {
         assert_eq!(&t.offset_m[..4], &[a, a, a, a]);
         assert_eq!(&t.offset_m[4..], &[b, b, b, b]);
         assert!(t.validate().is_ok());
+        // Only the observed bins are covered; filled ones and points off the axes are not.
+        assert!(t.covers(0.6, 1.5) && t.covers(1.9, 3f64.exp()));
+        assert!(!t.covers(0.6, 3f64.exp()) && !t.covers(1.0, 1.5));
+        assert!(!t.covers(2.1, 3f64.exp()) && !t.covers(0.6, 1e4) && !t.covers(0.6, 0.0));
         // No observation at all: refused with a reason.
         let e = DepthTable::build(&[], &bins(4, 2)).unwrap_err().to_string();
         assert!(e.contains("no bin"), "{e}");
