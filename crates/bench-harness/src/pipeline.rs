@@ -50,6 +50,8 @@ use crate::run::{
 };
 use crate::scenario::ScenarioError;
 
+mod figures;
+
 /// The estimators of a pipeline run, by their names in the CSV files.
 pub const METHODS: [&str; 4] = ["c-epd", "ru-epd", "ml-epd", "ml-epd-w"];
 
@@ -1378,7 +1380,7 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
         &dir.join("depth_table.json"),
         table_file(&table, n_obs, s).to_json().as_bytes(),
     )?);
-    for png in crate::plots::plot_pipeline(s, &profile_points(&rows), &sections)? {
+    for png in figures::plot_pipeline(s, &profile_points(&rows), &sections)? {
         files.push(write_new(&dir.join(&png.name), &png.bytes)?);
     }
     let errors = rows
