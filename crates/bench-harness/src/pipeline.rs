@@ -1121,40 +1121,119 @@ fn frame_rows(
 ) -> anyhow::Result<Vec<Row>> {
     let (truth, frame, local) = s.frame(plan)?;
     let opts = options(s.range_gate)?;
-    let intensity: Vec<f64> = frame.intensity.iter().map(|&i| i as f64).collect();
-    let mut corrected = frame.measured.clone();
-    let (_, table_sigma) = table.correct_with_sigmas(&mut corrected, &intensity)?;
-    let sv = survey(&corrected, Method::MlEpd, &opts, &SegmentOptions::default()).with_context(
-        || {
-            format!(
-                "the geometry survey of {} frame {} at {:.2} m ({} valid points)",
-                s.place_name(plan.place),
-                plan.index,
-                plan.x,
-                corrected.iter().filter(|p| **p != [0.0; 3]).count()
+    let sv = Surveyed::of(s, table, plan, &frame, &opts)?;
+    let crb = straight_crb(s, plan, &frame, local.as_ref(), &truth);
+    let mut rows = Vec::new();
+    for calibrated in [false, true] {
+        let (points, sigma) = if calibrated {
+            (&sv.corrected, &sv.table_sigma)
+        } else {
+            (&frame.measured, &frame.sigma)
+        };
+        let pts = kept(sv.keep.as_deref(), points);
+        let sigma = kept(sv.keep.as_deref(), sigma);
+        for method in METHODS {
+            let (status, d, n_points) = if sv.withheld {
+                (FrameStatus::Withheld, None, 0)
+            } else {
+                estimate_one(method, &pts, &sigma, &opts)
+            };
+            rows.push(Row {
+                section: plan.place,
+                pipe: plan.pipe,
+                geometry: sv.geometry,
+                frame: plan.index,
+                distance_m: plan.x,
+                method,
+                calibrated,
+                status,
+                d,
+                truth: (truth.d_max, truth.d_min),
+                n_points,
+                crb,
+            });
+        }
+    }
+    Ok(rows)
+}
+
+/// One frame corrected with the depth table and surveyed as `epd estimate` does.
+struct Surveyed {
+    /// The measured points corrected with the table (SCS, m).
+    corrected: Vec<[f64; 3]>,
+    /// Each point's σ from the table's spread at its range and intensity (m).
+    table_sigma: Vec<f64>,
+    /// The survey's verdict and the route's truth.
+    geometry: Geometry,
+    /// The survey withholds the estimate (the sensor is in a bend).
+    withheld: bool,
+    /// When something lies ahead: which points belong to the straight section.
+    keep: Option<Vec<bool>>,
+}
+
+impl Surveyed {
+    /// Correct `frame` with `table` and survey the corrected points (ML-EPD, `opts`).
+    fn of(
+        s: &PipelineScenario,
+        table: &DepthTable,
+        plan: &FramePlan,
+        frame: &Frame,
+        opts: &EstimateOptions,
+    ) -> anyhow::Result<Self> {
+        let intensity: Vec<f64> = frame.intensity.iter().map(|&i| i as f64).collect();
+        let mut corrected = frame.measured.clone();
+        let (_, table_sigma) = table.correct_with_sigmas(&mut corrected, &intensity)?;
+        let sv = survey(&corrected, Method::MlEpd, opts, &SegmentOptions::default()).with_context(
+            || {
+                format!(
+                    "the geometry survey of {} frame {} at {:.2} m ({} valid points)",
+                    s.place_name(plan.place),
+                    plan.index,
+                    plan.x,
+                    corrected.iter().filter(|p| **p != [0.0; 3]).count()
+                )
+            },
+        )?;
+        let report = GeometryReport::of(&sv);
+        let geometry = Geometry {
+            found: report.layout,
+            straight_until: report.straight_until_m,
+            bend_radius_mm: report.bend_radius_mm,
+            truth: s.route.truth(plan.x, s.sensor.max_range),
+        };
+        // The straight section's points when something lies ahead.
+        let keep = sv.segmentation.straight_until.map(|end| {
+            straight_mask(
+                &corrected,
+                &sv.segmentation.straight.params,
+                end,
+                SegmentOptions::default().margin_m,
             )
-        },
-    )?;
-    let report = GeometryReport::of(&sv);
-    let geometry = Geometry {
-        found: report.layout,
-        straight_until: report.straight_until_m,
-        bend_radius_mm: report.bend_radius_mm,
-        truth: s.route.truth(plan.x, s.sensor.max_range),
-    };
-    let withheld = report.withheld().is_some();
-    // The straight section's points when something lies ahead.
-    let keep: Option<Vec<bool>> = sv.segmentation.straight_until.map(|end| {
-        straight_mask(
-            &corrected,
-            &sv.segmentation.straight.params,
-            end,
-            SegmentOptions::default().margin_m,
-        )
-    });
-    // The Cramér–Rao bound of the heteroscedastic model over the valid pixels in the gate
-    // on the sensor's straight pipe (before any bend; none in a bend).
-    let first_bend = local.as_ref().and_then(|p| {
+        });
+        Ok(Self {
+            withheld: report.withheld().is_some(),
+            corrected,
+            table_sigma,
+            geometry,
+            keep,
+        })
+    }
+}
+
+/// The Cramér–Rao bound (Dmax, Dmin) of the heteroscedastic model over the valid pixels
+/// in the gate on the sensor's straight pipe (before any bend of `local`, the mesh the
+/// frame was cast on); none in an elbow or when the bound is undefined.
+fn straight_crb(
+    s: &PipelineScenario,
+    plan: &FramePlan,
+    frame: &Frame,
+    local: Option<&tof_sim::Pipeline>,
+    truth: &Params,
+) -> (Option<f64>, Option<f64>) {
+    if s.route.in_elbow(plan.x).is_some() {
+        return (None, None);
+    }
+    let first_bend = local.and_then(|p| {
         p.segments
             .iter()
             .position(|g| matches!(g, Segment::Bend { .. }))
@@ -1176,67 +1255,35 @@ fn frame_rows(
             sig.push(frame.sigma[i]);
         }
     }
-    let crb = if s.route.in_elbow(plan.x).is_some() {
-        (None, None)
-    } else {
-        cramer_rao_bound_weighted(&exact, &sig, &truth)
-            .map(|c| (c[0], c[1]))
-            .unwrap_or((None, None))
+    cramer_rao_bound_weighted(&exact, &sig, truth)
+        .map(|c| (c[0], c[1]))
+        .unwrap_or((None, None))
+}
+
+/// One method of [`METHODS`] on `pts` (`ml-epd-w`: weighted by 1/σᵢ², `sigma`): its
+/// status, (Dmax, Dmin) when converged (m) and the points it used.
+fn estimate_one(
+    method: &str,
+    pts: &[[f64; 3]],
+    sigma: &[f64],
+    opts: &EstimateOptions,
+) -> (FrameStatus, Option<(f64, f64)>, usize) {
+    let result = match method {
+        "c-epd" => estimate(pts, Method::CEpd, opts),
+        "ru-epd" => estimate(pts, Method::RuEpd, opts),
+        "ml-epd" => estimate(pts, Method::MlEpd, opts),
+        _ => estimate_weighted(pts, sigma, Method::MlEpd, opts),
     };
-    let mut rows = Vec::new();
-    for calibrated in [false, true] {
-        let pts = kept(
-            keep.as_deref(),
-            if calibrated {
-                &corrected
-            } else {
-                &frame.measured
-            },
-        );
-        let sigma = kept(
-            keep.as_deref(),
-            if calibrated {
-                &table_sigma
-            } else {
-                &frame.sigma
-            },
-        );
-        for method in METHODS {
-            let result = match method {
-                _ if withheld => None,
-                "c-epd" => Some(estimate(&pts, Method::CEpd, &opts)),
-                "ru-epd" => Some(estimate(&pts, Method::RuEpd, &opts)),
-                "ml-epd" => Some(estimate(&pts, Method::MlEpd, &opts)),
-                _ => Some(estimate_weighted(&pts, &sigma, Method::MlEpd, &opts)),
-            };
-            let (status, d, n_points) = match result {
-                None => (FrameStatus::Withheld, None, 0),
-                Some(Ok(e)) => (
-                    FrameStatus::Fit(e.status.outcome()),
-                    e.status
-                        .is_converged()
-                        .then_some((e.params.d_max, e.params.d_min)),
-                    e.n_points,
-                ),
-                Some(Err(_)) => (FrameStatus::Error, None, 0),
-            };
-            rows.push(Row {
-                section: plan.place,
-                pipe: plan.pipe,
-                geometry,
-                frame: plan.index,
-                distance_m: plan.x,
-                method,
-                calibrated,
-                status,
-                d,
-                truth: (truth.d_max, truth.d_min),
-                n_points,
-                crb,
-            });
-        }
+    match result {
+        Ok(e) => (
+            FrameStatus::Fit(e.status.outcome()),
+            e.status
+                .is_converged()
+                .then_some((e.params.d_max, e.params.d_min)),
+            e.n_points,
+        ),
+        Err(_) => (FrameStatus::Error, None, 0),
     }
-    Ok(rows)
 }
 
 /// The entries of `v` whose `keep` flag is set (all of them without flags).
@@ -1411,6 +1458,54 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
         "depth table: {} × {} bins, {filled} filled, from {n_obs} points",
         table.range.n, table.log_intensity.n
     ));
+    let rows = estimate_run(s, &table, &say)?;
+    let profile = rows.iter().map(|r| profile_line(s, r));
+    let mut files = vec![write_lines(
+        &dir.join("profile.csv"),
+        PROFILE_COLUMNS,
+        profile,
+    )?];
+    let sections = summarise(s, &rows);
+    let lines = sections.iter().map(section_line);
+    files.push(write_lines(
+        &dir.join("sections.csv"),
+        SECTION_COLUMNS,
+        lines,
+    )?);
+    files.push(write_new(&dir.join("scenario.toml"), s.source.as_bytes())?);
+    files.push(write_new(
+        &dir.join("depth_table.json"),
+        table_file(&table, n_obs, s).to_json().as_bytes(),
+    )?);
+    for png in figures::plot_pipeline(s, &profile_points(&rows), &sections)? {
+        files.push(write_new(&dir.join(&png.name), &png.bytes)?);
+    }
+    let errors = rows
+        .iter()
+        .filter(|r| r.status == FrameStatus::Error)
+        .count();
+    let wall_time_s = start.elapsed().as_secs_f64();
+    let meta = metadata(s, wall_time_s, filled, n_obs);
+    files.push(write_new(
+        &dir.join("metadata.json"),
+        serde_json::to_string_pretty(&meta)?.as_bytes(),
+    )?);
+    Ok(PipelineReport {
+        files,
+        wall_time_s,
+        errors,
+        sections,
+    })
+}
+
+/// Every frame of the run ([`PipelineScenario::plans`]) by every method, place by place
+/// (the frames of a place in parallel), in driving order; stops between places when the
+/// run is interrupted.
+fn estimate_run(
+    s: &PipelineScenario,
+    table: &DepthTable,
+    say: &dyn Fn(&str),
+) -> anyhow::Result<Vec<Row>> {
     let mut rows = Vec::new();
     let plans = s.plans();
     let mut places: Vec<usize> = plans.iter().map(|p| p.place).collect();
@@ -1424,42 +1519,39 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
         let done: Vec<anyhow::Result<Vec<Row>>> = here
             .into_par_iter()
             .with_max_len(1)
-            .map(|p| frame_rows(s, &table, p))
+            .map(|p| frame_rows(s, table, p))
             .collect();
         for d in done {
             rows.extend(d?);
         }
     }
-    let profile_path = dir.join("profile.csv");
-    let mut w = create_new(&profile_path)?;
-    writeln!(w, "{}", PROFILE_COLUMNS.join(",")).map_err(wrote(&profile_path))?;
-    for r in &rows {
-        writeln!(w, "{}", profile_line(s, r)).map_err(wrote(&profile_path))?;
+    Ok(rows)
+}
+
+/// A CSV file at `path`: the header `columns`, then one line per entry of `lines`.
+fn write_lines(
+    path: &Path,
+    columns: &[&str],
+    lines: impl Iterator<Item = String>,
+) -> anyhow::Result<PathBuf> {
+    let mut w = create_new(path)?;
+    writeln!(w, "{}", columns.join(",")).map_err(wrote(path))?;
+    for line in lines {
+        writeln!(w, "{line}").map_err(wrote(path))?;
     }
-    let mut files = vec![finish(w, &profile_path)?];
-    let sections = summarise(s, &rows);
-    let sections_path = dir.join("sections.csv");
-    let mut w = create_new(&sections_path)?;
-    writeln!(w, "{}", SECTION_COLUMNS.join(",")).map_err(wrote(&sections_path))?;
-    for r in &sections {
-        writeln!(w, "{}", section_line(r)).map_err(wrote(&sections_path))?;
-    }
-    files.push(finish(w, &sections_path)?);
-    files.push(write_new(&dir.join("scenario.toml"), s.source.as_bytes())?);
-    files.push(write_new(
-        &dir.join("depth_table.json"),
-        table_file(&table, n_obs, s).to_json().as_bytes(),
-    )?);
-    for png in figures::plot_pipeline(s, &profile_points(&rows), &sections)? {
-        files.push(write_new(&dir.join(&png.name), &png.bytes)?);
-    }
-    let errors = rows
-        .iter()
-        .filter(|r| r.status == FrameStatus::Error)
-        .count();
+    finish(w, path)
+}
+
+/// `metadata.json`: the scenario, the build and the machine, the run's wall time and
+/// the depth table's fill (`filled` bins from `n_obs` points).
+fn metadata(
+    s: &PipelineScenario,
+    wall_time_s: f64,
+    filled: usize,
+    n_obs: usize,
+) -> serde_json::Value {
     let (git_commit, git_dirty) = crate::run::git_provenance();
-    let wall_time_s = start.elapsed().as_secs_f64();
-    let meta = serde_json::json!({
+    serde_json::json!({
         "scenario": s.name,
         "kind": "pipeline",
         "scenario_file": s.path.display().to_string(),
@@ -1472,16 +1564,6 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
         "wall_time_s": wall_time_s,
         "depth_table": { "bins_filled": filled, "observations": n_obs },
         "profile": if cfg!(debug_assertions) { "dev" } else { "release" },
-    });
-    files.push(write_new(
-        &dir.join("metadata.json"),
-        serde_json::to_string_pretty(&meta)?.as_bytes(),
-    )?);
-    Ok(PipelineReport {
-        files,
-        wall_time_s,
-        errors,
-        sections,
     })
 }
 
