@@ -46,6 +46,8 @@ use tof_sim::{
 use crate::run::{StagedFiles, create_new, finish, write_new, write_run, wrote};
 use crate::scenario::ScenarioError;
 
+mod figures;
+
 /// Whether a scenario text is an approach run (it has an `[approach]` table).
 pub fn is_approach(source: &str) -> bool {
     toml::from_str::<toml::Table>(source).is_ok_and(|t| t.contains_key("approach"))
@@ -576,7 +578,7 @@ fn stage(s: &ApproachScenario, dir: &Path, progress: bool) -> anyhow::Result<App
     let summary = summarise(s, &rows);
     files.push(write_approach_csv(dir, &summary)?);
     files.push(write_new(&dir.join("scenario.toml"), s.source.as_bytes())?);
-    let png = crate::plots::plot_approach(s, &rows)?;
+    let png = figures::plot_approach(s, &rows)?;
     files.push(write_new(&dir.join(&png.name), &png.bytes)?);
     let (git_commit, git_dirty) = crate::run::git_provenance();
     let wall_time_s = start.elapsed().as_secs_f64();

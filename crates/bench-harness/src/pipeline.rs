@@ -48,7 +48,9 @@ use crate::route::{Fitting, FittingKind, Route, TruthAhead, local_mesh};
 use crate::run::{
     INTERRUPTED, Interrupted, StagedFiles, create_new, finish, num, write_new, write_run, wrote,
 };
-use crate::scenario::ScenarioError;
+use crate::scenario::{KeyError, ScenarioError, check_name, key_err};
+
+mod figures;
 
 /// The estimators of a pipeline run, by their names in the CSV files.
 pub const METHODS: [&str; 4] = ["c-epd", "ru-epd", "ml-epd", "ml-epd-w"];
@@ -356,11 +358,11 @@ fn parse_route(
     sections: &[Section],
     frames: usize,
     spacing: f64,
-) -> Result<Route, (String, String)> {
+) -> Result<Route, KeyError> {
     let span = |s: &Section| (s.start_m, s.start_m + (frames as f64 - 1.0) * spacing);
     if !files.is_empty() && sections.windows(2).any(|w| span(&w[0]).1 >= w[1].start_m) {
-        return Err((
-            "pipeline.section".into(),
+        return Err(key_err(
+            "pipeline.section",
             "with fittings, the sections must follow each other along the odometer without \
              overlapping frames"
                 .into(),
@@ -368,92 +370,19 @@ fn parse_route(
     }
     let mut route = Route::default();
     for (k, f) in files.iter().enumerate() {
-        let key = |field: &str| format!("pipeline.fitting[{k}].{field}");
-        let bad = |field: &str, m: String| Err((key(field), m));
+        let bad =
+            |field: &str, m: String| Err(key_err(&format!("pipeline.fitting[{k}].{field}"), m));
         if !f.at_m.is_finite() {
             return bad("at_m", format!("= {}: must be finite", f.at_m));
         }
         if !f.direction_deg.is_finite() {
             return bad("direction_deg", "must be finite".into());
         }
-        // The sections around it: the last one starting before it, the first after.
-        let Some(before) = sections.iter().rposition(|s| s.start_m < f.at_m) else {
-            return bad(
-                "at_m",
-                format!("= {}: must lie after the first section's frames", f.at_m),
-            );
-        };
-        if before + 1 >= sections.len() {
-            return bad(
-                "at_m",
-                format!("= {}: must lie before the last section", f.at_m),
-            );
-        }
-        let (a, b) = (&sections[before], &sections[before + 1]);
-        let d_min = a.pipe.d_min().min(b.pipe.d_min());
-        let kind = match f.kind.as_str() {
-            "tee" => {
-                if f.bend_radius_d.is_some() || f.angle_deg.is_some() {
-                    return bad(
-                        "kind",
-                        "= \"tee\" takes branch_diameter_mm, not bend_radius_d or angle_deg".into(),
-                    );
-                }
-                let Some(bd) = f.branch_diameter_mm else {
-                    return bad(
-                        "branch_diameter_mm",
-                        "a tee needs its branch's inner diameter".into(),
-                    );
-                };
-                if !(bd > 0.0 && bd * 1e-3 <= d_min) {
-                    return bad(
-                        "branch_diameter_mm",
-                        format!(
-                            "= {bd}: must lie in (0, {:.1}] (the main pipe's minor diameter)",
-                            d_min * 1e3
-                        ),
-                    );
-                }
-                FittingKind::Tee {
-                    branch_diameter: bd * 1e-3,
-                }
-            }
-            "elbow" => {
-                if f.branch_diameter_mm.is_some() {
-                    return bad(
-                        "kind",
-                        "= \"elbow\" takes bend_radius_d and angle_deg, not branch_diameter_mm"
-                            .into(),
-                    );
-                }
-                let rd = f
-                    .bend_radius_d
-                    .unwrap_or_else(crate::defaults::bend_radius_d);
-                let angle = f.angle_deg.unwrap_or_else(crate::defaults::bend_angle_deg);
-                if !(0.75..=50.0).contains(&rd) {
-                    return bad(
-                        "bend_radius_d",
-                        format!("= {rd}: must lie in [0.75, 50] pipe diameters"),
-                    );
-                }
-                if !(angle > 0.0 && angle <= 180.0) {
-                    return bad("angle_deg", format!("= {angle}: must lie in (0, 180]"));
-                }
-                let d = 0.5 * (a.pipe.d_max() + a.pipe.d_min());
-                FittingKind::Elbow {
-                    radius: rd * d,
-                    angle: angle.to_radians(),
-                }
-            }
-            other => {
-                return bad(
-                    "kind",
-                    format!("= \"{other}\": must be \"tee\" or \"elbow\""),
-                );
-            }
-        };
+        let (a, b) = f
+            .neighbours(sections)
+            .map_err(|m| key_err(&format!("pipeline.fitting[{k}].at_m"), m))?;
         let fitting = Fitting {
-            kind,
+            kind: f.kind(k, a, b)?,
             at_m: f.at_m,
             direction: f.direction_deg.to_radians(),
         };
@@ -489,54 +418,147 @@ fn parse_route(
     Ok(route)
 }
 
-impl PipelineScenario {
-    /// Check a pipeline scenario given as text (`path` names it in errors).
-    pub fn parse(path: &Path, source: &str) -> Result<Self, ScenarioError> {
-        let invalid = |key: &str, message: String| ScenarioError::Invalid {
-            path: path.to_path_buf(),
-            key: key.to_string(),
-            message,
+impl FittingFile {
+    /// The sections around the fitting (at a finite `at_m`): the last one starting
+    /// before it and the next; else what is wrong with `at_m`.
+    fn neighbours<'a>(
+        &self,
+        sections: &'a [Section],
+    ) -> Result<(&'a Section, &'a Section), String> {
+        let Some(before) = sections.iter().rposition(|s| s.start_m < self.at_m) else {
+            return Err(format!(
+                "= {}: must lie after the first section's frames",
+                self.at_m
+            ));
         };
-        let f: File = toml::from_str(source).map_err(|e| ScenarioError::Parse {
-            path: path.to_path_buf(),
-            message: e.to_string().trim_end().to_string(),
-        })?;
-        let p = &f.pipeline;
-        if f.name.is_empty() || f.name.contains(['/', '\\']) || f.name == "." || f.name == ".." {
-            return Err(invalid(
-                "name",
-                format!("= \"{}\": must be a plain folder name", f.name),
-            ));
+        match sections.get(before + 1) {
+            Some(after) => Ok((&sections[before], after)),
+            None => Err(format!("= {}: must lie before the last section", self.at_m)),
         }
-        if !(1..=10_000).contains(&p.frames_per_section) {
-            return Err(invalid(
+    }
+
+    /// The fitting `k`'s kind and size in SI units, checked against the sections `a`
+    /// before and `b` after it: a tee's branch (mm → m) no wider than the narrower minor
+    /// diameter; an elbow's radius (pipe diameters → m, D = `a`'s mean diameter) and
+    /// angle (degrees → rad).
+    fn kind(&self, k: usize, a: &Section, b: &Section) -> Result<FittingKind, KeyError> {
+        let bad =
+            |field: &str, m: String| Err(key_err(&format!("pipeline.fitting[{k}].{field}"), m));
+        match self.kind.as_str() {
+            "tee" => {
+                if self.bend_radius_d.is_some() || self.angle_deg.is_some() {
+                    return bad(
+                        "kind",
+                        "= \"tee\" takes branch_diameter_mm, not bend_radius_d or angle_deg".into(),
+                    );
+                }
+                let Some(bd) = self.branch_diameter_mm else {
+                    return bad(
+                        "branch_diameter_mm",
+                        "a tee needs its branch's inner diameter".into(),
+                    );
+                };
+                let d_min = a.pipe.d_min().min(b.pipe.d_min());
+                if !(bd > 0.0 && bd * 1e-3 <= d_min) {
+                    return bad(
+                        "branch_diameter_mm",
+                        format!(
+                            "= {bd}: must lie in (0, {:.1}] (the main pipe's minor diameter)",
+                            d_min * 1e3
+                        ),
+                    );
+                }
+                Ok(FittingKind::Tee {
+                    branch_diameter: bd * 1e-3,
+                })
+            }
+            "elbow" => {
+                if self.branch_diameter_mm.is_some() {
+                    return bad(
+                        "kind",
+                        "= \"elbow\" takes bend_radius_d and angle_deg, not branch_diameter_mm"
+                            .into(),
+                    );
+                }
+                let rd = self
+                    .bend_radius_d
+                    .unwrap_or_else(crate::defaults::bend_radius_d);
+                let angle = self
+                    .angle_deg
+                    .unwrap_or_else(crate::defaults::bend_angle_deg);
+                if !(0.75..=50.0).contains(&rd) {
+                    return bad(
+                        "bend_radius_d",
+                        format!("= {rd}: must lie in [0.75, 50] pipe diameters"),
+                    );
+                }
+                if !(angle > 0.0 && angle <= 180.0) {
+                    return bad("angle_deg", format!("= {angle}: must lie in (0, 180]"));
+                }
+                let d = 0.5 * (a.pipe.d_max() + a.pipe.d_min());
+                Ok(FittingKind::Elbow {
+                    radius: rd * d,
+                    angle: angle.to_radians(),
+                })
+            }
+            other => bad(
+                "kind",
+                format!("= \"{other}\": must be \"tee\" or \"elbow\""),
+            ),
+        }
+    }
+}
+
+/// A checked pipe from file units (mm → m); errors name `key`.
+fn pipe_of(key: &str, nominal_od_in: f64, wall_mm: f64, ovality: f64) -> Result<Pipe, KeyError> {
+    let pipe = Pipe {
+        nominal_od_in,
+        wall_thickness: wall_mm * 1e-3,
+        ovality,
+    };
+    pipe.validate()
+        .map(|_| pipe)
+        .map_err(|e| key_err(key, e.to_string()))
+}
+
+impl PipelineFile {
+    /// The frames along each section and the gate: `frames_per_section` in [1, 10000], a
+    /// spacing > 0, 0 ≤ gate min < max; the gate (m).
+    fn gate(&self) -> Result<(f64, f64), KeyError> {
+        if !(1..=10_000).contains(&self.frames_per_section) {
+            return Err(key_err(
                 "pipeline.frames_per_section",
-                format!("= {}: must lie in [1, 10000]", p.frames_per_section),
+                format!("= {}: must lie in [1, 10000]", self.frames_per_section),
             ));
         }
-        if !(p.frame_spacing_m > 0.0 && p.frame_spacing_m.is_finite()) {
-            return Err(invalid(
+        if !(self.frame_spacing_m > 0.0 && self.frame_spacing_m.is_finite()) {
+            return Err(key_err(
                 "pipeline.frame_spacing_m",
-                format!("= {}: must be a finite number > 0", p.frame_spacing_m),
+                format!("= {}: must be a finite number > 0", self.frame_spacing_m),
             ));
         }
-        let [g0, g1] = p.range_gate_m;
+        let [g0, g1] = self.range_gate_m;
         if !(g0 >= 0.0 && g1 > g0 && g1.is_finite()) {
-            return Err(invalid(
+            return Err(key_err(
                 "pipeline.range_gate_m",
                 format!("= [{g0}, {g1}]: need 0 ≤ min < max"),
             ));
         }
-        let mut physics = match p.sensor.as_str() {
+        Ok((g0, g1))
+    }
+
+    /// The sensor preset's error model with the file's changes, checked.
+    fn physics(&self) -> Result<ToFPhysics, KeyError> {
+        let mut physics = match self.sensor.as_str() {
             "helios2" => ToFPhysics::helios2(),
             other => {
-                return Err(invalid(
+                return Err(key_err(
                     "pipeline.sensor",
                     format!("= \"{other}\": the one preset is \"helios2\""),
                 ));
             }
         };
-        let m = &p.sensor_model;
+        let m = &self.sensor_model;
         for (v, field) in [
             (m.reflectivity, &mut physics.reflectivity),
             (m.sigma_ref_m, &mut physics.sigma_ref_m),
@@ -558,34 +580,30 @@ impl PipelineScenario {
         }
         physics
             .validate()
-            .map_err(|e| invalid("pipeline.sensor_model", e.to_string()))?;
-        if p.section.is_empty() || p.section.len() > 100 {
-            return Err(invalid(
+            .map_err(|e| key_err("pipeline.sensor_model", e.to_string()))?;
+        Ok(physics)
+    }
+
+    /// 1 to 100 sections, each named for a CSV cell, starting at a finite distance, of a
+    /// valid pipe.
+    fn sections(&self) -> Result<Vec<Section>, KeyError> {
+        if self.section.is_empty() || self.section.len() > 100 {
+            return Err(key_err(
                 "pipeline.section",
-                format!("has {} sections: list 1 to 100", p.section.len()),
+                format!("has {} sections: list 1 to 100", self.section.len()),
             ));
         }
-        let pipe_of = |key: &str, od: f64, wall_mm: f64, ovality: f64| {
-            let pipe = Pipe {
-                nominal_od_in: od,
-                wall_thickness: wall_mm * 1e-3,
-                ovality,
-            };
-            pipe.validate()
-                .map(|_| pipe)
-                .map_err(|e| invalid(key, e.to_string()))
-        };
         let mut sections = Vec::new();
-        for (k, s) in p.section.iter().enumerate() {
+        for (k, s) in self.section.iter().enumerate() {
             let key = format!("pipeline.section[{k}]");
             if s.name.is_empty() || s.name.contains([',', '"', '\n']) {
-                return Err(invalid(
+                return Err(key_err(
                     &format!("{key}.name"),
                     format!("= {:?}: a non-empty name without commas or quotes", s.name),
                 ));
             }
             if !s.start_m.is_finite() {
-                return Err(invalid(&format!("{key}.start_m"), "must be finite".into()));
+                return Err(key_err(&format!("{key}.start_m"), "must be finite".into()));
             }
             sections.push(Section {
                 name: s.name.clone(),
@@ -593,97 +611,147 @@ impl PipelineScenario {
                 start_m: s.start_m,
             });
         }
-        let rig = pipe_of("pipeline.rig", p.rig.nominal_od_in, p.rig.wall_mm, 0.0)?;
-        if !(1..=1000).contains(&p.rig.frames) {
-            return Err(invalid(
-                "pipeline.rig.frames",
-                format!("= {}: must lie in [1, 1000]", p.rig.frames),
-            ));
-        }
-        if !(1..=20).contains(&p.rig.passes) {
-            return Err(invalid(
-                "pipeline.rig.passes",
-                format!("= {}: must lie in [1, 20]", p.rig.passes),
-            ));
-        }
-        let bins_ok = |n: usize| (1..=1000).contains(&n);
-        if !(bins_ok(p.rig.range_bins) && bins_ok(p.rig.intensity_bins)) {
-            return Err(invalid(
-                "pipeline.rig.range_bins",
-                "and intensity_bins must lie in [1, 1000]".into(),
-            ));
-        }
-        let d = &p.drift;
-        let deg = std::f64::consts::PI / 180.0;
-        for (key, v, ok) in [
-            (
-                "pipeline.drift.roll_deg_per_m",
-                d.roll_deg_per_m,
-                d.roll_deg_per_m.is_finite(),
-            ),
-            (
-                "pipeline.drift.tilt_deg",
-                d.tilt_deg,
-                (0.0..30.0).contains(&d.tilt_deg),
-            ),
-            (
-                "pipeline.drift.tilt_period_m",
-                d.tilt_period_m,
-                d.tilt_period_m > 0.0,
-            ),
-            (
-                "pipeline.drift.offset_mm",
-                d.offset_mm,
-                (0.0..1e4).contains(&d.offset_mm),
-            ),
-            (
-                "pipeline.drift.offset_period_m",
-                d.offset_period_m,
-                d.offset_period_m > 0.0,
-            ),
-        ] {
-            if !(ok && v.is_finite()) {
-                return Err(invalid(key, format!("= {v}: out of range")));
-            }
-        }
-        let drift = Drift {
-            roll_per_m: d.roll_deg_per_m * deg,
-            tilt: d.tilt_deg * deg,
-            tilt_period_m: d.tilt_period_m,
-            offset: d.offset_mm * 1e-3,
-            offset_period_m: d.offset_period_m,
-        };
-        if !(0.0..1e4).contains(&p.rig.offset_mm) {
-            return Err(invalid(
-                "pipeline.rig.offset_mm",
-                format!("= {}: must lie in [0, 10000)", p.rig.offset_mm),
-            ));
-        }
-        let rig_drift = Drift {
-            offset: p.rig.offset_mm * 1e-3,
-            ..drift
-        };
+        Ok(sections)
+    }
+
+    /// How frames that see a fitting are meshed: `mesh_segments` cells around the pipe.
+    fn mesh(&self) -> Result<MeshResolution, KeyError> {
         let mesh = MeshResolution {
-            segments: p.mesh_segments,
+            segments: self.mesh_segments,
             bend_step: 0.5f64.to_radians(),
             straight_ring_spacing: 0.25,
             tee_ring_spacing: 0.004,
         };
         mesh.validate()
-            .map_err(|e| invalid("pipeline.mesh_segments", e.to_string()))?;
+            .map_err(|e| key_err("pipeline.mesh_segments", e.to_string()))?;
+        Ok(mesh)
+    }
+}
+
+impl RigFile {
+    /// The rig's round pipe, its frame count, passes and table bins checked.
+    fn pipe(&self) -> Result<Pipe, KeyError> {
+        let rig = pipe_of("pipeline.rig", self.nominal_od_in, self.wall_mm, 0.0)?;
+        if !(1..=1000).contains(&self.frames) {
+            return Err(key_err(
+                "pipeline.rig.frames",
+                format!("= {}: must lie in [1, 1000]", self.frames),
+            ));
+        }
+        if !(1..=20).contains(&self.passes) {
+            return Err(key_err(
+                "pipeline.rig.passes",
+                format!("= {}: must lie in [1, 20]", self.passes),
+            ));
+        }
+        let bins_ok = |n: usize| (1..=1000).contains(&n);
+        if !(bins_ok(self.range_bins) && bins_ok(self.intensity_bins)) {
+            return Err(key_err(
+                "pipeline.rig.range_bins",
+                "and intensity_bins must lie in [1, 1000]".into(),
+            ));
+        }
+        Ok(rig)
+    }
+
+    /// The pose along the rig: the run's `drift` with the rig's offset amplitude (mm → m).
+    fn drift(&self, drift: Drift) -> Result<Drift, KeyError> {
+        if !(0.0..1e4).contains(&self.offset_mm) {
+            return Err(key_err(
+                "pipeline.rig.offset_mm",
+                format!("= {}: must lie in [0, 10000)", self.offset_mm),
+            ));
+        }
+        Ok(Drift {
+            offset: self.offset_mm * 1e-3,
+            ..drift
+        })
+    }
+}
+
+impl DriftFile {
+    /// The drift in SI units (degrees → rad, mm → m), each value in its range.
+    fn to_drift(&self) -> Result<Drift, KeyError> {
+        let deg = std::f64::consts::PI / 180.0;
+        for (key, v, ok) in [
+            (
+                "pipeline.drift.roll_deg_per_m",
+                self.roll_deg_per_m,
+                self.roll_deg_per_m.is_finite(),
+            ),
+            (
+                "pipeline.drift.tilt_deg",
+                self.tilt_deg,
+                (0.0..30.0).contains(&self.tilt_deg),
+            ),
+            (
+                "pipeline.drift.tilt_period_m",
+                self.tilt_period_m,
+                self.tilt_period_m > 0.0,
+            ),
+            (
+                "pipeline.drift.offset_mm",
+                self.offset_mm,
+                (0.0..1e4).contains(&self.offset_mm),
+            ),
+            (
+                "pipeline.drift.offset_period_m",
+                self.offset_period_m,
+                self.offset_period_m > 0.0,
+            ),
+        ] {
+            if !(ok && v.is_finite()) {
+                return Err(key_err(key, format!("= {v}: out of range")));
+            }
+        }
+        Ok(Drift {
+            roll_per_m: self.roll_deg_per_m * deg,
+            tilt: self.tilt_deg * deg,
+            tilt_period_m: self.tilt_period_m,
+            offset: self.offset_mm * 1e-3,
+            offset_period_m: self.offset_period_m,
+        })
+    }
+}
+
+impl PipelineScenario {
+    /// Check a pipeline scenario given as text (`path` names it in errors).
+    pub fn parse(path: &Path, source: &str) -> Result<Self, ScenarioError> {
+        let f: File = toml::from_str(source).map_err(|e| ScenarioError::Parse {
+            path: path.to_path_buf(),
+            message: e.to_string().trim_end().to_string(),
+        })?;
+        Self::check(&f, path, source).map_err(|(key, message)| ScenarioError::Invalid {
+            path: path.to_path_buf(),
+            key,
+            message,
+        })
+    }
+
+    /// File units → a checked scenario, or (key, message). Checked in the order of the
+    /// steps below, so a file with several errors names the first.
+    fn check(f: &File, path: &Path, source: &str) -> Result<Self, KeyError> {
+        let p = &f.pipeline;
+        check_name(&f.name)?;
+        let range_gate = p.gate()?;
+        let physics = p.physics()?;
+        let sections = p.sections()?;
+        let rig = p.rig.pipe()?;
+        let drift = p.drift.to_drift()?;
+        let rig_drift = p.rig.drift(drift)?;
+        let mesh = p.mesh()?;
         let route = parse_route(
             &p.fitting,
             &sections,
             p.frames_per_section,
             p.frame_spacing_m,
-        )
-        .map_err(|(key, message)| invalid(&key, message))?;
+        )?;
         let scenario = Self {
             name: f.name.clone(),
             seed: f.seed,
             frames_per_section: p.frames_per_section,
             frame_spacing_m: p.frame_spacing_m,
-            range_gate: (g0, g1),
+            range_gate,
             sensor: Sensor::helios2(),
             physics,
             sections,
@@ -698,19 +766,23 @@ impl PipelineScenario {
             source: source.to_string(),
             path: path.to_path_buf(),
         };
-        // Every pose along the way must leave the sensor inside its pipe.
-        let plans = scenario.plans();
+        scenario.check_sensor_inside(p)?;
+        Ok(scenario)
+    }
+
+    /// Every pose along the way (the rig's frames, then the run's) must leave the sensor
+    /// inside its pipe; else the offset amplitude that takes it out (`p`'s value).
+    fn check_sensor_inside(&self, p: &PipelineFile) -> Result<(), KeyError> {
+        let plans = self.plans();
         let legs = std::iter::once((
             0,
-            scenario.rig,
-            (0..scenario.rig_frames)
-                .map(|k| scenario.rig_distance(k))
-                .collect(),
+            self.rig,
+            (0..self.rig_frames).map(|k| self.rig_distance(k)).collect(),
         ))
         .chain(plans.iter().map(|p| (p.drift_leg, p.pipe, vec![p.x])));
         for (leg, pipe, xs) in legs {
             for x in xs {
-                let pose = scenario.drift_of(leg).pose(&pipe, scenario.seed, leg, x);
+                let pose = self.drift_of(leg).pose(&pipe, self.seed, leg, x);
                 if !pose.sensor_inside() {
                     let (key, v, leg) = if leg == 0 {
                         (
@@ -719,21 +791,21 @@ impl PipelineScenario {
                             "the rig".to_string(),
                         )
                     } else {
-                        let name = &scenario.sections[leg as usize - 1].name;
+                        let name = &self.sections[leg as usize - 1].name;
                         (
                             "pipeline.drift.offset_mm",
-                            d.offset_mm,
+                            p.drift.offset_mm,
                             format!("section {name}"),
                         )
                     };
-                    return Err(invalid(
+                    return Err(key_err(
                         key,
                         format!("= {v}: at {x:.2} m the sensor leaves the pipe of {leg}"),
                     ));
                 }
             }
         }
-        Ok(scenario)
+        Ok(())
     }
 
     /// Every frame of the run in driving order: each section's frames, then (when
@@ -1049,40 +1121,119 @@ fn frame_rows(
 ) -> anyhow::Result<Vec<Row>> {
     let (truth, frame, local) = s.frame(plan)?;
     let opts = options(s.range_gate)?;
-    let intensity: Vec<f64> = frame.intensity.iter().map(|&i| i as f64).collect();
-    let mut corrected = frame.measured.clone();
-    let (_, table_sigma) = table.correct_with_sigmas(&mut corrected, &intensity)?;
-    let sv = survey(&corrected, Method::MlEpd, &opts, &SegmentOptions::default()).with_context(
-        || {
-            format!(
-                "the geometry survey of {} frame {} at {:.2} m ({} valid points)",
-                s.place_name(plan.place),
-                plan.index,
-                plan.x,
-                corrected.iter().filter(|p| **p != [0.0; 3]).count()
+    let sv = Surveyed::of(s, table, plan, &frame, &opts)?;
+    let crb = straight_crb(s, plan, &frame, local.as_ref(), &truth);
+    let mut rows = Vec::new();
+    for calibrated in [false, true] {
+        let (points, sigma) = if calibrated {
+            (&sv.corrected, &sv.table_sigma)
+        } else {
+            (&frame.measured, &frame.sigma)
+        };
+        let pts = kept(sv.keep.as_deref(), points);
+        let sigma = kept(sv.keep.as_deref(), sigma);
+        for method in METHODS {
+            let (status, d, n_points) = if sv.withheld {
+                (FrameStatus::Withheld, None, 0)
+            } else {
+                estimate_one(method, &pts, &sigma, &opts)
+            };
+            rows.push(Row {
+                section: plan.place,
+                pipe: plan.pipe,
+                geometry: sv.geometry,
+                frame: plan.index,
+                distance_m: plan.x,
+                method,
+                calibrated,
+                status,
+                d,
+                truth: (truth.d_max, truth.d_min),
+                n_points,
+                crb,
+            });
+        }
+    }
+    Ok(rows)
+}
+
+/// One frame corrected with the depth table and surveyed as `epd estimate` does.
+struct Surveyed {
+    /// The measured points corrected with the table (SCS, m).
+    corrected: Vec<[f64; 3]>,
+    /// Each point's σ from the table's spread at its range and intensity (m).
+    table_sigma: Vec<f64>,
+    /// The survey's verdict and the route's truth.
+    geometry: Geometry,
+    /// The survey withholds the estimate (the sensor is in a bend).
+    withheld: bool,
+    /// When something lies ahead: which points belong to the straight section.
+    keep: Option<Vec<bool>>,
+}
+
+impl Surveyed {
+    /// Correct `frame` with `table` and survey the corrected points (ML-EPD, `opts`).
+    fn of(
+        s: &PipelineScenario,
+        table: &DepthTable,
+        plan: &FramePlan,
+        frame: &Frame,
+        opts: &EstimateOptions,
+    ) -> anyhow::Result<Self> {
+        let intensity: Vec<f64> = frame.intensity.iter().map(|&i| i as f64).collect();
+        let mut corrected = frame.measured.clone();
+        let (_, table_sigma) = table.correct_with_sigmas(&mut corrected, &intensity)?;
+        let sv = survey(&corrected, Method::MlEpd, opts, &SegmentOptions::default()).with_context(
+            || {
+                format!(
+                    "the geometry survey of {} frame {} at {:.2} m ({} valid points)",
+                    s.place_name(plan.place),
+                    plan.index,
+                    plan.x,
+                    corrected.iter().filter(|p| **p != [0.0; 3]).count()
+                )
+            },
+        )?;
+        let report = GeometryReport::of(&sv);
+        let geometry = Geometry {
+            found: report.layout,
+            straight_until: report.straight_until_m,
+            bend_radius_mm: report.bend_radius_mm,
+            truth: s.route.truth(plan.x, s.sensor.max_range),
+        };
+        // The straight section's points when something lies ahead.
+        let keep = sv.segmentation.straight_until.map(|end| {
+            straight_mask(
+                &corrected,
+                &sv.segmentation.straight.params,
+                end,
+                SegmentOptions::default().margin_m,
             )
-        },
-    )?;
-    let report = GeometryReport::of(&sv);
-    let geometry = Geometry {
-        found: report.layout,
-        straight_until: report.straight_until_m,
-        bend_radius_mm: report.bend_radius_mm,
-        truth: s.route.truth(plan.x, s.sensor.max_range),
-    };
-    let withheld = report.withheld().is_some();
-    // The straight section's points when something lies ahead.
-    let keep: Option<Vec<bool>> = sv.segmentation.straight_until.map(|end| {
-        straight_mask(
-            &corrected,
-            &sv.segmentation.straight.params,
-            end,
-            SegmentOptions::default().margin_m,
-        )
-    });
-    // The Cramér–Rao bound of the heteroscedastic model over the valid pixels in the gate
-    // on the sensor's straight pipe (before any bend; none in a bend).
-    let first_bend = local.as_ref().and_then(|p| {
+        });
+        Ok(Self {
+            withheld: report.withheld().is_some(),
+            corrected,
+            table_sigma,
+            geometry,
+            keep,
+        })
+    }
+}
+
+/// The Cramér–Rao bound (Dmax, Dmin) of the heteroscedastic model over the valid pixels
+/// in the gate on the sensor's straight pipe (before any bend of `local`, the mesh the
+/// frame was cast on); none in an elbow or when the bound is undefined.
+fn straight_crb(
+    s: &PipelineScenario,
+    plan: &FramePlan,
+    frame: &Frame,
+    local: Option<&tof_sim::Pipeline>,
+    truth: &Params,
+) -> (Option<f64>, Option<f64>) {
+    if s.route.in_elbow(plan.x).is_some() {
+        return (None, None);
+    }
+    let first_bend = local.and_then(|p| {
         p.segments
             .iter()
             .position(|g| matches!(g, Segment::Bend { .. }))
@@ -1104,67 +1255,35 @@ fn frame_rows(
             sig.push(frame.sigma[i]);
         }
     }
-    let crb = if s.route.in_elbow(plan.x).is_some() {
-        (None, None)
-    } else {
-        cramer_rao_bound_weighted(&exact, &sig, &truth)
-            .map(|c| (c[0], c[1]))
-            .unwrap_or((None, None))
+    cramer_rao_bound_weighted(&exact, &sig, truth)
+        .map(|c| (c[0], c[1]))
+        .unwrap_or((None, None))
+}
+
+/// One method of [`METHODS`] on `pts` (`ml-epd-w`: weighted by 1/σᵢ², `sigma`): its
+/// status, (Dmax, Dmin) when converged (m) and the points it used.
+fn estimate_one(
+    method: &str,
+    pts: &[[f64; 3]],
+    sigma: &[f64],
+    opts: &EstimateOptions,
+) -> (FrameStatus, Option<(f64, f64)>, usize) {
+    let result = match method {
+        "c-epd" => estimate(pts, Method::CEpd, opts),
+        "ru-epd" => estimate(pts, Method::RuEpd, opts),
+        "ml-epd" => estimate(pts, Method::MlEpd, opts),
+        _ => estimate_weighted(pts, sigma, Method::MlEpd, opts),
     };
-    let mut rows = Vec::new();
-    for calibrated in [false, true] {
-        let pts = kept(
-            keep.as_deref(),
-            if calibrated {
-                &corrected
-            } else {
-                &frame.measured
-            },
-        );
-        let sigma = kept(
-            keep.as_deref(),
-            if calibrated {
-                &table_sigma
-            } else {
-                &frame.sigma
-            },
-        );
-        for method in METHODS {
-            let result = match method {
-                _ if withheld => None,
-                "c-epd" => Some(estimate(&pts, Method::CEpd, &opts)),
-                "ru-epd" => Some(estimate(&pts, Method::RuEpd, &opts)),
-                "ml-epd" => Some(estimate(&pts, Method::MlEpd, &opts)),
-                _ => Some(estimate_weighted(&pts, &sigma, Method::MlEpd, &opts)),
-            };
-            let (status, d, n_points) = match result {
-                None => (FrameStatus::Withheld, None, 0),
-                Some(Ok(e)) => (
-                    FrameStatus::Fit(e.status.outcome()),
-                    e.status
-                        .is_converged()
-                        .then_some((e.params.d_max, e.params.d_min)),
-                    e.n_points,
-                ),
-                Some(Err(_)) => (FrameStatus::Error, None, 0),
-            };
-            rows.push(Row {
-                section: plan.place,
-                pipe: plan.pipe,
-                geometry,
-                frame: plan.index,
-                distance_m: plan.x,
-                method,
-                calibrated,
-                status,
-                d,
-                truth: (truth.d_max, truth.d_min),
-                n_points,
-                crb,
-            });
-        }
+    match result {
+        Ok(e) => (
+            FrameStatus::Fit(e.status.outcome()),
+            e.status
+                .is_converged()
+                .then_some((e.params.d_max, e.params.d_min)),
+            e.n_points,
+        ),
+        Err(_) => (FrameStatus::Error, None, 0),
     }
-    Ok(rows)
 }
 
 /// The entries of `v` whose `keep` flag is set (all of them without flags).
@@ -1339,6 +1458,54 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
         "depth table: {} × {} bins, {filled} filled, from {n_obs} points",
         table.range.n, table.log_intensity.n
     ));
+    let rows = estimate_run(s, &table, &say)?;
+    let profile = rows.iter().map(|r| profile_line(s, r));
+    let mut files = vec![write_lines(
+        &dir.join("profile.csv"),
+        PROFILE_COLUMNS,
+        profile,
+    )?];
+    let sections = summarise(s, &rows);
+    let lines = sections.iter().map(section_line);
+    files.push(write_lines(
+        &dir.join("sections.csv"),
+        SECTION_COLUMNS,
+        lines,
+    )?);
+    files.push(write_new(&dir.join("scenario.toml"), s.source.as_bytes())?);
+    files.push(write_new(
+        &dir.join("depth_table.json"),
+        table_file(&table, n_obs, s).to_json().as_bytes(),
+    )?);
+    for png in figures::plot_pipeline(s, &profile_points(&rows), &sections)? {
+        files.push(write_new(&dir.join(&png.name), &png.bytes)?);
+    }
+    let errors = rows
+        .iter()
+        .filter(|r| r.status == FrameStatus::Error)
+        .count();
+    let wall_time_s = start.elapsed().as_secs_f64();
+    let meta = metadata(s, wall_time_s, filled, n_obs);
+    files.push(write_new(
+        &dir.join("metadata.json"),
+        serde_json::to_string_pretty(&meta)?.as_bytes(),
+    )?);
+    Ok(PipelineReport {
+        files,
+        wall_time_s,
+        errors,
+        sections,
+    })
+}
+
+/// Every frame of the run ([`PipelineScenario::plans`]) by every method, place by place
+/// (the frames of a place in parallel), in driving order; stops between places when the
+/// run is interrupted.
+fn estimate_run(
+    s: &PipelineScenario,
+    table: &DepthTable,
+    say: &dyn Fn(&str),
+) -> anyhow::Result<Vec<Row>> {
     let mut rows = Vec::new();
     let plans = s.plans();
     let mut places: Vec<usize> = plans.iter().map(|p| p.place).collect();
@@ -1352,42 +1519,39 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
         let done: Vec<anyhow::Result<Vec<Row>>> = here
             .into_par_iter()
             .with_max_len(1)
-            .map(|p| frame_rows(s, &table, p))
+            .map(|p| frame_rows(s, table, p))
             .collect();
         for d in done {
             rows.extend(d?);
         }
     }
-    let profile_path = dir.join("profile.csv");
-    let mut w = create_new(&profile_path)?;
-    writeln!(w, "{}", PROFILE_COLUMNS.join(",")).map_err(wrote(&profile_path))?;
-    for r in &rows {
-        writeln!(w, "{}", profile_line(s, r)).map_err(wrote(&profile_path))?;
+    Ok(rows)
+}
+
+/// A CSV file at `path`: the header `columns`, then one line per entry of `lines`.
+fn write_lines(
+    path: &Path,
+    columns: &[&str],
+    lines: impl Iterator<Item = String>,
+) -> anyhow::Result<PathBuf> {
+    let mut w = create_new(path)?;
+    writeln!(w, "{}", columns.join(",")).map_err(wrote(path))?;
+    for line in lines {
+        writeln!(w, "{line}").map_err(wrote(path))?;
     }
-    let mut files = vec![finish(w, &profile_path)?];
-    let sections = summarise(s, &rows);
-    let sections_path = dir.join("sections.csv");
-    let mut w = create_new(&sections_path)?;
-    writeln!(w, "{}", SECTION_COLUMNS.join(",")).map_err(wrote(&sections_path))?;
-    for r in &sections {
-        writeln!(w, "{}", section_line(r)).map_err(wrote(&sections_path))?;
-    }
-    files.push(finish(w, &sections_path)?);
-    files.push(write_new(&dir.join("scenario.toml"), s.source.as_bytes())?);
-    files.push(write_new(
-        &dir.join("depth_table.json"),
-        table_file(&table, n_obs, s).to_json().as_bytes(),
-    )?);
-    for png in crate::plots::plot_pipeline(s, &profile_points(&rows), &sections)? {
-        files.push(write_new(&dir.join(&png.name), &png.bytes)?);
-    }
-    let errors = rows
-        .iter()
-        .filter(|r| r.status == FrameStatus::Error)
-        .count();
+    finish(w, path)
+}
+
+/// `metadata.json`: the scenario, the build and the machine, the run's wall time and
+/// the depth table's fill (`filled` bins from `n_obs` points).
+fn metadata(
+    s: &PipelineScenario,
+    wall_time_s: f64,
+    filled: usize,
+    n_obs: usize,
+) -> serde_json::Value {
     let (git_commit, git_dirty) = crate::run::git_provenance();
-    let wall_time_s = start.elapsed().as_secs_f64();
-    let meta = serde_json::json!({
+    serde_json::json!({
         "scenario": s.name,
         "kind": "pipeline",
         "scenario_file": s.path.display().to_string(),
@@ -1400,16 +1564,6 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
         "wall_time_s": wall_time_s,
         "depth_table": { "bins_filled": filled, "observations": n_obs },
         "profile": if cfg!(debug_assertions) { "dev" } else { "release" },
-    });
-    files.push(write_new(
-        &dir.join("metadata.json"),
-        serde_json::to_string_pretty(&meta)?.as_bytes(),
-    )?);
-    Ok(PipelineReport {
-        files,
-        wall_time_s,
-        errors,
-        sections,
     })
 }
 
@@ -1467,6 +1621,272 @@ fn profile_points(rows: &[Row]) -> Vec<ProfilePoint> {
 mod tests {
     use super::*;
     use epd_core::segment::Layout;
+
+    /// A small valid pipeline scenario: two sections of two frames, a tee between them.
+    const OK: &str = "name = \"p\"\n[pipeline]\nframes_per_section = 2\n\
+        [[pipeline.section]]\nname = \"a\"\nwall_mm = 10.0\nstart_m = 0.0\n\
+        [[pipeline.fitting]]\nkind = \"tee\"\nat_m = 5.0\nbranch_diameter_mm = 100.0\n\
+        [[pipeline.section]]\nname = \"b\"\nwall_mm = 10.0\nstart_m = 10.0\n\
+        [pipeline.rig]\nnominal_od_in = 20\nwall_mm = 9.5\n[pipeline.drift]\n";
+
+    /// [`OK`] with `from` replaced by `to`.
+    fn set(from: &str, to: &str) -> String {
+        assert!(OK.contains(from), "{from}");
+        OK.replacen(from, to, 1)
+    }
+
+    /// [`OK`] with `line` added to the `[pipeline]` table.
+    fn pipeline(line: &str) -> String {
+        set("[pipeline]\n", &format!("[pipeline]\n{line}\n"))
+    }
+
+    /// [`OK`] with `line` added to the `[pipeline.rig]` table.
+    fn rig(line: &str) -> String {
+        set("wall_mm = 9.5\n", &format!("wall_mm = 9.5\n{line}\n"))
+    }
+
+    /// [`OK`] with `line` added to the `[pipeline.drift]` table (the last).
+    fn drift(line: &str) -> String {
+        format!("{OK}{line}\n")
+    }
+
+    /// `source` is refused naming `key`, with a message that contains `reason`.
+    fn refused(source: &str, key: &str, reason: &str) {
+        match PipelineScenario::parse(Path::new("p.toml"), source) {
+            Err(ScenarioError::Invalid {
+                key: k, message, ..
+            }) => {
+                assert_eq!(k, key, "{message}\n{source}");
+                assert!(message.contains(reason), "{key}: {message}");
+            }
+            other => panic!("{key}: {other:?}\n{source}"),
+        }
+    }
+
+    /// The run's own keys, checked first; with several errors, the first checked.
+    #[test]
+    fn parse_refuses_the_run_keys_naming_key_and_reason() {
+        let s = PipelineScenario::parse(Path::new("p.toml"), OK).expect("a valid scenario");
+        assert_eq!((s.sections.len(), s.route.fittings.len()), (2, 1));
+        for (source, key, reason) in [
+            (
+                set("\"p\"", "\"a/b\""),
+                "name",
+                "= \"a/b\": must be a plain folder name",
+            ),
+            (
+                set("frames_per_section = 2", "frames_per_section = 0"),
+                "pipeline.frames_per_section",
+                "= 0: must lie in [1, 10000]",
+            ),
+            (
+                pipeline("frame_spacing_m = 0.0"),
+                "pipeline.frame_spacing_m",
+                "= 0: must be a finite number > 0",
+            ),
+            (
+                pipeline("range_gate_m = [2.0, 1.0]"),
+                "pipeline.range_gate_m",
+                "= [2, 1]: need 0 ≤ min < max",
+            ),
+            (
+                pipeline("sensor = \"x\""),
+                "pipeline.sensor",
+                "= \"x\": the one preset is \"helios2\"",
+            ),
+            (
+                pipeline("sensor_model = { reflectivity = 2.0 }"),
+                "pipeline.sensor_model",
+                "reflectivity",
+            ),
+            (pipeline("mesh_segments = 0"), "pipeline.mesh_segments", ""),
+            (
+                set(
+                    "frames_per_section = 2",
+                    "frames_per_section = 0\nsensor = \"x\"",
+                ),
+                "pipeline.frames_per_section",
+                "must lie in [1, 10000]",
+            ),
+        ] {
+            refused(&source, key, reason);
+        }
+    }
+
+    /// Sections (apart when fittings lie between them) and the rig: each key with its
+    /// range.
+    #[test]
+    fn parse_refuses_sections_and_rig_naming_key_and_reason() {
+        for (source, key, reason) in [
+            (
+                set("\"a\"", "\"a,b\""),
+                "pipeline.section[0].name",
+                "a non-empty name without commas or quotes",
+            ),
+            (
+                set("= 10.0\nstart_m = 10.0", "= 10.0\nstart_m = nan"),
+                "pipeline.section[1].start_m",
+                "must be finite",
+            ),
+            (
+                set("= 10.0\nstart_m = 10.0", "= -1.0\nstart_m = 10.0"),
+                "pipeline.section[1]",
+                "",
+            ),
+            (set("wall_mm = 9.5", "wall_mm = -1.0"), "pipeline.rig", ""),
+            (
+                rig("frames = 0"),
+                "pipeline.rig.frames",
+                "= 0: must lie in [1, 1000]",
+            ),
+            (
+                rig("passes = 21"),
+                "pipeline.rig.passes",
+                "= 21: must lie in [1, 20]",
+            ),
+            (
+                rig("intensity_bins = 0"),
+                "pipeline.rig.range_bins",
+                "and intensity_bins must lie in [1, 1000]",
+            ),
+            (
+                rig("offset_mm = -1.0"),
+                "pipeline.rig.offset_mm",
+                "= -1: must lie in [0, 10000)",
+            ),
+            (
+                rig("offset_mm = 400.0"),
+                "pipeline.rig.offset_mm",
+                "= 400: at 0.00 m the sensor leaves the pipe of the rig",
+            ),
+            (
+                set("start_m = 10.0", "start_m = 0.1"),
+                "pipeline.section",
+                "with fittings, the sections must follow each other",
+            ),
+        ] {
+            refused(&source, key, reason);
+        }
+    }
+
+    /// The drift: each key with its range, and the sensor inside the pipe all along.
+    #[test]
+    fn parse_refuses_drift_naming_key_and_reason() {
+        for (source, key, reason) in [
+            (
+                drift("roll_deg_per_m = inf"),
+                "pipeline.drift.roll_deg_per_m",
+                "= inf: out of range",
+            ),
+            (
+                drift("tilt_deg = 30.0"),
+                "pipeline.drift.tilt_deg",
+                "= 30: out of range",
+            ),
+            (
+                drift("tilt_period_m = 0.0"),
+                "pipeline.drift.tilt_period_m",
+                "= 0: out of range",
+            ),
+            (
+                drift("offset_mm = 1e4"),
+                "pipeline.drift.offset_mm",
+                "= 10000: out of range",
+            ),
+            (
+                drift("offset_period_m = -1.0"),
+                "pipeline.drift.offset_period_m",
+                "= -1: out of range",
+            ),
+            (
+                drift("offset_mm = 400.0"),
+                "pipeline.drift.offset_mm",
+                "= 400: at 0.00 m the sensor leaves the pipe of section a",
+            ),
+        ] {
+            refused(&source, key, reason);
+        }
+    }
+
+    /// Fittings: kind and size, between two sections' frames, in driving order.
+    #[test]
+    fn parse_refuses_fittings_naming_key_and_reason() {
+        let at = |v: &str| set("at_m = 5.0", &format!("at_m = {v}"));
+        let elbow = |line: &str| {
+            set(
+                "\"tee\"\nat_m = 5.0\nbranch_diameter_mm = 100.0",
+                &format!("\"elbow\"\nat_m = 5.0\n{line}"),
+            )
+        };
+        let second_tee =
+            "[[pipeline.fitting]]\nkind = \"tee\"\nat_m = 5.1\nbranch_diameter_mm = 100.0\n";
+        for (source, field, reason) in [
+            (at("inf"), "at_m", "= inf: must be finite"),
+            (
+                at("5.0\ndirection_deg = nan"),
+                "direction_deg",
+                "must be finite",
+            ),
+            (
+                at("-1.0"),
+                "at_m",
+                "= -1: must lie after the first section's frames",
+            ),
+            (at("11.0"), "at_m", "= 11: must lie before the last section"),
+            (
+                at("0.1"),
+                "at_m",
+                "= 0.1: the fitting (0.20 m long) must lie between section a's last frame \
+                 (0.20 m) and section b's first (10.00 m)",
+            ),
+            (
+                set(
+                    "[[pipeline.section]]\nname = \"b\"",
+                    &format!("{second_tee}[[pipeline.section]]\nname = \"b\""),
+                ),
+                "at_m",
+                "= 5.1: overlaps the fitting before it (ends at 5.200 m); list them in driving order",
+            ),
+            (
+                set("\"tee\"", "\"wye\""),
+                "kind",
+                "= \"wye\": must be \"tee\" or \"elbow\"",
+            ),
+            (
+                at("5.0\nangle_deg = 90.0"),
+                "kind",
+                "= \"tee\" takes branch_diameter_mm, not bend_radius_d or angle_deg",
+            ),
+            (
+                set("branch_diameter_mm = 100.0", ""),
+                "branch_diameter_mm",
+                "a tee needs its branch's inner diameter",
+            ),
+            (
+                set("= 100.0", "= 1000.0"),
+                "branch_diameter_mm",
+                "= 1000: must lie in (0, ",
+            ),
+            (
+                set("\"tee\"", "\"elbow\""),
+                "kind",
+                "= \"elbow\" takes bend_radius_d and angle_deg, not branch_diameter_mm",
+            ),
+            (
+                elbow("bend_radius_d = 0.5"),
+                "bend_radius_d",
+                "= 0.5: must lie in [0.75, 50] pipe diameters",
+            ),
+            (
+                elbow("angle_deg = 181.0"),
+                "angle_deg",
+                "= 181: must lie in (0, 180]",
+            ),
+        ] {
+            let k = if reason.contains("overlaps") { 1 } else { 0 };
+            refused(&source, &format!("pipeline.fitting[{k}].{field}"), reason);
+        }
+    }
 
     #[test]
     fn student_t_quantiles() {

@@ -2,8 +2,11 @@
 //! error bars, one series per method. Text is drawn with DejaVu Sans embedded in the
 //! binary (no system fonts needed).
 //!
-//! This module only draws: it takes the data (summary rows, pipeline and approach rows)
-//! and returns encoded PNGs ([`Png`]); the run that made the data writes them.
+//! This module only draws: it takes the data and returns encoded PNGs ([`Png`]); the run
+//! that made the data writes them. It holds the drawing primitives (`Series`, panels,
+//! `render`) and a sweep's figures ([`plot_all`]); the figures of a pipeline run and of
+//! an approach run live beside those runs (`pipeline/figures.rs`, `approach/figures.rs`)
+//! and import these primitives, never the other way round.
 
 use std::collections::HashMap;
 
@@ -29,11 +32,12 @@ fn register_font() -> anyhow::Result<()> {
 }
 
 /// The palette's red, blue and green (matplotlib's tab10).
-const RED: RGBColor = RGBColor(214, 39, 40);
-const BLUE: RGBColor = RGBColor(31, 119, 180);
-const GREEN: RGBColor = RGBColor(44, 160, 44);
+pub(crate) const RED: RGBColor = RGBColor(214, 39, 40);
+pub(crate) const BLUE: RGBColor = RGBColor(31, 119, 180);
+pub(crate) const GREEN: RGBColor = RGBColor(44, 160, 44);
 
-fn colour(method: &str) -> RGBColor {
+/// A method's colour (by its name in the CSV files), grey for any other.
+pub(crate) fn colour(method: &str) -> RGBColor {
     match method {
         "c-epd" => RED,
         "ru-epd" => BLUE,
@@ -46,28 +50,35 @@ fn colour(method: &str) -> RGBColor {
 /// The colour of a reference line (a Cramér–Rao bound, a nominal or true value): grey,
 /// dashed and wider than the methods' lines, drawn beneath them so a method that sits on
 /// it stays visible.
-const REFERENCE: RGBColor = RGBColor(110, 110, 110);
+pub(crate) const REFERENCE: RGBColor = RGBColor(110, 110, 110);
+
+/// A point of a series: (x, y, bar low, bar high).
+pub(crate) type Point = (f64, f64, f64, f64);
+
+/// A break in a line.
+pub(crate) const GAP: Point = (f64::NAN, f64::NAN, f64::NAN, f64::NAN);
 
 /// One series on a panel: name, colour, (x, centre, low, high) points.
-struct Series {
-    name: String,
-    colour: RGBColor,
-    points: Vec<(f64, f64, f64, f64)>,
-    bars: bool,
-    marker_triangle: bool,
+pub(crate) struct Series {
+    pub(crate) name: String,
+    pub(crate) colour: RGBColor,
+    pub(crate) points: Vec<Point>,
+    pub(crate) bars: bool,
+    pub(crate) marker_triangle: bool,
     /// A reference line (the Cramér–Rao bound): dashed, no markers, drawn first.
-    dashed: bool,
+    pub(crate) dashed: bool,
 }
 
-struct Panel<'a> {
-    title: String,
-    y_label: String,
-    series: &'a [Series],
+/// One panel of a figure: its title, its y axis description and its series.
+pub(crate) struct Panel<'a> {
+    pub(crate) title: String,
+    pub(crate) y_label: String,
+    pub(crate) series: &'a [Series],
 }
 
 /// Where a figure's legend goes; either way it never covers data.
 #[derive(Clone, Copy, PartialEq, Eq)]
-enum Legend {
+pub(crate) enum Legend {
     /// One legend per panel, in headroom added above the data (panels whose series
     /// differ, as a pipeline's sections).
     PerPanel,
@@ -77,8 +88,8 @@ enum Legend {
 
 /// Axis transform: the data are drawn on a linear axis, as log10 when `log`.
 #[derive(Clone, Copy)]
-struct Axis {
-    log: bool,
+pub(crate) struct Axis {
+    pub(crate) log: bool,
 }
 
 impl Axis {
@@ -451,19 +462,19 @@ fn draw_shared_legend(
 }
 
 /// A figure: panels in a grid, one x axis description shared by all.
-struct Figure<'a> {
-    name: String,
-    title: String,
-    grid: (usize, usize),
-    size: (u32, u32),
-    x_label: &'a str,
-    xa: Axis,
-    ya: Axis,
-    legend: Legend,
+pub(crate) struct Figure<'a> {
+    pub(crate) name: String,
+    pub(crate) title: String,
+    pub(crate) grid: (usize, usize),
+    pub(crate) size: (u32, u32),
+    pub(crate) x_label: &'a str,
+    pub(crate) xa: Axis,
+    pub(crate) ya: Axis,
+    pub(crate) legend: Legend,
 }
 
 /// Render panels in a grid to an encoded PNG.
-fn render(fig: Figure<'_>, panels: &[Panel<'_>]) -> anyhow::Result<Png> {
+pub(crate) fn render(fig: Figure<'_>, panels: &[Panel<'_>]) -> anyhow::Result<Png> {
     let Figure {
         name,
         title,
@@ -839,546 +850,21 @@ pub fn plot_all(scenario: &Scenario, summary: &[SummaryRow]) -> anyhow::Result<V
     ])
 }
 
-/// The figures of a pipeline run (see [`crate::pipeline`]): `diameters.png` (Fig. 11:
-/// per-frame Dmax and Dmin against the nominal and the truth, with the depth table),
-/// `section_errors.png` (Fig. 12: bias and error range per section, method and
-/// calibration), `profile.png` (mean diameter and ovality along the distance) and
-/// `weights.png` (spread of each method against the heteroscedastic Cramér–Rao bound).
-pub fn plot_pipeline(
-    s: &crate::pipeline::PipelineScenario,
-    points: &[crate::pipeline::ProfilePoint],
-    sections: &[crate::pipeline::SectionRow],
-) -> anyhow::Result<Vec<Png>> {
-    Ok(vec![
-        pipeline_diameters(s, points)?,
-        pipeline_section_errors(s, sections)?,
-        pipeline_profile(s, points)?,
-        pipeline_weights(s, sections)?,
-    ])
-}
-
-/// A dashed horizontal reference line from x = xs.0 to xs.1 at height y.
-fn reference(label: &str, xs: (f64, f64), y: f64, colour: RGBColor) -> Series {
-    Series {
-        name: label.into(),
-        colour,
-        points: vec![(xs.0, y, y, y), (xs.1, y, y, y)],
-        bars: false,
-        marker_triangle: false,
-        dashed: true,
-    }
-}
-
-/// The grey of the nominal values' reference lines in a pipeline's figures.
-const NOMINAL: RGBColor = RGBColor(90, 90, 90);
-
-/// `diameters.png` (Fig. 11): per-frame Dmax and Dmin of each section, calibrated,
-/// against the nominal ID and the truth.
-fn pipeline_diameters(
-    s: &crate::pipeline::PipelineScenario,
-    points: &[crate::pipeline::ProfilePoint],
-) -> anyhow::Result<Png> {
-    use crate::pipeline::METHODS;
-    let name = &s.name;
-    let grey = NOMINAL;
-    let pick = |si: usize, m: &'static str, cal: bool| {
-        points
-            .iter()
-            .filter(move |p| p.section == si && p.method == m && p.calibrated == cal)
-    };
-    // Fig. 11: rows = sections, columns = Dmax, Dmin; calibrated estimates.
-    let mut fig11: Vec<Vec<Series>> = Vec::new();
-    let mut titles = Vec::new();
-    for (si, sec) in s.sections.iter().enumerate() {
-        let n = s.frames_per_section as f64 - 1.0;
-        for (which, label) in [(0usize, "Dmax"), (1, "Dmin")] {
-            let truth = 1e3
-                * if which == 0 {
-                    sec.pipe.d_max()
-                } else {
-                    sec.pipe.d_min()
-                };
-            let mut v = vec![
-                reference(
-                    "nominal ID",
-                    (0.0, n),
-                    sec.pipe.inner_diameter() * 1e3,
-                    grey,
-                ),
-                reference(&format!("true {label}"), (0.0, n), truth, RGBColor(0, 0, 0)),
-            ];
-            for m in METHODS {
-                v.push(Series {
-                    name: m.to_uppercase(),
-                    colour: colour(m),
-                    points: pick(si, m, true)
-                        .filter_map(|p| {
-                            let d = p.d_mm?;
-                            let y = if which == 0 { d.0 } else { d.1 };
-                            Some((p.frame as f64, y, y, y))
-                        })
-                        .collect(),
-                    bars: false,
-                    marker_triangle: m == "ml-epd-w",
-                    dashed: false,
-                });
-            }
-            fig11.push(v);
-            titles.push(format!("{}: {label} (with the depth table)", sec.name));
-        }
-    }
-    let panels: Vec<Panel<'_>> = fig11
-        .iter()
-        .zip(&titles)
-        .map(|(v, t)| Panel {
-            title: t.clone(),
-            y_label: "diameter (mm)".into(),
-            series: v,
-        })
-        .collect();
-    render(
-        Figure {
-            name: "diameters.png".into(),
-            title: format!("{name}: per-frame diameters (Fig. 11)"),
-            grid: (s.sections.len(), 2),
-            size: (1440, 480 * s.sections.len() as u32 + 40),
-            x_label: "frame",
-            xa: Axis { log: false },
-            ya: Axis { log: false },
-            legend: Legend::PerPanel,
-        },
-        &panels,
-    )
-}
-
-/// `section_errors.png` (Fig. 12): bias and error range of Dmax, Dmin and the mean
-/// diameter per section, method and calibration.
-fn pipeline_section_errors(
-    s: &crate::pipeline::PipelineScenario,
-    sections: &[crate::pipeline::SectionRow],
-) -> anyhow::Result<Png> {
-    use crate::pipeline::METHODS;
-    let name = &s.name;
-    // Fig. 12: rows = Dmax, Dmin, mean diameter; columns = without / with the table;
-    // x = the section's nominal wall (mm).
-    let mut fig12: Vec<Vec<Series>> = Vec::new();
-    let mut titles = Vec::new();
-    type Q = fn(&crate::pipeline::SectionRow) -> &crate::stats::Stats;
-    let qs: [(&str, Q); 3] = [
-        ("Dmax error", |r| &r.dmax),
-        ("Dmin error", |r| &r.dmin),
-        ("mean-diameter error", |r| &r.dmean),
-    ];
-    for (label, q) in qs {
-        for cal in [false, true] {
-            fig12.push(
-                METHODS
-                    .iter()
-                    .map(|m| Series {
-                        name: format!("{} (bias, range)", m.to_uppercase()),
-                        colour: colour(m),
-                        points: sections
-                            .iter()
-                            .filter(|r| r.method == *m && r.calibrated == cal)
-                            .map(|r| {
-                                let st = q(r);
-                                (r.wall_true_mm, st.mean, st.min, st.max)
-                            })
-                            .collect(),
-                        bars: true,
-                        marker_triangle: *m == "ml-epd-w",
-                        dashed: false,
-                    })
-                    .collect(),
-            );
-            titles.push(format!(
-                "{label}, {}",
-                if cal {
-                    "with the depth table"
-                } else {
-                    "uncalibrated"
-                }
-            ));
-        }
-    }
-    let panels: Vec<Panel<'_>> = fig12
-        .iter()
-        .zip(&titles)
-        .map(|(v, t)| Panel {
-            title: t.clone(),
-            y_label: "error (mm)".into(),
-            series: v,
-        })
-        .collect();
-    render(
-        Figure {
-            name: "section_errors.png".into(),
-            title: format!("{name}: errors per section (Fig. 12; line: bias, bars: min…max)"),
-            grid: (3, 2),
-            size: (1440, 1480),
-            x_label: "nominal wall thickness of the section (mm)",
-            xa: Axis { log: false },
-            ya: Axis { log: false },
-            legend: Legend::PerPanel,
-        },
-        &panels,
-    )
-}
-
-/// A point of a series: (x, y, bar low, bar high).
-type Point = (f64, f64, f64, f64);
-
-/// A break in a line.
-const GAP: Point = (f64::NAN, f64::NAN, f64::NAN, f64::NAN);
-
-/// A dashed grey line at `y(pipe)` over each section's stretch of the distance.
-fn section_references(
-    s: &crate::pipeline::PipelineScenario,
-    label: &str,
-    y: fn(&tof_sim::Pipe) -> f64,
-) -> Vec<Series> {
-    s.sections
-        .iter()
-        .map(|sec| {
-            let x1 = sec.start_m + (s.frames_per_section as f64 - 1.0) * s.frame_spacing_m;
-            reference(
-                &format!("{label} {}", sec.name),
-                (sec.start_m, x1),
-                y(&sec.pipe),
-                NOMINAL,
-            )
-        })
-        .collect()
-}
-
-/// `f` of the diameters (Dmax, Dmin) of method `m` along the distance (`driven`: sorted
-/// by distance), broken where the place changes and where an estimate is withheld.
-fn along_distance(
-    driven: &[&crate::pipeline::ProfilePoint],
-    m: &str,
-    f: fn((f64, f64)) -> f64,
-) -> Vec<Point> {
-    let mut v = Vec::new();
-    let mut place = None;
-    for p in driven.iter().filter(|p| p.method == m) {
-        if place.is_some_and(|q| q != p.section) {
-            v.push(GAP);
-        }
-        place = Some(p.section);
-        v.push(p.d_mm.map_or(GAP, |d| {
-            let y = f(d);
-            (p.distance_m, y, y, y)
-        }));
-    }
-    v
-}
-
-/// The geometry ahead, once per frame: the survey's distance to the straight section's
-/// end by its verdict, a bend's frames at 0, and the route's truth.
-fn geometry_ahead(frames: &[&crate::pipeline::ProfilePoint]) -> Vec<Series> {
-    let found = |layout: &str| -> Vec<Point> {
-        frames
-            .iter()
-            .filter(|p| p.geometry == layout)
-            .flat_map(|p| {
-                let y = if layout == "in_bend" {
-                    0.0
-                } else {
-                    p.straight_until_m.unwrap_or(f64::NAN)
-                };
-                [(p.distance_m, y, y, y), GAP]
-            })
-            .collect()
-    };
-    // Broken where the truth changes from one fitting to the next.
-    let mut truth_line: Vec<Point> = Vec::new();
-    for (k, p) in frames.iter().enumerate() {
-        if k > 0 && frames[k - 1].truth.geometry != p.truth.geometry {
-            truth_line.push(GAP);
-        }
-        let y = match (p.truth.geometry, p.truth.straight_until_m) {
-            ("in_bend", _) => 0.0,
-            (_, Some(u)) => u,
-            _ => f64::NAN,
-        };
-        truth_line.push((p.distance_m, y, y, y));
-    }
-    vec![
-        Series::line(
-            "truth (0: in the bend)",
-            RGBColor(150, 150, 150),
-            truth_line,
-            false,
-        ),
-        Series::line("found: bend ahead", BLUE, found("bend_ahead"), true),
-        Series::line("found: tee ahead", RED, found("tee_ahead"), false),
-        Series::line("found: in a bend (withheld)", GREEN, found("in_bend"), true),
-    ]
-}
-
-/// `profile.png`: mean diameter and ovality along the distance, with the depth table.
-fn pipeline_profile(
-    s: &crate::pipeline::PipelineScenario,
-    points: &[crate::pipeline::ProfilePoint],
-) -> anyhow::Result<Png> {
-    use crate::pipeline::METHODS;
-    // Along the distance: the sections and the frames between them.
-    let mut driven: Vec<&crate::pipeline::ProfilePoint> =
-        points.iter().filter(|p| p.calibrated).collect();
-    driven.sort_by(|a, b| a.distance_m.total_cmp(&b.distance_m));
-    let frames: Vec<&crate::pipeline::ProfilePoint> = driven
-        .iter()
-        .copied()
-        .filter(|p| p.method == "ml-epd")
-        .collect();
-    let geometry = geometry_ahead(&frames);
-    let mut dmean = section_references(s, "nominal ID", |p| p.inner_diameter() * 1e3);
-    let mut oval = section_references(s, "true ovality", |p| p.ovality * 100.0);
-    for m in METHODS {
-        let triangles = m == "ml-epd-w";
-        let (name, c) = (m.to_uppercase(), colour(m));
-        let mean = along_distance(&driven, m, |d| 0.5 * (d.0 + d.1));
-        dmean.push(Series::line(name.clone(), c, mean, triangles));
-        let ovality = along_distance(&driven, m, |d| 100.0 * (d.0 - d.1) / (0.5 * (d.0 + d.1)));
-        oval.push(Series::line(name, c, ovality, triangles));
-    }
-    render(
-        Figure {
-            name: "profile.png".into(),
-            title: format!(
-                "{}: pipe tally along the run (with the depth table)",
-                s.name
-            ),
-            grid: (3, 1),
-            size: (1440, 1400),
-            x_label: "odometer distance (m)",
-            xa: Axis { log: false },
-            ya: Axis { log: false },
-            legend: Legend::PerPanel,
-        },
-        &[
-            Panel {
-                title: "mean inner diameter".into(),
-                y_label: "mm".into(),
-                series: &dmean,
-            },
-            Panel {
-                title: "ovality (Dmax − Dmin)/D, D the mean diameter".into(),
-                y_label: "%".into(),
-                series: &oval,
-            },
-            Panel {
-                title: "geometry ahead: where the straight section ends (survey of every frame)"
-                    .into(),
-                y_label: "m ahead".into(),
-                series: &geometry,
-            },
-        ],
-    )
-}
-
-/// A section row's (std, Cramér–Rao bound) of one diameter (mm).
-type Spread = fn(&crate::pipeline::SectionRow) -> (f64, f64);
-
-/// One panel of `weights.png`: the bound (from the ML-EPD rows) and each method's std
-/// of `rows`, against the section's wall thickness.
-fn spread_series(rows: &[&crate::pipeline::SectionRow], f: Spread) -> Vec<Series> {
-    let points = |m: &str, pick: fn((f64, f64)) -> f64| -> Vec<Point> {
-        rows.iter()
-            .filter(|r| r.method == m)
-            .map(|r| {
-                let c = pick(f(r));
-                (r.wall_true_mm, c, c, c)
-            })
-            .collect()
-    };
-    let mut v = vec![Series {
-        name: "Cramér–Rao bound".into(),
-        colour: REFERENCE,
-        points: points("ml-epd", |(_, crb)| crb),
-        bars: false,
-        marker_triangle: false,
-        dashed: true,
-    }];
-    for m in crate::pipeline::METHODS {
-        let std = points(m, |(std, _)| std);
-        v.push(Series::line(
-            m.to_uppercase(),
-            colour(m),
-            std,
-            m == "ml-epd-w",
-        ));
-    }
-    v
-}
-
-/// `weights.png`: the spread of each method over a section's frames against the
-/// heteroscedastic Cramér–Rao bound.
-fn pipeline_weights(
-    s: &crate::pipeline::PipelineScenario,
-    sections: &[crate::pipeline::SectionRow],
-) -> anyhow::Result<Png> {
-    let mut spread: Vec<Vec<Series>> = Vec::new();
-    let mut titles = Vec::new();
-    let ss: [(&str, Spread); 2] = [
-        ("Dmax", |r| (r.dmax.std, r.crb.0)),
-        ("Dmin", |r| (r.dmin.std, r.crb.1)),
-    ];
-    for (label, f) in ss {
-        for cal in [false, true] {
-            let rows: Vec<&crate::pipeline::SectionRow> =
-                sections.iter().filter(|r| r.calibrated == cal).collect();
-            spread.push(spread_series(&rows, f));
-            titles.push(format!(
-                "std of {label} over the frames, {}",
-                if cal {
-                    "with the depth table"
-                } else {
-                    "uncalibrated"
-                }
-            ));
-        }
-    }
-    let panels: Vec<Panel<'_>> = spread
-        .iter()
-        .zip(&titles)
-        .map(|(v, t)| Panel {
-            title: t.clone(),
-            y_label: "std (mm, log)".into(),
-            series: v,
-        })
-        .collect();
-    render(
-        Figure {
-            name: "weights.png".into(),
-            title: format!(
-                "{}: spread per section against the Cramér–Rao bound",
-                s.name
-            ),
-            grid: (2, 2),
-            size: (1440, 1040),
-            x_label: "nominal wall thickness of the section (mm)",
-            xa: Axis { log: false },
-            ya: Axis { log: true },
-            legend: Legend::PerPanel,
-        },
-        &panels,
-    )
-}
-
-/// (distance, mean, min, max) of `f` over the frames of each distance with the survey
-/// (`segmented`) or without, finite values only; distances without any left out.
-fn spread_by_distance(
-    s: &crate::approach::ApproachScenario,
-    rows: &[crate::approach::FrameRow],
-    segmented: bool,
-    f: fn(&crate::approach::FrameRow) -> f64,
-) -> Vec<Point> {
-    s.distances_m
-        .iter()
-        .filter_map(|&d| {
-            let v: Vec<f64> = rows
-                .iter()
-                .filter(|r| r.distance_m == d && r.segmented == segmented)
-                .map(f)
-                .filter(|v| v.is_finite())
-                .collect();
-            if v.is_empty() {
-                return None;
-            }
-            let mean = v.iter().sum::<f64>() / v.len() as f64;
-            let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
-            let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            Some((d, mean, lo, hi))
-        })
-        .collect()
-}
-
-/// `approach.png` of an `[approach]` run: per distance, the mean-diameter error of the
-/// plain fit and of the survey's straight estimate (mean, bars from min to max over the
-/// frames), the error of `straight_until_m`, the bend radius's error and the direction's.
-pub fn plot_approach(
-    s: &crate::approach::ApproachScenario,
-    rows: &[crate::approach::FrameRow],
-) -> anyhow::Result<Png> {
-    type Column = fn(&crate::approach::FrameRow) -> f64;
-    /// A series: name, colour, with the survey, value.
-    type Bars = (&'static str, RGBColor, bool, Column);
-    // Per panel: title, y label, and its series.
-    let layout: [(&str, &str, &[Bars]); 4] = [
-        (
-            "mean-diameter error",
-            "error (mm)",
-            &[
-                ("one fit on every point", RED, false, |r| r.dmean_err_mm),
-                ("straight section only", GREEN, true, |r| r.dmean_err_mm),
-            ],
-        ),
-        (
-            "mean-diameter error, segmented (zoom)",
-            "error (mm)",
-            &[("straight section only", GREEN, true, |r| r.dmean_err_mm)],
-        ),
-        (
-            "end of the straight section",
-            "error (mm)",
-            &[("straight_until_m", GREEN, true, |r| r.straight_until_err_mm)],
-        ),
-        (
-            "bend radius (%) and direction (deg) errors",
-            "error (% / deg)",
-            &[
-                ("bend radius", GREEN, true, |r| r.bend_radius_err_pct),
-                ("direction (deg)", BLUE, true, |r| r.direction_err_deg),
-            ],
-        ),
-    ];
-    let lo = s.distances_m.iter().copied().fold(f64::INFINITY, f64::min);
-    let hi = s
-        .distances_m
-        .iter()
-        .copied()
-        .fold(f64::NEG_INFINITY, f64::max);
-    let series: Vec<Vec<Series>> = layout
-        .iter()
-        .map(|(_, _, list)| {
-            let zero = reference("0", (lo, hi), 0.0, RGBColor(90, 90, 90));
-            let bars = list.iter().map(|&(name, c, segmented, f)| {
-                Series::bars(name, c, spread_by_distance(s, rows, segmented, f))
-            });
-            std::iter::once(zero).chain(bars).collect()
-        })
-        .collect();
-    let panels: Vec<Panel<'_>> = layout
-        .iter()
-        .zip(&series)
-        .map(|((title, y_label, _), v)| Panel {
-            title: (*title).into(),
-            y_label: (*y_label).into(),
-            series: v,
-        })
-        .collect();
-    render(
-        Figure {
-            name: "approach.png".into(),
-            title: format!(
-                "{}: mean, min and max over the frames at each distance",
-                s.name
-            ),
-            grid: (2, 2),
-            size: (1440, 1000),
-            x_label: "distance to the end of the straight section (m)",
-            xa: Axis { log: false },
-            ya: Axis { log: false },
-            legend: Legend::PerPanel,
-        },
-        &panels,
-    )
-}
-
 impl Series {
+    /// A dashed horizontal reference line from x = xs.0 to xs.1 at height y.
+    pub(crate) fn reference(label: &str, xs: (f64, f64), y: f64, colour: RGBColor) -> Series {
+        Series {
+            name: label.into(),
+            colour,
+            points: vec![(xs.0, y, y, y), (xs.1, y, y, y)],
+            bars: false,
+            marker_triangle: false,
+            dashed: true,
+        }
+    }
+
     /// A solid line through `points`, without bars; triangle markers if `triangles`.
-    fn line(
+    pub(crate) fn line(
         name: impl Into<String>,
         colour: RGBColor,
         points: Vec<Point>,
@@ -1395,7 +881,7 @@ impl Series {
     }
 
     /// Means through `points` with bars from their min to their max.
-    fn bars(name: impl Into<String>, colour: RGBColor, points: Vec<Point>) -> Series {
+    pub(crate) fn bars(name: impl Into<String>, colour: RGBColor, points: Vec<Point>) -> Series {
         Series {
             name: name.into(),
             colour,

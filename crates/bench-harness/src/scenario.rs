@@ -547,7 +547,7 @@ impl Scenario {
 }
 
 /// `name` becomes a folder: not empty, no path separator, not `.` or `..`.
-fn check_name(name: &str) -> Result<(), KeyError> {
+pub(crate) fn check_name(name: &str) -> Result<(), KeyError> {
     if name.is_empty() || name.contains(['/', '\\']) || name == "." || name == ".." {
         return Err(key_err(
             "name",
@@ -615,9 +615,9 @@ fn check_work(
 }
 
 /// A scenario error: the key and what is wrong with it.
-type KeyError = (String, String);
+pub(crate) type KeyError = (String, String);
 
-fn key_err(key: &str, msg: String) -> KeyError {
+pub(crate) fn key_err(key: &str, msg: String) -> KeyError {
     (key.to_string(), msg)
 }
 

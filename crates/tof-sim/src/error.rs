@@ -44,3 +44,44 @@ impl SimError {
         }
     }
 }
+
+/// What a valid value of a checked field is (a sensor model's, a pipeline's).
+#[derive(Clone, Copy)]
+pub(crate) enum Rule {
+    /// A finite number > 0.
+    Positive,
+    /// A finite number ≥ 0.
+    NonNegative,
+    /// A finite number.
+    Finite,
+    /// Valid when the condition holds; else the reason.
+    Holds(bool, &'static str),
+}
+
+impl Rule {
+    pub(crate) fn holds(self, v: f64) -> bool {
+        match self {
+            Rule::Positive => v.is_finite() && v > 0.0,
+            Rule::NonNegative => v.is_finite() && v >= 0.0,
+            Rule::Finite => v.is_finite(),
+            Rule::Holds(ok, _) => ok,
+        }
+    }
+
+    pub(crate) fn reason(self) -> &'static str {
+        match self {
+            Rule::Positive => "must be a finite number > 0",
+            Rule::NonNegative => "must be a finite number ≥ 0",
+            Rule::Finite => "must be finite",
+            Rule::Holds(_, reason) => reason,
+        }
+    }
+}
+
+/// The first (field, value, rule) of `checks` whose value breaks its rule, in checking
+/// order.
+pub(crate) fn first_broken<K>(
+    checks: impl IntoIterator<Item = (K, f64, Rule)>,
+) -> Option<(K, f64, Rule)> {
+    checks.into_iter().find(|(_, v, rule)| !rule.holds(*v))
+}

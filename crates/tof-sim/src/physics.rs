@@ -15,7 +15,7 @@
 
 use std::f64::consts::TAU;
 
-use crate::error::SimError;
+use crate::error::{Rule, SimError, first_broken};
 
 /// Speed of light in vacuum (m/s).
 pub const SPEED_OF_LIGHT: f64 = 299_792_458.0;
@@ -168,7 +168,7 @@ impl ToFPhysics {
                 ),
             ),
         ];
-        match checks.into_iter().find(|(_, v, rule)| !rule.holds(*v)) {
+        match first_broken(checks) {
             Some((key, value, rule)) => Err(SimError::invalid(key, value, rule.reason())),
             None => Ok(()),
         }
@@ -246,39 +246,6 @@ impl ToFPhysics {
     /// (ρ + `multipath_ratio`)/r², below `min_amplitude` past √((ρ + ratio)/min).
     pub fn max_valid_range(&self) -> f64 {
         ((self.reflectivity + self.multipath_ratio) / self.min_amplitude).sqrt()
-    }
-}
-
-/// What a valid value of a [`ToFPhysics`] field is.
-#[derive(Clone, Copy)]
-enum Rule {
-    /// A finite number > 0.
-    Positive,
-    /// A finite number ≥ 0.
-    NonNegative,
-    /// A finite number.
-    Finite,
-    /// Valid when the condition holds; else the reason.
-    Holds(bool, &'static str),
-}
-
-impl Rule {
-    fn holds(self, v: f64) -> bool {
-        match self {
-            Rule::Positive => v.is_finite() && v > 0.0,
-            Rule::NonNegative => v.is_finite() && v >= 0.0,
-            Rule::Finite => v.is_finite(),
-            Rule::Holds(ok, _) => ok,
-        }
-    }
-
-    fn reason(self) -> &'static str {
-        match self {
-            Rule::Positive => "must be a finite number > 0",
-            Rule::NonNegative => "must be a finite number ≥ 0",
-            Rule::Finite => "must be finite",
-            Rule::Holds(_, reason) => reason,
-        }
     }
 }
 

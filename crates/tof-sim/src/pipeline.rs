@@ -50,7 +50,7 @@ use parry3d_f64::math::Pose;
 use parry3d_f64::math::Vector;
 use parry3d_f64::shape::TriMesh;
 
-use crate::error::SimError;
+use crate::error::{Rule, SimError, first_broken};
 use crate::mesh::straddle_factor;
 
 /// How far (m) a tee's branch runs beyond the main wall, along its axis, from the wall
@@ -387,21 +387,6 @@ impl LabeledMesh {
     }
 }
 
-/// A segment-validation error naming `segments[index].field`.
-fn bad_segment(
-    index: usize,
-    field: &'static str,
-    value: f64,
-    reason: &'static str,
-) -> Result<(), SimError> {
-    Err(SimError::InvalidSegment {
-        index,
-        field,
-        value: value.to_string(),
-        reason,
-    })
-}
-
 impl Pipeline {
     /// A pipeline with one bend: a straight from `start_x` to `bend_start_x`, the bend,
     /// and a straight of `after` metres; oval cross-section `d_max` × `d_min`, the bends'
@@ -432,36 +417,19 @@ impl Pipeline {
     /// Check every field; the error names the first bad one (`pipeline.d_max`,
     /// `pipeline.segments[2].radius`, …).
     pub fn validate(&self) -> Result<(), SimError> {
-        let pos = |v: f64| v.is_finite() && v > 0.0;
-        if !pos(self.d_max) {
-            return Err(SimError::invalid(
-                "pipeline.d_max",
-                self.d_max,
-                "must be a finite number > 0",
-            ));
-        }
-        if !pos(self.d_min) {
-            return Err(SimError::invalid(
-                "pipeline.d_min",
-                self.d_min,
-                "must be a finite number > 0",
-            ));
-        }
-        if let Some(d) = self.bend_diameter
-            && !pos(d)
-        {
-            return Err(SimError::invalid(
-                "pipeline.bend_diameter",
-                d,
-                "must be a finite number > 0",
-            ));
-        }
-        if !self.start_x.is_finite() {
-            return Err(SimError::invalid(
-                "pipeline.start_x",
-                self.start_x,
-                "must be finite",
-            ));
+        use Rule::{Finite, Positive};
+        let bend = self
+            .bend_diameter
+            .map(|d| ("pipeline.bend_diameter", d, Positive));
+        let fields = [
+            ("pipeline.d_max", self.d_max, Positive),
+            ("pipeline.d_min", self.d_min, Positive),
+        ]
+        .into_iter()
+        .chain(bend)
+        .chain([("pipeline.start_x", self.start_x, Finite)]);
+        if let Some((field, value, rule)) = first_broken(fields) {
+            return Err(SimError::invalid(field, value, rule.reason()));
         }
         if self.segments.is_empty() || self.segments.len() > usize::from(u16::MAX) + 1 {
             return Err(SimError::invalid(
@@ -470,74 +438,81 @@ impl Pipeline {
                 "must hold 1 to 65536 segments",
             ));
         }
-        let (a, b) = (self.d_max / 2.0, self.d_min / 2.0);
-        let r = self.bend_tube_radius();
-        for (i, s) in self.segments.iter().enumerate() {
-            match *s {
-                Segment::Straight { length } => {
-                    if !pos(length) {
-                        bad_segment(i, "length", length, "must be a finite number > 0")?;
-                    }
-                }
-                Segment::Bend {
-                    radius,
-                    angle,
-                    direction,
-                } => {
-                    if !(radius.is_finite() && radius > r.max(a).max(b)) {
-                        bad_segment(
-                            i,
-                            "radius",
-                            radius,
-                            "must be finite and exceed every tube radius (bend and straight)",
-                        )?;
-                    }
-                    if !(angle > 0.0 && angle <= PI) {
-                        bad_segment(i, "angle", angle, "must lie in (0, π]")?;
-                    }
-                    if !direction.is_finite() {
-                        bad_segment(i, "direction", direction, "must be finite")?;
-                    }
-                }
-                Segment::Tee {
-                    length,
-                    branch_diameter,
-                    direction,
-                } => {
-                    if !direction.is_finite() {
-                        bad_segment(i, "direction", direction, "must be finite")?;
-                    }
-                    if !pos(branch_diameter) {
-                        bad_segment(
-                            i,
-                            "branch_diameter",
-                            branch_diameter,
-                            "must be a finite number > 0",
-                        )?;
-                    }
-                    // The main pipe's inner width across the branch (along u2 = X × n).
-                    let u2 = (-direction.sin(), direction.cos());
-                    let half_width = 1.0 / ((u2.0 / a).powi(2) + (u2.1 / b).powi(2)).sqrt();
-                    if branch_diameter > 2.0 * half_width {
-                        bad_segment(
-                            i,
-                            "branch_diameter",
-                            branch_diameter,
-                            "must not exceed the main pipe's inner width across the branch",
-                        )?;
-                    }
-                    if !(length.is_finite() && length > branch_diameter) {
-                        bad_segment(
-                            i,
-                            "length",
-                            length,
-                            "must be finite and exceed the branch diameter",
-                        )?;
-                    }
-                }
+        for (index, s) in self.segments.iter().enumerate() {
+            if let Some((field, value, rule)) = first_broken(self.segment_checks(s)) {
+                return Err(SimError::InvalidSegment {
+                    index,
+                    field,
+                    value: value.to_string(),
+                    reason: rule.reason(),
+                });
             }
         }
         Ok(())
+    }
+
+    /// The checks of one segment of this pipeline, in checking order: (field, value,
+    /// rule). A bend's radius exceeds every tube radius (the bend's and the straight's
+    /// half-axes); a tee's branch fits across the main pipe and within its length.
+    fn segment_checks(&self, s: &Segment) -> Vec<(&'static str, f64, Rule)> {
+        use Rule::{Finite, Holds, Positive};
+        let (a, b) = (self.d_max / 2.0, self.d_min / 2.0);
+        match *s {
+            Segment::Straight { length } => vec![("length", length, Positive)],
+            Segment::Bend {
+                radius,
+                angle,
+                direction,
+            } => {
+                let r = self.bend_tube_radius();
+                let clear = radius.is_finite() && radius > r.max(a).max(b);
+                vec![
+                    (
+                        "radius",
+                        radius,
+                        Holds(
+                            clear,
+                            "must be finite and exceed every tube radius (bend and straight)",
+                        ),
+                    ),
+                    (
+                        "angle",
+                        angle,
+                        Holds(angle > 0.0 && angle <= PI, "must lie in (0, π]"),
+                    ),
+                    ("direction", direction, Finite),
+                ]
+            }
+            Segment::Tee {
+                length,
+                branch_diameter: d,
+                direction,
+            } => {
+                // The main pipe's inner width across the branch (along u2 = X × n).
+                let u2 = (-direction.sin(), direction.cos());
+                let half_width = 1.0 / ((u2.0 / a).powi(2) + (u2.1 / b).powi(2)).sqrt();
+                vec![
+                    ("direction", direction, Finite),
+                    ("branch_diameter", d, Positive),
+                    (
+                        "branch_diameter",
+                        d,
+                        Holds(
+                            !(d > 2.0 * half_width),
+                            "must not exceed the main pipe's inner width across the branch",
+                        ),
+                    ),
+                    (
+                        "length",
+                        length,
+                        Holds(
+                            length.is_finite() && length > d,
+                            "must be finite and exceed the branch diameter",
+                        ),
+                    ),
+                ]
+            }
+        }
     }
 
     /// The tube radius r of the bends (m): `bend_diameter`/2, by default (d_max + d_min)/4.

@@ -151,6 +151,70 @@ fn field(e: SimError) -> String {
     e.to_string()
 }
 
+/// The whole message: the field, the refused value and the rule it breaks; a segment's
+/// fields in checking order (a tee's direction before its branch and length).
+#[test]
+fn validation_says_the_value_and_the_rule() {
+    let good = elbow(0.49, 0.48, 1.0, 0.0);
+    let with = |f: &dyn Fn(&mut Pipeline)| {
+        let mut p = good.clone();
+        f(&mut p);
+        field(p.validate().unwrap_err())
+    };
+    let seg = |s: Segment| with(&|p: &mut Pipeline| p.segments[1] = s);
+    let tee = |length, branch_diameter, direction| Segment::Tee {
+        length,
+        branch_diameter,
+        direction,
+    };
+    let bend = |radius, angle| Segment::Bend {
+        radius,
+        angle,
+        direction: 0.0,
+    };
+    let invalid = "invalid `pipeline.";
+    for (message, want) in [
+        (
+            with(&|p| p.d_min = 0.0),
+            "d_min` = 0: must be a finite number > 0",
+        ),
+        (
+            with(&|p| p.start_x = f64::INFINITY),
+            "start_x` = inf: must be finite",
+        ),
+        (
+            with(&|p| p.segments.clear()),
+            "segments` = 0: must hold 1 to 65536 segments",
+        ),
+        (
+            seg(bend(0.2, 1.0)),
+            "segments[1].radius` = 0.2: must be finite and exceed every tube radius (bend and straight)",
+        ),
+        (
+            seg(bend(1.0, 3.2)),
+            "segments[1].angle` = 3.2: must lie in (0, π]",
+        ),
+        (
+            seg(tee(1.0, 0.5, 0.0)),
+            "segments[1].branch_diameter` = 0.5: must not exceed the main pipe's inner width across the branch",
+        ),
+        (
+            seg(tee(1.0, 0.0, 0.0)),
+            "segments[1].branch_diameter` = 0: must be a finite number > 0",
+        ),
+        (
+            seg(tee(0.3, 0.4, 0.0)),
+            "segments[1].length` = 0.3: must be finite and exceed the branch diameter",
+        ),
+        (
+            seg(tee(0.3, 0.0, f64::NAN)),
+            "segments[1].direction` = NaN: must be finite",
+        ),
+    ] {
+        assert_eq!(message, format!("{invalid}{want}"));
+    }
+}
+
 #[test]
 fn validation_names_the_field() {
     let good = elbow(0.49, 0.48, 1.0, 0.0);

@@ -1,4 +1,6 @@
-//! Frames and independent writers of PCD and XYZ for the reader tests.
+//! Frames and independent writers of PCD and XYZ for the reader tests; epd-cli's tests
+//! include this file too (`crates/epd-cli/tests/common/mod.rs`), so it uses nothing of
+//! epd-io.
 #![allow(dead_code)]
 
 use tof_sim::{
@@ -80,12 +82,18 @@ pub fn xyz(frame: &Frame) -> Vec<u8> {
     s.into_bytes()
 }
 
+/// A fresh folder under the system's temporary folder, named after the crate under
+/// test, `tag`, the process and the time.
 pub fn temp_dir(tag: &str) -> std::path::PathBuf {
     let nanos = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_nanos())
         .unwrap_or(0);
-    let d = std::env::temp_dir().join(format!("epd-io-{tag}-{}-{nanos}", std::process::id()));
+    let d = std::env::temp_dir().join(format!(
+        "{}-{tag}-{}-{nanos}",
+        env!("CARGO_PKG_NAME"),
+        std::process::id()
+    ));
     std::fs::create_dir_all(&d).unwrap();
     d
 }
