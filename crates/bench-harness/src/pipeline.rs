@@ -26,7 +26,7 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use anyhow::Context;
-use epd_cli::report::GeometryReport;
+use epd_cli::report::{GeometryReport, bend_table_coverage};
 use epd_cli::table::CalibrationTable;
 use epd_core::FitOutcome;
 use epd_core::calibration::{CalibrationFrame, CalibrationSettings};
@@ -57,7 +57,9 @@ pub const METHODS: [&str; 4] = ["c-epd", "ru-epd", "ml-epd", "ml-epd-w"];
 
 /// `profile.csv` columns (the first eleven are the interface; the rest add the truth, the
 /// Cramér–Rao bound of the heteroscedastic model, and the geometry ahead: the survey's
-/// verdict as `epd estimate` reports it, and the route's truth).
+/// verdict as `epd estimate` reports it, and the route's truth; last, the bend radius as
+/// fitted, also where `epd estimate` withholds it, and the fraction of the bend's points
+/// the depth table observed, `epd_cli::report::bend_table_coverage`).
 pub const PROFILE_COLUMNS: &[&str] = &[
     "section",
     "frame",
@@ -80,6 +82,8 @@ pub const PROFILE_COLUMNS: &[&str] = &[
     "bend_radius_mm",
     "geometry_true",
     "straight_until_true_m",
+    "bend_radius_fit_mm",
+    "bend_table_coverage",
 ];
 
 /// `sections.csv` columns (the first eleven are the interface).
@@ -975,8 +979,12 @@ struct Geometry {
     found: &'static str,
     /// Its straight_until (m).
     straight_until: Option<f64>,
-    /// Its bend radius (mm).
+    /// Its bend radius (mm), as `epd estimate` reports it.
     bend_radius_mm: Option<f64>,
+    /// The bend radius as fitted (mm), also where it is withheld.
+    bend_radius_fit_mm: Option<f64>,
+    /// The fraction of the bend's points the depth table observed.
+    bend_table_coverage: Option<f64>,
     /// The truth.
     truth: TruthAhead,
 }
@@ -1194,11 +1202,21 @@ impl Surveyed {
                 )
             },
         )?;
-        let report = GeometryReport::of(&sv);
+        let mut report = GeometryReport::of(&sv);
+        let raw_range_m: Vec<f64> = frame
+            .measured
+            .iter()
+            .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
+            .collect();
+        let coverage = bend_table_coverage(&sv, &corrected, &raw_range_m, &intensity, table);
+        let bend_radius_fit_mm = report.bend_radius_mm;
+        report.check_bend_against_table(coverage);
         let geometry = Geometry {
             found: report.layout,
             straight_until: report.straight_until_m,
             bend_radius_mm: report.bend_radius_mm,
+            bend_radius_fit_mm,
+            bend_table_coverage: coverage,
             truth: s.route.truth(plan.x, s.sensor.max_range),
         };
         // The straight section's points when something lies ahead.
@@ -1406,6 +1424,8 @@ fn profile_line(s: &PipelineScenario, r: &Row) -> String {
         opt(g.bend_radius_mm),
         g.truth.geometry.to_string(),
         opt(g.truth.straight_until_m),
+        opt(g.bend_radius_fit_mm),
+        opt(g.bend_table_coverage),
     ]
     .join(",")
 }
@@ -1930,5 +1950,35 @@ mod tests {
             matches!(layout, Layout::InBend | Layout::BendAhead),
             "{layout:?}"
         );
+    }
+
+    /// The frame 1 m before the elbow, corrected by the rig's table: the survey fits the
+    /// bend, but most of its points lie where the straight rig never showed the camera's
+    /// error (beyond its ranges, or brighter), so the radius is withheld with the reason,
+    /// as `epd estimate` does; the fitted radius stays in the run's diagnostics.
+    #[test]
+    fn a_bend_the_rigs_table_did_not_observe_has_its_radius_withheld() {
+        let path = Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../scenarios/pipeline_run.toml"
+        ));
+        let source = std::fs::read_to_string(path).expect("the committed scenario");
+        let s = PipelineScenario::parse(path, &source).expect("a valid scenario");
+        let plan = s
+            .plans()
+            .into_iter()
+            .find(|p| (p.x - 17.0).abs() < 1e-9)
+            .expect("a frame at 17.0 m");
+        let (_, frame, _) = s.frame(&plan).expect("the frame");
+        let (table, _) = calibrate(&s).expect("the rig's table");
+        let opts = options(s.range_gate).expect("options");
+        let sv = Surveyed::of(&s, &table, &plan, &frame, &opts).expect("a verdict");
+        let g = &sv.geometry;
+        assert_eq!(g.found, "bend_ahead");
+        assert!(g.bend_radius_fit_mm.is_some(), "the bend was fitted");
+        let c = g.bend_table_coverage.expect("a coverage");
+        assert!(c < epd_cli::report::MIN_BEND_TABLE_COVERAGE, "coverage {c}");
+        assert_eq!(g.bend_radius_mm, None);
+        assert!(!sv.withheld, "the straight estimate is still reported");
     }
 }

@@ -12,7 +12,7 @@ use epd_core::{
 };
 
 use crate::read::{Format, MAX_INPUT_BYTES, PointCloud, read_from, read_path};
-use crate::report::{FileEstimate, FileReport, GeometryReport};
+use crate::report::{FileEstimate, FileReport, GeometryReport, bend_table_coverage};
 use crate::table::CalibrationTable;
 use epd_core::segment::{SegmentOptions, straight_mask};
 
@@ -344,6 +344,14 @@ pub fn estimate_points(
         points = Cow::Owned(points.into_owned());
     }
     let t1 = Instant::now();
+    // The measured ranges before the table moves the points: where the table observed
+    // the camera's error is looked up by them (the bend's points, below).
+    let raw_range_m: Option<Vec<f64>> = cfg.calibration.as_ref().map(|_| {
+        points
+            .iter()
+            .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
+            .collect()
+    });
     let mut n_calibrated = None;
     let mut sigmas: Option<Cow<'_, [f64]>> = sigma.map(Cow::Borrowed);
     if let Some(cal) = &cfg.calibration {
@@ -390,7 +398,16 @@ pub fn estimate_points(
         cfg,
     )
     .map_err(failed)?;
-    let geometry = survey.as_ref().map(GeometryReport::of);
+    let mut geometry = survey.as_ref().map(GeometryReport::of);
+    if let (Some(g), Some(s), Some(cal), Some(r), Some(i)) = (
+        geometry.as_mut(),
+        survey.as_ref(),
+        &cfg.calibration,
+        raw_range_m.as_deref(),
+        intensity,
+    ) {
+        g.check_bend_against_table(bend_table_coverage(s, kept, r, i, &cal.table));
+    }
     let elapsed_ms = t1.elapsed().as_secs_f64() * 1e3;
     Ok(FileEstimate {
         loss: (cfg.loss.clone(), radial_loss_scale_m(&est)),
