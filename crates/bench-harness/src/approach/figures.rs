@@ -35,7 +35,8 @@ fn spread_by_distance(
 
 /// `approach.png` of an `[approach]` run: per distance, the mean-diameter error of the
 /// plain fit and of the survey's straight estimate (mean, bars from min to max over the
-/// frames), the error of `straight_until_m`, the bend radius's error and the direction's.
+/// frames), the error of `straight_until_m`, the bend radius's error and the direction's
+/// (of the frames that report them: not `in_bend`).
 pub(crate) fn plot_approach(s: &ApproachScenario, rows: &[FrameRow]) -> anyhow::Result<Png> {
     type Column = fn(&FrameRow) -> f64;
     /// A series: name, colour, with the survey, value.
@@ -65,7 +66,15 @@ pub(crate) fn plot_approach(s: &ApproachScenario, rows: &[FrameRow]) -> anyhow::
             "error (% / deg)",
             &[
                 ("bend radius", GREEN, true, |r| r.bend_radius_err_pct),
-                ("direction (deg)", BLUE, true, |r| r.direction_err_deg),
+                // In a bend the survey's departure direction is no bend's: left out, as
+                // its radius is.
+                ("direction (deg)", BLUE, true, |r| {
+                    if r.geometry == "in_bend" {
+                        f64::NAN
+                    } else {
+                        r.direction_err_deg
+                    }
+                }),
             ],
         ),
     ];
