@@ -346,12 +346,7 @@ pub fn estimate_points(
     let t1 = Instant::now();
     // The measured ranges before the table moves the points: where the table observed
     // the camera's error is looked up by them (the bend's points, below).
-    let raw_range_m: Option<Vec<f64>> = cfg.calibration.as_ref().map(|_| {
-        points
-            .iter()
-            .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
-            .collect()
-    });
+    let raw_range_m: Option<Vec<f64>> = cfg.calibration.as_ref().map(|_| ranges(&points));
     let mut n_calibrated = None;
     let mut sigmas: Option<Cow<'_, [f64]>> = sigma.map(Cow::Borrowed);
     if let Some(cal) = &cfg.calibration {
@@ -379,17 +374,7 @@ pub fn estimate_points(
     } else {
         None
     };
-    // Which points are the straight section's, when something lies ahead of it.
-    let mask: Option<Vec<bool>> = survey.as_ref().and_then(|s| {
-        let end = s.segmentation.straight_until?;
-        let margin = SegmentOptions::default().margin_m;
-        Some(straight_mask(
-            kept,
-            &s.segmentation.straight.params,
-            end,
-            margin,
-        ))
-    });
+    let mask = survey.as_ref().and_then(|s| straight_points(s, kept));
     let est = fit_straight(
         kept,
         sigmas.as_deref(),
@@ -398,16 +383,9 @@ pub fn estimate_points(
         cfg,
     )
     .map_err(failed)?;
-    let mut geometry = survey.as_ref().map(GeometryReport::of);
-    if let (Some(g), Some(s), Some(cal), Some(r), Some(i)) = (
-        geometry.as_mut(),
-        survey.as_ref(),
-        &cfg.calibration,
-        raw_range_m.as_deref(),
-        intensity,
-    ) {
-        g.check_bend_against_table(bend_table_coverage(s, kept, r, i, &cal.table));
-    }
+    let geometry = survey
+        .as_ref()
+        .map(|s| geometry_report(s, kept, raw_range_m.as_deref(), intensity, cfg));
     let elapsed_ms = t1.elapsed().as_secs_f64() * 1e3;
     Ok(FileEstimate {
         loss: (cfg.loss.clone(), radial_loss_scale_m(&est)),
@@ -422,6 +400,44 @@ pub fn estimate_points(
         weighted: sigmas.is_some(),
         geometry,
     })
+}
+
+/// Which points are the straight section's (`straight_mask`, less the survey's margin),
+/// when something lies ahead of it; `None` when nothing does.
+fn straight_points(s: &epd_core::segment::Survey, points: &[[f64; 3]]) -> Option<Vec<bool>> {
+    let end = s.segmentation.straight_until?;
+    let margin = SegmentOptions::default().margin_m;
+    Some(straight_mask(
+        points,
+        &s.segmentation.straight.params,
+        end,
+        margin,
+    ))
+}
+
+/// Each point's distance from the sensor (m).
+fn ranges(points: &[[f64; 3]]) -> Vec<f64> {
+    points
+        .iter()
+        .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
+        .collect()
+}
+
+/// The survey's report; with a depth table, the bend's values withheld where the table
+/// did not observe most of its points ([`GeometryReport::check_bend_against_table`]):
+/// `points` as surveyed, `raw_range_m` their ranges before the correction.
+fn geometry_report(
+    s: &epd_core::segment::Survey,
+    points: &[[f64; 3]],
+    raw_range_m: Option<&[f64]>,
+    intensity: Option<&[f64]>,
+    cfg: &EstimateConfig,
+) -> GeometryReport {
+    let mut g = GeometryReport::of(s);
+    if let (Some(cal), Some(r), Some(i)) = (&cfg.calibration, raw_range_m, intensity) {
+        g.check_bend_against_table(bend_table_coverage(s, points, r, i, &cal.table));
+    }
+    g
 }
 
 /// The depth table's correction in place: each point moved along its ray by the table's

@@ -470,9 +470,8 @@ mod tests {
         }
     }
 
-    /// A successful report and a failed one have the same columns, in the same order.
-    #[test]
-    fn success_and_failure_share_the_columns() {
+    /// A converged report of a synthetic cloud, without a survey.
+    fn ok_report() -> FileReport {
         let pts: Vec<[f64; 3]> = (0..400)
             .map(|i| {
                 let phi = i as f64 * 0.37;
@@ -484,7 +483,7 @@ mod tests {
             })
             .collect();
         let est = epd_core::estimate(&pts, epd_core::Method::RuEpd, &Default::default()).unwrap();
-        let ok = FileReport {
+        FileReport {
             file: "a".into(),
             outcome: Ok(FileEstimate {
                 estimate: est,
@@ -499,7 +498,26 @@ mod tests {
                 nominal_od_mm: None,
                 geometry: None,
             }),
-        };
+        }
+    }
+
+    /// A bend 1 m ahead, as a survey reports it.
+    fn bend_ahead() -> GeometryReport {
+        GeometryReport {
+            layout: "bend_ahead",
+            straight_until_m: Some(1.0),
+            bend_radius_mm: Some(762.0),
+            bend_angle_deg: Some(60.0),
+            bend_direction_deg: Some(90.0),
+            straight_withheld: false,
+            bend_withheld: None,
+        }
+    }
+
+    /// A successful report and a failed one have the same columns, in the same order.
+    #[test]
+    fn success_and_failure_share_the_columns() {
+        let ok = ok_report();
         let keys: Vec<&str> = ok.fields().into_iter().map(|(k, _)| k).collect();
         assert_eq!(keys, columns());
         // epd-core's fields of an estimate follow its key list, after `file`.
@@ -507,44 +525,10 @@ mod tests {
         // With a survey: the same keys.
         let mut surveyed = ok.clone();
         if let Ok(e) = &mut surveyed.outcome {
-            e.geometry = Some(GeometryReport {
-                layout: "bend_ahead",
-                straight_until_m: Some(1.0),
-                bend_radius_mm: Some(762.0),
-                bend_angle_deg: Some(60.0),
-                bend_direction_deg: Some(90.0),
-                straight_withheld: false,
-                bend_withheld: None,
-            });
+            e.geometry = Some(bend_ahead());
         }
         let keys: Vec<&str> = surveyed.fields().into_iter().map(|(k, _)| k).collect();
         assert_eq!(keys, columns());
-        // A bend whose points the depth table mostly did not observe: its radius, angle
-        // and direction withheld with the reason; the straight estimate stays. Enough
-        // coverage, or none measured (no table), keeps them.
-        let mut g = surveyed.outcome.as_ref().unwrap().geometry.clone().unwrap();
-        for keep in [None, Some(0.5), Some(0.9)] {
-            let mut h = g.clone();
-            h.check_bend_against_table(keep);
-            assert_eq!(h, g, "coverage {keep:?}");
-        }
-        g.check_bend_against_table(Some(0.12));
-        assert_eq!(
-            (g.bend_radius_mm, g.bend_angle_deg, g.bend_direction_deg),
-            (None, None, None)
-        );
-        let why = "only 12 % of the bend's points lie where the depth table observed";
-        assert!(g.bend_withheld.as_ref().is_some_and(|t| t.contains(why)));
-        let mut flagged = surveyed.clone();
-        if let Ok(e) = &mut flagged.outcome {
-            e.geometry = Some(g);
-        }
-        let f = flagged.fields();
-        let get = |k: &str| f.iter().find(|(n, _)| *n == k).unwrap().1.clone();
-        assert_eq!(get("bend_radius_mm"), Field::Null);
-        assert!(matches!(get("bend_withheld"), Field::Text(t) if t.contains(why)));
-        assert!(matches!(get("d_max_mm"), Field::Num(_)));
-        assert!(flagged.text().contains(why));
         // In a bend: every result withheld, with the reason.
         if let Ok(e) = &mut surveyed.outcome {
             e.geometry.as_mut().unwrap().layout = "in_bend";
@@ -578,5 +562,35 @@ mod tests {
         assert!(matches!(get("error"), Field::Text(t) if t.contains(why)));
         assert!(surveyed.failure().is_some_and(|t| t.contains(why)));
         assert!(surveyed.text().contains(why));
+    }
+
+    /// With a depth table, a bend whose points the table mostly did not observe has its
+    /// radius, angle and direction withheld with the reason, in every output; the straight
+    /// estimate stays. Enough coverage, or none measured (no table), keeps them.
+    #[test]
+    fn a_bend_the_table_did_not_observe_is_withheld() {
+        let mut g = bend_ahead();
+        for keep in [None, Some(0.5), Some(0.9)] {
+            let mut h = g.clone();
+            h.check_bend_against_table(keep);
+            assert_eq!(h, g, "coverage {keep:?}");
+        }
+        g.check_bend_against_table(Some(0.12));
+        assert_eq!(
+            (g.bend_radius_mm, g.bend_angle_deg, g.bend_direction_deg),
+            (None, None, None)
+        );
+        let why = "only 12 % of the bend's points lie where the depth table observed";
+        assert!(g.bend_withheld.as_ref().is_some_and(|t| t.contains(why)));
+        let mut flagged = ok_report();
+        if let Ok(e) = &mut flagged.outcome {
+            e.geometry = Some(g);
+        }
+        let f = flagged.fields();
+        let get = |k: &str| f.iter().find(|(n, _)| *n == k).unwrap().1.clone();
+        assert_eq!(get("bend_radius_mm"), Field::Null);
+        assert!(matches!(get("bend_withheld"), Field::Text(t) if t.contains(why)));
+        assert!(matches!(get("d_max_mm"), Field::Num(_)));
+        assert!(flagged.text().contains(why));
     }
 }

@@ -163,6 +163,26 @@ pub fn fit_bend(
     let geometry = BendGeometry::from_vector(&rep.x);
     let sigma = robust_sigma(&rays, &geometry).unwrap_or(f64::NAN);
     let straight_sigma = straight_robust_sigma(&rays, (0.5 * straight.d_max, 0.5 * straight.d_min));
+    let (angle_seen, n_inliers) = angle_seen(&rays, &geometry, sigma);
+    Ok(BendFit {
+        geometry,
+        angle_seen,
+        n_points: rays.len(),
+        n_inliers,
+        residual_sigma: sigma,
+        straight_sigma,
+        status: rep.status,
+    })
+}
+
+/// The bend angle seen so far (rad) and the number of inliers: the 98th percentile of
+/// the turned angle ([`BendGeometry::turned`], from 0) of the points within three
+/// robust σ (`sigma`) of the wall of `geometry`; 0 without any.
+fn angle_seen(
+    rays: &[(Vector3<f64>, Vector3<f64>)],
+    geometry: &BendGeometry,
+    sigma: f64,
+) -> (f64, usize) {
     let torus = geometry.torus();
     let mut turned: Vec<f64> = rays
         .iter()
@@ -174,21 +194,12 @@ pub fn fit_bend(
         .map(|(q, _)| geometry.turned(q))
         .filter(|a| *a >= 0.0)
         .collect();
-    let n_inliers = turned.len();
-    let angle_seen = if turned.is_empty() {
-        0.0
+    let n = turned.len();
+    if turned.is_empty() {
+        (0.0, 0)
     } else {
-        crate::check::quantile(&mut turned, 0.98)
-    };
-    Ok(BendFit {
-        geometry,
-        angle_seen,
-        n_points: rays.len(),
-        n_inliers,
-        residual_sigma: sigma,
-        straight_sigma,
-        status: rep.status,
-    })
+        (crate::check::quantile(&mut turned, 0.98), n)
+    }
 }
 
 /// 1.4826·MAD of the first-order range errors eᵢ = sᵢ/|n·d| of PCS points q to the

@@ -466,6 +466,45 @@ fn refine(
     })
 }
 
+/// Whether the profile departs from its very first slices: either the sensor is in the
+/// bend, or a bend close ahead dragged the fit off the straight pipe.
+fn departs_at_start(prof: &[Slice], seg: &SegmentOptions) -> bool {
+    let x_first = prof.first().map_or(0.0, |s| s.start_m);
+    first_departure(prof, seg).is_some_and(|i| locate_end(prof, i, seg) <= x_first + seg.slice_m)
+}
+
+/// After a departure at the start ([`departs_at_start`]): start again from the near
+/// points only (forward coordinate within 1.0, then 0.6 m) and keep the first start that
+/// finds a straight section; `None` when none does (the frame keeps its first verdict).
+/// Also the fits made.
+fn restart_from_near(
+    pts: &[[f64; 3]],
+    method: Method,
+    options: &EstimateOptions,
+    seg: &SegmentOptions,
+) -> (Option<Refined>, usize) {
+    let mut rounds = 0;
+    for near in [1.0, 0.6] {
+        let close: Vec<[f64; 3]> = pts.iter().filter(|p| p[0] <= near).copied().collect();
+        if close.len() < 2000 {
+            continue;
+        }
+        let Ok(start) = estimate(&close, method, options) else {
+            continue;
+        };
+        // A start that cannot be refined (its cut leaves too few points) is one that did
+        // not find a straight section.
+        let Ok(r) = refine(pts, start, method, options, seg) else {
+            continue;
+        };
+        rounds += r.rounds;
+        if !departs_at_start(&r.profile, seg) {
+            return (Some(r), rounds);
+        }
+    }
+    (None, rounds)
+}
+
 /// The straight section, its end and what lies beyond, by refitting on the points
 /// before the departure until the end stops moving (see the module's text).
 pub fn segment(
@@ -484,34 +523,11 @@ pub fn segment(
         mut rounds,
         mut cut,
     } = refine(pts, first, method, options, seg)?;
-    // A departure from the very first slices: either the sensor is in the bend, or a
-    // bend close ahead dragged the first fit (on every point) off the straight pipe.
-    // Start again from the near points only (forward coordinate within 1.0, then 0.6 m)
-    // and keep the first start that finds a straight section.
-    let at_start = |prof: &[Slice]| {
-        let x_first = prof.first().map_or(0.0, |s| s.start_m);
-        first_departure(prof, seg)
-            .is_some_and(|i| locate_end(prof, i, seg) <= x_first + seg.slice_m)
-    };
-    if at_start(&prof) {
-        for near in [1.0, 0.6] {
-            let close: Vec<[f64; 3]> = pts.iter().filter(|p| p[0] <= near).copied().collect();
-            if close.len() < 2000 {
-                continue;
-            }
-            let Ok(start) = estimate(&close, method, options) else {
-                continue;
-            };
-            // A start that cannot be refined (its cut leaves too few points) is one that
-            // did not find a straight section: the frame keeps its first verdict.
-            let Ok(r) = refine(pts, start, method, options, seg) else {
-                continue;
-            };
-            rounds += r.rounds;
-            if !at_start(&r.profile) {
-                (fit, prof, cut) = (r.fit, r.profile, r.cut);
-                break;
-            }
+    if departs_at_start(&prof, seg) {
+        let (restart, tried) = restart_from_near(pts, method, options, seg);
+        rounds += tried;
+        if let Some(r) = restart {
+            (fit, prof, cut) = (r.fit, r.profile, r.cut);
         }
     }
     let departure = first_departure(&prof, seg);

@@ -33,6 +33,16 @@ fn spread_by_distance(
         .collect()
 }
 
+/// The direction's error where the survey reports one: in a bend the departure's
+/// direction is no bend's, and is left out as its radius is.
+fn reported_direction_err(r: &FrameRow) -> f64 {
+    if r.geometry == "in_bend" {
+        f64::NAN
+    } else {
+        r.direction_err_deg
+    }
+}
+
 /// `approach.png` of an `[approach]` run: per distance, the mean-diameter error of the
 /// plain fit and of the survey's straight estimate (mean, bars from min to max over the
 /// frames), the error of `straight_until_m`, the bend radius's error and the direction's
@@ -66,15 +76,7 @@ pub(crate) fn plot_approach(s: &ApproachScenario, rows: &[FrameRow]) -> anyhow::
             "error (% / deg)",
             &[
                 ("bend radius", GREEN, true, |r| r.bend_radius_err_pct),
-                // In a bend the survey's departure direction is no bend's: left out, as
-                // its radius is.
-                ("direction (deg)", BLUE, true, |r| {
-                    if r.geometry == "in_bend" {
-                        f64::NAN
-                    } else {
-                        r.direction_err_deg
-                    }
-                }),
+                ("direction (deg)", BLUE, true, reported_direction_err),
             ],
         ),
     ];
