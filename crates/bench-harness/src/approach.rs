@@ -43,7 +43,7 @@ use tof_sim::{
     Subsample, simulate,
 };
 
-use crate::run::{StagedFiles, create_new, finish, write_new, write_run, wrote};
+use crate::output::{StagedFiles, create_new, finish, write_new, write_run, wrote};
 use crate::scenario::ScenarioError;
 
 mod figures;

@@ -6,8 +6,10 @@
 
 pub mod approach;
 mod defaults;
+pub mod output;
 pub mod pipeline;
 pub mod plots;
+mod provenance;
 pub mod route;
 pub mod run;
 pub mod scenario;

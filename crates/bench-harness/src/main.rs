@@ -15,8 +15,8 @@ use std::process::ExitCode;
 use std::sync::atomic::Ordering;
 
 use bench_harness::approach::{ApproachScenario, is_approach, run_approach};
+use bench_harness::output::{INTERRUPTED, Interrupted, OutputRefused, default_output};
 use bench_harness::pipeline::{PipelineScenario, is_pipeline, run_pipeline};
-use bench_harness::run::{INTERRUPTED, Interrupted, OutputRefused, default_output};
 use bench_harness::scenario::MAX_SCENARIO_BYTES;
 use bench_harness::shard::{MergeError, MergeOptions, merge, run_shard, shard_trial_count};
 use bench_harness::{RunOptions, Scenario, ScenarioError, run};

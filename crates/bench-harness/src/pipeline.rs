@@ -35,6 +35,7 @@ use epd_core::{
     DepthTable, EstimateOptions, Loss, LossScale, Method, Params, cramer_rao_bound_weighted,
     estimate, estimate_weighted,
 };
+use epd_io::csv::num;
 use rand::RngExt;
 use rayon::prelude::*;
 use serde::Deserialize;
@@ -44,10 +45,10 @@ use tof_sim::{
     ToFPhysics, WallModel, simulate,
 };
 
-use crate::route::{Fitting, FittingKind, Route, TruthAhead, local_mesh};
-use crate::run::{
-    INTERRUPTED, Interrupted, StagedFiles, create_new, finish, num, write_new, write_run, wrote,
+use crate::output::{
+    INTERRUPTED, Interrupted, StagedFiles, create_new, finish, write_new, write_run, wrote,
 };
+use crate::route::{Fitting, FittingKind, Route, TruthAhead, local_mesh};
 use crate::scenario::{KeyError, ScenarioError, check_name, key_err};
 
 mod figures;

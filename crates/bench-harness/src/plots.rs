@@ -837,7 +837,7 @@ fn crb_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
     )
 }
 
-/// Every figure of a sweep, in [`crate::run::RUN_FILES`] order: `diameter_error.png`,
+/// Every figure of a sweep, in [`crate::output::RUN_FILES`] order: `diameter_error.png`,
 /// `dmean_error.png`, `pose_error.png`, `time.png`, `std_vs_crb.png`.
 pub fn plot_all(scenario: &Scenario, summary: &[SummaryRow]) -> anyhow::Result<Vec<Png>> {
     let sw = Sweep::new(scenario, summary);

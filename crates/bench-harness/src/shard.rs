@@ -12,7 +12,7 @@
 //!
 //! # A shard's folder
 //!
-//! Written as a whole like a run's (see `crate::run`): `trials.csv` (the shard's rows,
+//! Written as a whole like a run's (see [`crate::output`]): `trials.csv` (the shard's rows,
 //! in the unsharded order; for reading, not for merging), `scenario.toml`,
 //! `metadata.json`, [`MANIFEST_FILE`] (a [`ShardManifest`]: which shard, the scenario's
 //! SHA-256, seed, trials, methods and the code that ran) and [`RECORDS_FILE`]: one JSON
@@ -47,20 +47,20 @@ use epd_core::{FitOutcome, Method, N_PARAMS, ParamErrors, Params, Sigmas};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
+use crate::output::{
+    INTERRUPTED, Interrupted, MANIFEST_FILE, RECORDS_FILE, StagedFiles, create_new, finish,
+    write_new, write_run, wrote,
+};
+use crate::provenance::{cpu_model, git_provenance, profile};
 use crate::run::{
-    INTERRUPTED, Interrupted, RunOptions, RunReport, StagedFiles, SummaryRow, TRIAL_COLUMNS,
-    cpu_model, create_new, finish, finish_run, git_provenance, metadata, profile, progress_bar,
-    summarise, trial_rows, write_new, write_run, wrote,
+    RunOptions, RunReport, SummaryRow, TRIAL_COLUMNS, TrialRunner, finish_run, metadata,
+    progress_bar, summarise, trial_rows,
 };
 use crate::scenario::{MAX_SCENARIO_BYTES, Scenario};
 use crate::trial::{MethodRecord, TrialRecord};
 
 /// The `format` of a [`ShardManifest`] this version writes and reads.
 pub const SHARD_FORMAT: &str = "bench-harness-shard/1";
-/// A shard's manifest file.
-pub const MANIFEST_FILE: &str = "shard.json";
-/// A shard's exact per-trial values: one JSON object per trial and line.
-pub const RECORDS_FILE: &str = "shard-trials.jsonl";
 /// The partition, as named in a manifest.
 pub const PARTITION: &str = "round-robin";
 
@@ -601,7 +601,7 @@ fn stage_shard(
     let settings = scenario.sweeps.len();
     let n_trials = shard_trial_count(shard, settings, trials);
     let bar = progress_bar(progress, n_trials as u64);
-    let runner = crate::run::TrialRunner::new(scenario, &bar);
+    let runner = TrialRunner::new(scenario, &bar);
     let mut trial_errors = 0;
     let mut written = 0;
     for (si, (value, _)) in scenario.sweeps.iter().enumerate() {
@@ -998,6 +998,11 @@ struct StagedMerge {
 impl StagedFiles for StagedMerge {
     fn files_mut(&mut self) -> &mut Vec<PathBuf> {
         &mut self.files
+    }
+
+    /// Refused shards are a usage error, named as such (nothing is written).
+    fn is_refusal(e: &anyhow::Error) -> bool {
+        e.is::<MergeError>()
     }
 }
 

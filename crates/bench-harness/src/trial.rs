@@ -235,7 +235,8 @@ impl TrialResult {
 
 /// What the output files need of one method's result on one frame: a
 /// [`MethodResult`] with its status reduced to its [`FitOutcome`], so that it can be
-/// written to a shard file and read back exactly (`crate::shard`).
+/// written to a shard's records file ([`crate::output::RECORDS_FILE`]) and read back
+/// exactly.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MethodRecord {
     /// The method.

@@ -117,7 +117,7 @@ fn run_writes_the_spec_files_and_is_identical_for_1_and_2_threads() {
             .map(|e| e.file_name().to_string_lossy().into_owned())
             .collect();
         names.sort();
-        let mut expected: Vec<&str> = bench_harness::run::RUN_FILES.to_vec();
+        let mut expected: Vec<&str> = bench_harness::output::RUN_FILES.to_vec();
         expected.sort();
         assert_eq!(names, expected);
         // A file of the user's put beside a previous run: refused, not deleted.

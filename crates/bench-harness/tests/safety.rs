@@ -10,7 +10,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant, SystemTime};
 
 use bench_harness::Scenario;
-use bench_harness::run::RUN_FILES;
+use bench_harness::output::RUN_FILES;
 
 /// A quick scenario: 2 swept values × `trials` trials of ML-EPD on `points` points.
 fn scenario(dir: &Path, trials: usize, points: usize) -> PathBuf {
