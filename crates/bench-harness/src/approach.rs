@@ -580,7 +580,7 @@ fn stage(s: &ApproachScenario, dir: &Path, progress: bool) -> anyhow::Result<App
     files.push(write_new(&dir.join("scenario.toml"), s.source.as_bytes())?);
     let png = figures::plot_approach(s, &rows)?;
     files.push(write_new(&dir.join(&png.name), &png.bytes)?);
-    let (git_commit, git_dirty) = crate::run::git_provenance();
+    let (git_commit, git_dirty) = crate::provenance::git_provenance();
     let wall_time_s = start.elapsed().as_secs_f64();
     let meta = serde_json::json!({
         "scenario": s.name,

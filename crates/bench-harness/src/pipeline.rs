@@ -1456,7 +1456,7 @@ fn section_line(r: &SectionRow) -> String {
     .join(",")
 }
 
-/// Run a pipeline scenario into `out` (replaced as a whole, see [`crate::run`]).
+/// Run a pipeline scenario into `out` (replaced as a whole, see [`crate::output`]).
 pub fn run_pipeline(
     s: &PipelineScenario,
     out: &Path,
@@ -1571,7 +1571,7 @@ fn metadata(
     filled: usize,
     n_obs: usize,
 ) -> serde_json::Value {
-    let (git_commit, git_dirty) = crate::run::git_provenance();
+    let (git_commit, git_dirty) = crate::provenance::git_provenance();
     serde_json::json!({
         "scenario": s.name,
         "kind": "pipeline",
@@ -1581,7 +1581,7 @@ fn metadata(
         "git_commit": git_commit,
         "git_dirty": git_dirty,
         "threads": rayon::current_num_threads(),
-        "cpu_model": crate::run::cpu_model(),
+        "cpu_model": crate::provenance::cpu_model(),
         "wall_time_s": wall_time_s,
         "depth_table": { "bins_filled": filled, "observations": n_obs },
         "profile": if cfg!(debug_assertions) { "dev" } else { "release" },

@@ -16,13 +16,10 @@ use rayon::prelude::*;
 use crate::output::{
     INTERRUPTED, Interrupted, StagedFiles, create_new, finish, write_new, write_run, wrote,
 };
-use crate::provenance::profile;
+use crate::provenance::{cpu_model, git_provenance, profile};
 use crate::scenario::Scenario;
 use crate::stats::Stats;
 use crate::trial::{FramePool, TrialRecord, TrialResult, run_trial};
-
-// `pub(crate)`: pipeline.rs and approach.rs still name them `crate::run::…`.
-pub(crate) use crate::provenance::{cpu_model, git_provenance};
 
 /// A summarised quantity: its name in `summary.csv`, unit, the error it reads (in that
 /// unit) and the index of its parameter in β for the Cramér–Rao bound.
