@@ -112,6 +112,21 @@ pub struct RunOptions {
     pub progress: bool,
 }
 
+impl RunOptions {
+    /// The trials per setting: `--trials` when given, else the scenario's, checked
+    /// against the scenario's size (the error names the key the count came from).
+    pub fn checked_trials(&self, scenario: &Scenario) -> anyhow::Result<usize> {
+        let trials = self.trials.unwrap_or(scenario.trials);
+        let key = if self.trials.is_some() {
+            "--trials"
+        } else {
+            "trials"
+        };
+        scenario.check_trials(key, trials)?;
+        Ok(trials)
+    }
+}
+
 /// What a run produced.
 #[derive(Clone, Debug)]
 pub struct RunReport {
@@ -347,13 +362,7 @@ pub(crate) fn summary_line(variable: &str, r: &SummaryRow) -> String {
 /// Run `scenario` into `options.out`.
 pub fn run(scenario: &Scenario, options: &RunOptions) -> anyhow::Result<RunReport> {
     let start = Instant::now();
-    let trials = options.trials.unwrap_or(scenario.trials);
-    let key = if options.trials.is_some() {
-        "--trials"
-    } else {
-        "trials"
-    };
-    scenario.check_trials(key, trials)?;
+    let trials = options.checked_trials(scenario)?;
     let staged = write_run(&options.out, |dir| {
         stage(scenario, options.progress, trials, dir, start)
     })?;

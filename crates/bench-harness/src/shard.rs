@@ -504,13 +504,7 @@ pub fn run_shard(
     shard: ShardSpec,
 ) -> anyhow::Result<RunReport> {
     let start = Instant::now();
-    let trials = options.trials.unwrap_or(scenario.trials);
-    let key = if options.trials.is_some() {
-        "--trials"
-    } else {
-        "trials"
-    };
-    scenario.check_trials(key, trials)?;
+    let trials = options.checked_trials(scenario)?;
     let staged = write_run(&options.out, |dir| {
         stage_shard(scenario, options.progress, trials, shard, dir, start)
     })?;
