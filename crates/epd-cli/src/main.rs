@@ -166,7 +166,7 @@ struct EstimateArgs {
     unweighted: bool,
     /// Fit every point as one straight pipe, without looking for a bend or a tee ahead.
     /// By default the frame is surveyed first (JSON keys `geometry`, `straight_until_m`,
-    /// `bend_radius_mm`, `bend_angle_deg`, `bend_direction_deg`): the estimate then uses
+    /// `bend_radius_mm`, `bend_angle_deg`, `bend_direction_deg`, `bend_withheld`): the estimate then uses
     /// the straight section's points only, and a sensor already in a bend gets no result.
     #[arg(long)]
     straight_only: bool,
