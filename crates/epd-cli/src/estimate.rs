@@ -241,9 +241,14 @@ fn check_units(points: &[[f64; 3]], units: Units) -> Result<(), String> {
     let (_, &mut median, _) = r.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
     if median > MAX_MEDIAN_RANGE_M {
         return Err(match units {
-            Units::Metres => format!(
+            Units::Metres if median / 1e3 <= MAX_MEDIAN_RANGE_M => format!(
                 "the points lie a median {median:.1} m from the sensor: the cloud looks like millimetres \
                  (the Helios2 SDK writes mm); pass --units mm"
+            ),
+            Units::Metres => format!(
+                "the points lie a median {median:.3e} m from the sensor, too far even for \
+                 millimetres: the coordinates are not read as written (a binary file's byte order \
+                 or value type, a decimal comma, an extra leading column such as an index?)"
             ),
             Units::Millimetres => format!(
                 "the points lie a median {median:.1} m from the sensor even read as millimetres: \
@@ -564,6 +569,19 @@ mod tests {
         let mut inplace = mm.clone();
         to_sensor_metres(&mut inplace, Units::Millimetres, InputFrame::Optical).unwrap();
         assert_eq!(conv.as_ref(), inplace.as_slice());
+        let e = sensor_metres(&mm, Units::Metres, InputFrame::Sensor).unwrap_err();
+        assert!(e.contains("pass --units mm"), "{e}");
+    }
+
+    /// Millimetres are suggested only where they would explain the distances: coordinates
+    /// a thousand times too far even for millimetres (a wrong byte order, a decimal comma,
+    /// an index column) get the causes that could, not a hint that fails next.
+    #[test]
+    fn the_millimetre_hint_only_where_millimetres_fit() {
+        let far: Vec<[f64; 3]> = (0..100).map(|i| [1e6 + i as f64, 10.0, 5.0]).collect();
+        let e = sensor_metres(&far, Units::Metres, InputFrame::Sensor).unwrap_err();
+        assert!(!e.contains("--units mm") && e.contains("byte order"), "{e}");
+        let mm: Vec<[f64; 3]> = (0..100).map(|i| [1500.0 + i as f64, 10.0, 5.0]).collect();
         let e = sensor_metres(&mm, Units::Metres, InputFrame::Sensor).unwrap_err();
         assert!(e.contains("pass --units mm"), "{e}");
     }

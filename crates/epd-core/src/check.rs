@@ -105,8 +105,9 @@ impl std::fmt::Display for Implausible {
             Implausible::AxisNotAhead { tilt } => write!(
                 f,
                 "the fitted pipe axis is {:.1}° from the sensor's X axis (more than {MAX_TILT_DEG}°): \
-                 the camera does not look along this pipe, or the cloud is in a camera's optical frame \
-                 (Z forward) instead of the sensor frame (X forward)",
+                 the camera does not look along this pipe, or the cloud's axes are not the sensor \
+                 frame's (X forward): a camera's optical frame has Z forward, and a cloud already in \
+                 the sensor frame must not be converted from it",
                 tilt.to_degrees()
             ),
             Implausible::DiameterVsExtent {

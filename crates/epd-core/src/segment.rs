@@ -516,7 +516,20 @@ pub fn segment(
     seg.validate()?;
     let cloud = clean(points);
     let pts: &[[f64; 3]] = &cloud.points;
-    let first = estimate(pts, method, options)?;
+    // The fits run on the clean points: an error counts the invalid ones as dropped, as
+    // `estimate` on the raw points would.
+    let first = estimate(pts, method, options).map_err(|e| match e {
+        EpdError::TooFewPoints {
+            usable,
+            dropped,
+            needed,
+        } => EpdError::TooFewPoints {
+            usable,
+            dropped: dropped + cloud.dropped,
+            needed,
+        },
+        other => other,
+    })?;
     let Refined {
         mut fit,
         profile: mut prof,
@@ -947,5 +960,29 @@ mod tests {
         assert!(prof[i].shifts(&o));
         assert!(!resumes(&prof[i..], &o, 1.0));
         assert_eq!(classify(&prof[i..], &o), Layout::BendAhead);
+    }
+
+    /// A cloud of invalid points only (NaN, ±inf, the origin) is refused as `estimate`
+    /// refuses it: every point counted as dropped.
+    #[test]
+    fn an_invalid_cloud_counts_its_points_as_dropped() {
+        let mut pts = vec![[f64::NAN, 0.0, 0.0]; 50];
+        pts.extend(vec![[f64::INFINITY, 1.0, 0.0]; 30]);
+        pts.extend(vec![[0.0; 3]; 20]);
+        let o = EstimateOptions::default();
+        let seg = segment(&pts, Method::MlEpd, &o, &SegmentOptions::default()).unwrap_err();
+        let plain = estimate(&pts, Method::MlEpd, &o).unwrap_err();
+        assert!(
+            matches!(
+                seg,
+                EpdError::TooFewPoints {
+                    usable: 0,
+                    dropped: 100,
+                    ..
+                }
+            ),
+            "{seg:?}"
+        );
+        assert_eq!(seg.to_string(), plain.to_string());
     }
 }

@@ -124,7 +124,14 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
         match nums {
             Ok(v) => r.row(&v, i + 1)?,
             Err(_) if r.cloud.points.is_empty() && r.width.is_none() && r.names.is_empty() => {
-                r.header(&f, i + 1)?;
+                // A header that starts with a delimiter names its first column with
+                // nothing: an index, as pandas writes one (`,x,y,z`), kept as `column1`
+                // like any unnamed column.
+                let mut names = f;
+                if line.starts_with([',', ';']) {
+                    names.insert(0, "column1");
+                }
+                r.header(&names, i + 1)?;
             }
             Err(_) => {
                 return Err(err(
@@ -276,6 +283,21 @@ mod tests {
         let e = read(b"1 2 3\n\xff").unwrap_err().to_string();
         assert!(e.contains("byte 0xff at offset 6 is not UTF-8"), "{e}");
         assert_eq!(read(b"1 2 3\n\x1a").unwrap().points.len(), 1);
+    }
+
+    /// pandas' `to_csv` keeps the index as a first column whose header names nothing:
+    /// the named columns are the ones after it.
+    #[test]
+    fn an_unnamed_index_column_is_not_x() {
+        let p = read(b",x,y,z,intensity\n0,1.5,0.2,-0.1,40\n1,1.6,0.1,0.2,41\n").unwrap();
+        assert_eq!(p.points, [[1.5, 0.2, -0.1], [1.6, 0.1, 0.2]]);
+        let index = ("column1".to_string(), vec![0.0, 1.0]);
+        assert_eq!(
+            p.extra,
+            [index, ("intensity".to_string(), vec![40.0, 41.0])]
+        );
+        let p = read(b";x;y;z\n7;1;2;3\n").unwrap();
+        assert_eq!(p.points, [[1.0, 2.0, 3.0]]);
     }
 
     #[test]
