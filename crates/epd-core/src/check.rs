@@ -462,4 +462,17 @@ mod tests {
         let t = Params { dy: 0.3, ..truth() };
         assert_eq!(assess(&cloud(&truth()), &t), Err(Implausible::OutsideModel));
     }
+
+    /// The axis message names both ways a cloud's axes go wrong: an optical-frame cloud
+    /// not converted, and a sensor-frame cloud converted as if it were one.
+    #[test]
+    fn the_axis_message_names_both_frame_mistakes() {
+        let m = Implausible::AxisNotAhead { tilt: 1.5 }.to_string();
+        assert!(m.contains("85.9°"), "{m}");
+        assert!(m.contains("optical frame has Z forward"), "{m}");
+        assert!(
+            m.contains("already in the sensor frame must not be converted"),
+            "{m}"
+        );
+    }
 }
