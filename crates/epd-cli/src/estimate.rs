@@ -322,7 +322,10 @@ pub fn estimate_file(path: &Path, cfg: &EstimateConfig) -> FileReport {
             None => None,
             Some(_) => Some(intensity(&cloud, CALIBRATION_NEEDS_INTENSITY)?),
         };
-        estimate_points(Cow::Owned(cloud.points), i.as_deref(), None, cfg, read_ms)
+        let camera = intensity(&cloud, "").is_ok();
+        let mut e = estimate_points(Cow::Owned(cloud.points), i.as_deref(), None, cfg, read_ms)?;
+        e.intensity_without_table = camera && cfg.calibration.is_none();
+        Ok(e)
     };
     FileReport {
         file,
@@ -404,6 +407,7 @@ pub fn estimate_points(
         n_calibrated,
         weighted: sigmas.is_some(),
         geometry,
+        intensity_without_table: false,
     })
 }
 

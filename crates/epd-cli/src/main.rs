@@ -554,6 +554,18 @@ fn finish_output(sink: Sink) -> anyhow::Result<()> {
     if pipe { Ok(()) } else { Err(e) }
 }
 
+/// The note for `n` of `total` files that carried a camera's intensity and were
+/// estimated without a depth table.
+fn uncalibrated_note(n: usize, total: usize) -> String {
+    format!(
+        "note: {n} of {total} files carry a per-point intensity (a ToF camera's frame) and were \
+         estimated without --calibration: the camera's systematic range error (multipath, \
+         wiggling, intensity offset) is in their diameters (tens of mm for a Helios2 in a 20\" \
+         pipe: +21 mm in simulation). Build a depth table with `epd calibrate` in a pipe of \
+         known diameter and pass it with --calibration"
+    )
+}
+
 /// Exit 0 if no file failed, else list them (unless `quiet`) and exit 1.
 fn failures_exit(failed: &[String], total: usize, quiet: bool) -> ExitCode {
     if failed.is_empty() {
@@ -578,6 +590,7 @@ fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
     }
     let mut sink = Sink::open(args.output.as_deref())?;
     let mut failed = Vec::new();
+    let mut uncalibrated = 0usize;
     let write = |sink: &mut Sink, text: &str| -> anyhow::Result<bool> {
         match sink.line(text) {
             Ok(()) => Ok(true),
@@ -614,6 +627,8 @@ fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
                 if let Some(e) = r.failure() {
                     failed.push(format!("{}: {e}", r.file));
                 }
+                uncalibrated +=
+                    usize::from(r.outcome.as_ref().is_ok_and(|e| e.intensity_without_table));
                 match write(&mut sink, &text) {
                     Ok(true) => {}
                     Ok(false) => {
@@ -632,6 +647,9 @@ fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
     bar.finish_and_clear();
     if open {
         finish_output(sink)?;
+    }
+    if uncalibrated > 0 && !args.quiet {
+        eprintln!("{}", uncalibrated_note(uncalibrated, files.len()));
     }
     Ok(failures_exit(&failed, files.len(), args.quiet))
 }

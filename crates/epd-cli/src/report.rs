@@ -40,6 +40,10 @@ pub struct FileEstimate {
     pub weighted: bool,
     /// What lies ahead (`None`: not surveyed).
     pub geometry: Option<GeometryReport>,
+    /// The input carried a per-point intensity (a ToF camera's frame) and no depth table
+    /// was given: the camera's systematic range error is in the diameters (not a key of
+    /// the report; `epd estimate` notes it on standard error).
+    pub intensity_without_table: bool,
 }
 
 /// The geometry ahead of the sensor in a report (`epd_core::segment::survey`).
@@ -497,6 +501,7 @@ mod tests {
                 loss: ("none".into(), f64::NAN),
                 nominal_od_mm: None,
                 geometry: None,
+                intensity_without_table: false,
             }),
         }
     }

@@ -107,6 +107,27 @@ fn a_table_from_a_known_pipe_removes_the_bias_in_another() {
     let cal = estimate(&["--calibration", lut_arg]);
     let calibrated = dmean_errors(&cal);
     let unweighted = dmean_errors(&estimate(&["--calibration", lut_arg, "--unweighted"]));
+    // Without the table the user is told, once, that the camera's error is in the
+    // diameters; with it, not.
+    let note = |extra: &[&str]| {
+        let o = epd()
+            .arg("estimate")
+            .args(&test)
+            .args(["--format", "json"])
+            .args(extra)
+            .output()
+            .unwrap();
+        ok(&o);
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let told = note(&[]);
+    assert_eq!(
+        told.matches("note: 3 of 3 files carry a per-point intensity")
+            .count(),
+        1,
+        "{told}"
+    );
+    assert!(!note(&["--calibration", lut_arg]).contains("note:"));
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
     eprintln!(
         "mean-diameter error: raw {:.3} mm, calibrated {:.3} mm (unweighted {:.3} mm)",
