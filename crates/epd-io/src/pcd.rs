@@ -286,6 +286,15 @@ impl Layout {
             .try_fold(0usize, |a, f| a.checked_add(f.bytes))
             .ok_or_else(too_large)?;
         let n = match (h.points, h.width, h.height) {
+            (Some(p), Some(w), Some(hh)) if w.checked_mul(hh) != Some(p) => {
+                return Err(err(
+                    F,
+                    format!(
+                        "the header's POINTS {p} is not WIDTH × HEIGHT = {w} × {hh}: \
+                         which count holds is unclear"
+                    ),
+                ));
+            }
             (Some(p), _, _) => p,
             (None, Some(w), Some(h)) => w
                 .checked_mul(h)

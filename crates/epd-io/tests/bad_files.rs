@@ -228,6 +228,30 @@ fn pcd(count: &str, points: usize, data: &str, body: &[u8]) -> Vec<u8> {
     b
 }
 
+/// POINTS must be WIDTH × HEIGHT (PCL's rule): a file where they disagree is refused
+/// rather than read by one of them without a word.
+#[test]
+fn pcd_points_that_are_not_width_times_height() {
+    let b = with_width(&pcd("1 1 1", 2, "binary", &[0; 24]), 3);
+    expect_error(
+        "points.pcd",
+        &b,
+        Some(Format::Pcd),
+        &["POINTS 2", "WIDTH × HEIGHT = 3 × 1"],
+    );
+}
+
+/// The same PCD file with its WIDTH line set to `w`.
+fn with_width(b: &[u8], w: usize) -> Vec<u8> {
+    let text = String::from_utf8_lossy(b);
+    let i = text.find("WIDTH ").expect("a WIDTH line");
+    let j = i + text[i..].find('\n').expect("its end");
+    let mut out = b[..i].to_vec();
+    out.extend(format!("WIDTH {w}").bytes());
+    out.extend(&b[j..]);
+    out
+}
+
 #[test]
 fn pcd_count_overflow_binary() {
     expect_error(
