@@ -26,6 +26,7 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use anyhow::Context;
+use epd_cli::estimate::ranges;
 use epd_cli::report::{GeometryReport, bend_table_coverage};
 use epd_cli::table::CalibrationTable;
 use epd_core::FitOutcome;
@@ -1204,12 +1205,11 @@ impl Surveyed {
             },
         )?;
         let mut report = GeometryReport::of(&sv);
-        let raw_range_m: Vec<f64> = frame
-            .measured
-            .iter()
-            .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
-            .collect();
-        let coverage = bend_table_coverage(&sv, &corrected, &raw_range_m, &intensity, table);
+        // Only a fitted bend is checked against the table (by the measured ranges).
+        let coverage = sv.bend.and_then(|_| {
+            let raw_range_m = ranges(&frame.measured);
+            bend_table_coverage(&sv, &corrected, &raw_range_m, &intensity, table)
+        });
         let bend_radius_fit_mm = report.bend_radius_mm;
         report.check_bend_against_table(coverage);
         let geometry = Geometry {

@@ -285,6 +285,14 @@ pub fn read_input(path: &Path, input: &InputConfig) -> Result<PointCloud, String
     Ok(cloud)
 }
 
+/// Whether a cloud has a per-point `intensity` (any case).
+fn has_intensity(cloud: &PointCloud) -> bool {
+    cloud
+        .extra
+        .iter()
+        .any(|(name, _)| name.eq_ignore_ascii_case("intensity"))
+}
+
 /// The per-point `intensity` of a cloud (any case), or why there is none.
 pub fn intensity(cloud: &PointCloud, why: &str) -> Result<Vec<f64>, String> {
     cloud
@@ -322,7 +330,7 @@ pub fn estimate_file(path: &Path, cfg: &EstimateConfig) -> FileReport {
             None => None,
             Some(_) => Some(intensity(&cloud, CALIBRATION_NEEDS_INTENSITY)?),
         };
-        let camera = intensity(&cloud, "").is_ok();
+        let camera = has_intensity(&cloud);
         let mut e = estimate_points(Cow::Owned(cloud.points), i.as_deref(), None, cfg, read_ms)?;
         e.intensity_without_table = camera && cfg.calibration.is_none();
         Ok(e)
@@ -354,7 +362,8 @@ pub fn estimate_points(
     let t1 = Instant::now();
     // The measured ranges before the table moves the points: where the table observed
     // the camera's error is looked up by them (the bend's points, below).
-    let raw_range_m: Option<Vec<f64>> = cfg.calibration.as_ref().map(|_| ranges(&points));
+    let raw_range_m: Option<Vec<f64>> =
+        (cfg.calibration.is_some() && cfg.geometry).then(|| ranges(&points));
     let mut n_calibrated = None;
     let mut sigmas: Option<Cow<'_, [f64]>> = sigma.map(Cow::Borrowed);
     if let Some(cal) = &cfg.calibration {
@@ -425,7 +434,7 @@ fn straight_points(s: &epd_core::segment::Survey, points: &[[f64; 3]]) -> Option
 }
 
 /// Each point's distance from the sensor (m).
-fn ranges(points: &[[f64; 3]]) -> Vec<f64> {
+pub fn ranges(points: &[[f64; 3]]) -> Vec<f64> {
     points
         .iter()
         .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
