@@ -21,7 +21,7 @@ use bench_harness::scenario::MAX_SCENARIO_BYTES;
 use bench_harness::shard::{MergeError, MergeOptions, merge, run_shard, shard_trial_count};
 use bench_harness::{RunOptions, Scenario, ScenarioError, run};
 use clap::{Parser, Subcommand};
-use epd_cli::shard::ShardSpec;
+use epd_frame::shard::ShardSpec;
 
 /// Most worker threads (`--threads`).
 const MAX_THREADS: usize = 1024;

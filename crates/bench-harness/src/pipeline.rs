@@ -26,16 +26,15 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use anyhow::Context;
-use epd_cli::estimate::ranges;
-use epd_cli::report::{GeometryReport, bend_table_coverage};
-use epd_cli::table::CalibrationTable;
 use epd_core::FitOutcome;
 use epd_core::calibration::{CalibrationFrame, CalibrationSettings};
-use epd_core::segment::{SegmentOptions, straight_mask, survey};
 use epd_core::{
     DepthTable, EstimateOptions, Loss, LossScale, Method, Params, cramer_rao_bound_weighted,
     estimate, estimate_weighted,
 };
+use epd_frame::input::ranges;
+use epd_frame::scene::FrameScene;
+use epd_frame::table::CalibrationTable;
 use epd_io::csv::num;
 use rand::RngExt;
 use rayon::prelude::*;
@@ -61,7 +60,7 @@ pub const METHODS: [&str; 4] = ["c-epd", "ru-epd", "ml-epd", "ml-epd-w"];
 /// Cramér–Rao bound of the heteroscedastic model, and the geometry ahead: the survey's
 /// verdict as `epd estimate` reports it, and the route's truth; last, the bend radius as
 /// fitted, also where `epd estimate` withholds it, and the fraction of the bend's points
-/// the depth table observed, `epd_cli::report::bend_table_coverage`).
+/// the depth table observed, `epd_frame::scene::bend_table_coverage`).
 pub const PROFILE_COLUMNS: &[&str] = &[
     "section",
     "frame",
@@ -1182,7 +1181,8 @@ struct Surveyed {
 }
 
 impl Surveyed {
-    /// Correct `frame` with `table` and survey the corrected points (ML-EPD, `opts`).
+    /// Correct `frame` with `table` and read its scene from the corrected points as
+    /// `epd estimate` does (`epd_frame::scene::FrameScene::survey`, ML-EPD, `opts`).
     fn of(
         s: &PipelineScenario,
         table: &DepthTable,
@@ -1193,48 +1193,37 @@ impl Surveyed {
         let intensity: Vec<f64> = frame.intensity.iter().map(|&i| i as f64).collect();
         let mut corrected = frame.measured.clone();
         let (_, table_sigma) = table.correct_with_sigmas(&mut corrected, &intensity)?;
-        let sv = survey(&corrected, Method::MlEpd, opts, &SegmentOptions::default()).with_context(
-            || {
-                format!(
-                    "the geometry survey of {} frame {} at {:.2} m ({} valid points)",
-                    s.place_name(plan.place),
-                    plan.index,
-                    plan.x,
-                    corrected.iter().filter(|p| **p != [0.0; 3]).count()
-                )
-            },
-        )?;
-        let mut report = GeometryReport::of(&sv);
-        // Only a fitted bend is checked against the table (by the measured ranges).
-        let coverage = sv.bend.and_then(|_| {
-            let raw_range_m = ranges(&frame.measured);
-            bend_table_coverage(&sv, &corrected, &raw_range_m, &intensity, table)
-        });
-        let bend_radius_fit_mm = report.bend_radius_mm;
-        report.check_bend_against_table(coverage);
+        let raw_range_m = ranges(&frame.measured);
+        let scene = FrameScene::survey(
+            &corrected,
+            Method::MlEpd,
+            opts,
+            Some((table, &raw_range_m, &intensity)),
+        )
+        .with_context(|| {
+            format!(
+                "the geometry survey of {} frame {} at {:.2} m ({} valid points)",
+                s.place_name(plan.place),
+                plan.index,
+                plan.x,
+                corrected.iter().filter(|p| **p != [0.0; 3]).count()
+            )
+        })?;
+        let report = &scene.geometry;
         let geometry = Geometry {
             found: report.layout,
             straight_until: report.straight_until_m,
             bend_radius_mm: report.bend_radius_mm,
-            bend_radius_fit_mm,
-            bend_table_coverage: coverage,
+            bend_radius_fit_mm: scene.bend_radius_fit_mm,
+            bend_table_coverage: scene.bend_table_coverage,
             truth: s.route.truth(plan.x, s.sensor.max_range),
         };
-        // The straight section's points when something lies ahead.
-        let keep = sv.segmentation.straight_until.map(|end| {
-            straight_mask(
-                &corrected,
-                &sv.segmentation.straight.params,
-                end,
-                SegmentOptions::default().margin_m,
-            )
-        });
         Ok(Self {
             withheld: report.withheld().is_some(),
             corrected,
             table_sigma,
             geometry,
-            keep,
+            keep: scene.straight,
         })
     }
 }
@@ -1942,8 +1931,13 @@ mod tests {
             .correct_with_sigmas(&mut corrected, &intensity)
             .expect("the table applies");
         let opts = options(s.range_gate).expect("options");
-        let sv = survey(&corrected, Method::MlEpd, &opts, &SegmentOptions::default())
-            .expect("a verdict, not an error");
+        let sv = epd_core::segment::survey(
+            &corrected,
+            Method::MlEpd,
+            &opts,
+            &epd_core::segment::SegmentOptions::default(),
+        )
+        .expect("a verdict, not an error");
         // The elbow starts 0.4 m ahead: the survey must see a bend (today it says the
         // sensor is already in it, and the estimate is withheld).
         let layout = sv.segmentation.layout;
@@ -1978,7 +1972,10 @@ mod tests {
         assert_eq!(g.found, "bend_ahead");
         assert!(g.bend_radius_fit_mm.is_some(), "the bend was fitted");
         let c = g.bend_table_coverage.expect("a coverage");
-        assert!(c < epd_cli::report::MIN_BEND_TABLE_COVERAGE, "coverage {c}");
+        assert!(
+            c < epd_frame::scene::MIN_BEND_TABLE_COVERAGE,
+            "coverage {c}"
+        );
         assert_eq!(g.bend_radius_mm, None);
         assert!(!sv.withheld, "the straight estimate is still reported");
     }

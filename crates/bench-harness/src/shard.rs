@@ -42,8 +42,8 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
-use epd_cli::shard::ShardSpec;
 use epd_core::{FitOutcome, Method, N_PARAMS, ParamErrors, Params, Sigmas};
+use epd_frame::shard::ShardSpec;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 

@@ -57,7 +57,7 @@ fn writes_the_tally_and_the_section_table_identically_for_1_and_2_threads() {
         assert!(a.join(f).is_file(), "{f} missing");
     }
     // The run's table is one `epd estimate --calibration` reads.
-    let table = epd_cli::table::CalibrationTable::read(&a.join("depth_table.json")).unwrap();
+    let table = epd_frame::table::CalibrationTable::read(&a.join("depth_table.json")).unwrap();
     assert_eq!(table.frames, 3);
     let profile = std::fs::read_to_string(a.join("profile.csv")).unwrap();
     let mut lines = profile.lines();

@@ -147,7 +147,7 @@ fn bad_files_are_named_the_rest_processed_and_the_exit_code_is_1() {
     let mut good = Vec::new();
     epd_io::ply::write(
         &mut good,
-        &frame,
+        &frame.cloud(),
         epd_io::ply::PlyFormat::BinaryLittleEndian,
         epd_io::ply::PlyPrecision::F64,
     )

@@ -15,7 +15,7 @@ fn epd() -> Command {
 fn csv_file(dir: &std::path::Path) -> std::path::PathBuf {
     let frame = common::frame(2, 3000);
     let path = dir.join("f.csv");
-    std::fs::write(&path, common::xyz(&frame)).unwrap();
+    std::fs::write(&path, common::xyz(&frame.measured)).unwrap();
     path
 }
 

@@ -7,9 +7,9 @@ use std::io::Write;
 use std::path::Path;
 
 use plotters::prelude::*;
-use tof_sim::Frame;
 
 use crate::WriteError;
+use crate::cloud::SensorCloud;
 use crate::font::{FONT, register_font};
 
 /// Width of the colour bar and its labels (px).
@@ -26,7 +26,10 @@ fn draw_err(e: impl std::fmt::Display) -> WriteError {
 
 /// The RGB pixels (row-major, 3 bytes a pixel) and the size of `frame`'s depth image;
 /// ranges above `max_range` (m) take the top colour.
-pub fn render(frame: &Frame, max_range: f64) -> Result<(Vec<u8>, (u32, u32)), WriteError> {
+pub fn render(
+    frame: &SensorCloud<'_>,
+    max_range: f64,
+) -> Result<(Vec<u8>, (u32, u32)), WriteError> {
     register_font().map_err(draw_err)?;
     let [iw, ih] = frame.image_size;
     let size = (iw + BAR_WIDTH, ih.max(MIN_HEIGHT));
@@ -36,7 +39,7 @@ pub fn render(frame: &Frame, max_range: f64) -> Result<(Vec<u8>, (u32, u32)), Wr
         let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
         root.fill(&BLACK).map_err(draw_err)?;
         let (image, bar) = root.split_horizontally(iw);
-        for (p, px) in frame.measured.iter().zip(&frame.pixels) {
+        for (p, px) in frame.points.iter().zip(frame.pixels) {
             let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
             if r == 0.0 || !r.is_finite() {
                 continue; // an invalid pixel, written as zeros
@@ -89,13 +92,13 @@ pub fn encode_rgb<W: Write>(w: W, rgb: &[u8], size: (u32, u32)) -> Result<(), Wr
 }
 
 /// `frame`'s depth image (see [`render`]) as a PNG.
-pub fn write<W: Write>(w: W, frame: &Frame, max_range: f64) -> Result<(), WriteError> {
+pub fn write<W: Write>(w: W, frame: &SensorCloud<'_>, max_range: f64) -> Result<(), WriteError> {
     let (rgb, size) = render(frame, max_range)?;
     encode_rgb(w, &rgb, size)
 }
 
 /// [`write()`] into a file, written whole ([`crate::atomic::write_file_atomic`]).
-pub fn save(path: &Path, frame: &Frame, max_range: f64) -> Result<(), WriteError> {
+pub fn save(path: &Path, frame: &SensorCloud<'_>, max_range: f64) -> Result<(), WriteError> {
     let mut png = Vec::new();
     write(&mut png, frame, max_range)?;
     crate::atomic::write_bytes_atomic(path, &png)

@@ -1,6 +1,9 @@
-//! The file formats of the EPD workspace, in one place: every encoding that tof-sim's
-//! frames, the `epd` tool and the bench harness read or write.
+//! The file formats of the EPD workspace, in one place: every encoding that the `epd`
+//! tool, the Python package, the bench harness and the simulator read or write.
 //!
+//! - [`cloud`]: a frame as the writers take it ([`cloud::SensorCloud`]: points with their
+//!   pixels and named per-point properties), whatever made it; this crate knows no
+//!   simulator.
 //! - [`read`]: format detection and the readers' common types ([`PointCloud`],
 //!   [`ReadError`]); the readers themselves in [`ply`], [`pcd`] and [`text`].
 //! - [`ply`]: PLY read and write (ASCII, binary; `intensity`, `segment`, `part`).
@@ -14,10 +17,11 @@
 //!   the figures' [`font`].
 //!
 //! epd-core knows no encoding: it gives a report as (key, value) data, and this crate
-//! encodes it. Arrows: epd-core ← tof-sim ← epd-io ← epd-cli, bench-harness.
+//! encodes it. Arrows: epd-core ← epd-io ← tof-sim, epd-frame ← the front ends.
 #![deny(missing_docs)]
 
 pub mod atomic;
+pub mod cloud;
 pub mod csv;
 pub mod depth_png;
 pub mod font;

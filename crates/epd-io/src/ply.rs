@@ -8,15 +8,14 @@
 //! sum of its property sizes, an ASCII record at least one token per property; an element
 //! without properties holds no data and is skipped whatever its count.
 //!
-//! Writing ([`write()`], [`save`]): a tof-sim [`Frame`] as ASCII or binary little-endian,
-//! with the `intensity`, `segment` and `part` properties when the frame has them.
+//! Writing ([`write()`], [`save`]): a [`SensorCloud`] (points with their pixels, comments
+//! and named per-point properties) as ASCII or binary little-endian.
 
 use crate::WriteError;
+use crate::cloud::{SensorCloud, Values};
 use crate::read::{MAX_HEADER_LINES, PointCloud, ReadError, Scalar, err, quote, split_header};
 use std::io::{BufRead, Write};
 use std::path::Path;
-use tof_sim::Frame;
-use tof_sim::pipeline::PartKind;
 
 const F: &str = "PLY";
 
@@ -680,43 +679,67 @@ pub enum PlyPrecision {
     F64,
 }
 
-/// Write `frame`'s measured points (SCS, m) with their pixel (u, v) as PLY, plus a
-/// `property float intensity` (camera counts) after v when the frame has any finite
-/// intensity (the physical sensor model; the plain model's intensities are NaN and are
-/// not written). Invalid pixels are written as they are held: x = y = z = 0, intensity 0.
-///
-/// A frame with labels ([`Frame::part`], a pipeline scene) gets two more properties at
-/// the end, `property ushort segment` (the index in `Pipeline::segments`) and
-/// `property uchar part` (the [`part_code`]: 0 no wall, 1 straight, 2 bend, 3 branch),
-/// described in a header comment. Frames without labels are written as before.
+/// Write `cloud`'s points (SCS, m) with their pixel (u, v) as PLY: its comments first,
+/// then the vertex element with `x`, `y`, `z` (`float` or `double`), `uint u`, `uint v`
+/// and each of its properties in order (`float`, `ushort` or `uchar`). Invalid pixels are
+/// written as they are held (x = y = z = 0). A property whose length is not the number of
+/// points is refused (`InvalidInput`) before anything is written.
 pub fn write<W: Write>(
     w: &mut W,
-    frame: &Frame,
+    cloud: &SensorCloud<'_>,
     format: PlyFormat,
     precision: PlyPrecision,
 ) -> std::io::Result<()> {
-    let with_intensity = frame.intensity.len() == frame.measured.len()
-        && frame.intensity.iter().any(|i| i.is_finite());
-    let with_part = !frame.part.is_empty() && frame.part.len() == frame.measured.len();
-    write_header(w, frame, format, precision, with_intensity, with_part)?;
-    for (i, (p, px)) in frame.measured.iter().zip(&frame.pixels).enumerate() {
-        let intensity = with_intensity.then(|| frame.intensity[i]);
-        let part =
-            with_part.then(|| frame.part[i].map_or((0, 0), |p| (p.segment, part_code(p.kind))));
-        write_vertex(w, format, precision, p, px, intensity, part)?;
+    let n = cloud.points.len();
+    if cloud.pixels.len() != n {
+        return Err(mismatch(format!(
+            "{} pixels for {n} points",
+            cloud.pixels.len()
+        )));
+    }
+    if let Some(p) = cloud.properties.iter().find(|p| p.values.len() != n) {
+        return Err(mismatch(format!(
+            "property `{}` has {} values for {n} points",
+            p.name,
+            p.values.len()
+        )));
+    }
+    write_header(w, cloud, format, precision)?;
+    for (i, (p, px)) in cloud.points.iter().zip(cloud.pixels).enumerate() {
+        write_vertex(w, format, precision, p, px)?;
+        for prop in &cloud.properties {
+            write_value(w, format, &prop.values, i)?;
+        }
+        if format == PlyFormat::Ascii {
+            writeln!(w)?;
+        }
     }
     Ok(())
 }
 
-/// The header of [`write()`]: the frame's truth in a comment, then the vertex element's
-/// properties x, y, z, u, v and, when written, intensity, segment and part.
+fn mismatch(message: String) -> std::io::Error {
+    std::io::Error::new(
+        std::io::ErrorKind::InvalidInput,
+        format!("PLY: a cloud to write must have one value per point: {message}"),
+    )
+}
+
+/// The PLY type name of a property's values.
+fn type_name(v: &Values) -> &'static str {
+    match v {
+        Values::F32(_) => "float",
+        Values::U16(_) => "ushort",
+        Values::U8(_) => "uchar",
+    }
+}
+
+/// The header of [`write()`]: the cloud's comments, then the vertex element's properties
+/// x, y, z, u, v and the cloud's own.
 fn write_header<W: Write>(
     w: &mut W,
-    frame: &Frame,
+    cloud: &SensorCloud<'_>,
     format: PlyFormat,
     precision: PlyPrecision,
-    with_intensity: bool,
-    with_part: bool,
 ) -> std::io::Result<()> {
     let fmt = match format {
         PlyFormat::Ascii => "ascii",
@@ -726,58 +749,39 @@ fn write_header<W: Write>(
         PlyPrecision::F32 => "float",
         PlyPrecision::F64 => "double",
     };
-    let t = &frame.truth;
+    write!(w, "ply\nformat {fmt} 1.0\n")?;
+    for c in &cloud.comments {
+        // A comment is one header line: a line break inside it would end the comment.
+        writeln!(w, "comment {}", c.replace(['\n', '\r'], " "))?;
+    }
     write!(
         w,
-        "ply\nformat {fmt} 1.0\ncomment tof-sim frame: measured points in the sensor frame (m; X forward, Y right, Z up)\n\
-         comment truth d_max_m {} d_min_m {} roll_rad {} pitch_rad {} yaw_rad {} dy_m {} dz_m {}\n\
-         {}element vertex {}\nproperty {ty} x\nproperty {ty} y\nproperty {ty} z\nproperty uint u\nproperty uint v\n{}{}end_header\n",
-        t.d_max,
-        t.d_min,
-        t.roll,
-        t.pitch,
-        t.yaw,
-        t.dy,
-        t.dz,
-        if with_part {
-            "comment part: what the pixel's ray hit, 0 no wall, 1 straight, 2 bend, 3 branch; segment: its index in the pipeline\n"
-        } else {
-            ""
-        },
-        frame.measured.len(),
-        if with_intensity {
-            "property float intensity\n"
-        } else {
-            ""
-        },
-        if with_part {
-            "property ushort segment\nproperty uchar part\n"
-        } else {
-            ""
-        }
-    )
+        "element vertex {}\nproperty {ty} x\nproperty {ty} y\nproperty {ty} z\nproperty uint u\nproperty uint v\n",
+        cloud.points.len()
+    )?;
+    for p in &cloud.properties {
+        writeln!(w, "property {} {}", type_name(&p.values), p.name)?;
+    }
+    writeln!(w, "end_header")
 }
 
-/// One vertex of [`write()`]: the point `p` (SCS, m), its pixel, and the intensity and
-/// (segment, part code) when the file has them.
+/// One vertex's point `p` (SCS, m) and pixel, as [`write()`] writes them.
 fn write_vertex<W: Write>(
     w: &mut W,
     format: PlyFormat,
     precision: PlyPrecision,
     p: &[f64; 3],
     px: &[u32; 2],
-    intensity: Option<f32>,
-    part: Option<(u16, u8)>,
 ) -> std::io::Result<()> {
     match (format, precision) {
         (PlyFormat::Ascii, PlyPrecision::F64) => {
-            write!(w, "{} {} {} {} {}", p[0], p[1], p[2], px[0], px[1])?
+            write!(w, "{} {} {} {} {}", p[0], p[1], p[2], px[0], px[1])
         }
         (PlyFormat::Ascii, PlyPrecision::F32) => write!(
             w,
             "{} {} {} {} {}",
             p[0] as f32, p[1] as f32, p[2] as f32, px[0], px[1]
-        )?,
+        ),
         (PlyFormat::BinaryLittleEndian, prec) => {
             for c in p {
                 match prec {
@@ -786,43 +790,34 @@ fn write_vertex<W: Write>(
                 }
             }
             w.write_all(&px[0].to_le_bytes())?;
-            w.write_all(&px[1].to_le_bytes())?;
+            w.write_all(&px[1].to_le_bytes())
         }
     }
-    match (format, intensity) {
-        (_, None) => {}
-        (PlyFormat::Ascii, Some(i)) => write!(w, " {i}")?,
-        (PlyFormat::BinaryLittleEndian, Some(i)) => w.write_all(&i.to_le_bytes())?,
-    }
-    match (format, part) {
-        (_, None) => {}
-        (PlyFormat::Ascii, Some((segment, code))) => write!(w, " {segment} {code}")?,
-        (PlyFormat::BinaryLittleEndian, Some((segment, code))) => {
-            w.write_all(&segment.to_le_bytes())?;
-            w.write_all(&[code])?;
-        }
-    }
-    if format == PlyFormat::Ascii {
-        writeln!(w)?;
-    }
-    Ok(())
 }
 
-/// The PLY code of a part kind: 1 straight, 2 bend, 3 branch (0 is "no wall").
-pub fn part_code(kind: PartKind) -> u8 {
-    match kind {
-        PartKind::Straight => 1,
-        PartKind::Bend => 2,
-        PartKind::Branch => 3,
+/// The `i`-th value of a property, after a space in ASCII.
+fn write_value<W: Write>(
+    w: &mut W,
+    format: PlyFormat,
+    values: &Values,
+    i: usize,
+) -> std::io::Result<()> {
+    match (format, values) {
+        (PlyFormat::Ascii, Values::F32(v)) => write!(w, " {}", v[i]),
+        (PlyFormat::Ascii, Values::U16(v)) => write!(w, " {}", v[i]),
+        (PlyFormat::Ascii, Values::U8(v)) => write!(w, " {}", v[i]),
+        (PlyFormat::BinaryLittleEndian, Values::F32(v)) => w.write_all(&v[i].to_le_bytes()),
+        (PlyFormat::BinaryLittleEndian, Values::U16(v)) => w.write_all(&v[i].to_le_bytes()),
+        (PlyFormat::BinaryLittleEndian, Values::U8(v)) => w.write_all(&[v[i]]),
     }
 }
 
 /// [`write()`] into a file, written whole ([`crate::atomic::write_file_atomic`]).
 pub fn save(
     path: &Path,
-    frame: &Frame,
+    cloud: &SensorCloud<'_>,
     format: PlyFormat,
     precision: PlyPrecision,
 ) -> Result<(), WriteError> {
-    crate::atomic::write_file_atomic(path, |w| write(w, frame, format, precision))
+    crate::atomic::write_file_atomic(path, |w| write(w, cloud, format, precision))
 }

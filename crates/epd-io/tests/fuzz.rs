@@ -159,14 +159,24 @@ fn lzf_compress(data: &[u8]) -> Vec<u8> {
 }
 
 fn make_seeds() -> Vec<(Format, Vec<u8>)> {
-    let frame = common::frame(0, 50);
+    let (points, pixels) = common::wall_points(50);
+    let cloud = epd_io::cloud::SensorCloud {
+        points: &points,
+        pixels: &pixels,
+        image_size: [64, 48],
+        comments: vec!["an analytic frame".into()],
+        properties: vec![epd_io::cloud::Property {
+            name: "intensity".into(),
+            values: epd_io::cloud::Values::F32((0..50).map(|i| i as f32).collect()),
+        }],
+    };
     let mut v = Vec::new();
     for (f, p) in [
         (PlyFormat::BinaryLittleEndian, PlyPrecision::F64),
         (PlyFormat::Ascii, PlyPrecision::F32),
     ] {
         let mut b = Vec::new();
-        write_ply(&mut b, &frame, f, p).unwrap();
+        write_ply(&mut b, &cloud, f, p).unwrap();
         v.push((Format::Ply, b));
     }
     // Big-endian with an element before the vertices and one after.
@@ -175,7 +185,7 @@ fn make_seeds() -> Vec<(Format, Vec<u8>)> {
         .chain([0i32, 1, 2].iter().flat_map(|i| i.to_be_bytes()))
         .collect();
     b.extend(face.repeat(2));
-    for p in frame.measured.iter().take(3) {
+    for p in points.iter().take(3) {
         for c in p {
             b.extend((*c as f32).to_be_bytes());
         }
@@ -184,7 +194,7 @@ fn make_seeds() -> Vec<(Format, Vec<u8>)> {
     b.extend(5i32.to_be_bytes());
     v.push((Format::Ply, b));
     for d in ["ascii", "binary", "binary_compressed"] {
-        v.push((Format::Pcd, common::pcd(&frame, d)));
+        v.push((Format::Pcd, common::pcd(&points, d)));
     }
     // binary_compressed with back references: repeated values compress.
     let n = 40;
@@ -203,11 +213,11 @@ fn make_seeds() -> Vec<(Format, Vec<u8>)> {
     assert_eq!(read_bytes(Format::Pcd, &b).unwrap().points.len(), n);
     v.push((Format::Pcd, b));
     let mut csv = Vec::new();
-    epd_io::csv::write_points(&mut csv, &frame.measured).unwrap();
+    epd_io::csv::write_points(&mut csv, &points).unwrap();
     v.push((Format::Text, csv));
-    v.push((Format::Text, common::xyz(&frame)));
-    let mut pts = format!("{}\n", frame.measured.len());
-    for (i, p) in frame.measured.iter().enumerate() {
+    v.push((Format::Text, common::xyz(&points)));
+    let mut pts = format!("{}\n", points.len());
+    for (i, p) in points.iter().enumerate() {
         pts.push_str(&format!(
             "{} {} {} {} 255 {} 0\n",
             p[0],

@@ -13,17 +13,17 @@ use std::borrow::Cow;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use epd_cli::estimate::{
-    EstimateConfig, EstimateSettings, InputConfig, InputFrame, Units, estimate_points,
-};
-use epd_cli::report::FileReport;
 use epd_core::Method;
+use epd_frame::report::FileReport;
+use epd_frame::{
+    EstimateConfig, EstimateSettings, FrameInput, InputConfig, InputFrame, Units, measure_frame,
+};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
     let path = PathBuf::from(args.next().ok_or("usage: overhead FILE [CALLS]")?);
     let calls: usize = args.next().map_or(Ok(20), |s| s.parse())?;
-    let cloud = epd_cli::read::read_path(&path)?;
+    let cloud = epd_frame::read::read_path(&path)?;
     let cfg = EstimateConfig::new(&EstimateSettings {
         method: Method::MlEpd,
         min_range: None,
@@ -42,7 +42,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     })?;
     // The fields and the fit's own time (ms).
     let pipeline = || -> Result<(usize, f64), String> {
-        let e = estimate_points(Cow::Borrowed(&cloud.points), None, None, &cfg, 0.0)?;
+        let input = FrameInput {
+            points: Cow::Borrowed(&cloud.points),
+            intensity: None,
+            sigma: None,
+            read_ms: 0.0,
+        };
+        let e = measure_frame(input, &cfg)?;
         let fit_ms = e.elapsed_ms;
         let report = FileReport {
             file: String::new(),

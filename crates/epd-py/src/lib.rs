@@ -1,8 +1,9 @@
 //! The `epd` Python package: `epd.estimate`, `epd.simulate` and `epd.read` over the
 //! workspace's libraries, with numpy arrays at the boundary.
 //!
-//! Every result goes through the same code as the `epd` tool (`epd_cli::estimate`,
-//! `epd_cli::report`, `epd_cli::simulate`, `epd_cli::read`), so `epd.estimate` returns
+//! Every result goes through the same code as the `epd` tool (the frame library
+//! `epd_frame`: `measure_frame`, `measure_file`, its reports and readers; `tof_sim::settings`
+//! for `epd.simulate`), so `epd.estimate` returns
 //! the keys and values of one JSON object of `epd estimate --format json`, and the
 //! errors carry the tool's messages. The GIL is released while a cloud is read,
 //! converted and fitted. A C-contiguous, aligned float64 (N, 3) array is read in place
@@ -14,14 +15,14 @@ use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use epd_cli::estimate::{
-    EstimateConfig, EstimateSettings, InputConfig, InputFrame, Units, estimate_file,
-    estimate_points, sensor_metres,
-};
-use epd_cli::report::{FileEstimate, FileReport};
-use epd_cli::simulate::{PoseOverride, SimulateError, SimulateSettings, Simulator};
 use epd_core::Method;
 use epd_core::report::Field;
+use epd_frame::input::sensor_metres;
+use epd_frame::report::{FileEstimate, FileReport};
+use epd_frame::{
+    ConfigError, EstimateConfig, EstimateSettings, FrameInput, InputConfig, InputFrame, Units,
+    measure_file, measure_frame,
+};
 use numpy::{
     PyArray1, PyArray2, PyArrayDescrMethods, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
     PyUntypedArrayMethods,
@@ -29,6 +30,7 @@ use numpy::{
 use pyo3::exceptions::{PyIsADirectoryError, PyOSError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
+use tof_sim::settings::{PoseOverride, SimulateError, SimulateSettings, Simulator};
 
 /// Points or per-point values taken from a Python object: a read-only borrow of a
 /// float64 array, either the caller's own (no copy) or a converted copy.
@@ -334,10 +336,8 @@ fn take_input<'py>(
 /// The tool's checked configuration of `settings` (the depth table read), or why not.
 fn estimate_config(settings: &EstimateSettings) -> Result<EstimateConfig, Failure> {
     EstimateConfig::new(settings).map_err(|e| match &e {
-        epd_cli::estimate::ConfigError::Calibration { path, .. } => {
-            Failure::File(path.clone(), e.to_string())
-        }
-        epd_cli::estimate::ConfigError::Setting(m) => Failure::Value(m.clone()),
+        ConfigError::Calibration { path, .. } => Failure::File(path.clone(), e.to_string()),
+        ConfigError::Setting(m) => Failure::Value(m.clone()),
     })
 }
 
@@ -349,7 +349,7 @@ fn estimate_file_dict<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     let report: FileReport = py
         .detach(|| -> Result<FileReport, Failure> {
-            Ok(estimate_file(path, &estimate_config(settings)?))
+            Ok(measure_file(path, &estimate_config(settings)?))
         })
         .map_err(|f| f.into_py_err())?;
     match &report.outcome {
@@ -379,7 +379,13 @@ fn estimate_array_dict<'py>(
             let pts: Cow<'_, [[f64; 3]]> =
                 sensor_metres(pts, cfg.input.units, cfg.input.frame).map_err(Failure::Value)?;
             let read_ms = t0.elapsed().as_secs_f64() * 1e3;
-            estimate_points(pts, i, s, &cfg, read_ms).map_err(Failure::Value)
+            let input = FrameInput {
+                points: pts,
+                intensity: i,
+                sigma: s,
+                read_ms,
+            };
+            measure_frame(input, &cfg).map_err(Failure::Value)
         })
         .map_err(|f| f.into_py_err())?;
     let report = FileReport {
@@ -437,7 +443,7 @@ fn points_array<'py>(py: Python<'py>, points: Vec<[f64; 3]>) -> PyResult<Bound<'
 #[pyfunction]
 fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyDict>)> {
     let cloud = py
-        .detach(|| epd_cli::read::read_path(&path))
+        .detach(|| epd_frame::read::read_path(&path))
         .map_err(|m| file_error(&path, m))?;
     let props = PyDict::new(py);
     for (name, v) in cloud.extra {

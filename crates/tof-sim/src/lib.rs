@@ -14,6 +14,9 @@
 //! ρ·cos θ/r², Lange's amplitude-dependent range noise, dark and saturated pixels written
 //! as zeros, wiggling, intensity-related offset and multipath, and a per-point intensity.
 //!
+//! [`Frame::cloud`] (module [`export`]) hands a frame to the writers of `epd-io` (PLY, the
+//! depth image); [`settings`] holds what `epd simulate` and `epd.simulate` do for a frame.
+//!
 //! ```
 //! use tof_sim::{FrameSeed, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, WallModel, simulate};
 //! let sensor = Sensor::helios2();
@@ -28,6 +31,7 @@
 
 pub mod elliptic_cylinder;
 pub mod error;
+pub mod export;
 pub mod frame;
 pub mod mesh;
 pub mod noise;
@@ -37,6 +41,7 @@ pub mod pipeline;
 pub mod pose;
 pub mod scene;
 pub mod sensor;
+pub mod settings;
 
 pub use elliptic_cylinder::EllipticCylinder;
 pub use error::SimError;

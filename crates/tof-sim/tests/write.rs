@@ -38,7 +38,7 @@ fn physics() -> Noise {
 /// A frame as PLY bytes.
 fn ply(f: &Frame, format: PlyFormat, precision: PlyPrecision) -> Vec<u8> {
     let mut out = Vec::new();
-    epd_io::ply::write(&mut out, f, format, precision).unwrap();
+    epd_io::ply::write(&mut out, &f.cloud(), format, precision).unwrap();
     out
 }
 
@@ -107,14 +107,14 @@ fn csv_has_a_header_and_every_point() {
 fn depth_png_decodes_with_the_image_and_a_scale_bar() {
     let f = frame();
     let mut out = Vec::new();
-    epd_io::depth_png::write(&mut out, &f, 6.0).unwrap();
+    epd_io::depth_png::write(&mut out, &f.cloud(), 6.0).unwrap();
     let dec = png::Decoder::new(std::io::Cursor::new(out));
     let reader = dec.read_info().unwrap();
     let info = reader.info();
     assert_eq!((info.width, info.height), (640 + 110, 480));
     // The pixels: a measured point is coloured, a pixel without a point is black, and
     // the colour bar's bottom (near) and top (far) differ.
-    let (rgb, (w, _)) = epd_io::depth_png::render(&f, 6.0).unwrap();
+    let (rgb, (w, _)) = epd_io::depth_png::render(&f.cloud(), 6.0).unwrap();
     let at = |x: u32, y: u32| {
         let i = 3 * (y * w + x) as usize;
         [rgb[i], rgb[i + 1], rgb[i + 2]]
@@ -252,7 +252,7 @@ fn ply_of_a_labelled_frame_has_segment_and_part() {
         assert_eq!(tok[5].parse::<u16>().unwrap(), p.segment);
         assert_eq!(
             tok[6].parse::<u8>().unwrap(),
-            epd_io::ply::part_code(p.kind)
+            tof_sim::export::part_code(p.kind)
         );
     }
     let bin = ply(&f, PlyFormat::BinaryLittleEndian, PlyPrecision::F32);
@@ -263,6 +263,6 @@ fn ply_of_a_labelled_frame_has_segment_and_part() {
         let r = &body[i * rec..(i + 1) * rec];
         let p = part.unwrap();
         assert_eq!(u16::from_le_bytes([r[20], r[21]]), p.segment);
-        assert_eq!(r[22], epd_io::ply::part_code(p.kind));
+        assert_eq!(r[22], tof_sim::export::part_code(p.kind));
     }
 }

@@ -1,7 +1,7 @@
 //! Simulate one Helios2-like frame in a pipe and write its measured points.
 //!
 //! ```text
-//! cargo run --release -p epd-io --example frame -- --seed S --trial K --sigma M \
+//! cargo run --release -p tof-sim --example frame -- --seed S --trial K --sigma M \
 //!     --od-in X --ovality O [--points N] --out frame.csv [--ply frame.ply] [--depth-png depth.png]
 //! ```
 //! Exit codes: 0 written, 1 an error (invalid pipe or noise, I/O), 2 wrong arguments.
@@ -70,10 +70,15 @@ fn run(a: Args) -> anyhow::Result<()> {
     let frame = simulate(&sensor, &scene, &Noise::range(a.sigma), sub, seeds)?;
     epd_io::atomic::write_file_atomic(&a.out, |w| epd_io::csv::write_points(w, &frame.measured))?;
     if let Some(p) = &a.ply {
-        epd_io::ply::save(p, &frame, PlyFormat::BinaryLittleEndian, PlyPrecision::F64)?;
+        epd_io::ply::save(
+            p,
+            &frame.cloud(),
+            PlyFormat::BinaryLittleEndian,
+            PlyPrecision::F64,
+        )?;
     }
     if let Some(p) = &a.depth_png {
-        epd_io::depth_png::save(p, &frame, sensor.max_range)?;
+        epd_io::depth_png::save(p, &frame.cloud(), sensor.max_range)?;
     }
     // The truth in canonical form (README, Conventions), comparable with an estimate as printed.
     let truth = epd_core::canonicalize(&truth);

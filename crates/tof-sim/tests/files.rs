@@ -3,6 +3,7 @@
 //! the truth is recovered to 1e-6 (float32 files: to float32 precision), and every
 //! double-precision format gives the same estimate.
 
+#[path = "../../epd-io/tests/common/mod.rs"]
 mod common;
 
 use epd_core::{EstimateOptions, Method, errors_against, estimate};
@@ -12,7 +13,7 @@ use epd_io::read::{Format, read_bytes};
 fn files(frame: &tof_sim::Frame) -> Vec<(&'static str, Format, Vec<u8>, f64)> {
     let ply = |f, p| {
         let mut v = Vec::new();
-        write_ply(&mut v, frame, f, p).unwrap();
+        write_ply(&mut v, &frame.cloud(), f, p).unwrap();
         v
     };
     let mut csv = Vec::new();
@@ -42,28 +43,33 @@ fn files(frame: &tof_sim::Frame) -> Vec<(&'static str, Format, Vec<u8>, f64)> {
             ply(PlyFormat::Ascii, PlyPrecision::F32),
             2e-5,
         ),
-        ("pcd ascii", Format::Pcd, common::pcd(frame, "ascii"), 1e-6),
+        (
+            "pcd ascii",
+            Format::Pcd,
+            common::pcd(&frame.measured, "ascii"),
+            1e-6,
+        ),
         (
             "pcd binary",
             Format::Pcd,
-            common::pcd(frame, "binary"),
+            common::pcd(&frame.measured, "binary"),
             1e-6,
         ),
         (
             "pcd binary_compressed",
             Format::Pcd,
-            common::pcd(frame, "binary_compressed"),
+            common::pcd(&frame.measured, "binary_compressed"),
             1e-6,
         ),
         ("csv", Format::Text, csv, 1e-6),
-        ("xyz", Format::Text, common::xyz(frame), 1e-6),
+        ("xyz", Format::Text, common::xyz(&frame.measured), 1e-6),
     ]
 }
 
 #[test]
 fn every_format_recovers_the_truth() {
     for k in 0..3 {
-        let frame = common::frame(k, 20_000);
+        let frame = frame(k, 20_000);
         let mut double_results = Vec::new();
         for (name, format, bytes, tol) in files(&frame) {
             let cloud = read_bytes(format, &bytes).unwrap_or_else(|e| panic!("{name}: {e}"));
@@ -111,7 +117,7 @@ fn every_format_recovers_the_truth() {
 
 #[test]
 fn streaming_file_reader_equals_the_in_memory_one() {
-    let frame = common::frame(4, 5000);
+    let frame = frame(4, 5000);
     let dir = common::temp_dir("stream");
     for (name, f, p) in [
         (
@@ -127,7 +133,7 @@ fn streaming_file_reader_equals_the_in_memory_one() {
         ("ascii.ply", PlyFormat::Ascii, PlyPrecision::F64),
     ] {
         let mut bytes = Vec::new();
-        write_ply(&mut bytes, &frame, f, p).unwrap();
+        write_ply(&mut bytes, &frame.cloud(), f, p).unwrap();
         let path = dir.join(name);
         std::fs::write(&path, &bytes).unwrap();
         assert_eq!(
@@ -169,4 +175,23 @@ fn lzf_back_references() {
     let out = epd_io::pcd::lzf_decompress(&comp, 9).unwrap();
     assert_eq!(out, b"abcabcabc");
     assert!(epd_io::pcd::lzf_decompress(&[(1 << 5), 9], 3).is_err());
+}
+
+/// A noise-free frame of trial `k` (20" pipe, 3 % ovality), `n` points.
+fn frame(k: u64, n: usize) -> tof_sim::Frame {
+    use tof_sim::{FrameSeed, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, WallModel};
+    let pipe = Pipe {
+        ovality: 0.03,
+        ..Pipe::paper_20in()
+    };
+    let truth = PoseRanges::default().sample(&pipe, 5, k).unwrap();
+    let scene = Scene::new(&truth, WallModel::Exact, 6.0).unwrap();
+    tof_sim::simulate(
+        &Sensor::helios2(),
+        &scene,
+        &Noise::none(),
+        Subsample::Points(n),
+        FrameSeed::default(),
+    )
+    .unwrap()
 }

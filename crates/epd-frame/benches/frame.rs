@@ -1,15 +1,22 @@
 //! One realistic camera frame through `epd estimate --calibration`'s path: a full
 //! 640×480 Helios2 frame of the realistic model (binary PLY, float x y z + intensity,
 //! invalid pixels as zeros) parsed, corrected by a depth table, gated to [0.5, 2] m and
-//! estimated by weighted ML-EPD with the Cauchy loss. The camera runs at up to 30
-//! frames/s: the target is ≤ 30 ms per frame on 2 cores.
+//! estimated by weighted ML-EPD with the Cauchy loss; and `measure_frame_defaults`, the
+//! frame library's whole measurement with `epd estimate`'s defaults (scene, fit, checks,
+//! report context) on a plain full frame (range noise σ = 0.03 m). The camera runs at up
+//! to 30 frames/s: a frame must take under 33 ms on 2 cores.
 //!
-//! `cargo bench -p epd-cli --bench frame`
+//! `cargo bench -p epd-frame --bench frame`
+
+use std::borrow::Cow;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use epd_cli::read::{Format, read_bytes};
 use epd_core::calibration::{CalibrationFrame, CalibrationSettings, calibrate};
 use epd_core::{EstimateOptions, Loss, LossScale, Method, estimate_weighted};
+use epd_frame::read::{Format, read_bytes};
+use epd_frame::{
+    EstimateConfig, EstimateSettings, FrameInput, InputConfig, InputFrame, Units, measure_frame,
+};
 use epd_io::ply::{PlyFormat, PlyPrecision, write as write_ply};
 use tof_sim::{
     FrameSeed, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, ToFPhysics, WallModel,
@@ -38,7 +45,7 @@ fn frame(pipe: &Pipe, k: u64) -> tof_sim::Frame {
 
 fn bench(c: &mut Criterion) {
     // As `epd` does at start-up.
-    epd_cli::keep_freed_memory();
+    epd_frame::keep_freed_memory();
     let options = EstimateOptions::default()
         .with_loss(Loss::from_name("cauchy", 0.05).expect("loss"))
         .expect("loss")
@@ -83,7 +90,7 @@ fn bench(c: &mut Criterion) {
     let mut ply = Vec::new();
     write_ply(
         &mut ply,
-        &f,
+        &f.cloud(),
         PlyFormat::BinaryLittleEndian,
         PlyPrecision::F32,
     )
@@ -125,6 +132,45 @@ fn bench(c: &mut Criterion) {
     });
     g.bench_function("read", |b| {
         b.iter(|| read_bytes(Format::Ply, &ply).expect("read"))
+    });
+    // The whole measurement with `epd estimate`'s defaults on a plain frame.
+    let settings = EstimateSettings {
+        method: Method::MlEpd,
+        min_range: None,
+        max_range: None,
+        nominal_od_in: None,
+        loss: "cauchy".into(),
+        loss_scale: None,
+        calibration: None,
+        unweighted: false,
+        geometry: true,
+        input: InputConfig {
+            units: Units::Metres,
+            frame: InputFrame::Sensor,
+            format: None,
+        },
+    };
+    let cfg = EstimateConfig::new(&settings).expect("config");
+    let truth = PoseRanges::default().sample(&pipe, 3, 11).expect("pose");
+    let scene = Scene::new(&truth, WallModel::Exact, 6.0).expect("scene");
+    let plain = tof_sim::simulate(
+        &Sensor::helios2(),
+        &scene,
+        &Noise::range(0.03),
+        Subsample::All,
+        FrameSeed::default(),
+    )
+    .expect("frame");
+    g.bench_function("measure_frame_defaults", |b| {
+        b.iter(|| {
+            let input = FrameInput {
+                points: Cow::Borrowed(&plain.measured),
+                intensity: None,
+                sigma: None,
+                read_ms: 0.0,
+            };
+            measure_frame(input, &cfg).expect("measure")
+        })
     });
     g.finish();
 }

@@ -3,7 +3,7 @@
 //! as the sensor approaches the bend.
 //!
 //! ```text
-//! cargo run --release -p epd-io --example bend_demo -- [--out /tmp/bend-demo.ply] [--bend-at 1.0]
+//! cargo run --release -p tof-sim --example bend_demo -- [--out /tmp/bend-demo.ply] [--bend-at 1.0]
 //! ```
 //! The pipe is the paper's (20", 12 mm wall, 2 % ovality: Dmax 488.8 mm, Dmin 479.2 mm);
 //! the elbow's centreline radius is 1.5 × 20" = 762 mm and its tube diameter the mean
@@ -105,7 +105,7 @@ fn main() -> anyhow::Result<()> {
     let cast = t0.elapsed();
     save_ply(
         &out,
-        &frame,
+        &frame.cloud(),
         PlyFormat::BinaryLittleEndian,
         PlyPrecision::F32,
     )?;

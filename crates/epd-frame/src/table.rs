@@ -17,6 +17,8 @@ use epd_core::DepthTable;
 use epd_core::calibration::Axis;
 use serde::{Deserialize, Serialize};
 
+use crate::input::CALIBRATION_NEEDS_INTENSITY;
+
 /// The `format` value of a table file.
 pub const FORMAT: &str = "epd-depth-table";
 /// The `version` this reader understands.
@@ -66,6 +68,39 @@ fn rows<T: Copy>(v: &[T], n: usize) -> Vec<Vec<T>> {
 }
 
 impl CalibrationTable {
+    /// The table's correction in place: each point (SCS, m) moved along its ray by the
+    /// table's offset at its range and `intensity`; when `weighted`, also each point's σᵢ
+    /// (refused when per-point σ are `sigma_given` too). The number of points moved.
+    pub fn correct_points(
+        &self,
+        weighted: bool,
+        points: &mut [[f64; 3]],
+        intensity: Option<&[f64]>,
+        sigma_given: bool,
+    ) -> Result<(usize, Option<Vec<f64>>), String> {
+        let Some(i) = intensity else {
+            return Err(format!(
+                "no per-point `intensity` given; {CALIBRATION_NEEDS_INTENSITY}"
+            ));
+        };
+        if !weighted {
+            let moved = self.table.correct(points, i).map_err(|e| e.to_string())?;
+            return Ok((moved, None));
+        }
+        if sigma_given {
+            return Err(
+                "per-point σ given with a weighting depth table: give one or the other \
+                 (or the table unweighted)"
+                    .into(),
+            );
+        }
+        let (moved, s) = self
+            .table
+            .correct_with_sigmas(points, i)
+            .map_err(|e| e.to_string())?;
+        Ok((moved, Some(s)))
+    }
+
     /// The JSON text (pretty-printed).
     pub fn to_json(&self) -> String {
         let ni = self.table.log_intensity.n;

@@ -1,0 +1,334 @@
+//! The `epd` command line: every flag defined once, in clap's derive tables, and turned
+//! into the frame library's settings (`epd_frame::InputConfig`, `EstimateSettings`).
+
+use std::num::NonZeroUsize;
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use epd_core::Method;
+use epd_frame::read::Format;
+use epd_frame::shard::ShardSpec;
+use epd_frame::{InputConfig, InputFrame, Units};
+
+/// Pipe diameters and sensor pose from 3D time-of-flight point clouds (RU-EPD, ML-EPD).
+#[derive(Parser, Debug)]
+#[command(
+    name = "epd",
+    version,
+    propagate_version = true,
+    subcommand_required = true,
+    arg_required_else_help = false
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Estimate the pipe and the pose from point-cloud files, one result per file.
+    Estimate(EstimateArgs),
+    /// Build a depth-calibration table from frames recorded in a pipe of known diameter.
+    Calibrate(CalibrateArgs),
+    /// Simulate Helios2-like frames (PLY) with their ground truth (JSON).
+    Simulate(SimulateArgs),
+}
+
+/// The estimator, by its name in reports.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+#[allow(clippy::enum_variant_names)] // the paper's names
+pub enum MethodArg {
+    /// Range residual along the sensing line (maximum likelihood; unbiased across tilt).
+    #[value(name = "ml-epd")]
+    MlEpd,
+    /// The paper's error-based residual (eqs. 20–23).
+    #[value(name = "ru-epd")]
+    RuEpd,
+    /// The canonical-ellipse residual (eq. 6; biased under noise).
+    #[value(name = "c-epd")]
+    CEpd,
+}
+
+impl From<MethodArg> for Method {
+    fn from(m: MethodArg) -> Method {
+        match m {
+            MethodArg::MlEpd => Method::MlEpd,
+            MethodArg::RuEpd => Method::RuEpd,
+            MethodArg::CEpd => Method::CEpd,
+        }
+    }
+}
+
+/// How results are written.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum OutputFormat {
+    /// A few lines per file, for people.
+    Text,
+    /// One JSON object per file and line.
+    Json,
+    /// A header, then one row per file.
+    Csv,
+}
+
+/// The robust loss.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum LossArg {
+    /// Cauchy (far outliers weigh almost nothing).
+    Cauchy,
+    /// Huber.
+    Huber,
+    /// Plain least squares.
+    None,
+}
+
+/// The length unit of the file.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum UnitsArg {
+    /// Metres.
+    M,
+    /// Millimetres (the Helios2 SDK's unit).
+    Mm,
+}
+
+/// The coordinate frame of the file.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum FrameArg {
+    /// X forward (optical axis), Y right, Z up: the paper's frame.
+    Sensor,
+    /// X right, Y down, Z forward: camera SDKs, PCL, Open3D, ROS.
+    Optical,
+}
+
+#[derive(Args, Debug)]
+pub struct EstimateArgs {
+    /// Point-cloud files: PLY, PCD, CSV/XYZ/TXT/PTS; `-` reads standard input.
+    #[arg(required = true, value_name = "FILE")]
+    pub files: Vec<PathBuf>,
+    /// The estimator.
+    #[arg(long, value_enum, default_value_t = MethodArg::MlEpd)]
+    pub method: MethodArg,
+    /// Keep the points whose ray meets the fitted wall at least this far (m).
+    #[arg(long, value_name = "M", allow_negative_numbers = true)]
+    pub min_range: Option<f64>,
+    /// Keep the points whose ray meets the fitted wall at most this far (m).
+    #[arg(long, value_name = "M", allow_negative_numbers = true)]
+    pub max_range: Option<f64>,
+    /// How results are written.
+    #[arg(long, value_enum, default_value_t = OutputFormat::Text)]
+    pub format: OutputFormat,
+    /// Nominal outer diameter (inch): the wall thickness is estimated from it.
+    #[arg(long, value_name = "X", allow_negative_numbers = true)]
+    pub nominal_od_in: Option<f64>,
+    /// Robust loss against outliers.
+    #[arg(long, value_enum, default_value_t = LossArg::Cauchy)]
+    pub loss: LossArg,
+    /// Fixed loss scale (m of range error); without it the scale comes from the residuals.
+    #[arg(long, value_name = "M", allow_negative_numbers = true)]
+    pub loss_scale: Option<f64>,
+    #[command(flatten)]
+    pub input: InputArgs,
+    /// Depth-calibration table (JSON from `epd calibrate`): each point is moved along
+    /// its ray by the table's offset at its range and intensity before the fit (the
+    /// files need a per-point `intensity`).
+    #[arg(long, value_name = "LUT.json")]
+    pub calibration: Option<PathBuf>,
+    /// With --calibration, do not weight each residual by 1/σᵢ (σᵢ: the table's spread
+    /// at the point's range and intensity).
+    #[arg(long)]
+    pub unweighted: bool,
+    /// Fit every point as one straight pipe, without looking for a bend or a tee ahead.
+    /// By default the frame is surveyed first (JSON keys `geometry`, `straight_until_m`,
+    /// `bend_radius_mm`, `bend_angle_deg`, `bend_direction_deg`, `bend_withheld`): the estimate then uses
+    /// the straight section's points only, and a sensor already in a bend gets no result.
+    #[arg(long)]
+    pub straight_only: bool,
+    /// Write the results to FILE (atomically) instead of standard output.
+    #[arg(short = 'o', long, value_name = "FILE")]
+    pub output: Option<PathBuf>,
+    /// Worker threads (default: all cores).
+    #[arg(long, value_name = "N")]
+    pub threads: Option<NonZeroUsize>,
+    /// Process only the K-th of N parts of the files (1 ≤ K ≤ N), e.g. one task of a
+    /// job array: the files are sorted by the bytes of their paths (as `LC_ALL=C ls`)
+    /// and cut into N contiguous blocks whose sizes differ by at most one; shard K
+    /// takes the K-th block (possibly none). Concatenating the outputs of shards 1, 2,
+    /// …, N in that order gives the output of one run over the sorted list, timings
+    /// (elapsed_ms, read_ms) aside; with --format csv only shard 1 writes the header
+    /// line. Standard input (`-`) cannot be sharded.
+    #[arg(long, value_name = "K/N")]
+    pub shard: Option<ShardSpec>,
+    /// No progress bar and no summary of failures: only the results and the exit code.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+/// How the files are read.
+#[derive(Args, Debug)]
+pub struct InputArgs {
+    /// Length unit of the files.
+    #[arg(long, value_enum, default_value_t = UnitsArg::M)]
+    pub units: UnitsArg,
+    /// Coordinate frame of the files.
+    #[arg(long, value_enum, default_value_t = FrameArg::Sensor)]
+    pub frame: FrameArg,
+    /// Format of standard input (ply, pcd, csv, xyz, txt, pts, asc); default: from its
+    /// first bytes.
+    #[arg(long, value_name = "FORMAT")]
+    pub input_format: Option<Format>,
+}
+
+#[derive(Args, Debug)]
+pub struct CalibrateArgs {
+    /// Frames recorded in a pipe of known diameter (PLY, PCD, CSV… with a per-point
+    /// `intensity`).
+    #[arg(required = true, value_name = "FILE")]
+    pub files: Vec<PathBuf>,
+    /// The known inner diameter (mm); the major one when --known-dmin-mm is given.
+    #[arg(long, value_name = "D", allow_negative_numbers = true)]
+    pub known_id_mm: f64,
+    /// The known minor inner diameter (mm) of an oval pipe.
+    #[arg(long, value_name = "D2", allow_negative_numbers = true)]
+    pub known_dmin_mm: Option<f64>,
+    /// Where the table is written (JSON, atomically).
+    #[arg(long, value_name = "LUT.json")]
+    pub out: PathBuf,
+    /// Use the points whose ray meets the known wall at least this far (m).
+    #[arg(
+        long,
+        value_name = "M",
+        default_value_t = 0.5,
+        allow_negative_numbers = true
+    )]
+    pub min_range: f64,
+    /// Use the points whose ray meets the known wall at most this far (m).
+    #[arg(
+        long,
+        value_name = "M",
+        default_value_t = 2.0,
+        allow_negative_numbers = true
+    )]
+    pub max_range: f64,
+    /// Range bins of the table.
+    #[arg(long, value_name = "N", default_value_t = 30)]
+    pub range_bins: usize,
+    /// Intensity bins of the table (even in log-intensity).
+    #[arg(long, value_name = "N", default_value_t = 12)]
+    pub intensity_bins: usize,
+    /// A bin with fewer points (at least 5) is empty and takes the nearest filled bin's
+    /// values.
+    #[arg(long, value_name = "N", default_value_t = 30)]
+    pub min_count: usize,
+    /// Passes of the alternating refinement of the poses and the table (1: the poses
+    /// fitted once on the raw points).
+    #[arg(long, value_name = "N", default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=20))]
+    pub passes: u32,
+    #[command(flatten)]
+    pub input: InputArgs,
+    /// Worker threads (default: all cores).
+    #[arg(long, value_name = "N")]
+    pub threads: Option<NonZeroUsize>,
+    /// Only errors.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+#[derive(Args, Debug)]
+pub struct SimulateArgs {
+    /// Folder for frame_KKKK.ply and frame_KKKK.json.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Number of frames.
+    #[arg(long, default_value_t = 1)]
+    pub frames: u64,
+    /// Seed of the poses and the noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Standard deviation of the depth noise (m).
+    #[arg(long, default_value_t = 0.03, allow_negative_numbers = true)]
+    pub sigma: f64,
+    /// Nominal outer diameter (inch).
+    #[arg(long, default_value_t = 20.0, allow_negative_numbers = true)]
+    pub od_in: f64,
+    /// Ovality (Dmax − Dmin)/ID.
+    #[arg(long, default_value_t = 0.02, allow_negative_numbers = true)]
+    pub ovality: f64,
+    /// Wall thickness (mm).
+    #[arg(long, default_value_t = 12.0, allow_negative_numbers = true)]
+    pub wall_mm: f64,
+    /// Keep a uniform subsample of N points (default: all).
+    #[arg(long, value_name = "N")]
+    pub points: Option<NonZeroUsize>,
+    /// Fraction of range outliers.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub outliers: f64,
+    /// Noise model.
+    #[arg(long, value_enum, default_value_t = NoiseArg::Range)]
+    pub noise: NoiseArg,
+    /// Error model of the camera: `plain` (range noise of --sigma) or `helios2` (the
+    /// realistic model: amplitude-dependent noise, invalid pixels written as zeros,
+    /// wiggling, intensity offset, multipath; the PLY gets an `intensity` property;
+    /// --sigma and --noise do not apply).
+    #[arg(long, value_enum, default_value_t = SensorArg::Plain)]
+    pub sensor: SensorArg,
+    /// PLY encoding.
+    #[arg(long, value_enum, default_value_t = PlyArg::Binary)]
+    pub ply: PlyArg,
+    /// PLY coordinate precision.
+    #[arg(long, value_enum, default_value_t = PrecisionArg::F64)]
+    pub precision: PrecisionArg,
+}
+
+/// Depth-noise model of `simulate`.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum NoiseArg {
+    /// Along the sensing line.
+    Range,
+    /// In no particular direction.
+    Isotropic,
+}
+
+/// Camera error model of `simulate`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum SensorArg {
+    /// Range noise of constant σ.
+    Plain,
+    /// tof_sim's realistic Helios2 (6 m mode) model.
+    Helios2,
+}
+
+/// PLY encoding of `simulate`.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum PlyArg {
+    /// binary_little_endian.
+    Binary,
+    /// ascii.
+    Ascii,
+}
+
+/// PLY precision of `simulate`.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum PrecisionArg {
+    /// double.
+    #[value(alias = "double")]
+    F64,
+    /// float.
+    #[value(alias = "float")]
+    F32,
+}
+
+/// The input settings as the library takes them.
+impl From<&InputArgs> for InputConfig {
+    fn from(a: &InputArgs) -> Self {
+        Self {
+            units: match a.units {
+                UnitsArg::M => Units::Metres,
+                UnitsArg::Mm => Units::Millimetres,
+            },
+            frame: match a.frame {
+                FrameArg::Sensor => InputFrame::Sensor,
+                FrameArg::Optical => InputFrame::Optical,
+            },
+            format: a.input_format,
+        }
+    }
+}

@@ -1,0 +1,161 @@
+//! `epd calibrate`: frames of a pipe of known diameter → the depth-calibration table.
+
+use std::path::Path;
+use std::process::ExitCode;
+
+use anyhow::Context;
+use epd_core::calibration::{CalibrationFrame, CalibrationSettings};
+use epd_frame::InputConfig;
+use epd_frame::input::{intensity, read_input};
+use epd_frame::read::PointCloud;
+use epd_frame::rig::{RigSettings, calibrate_rig};
+use epd_frame::table::CalibrationTable;
+use rayon::prelude::*;
+
+use crate::args::CalibrateArgs;
+use crate::{check_output_path, progress, start_threads, usage};
+
+/// Check `epd calibrate`'s arguments (exit 2 on a bad one): the rig's settings as the
+/// library checks them, files only, and an output path that may be replaced.
+fn check_args(a: &CalibrateArgs) -> anyhow::Result<CalibrationSettings> {
+    let settings = RigSettings {
+        known_id_mm: a.known_id_mm,
+        known_dmin_mm: a.known_dmin_mm,
+        min_range: a.min_range,
+        max_range: a.max_range,
+        range_bins: a.range_bins,
+        intensity_bins: a.intensity_bins,
+        min_count: a.min_count,
+        passes: a.passes,
+    }
+    .check()
+    .map_err(|e| usage(e.to_string()))?;
+    if a.files.iter().any(|f| f.as_os_str() == "-") {
+        return Err(usage("calibrate reads files only (no `-`)"));
+    }
+    check_output_path(&a.out, &a.files, "--out")?;
+    Ok(settings)
+}
+
+/// Every calibration file's points and intensities (the table is binned by intensity),
+/// read in parallel, or why not.
+fn read_calibration_files(a: &CalibrateArgs) -> Vec<Result<(PointCloud, Vec<f64>), String>> {
+    let input: InputConfig = (&a.input).into();
+    let bar = progress(a.quiet, a.files.len());
+    let read = a
+        .files
+        .par_iter()
+        .with_max_len(1)
+        .map(|p| {
+            let r = read_input(p, &input).and_then(|c| {
+                let i = intensity(&c, "the table is binned by intensity")?;
+                Ok((c, i))
+            });
+            bar.inc(1);
+            r
+        })
+        .collect();
+    bar.finish_and_clear();
+    read
+}
+
+/// Print each frame's fitted pose (unless `quiet`) and add the frames whose fit failed
+/// to `failed`.
+fn report_calibration_fits(
+    names: &[String],
+    fits: &[Result<epd_core::Estimate, epd_core::EpdError>],
+    quiet: bool,
+    failed: &mut Vec<String>,
+) {
+    let deg = 180.0 / std::f64::consts::PI;
+    for (name, fit) in names.iter().zip(fits) {
+        match fit {
+            Ok(est) => {
+                if !quiet {
+                    let p = est.params;
+                    eprintln!(
+                        "{name}: pose roll {:.2}° pitch {:.3}° yaw {:.3}° δy {:.1} mm δz {:.1} mm, \
+                         {} points",
+                        p.roll * deg,
+                        p.pitch * deg,
+                        p.yaw * deg,
+                        p.dy * 1e3,
+                        p.dz * 1e3,
+                        est.n_points,
+                    );
+                }
+            }
+            Err(e) => failed.push(format!("{name}: {e}")),
+        }
+    }
+}
+
+/// One line on the written table: its bins, how many hold data, what it was made from and
+/// the range of its offsets.
+fn print_table_summary(out: &Path, cal: &CalibrationTable) {
+    let t = &cal.table;
+    let filled = t.count.iter().filter(|&&c| c > 0).count();
+    let (lo, hi) = t
+        .offset_m
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
+            (l.min(v), h.max(v))
+        });
+    eprintln!(
+        "{}: {} × {} bins ({filled} filled) from {} frames and {} points; offsets \
+         {:.1} to {:.1} mm",
+        out.display(),
+        t.range.n,
+        t.log_intensity.n,
+        cal.frames,
+        cal.n_observations,
+        lo * 1e3,
+        hi * 1e3
+    );
+}
+
+pub fn run_calibrate(a: &CalibrateArgs) -> anyhow::Result<ExitCode> {
+    let settings = check_args(a)?;
+    start_threads(a.threads)?;
+    // Every frame is read first: the table and the poses are refined together.
+    let read = read_calibration_files(a);
+    let mut failed = Vec::new();
+    let mut names = Vec::new();
+    let mut frames = Vec::new();
+    for (path, r) in a.files.iter().zip(&read) {
+        match r {
+            Ok((c, i)) => {
+                names.push(path.display().to_string());
+                frames.push(CalibrationFrame {
+                    points: &c.points,
+                    intensity: i,
+                });
+            }
+            Err(e) => failed.push(format!("{}: {e}", path.display())),
+        }
+    }
+    if frames.is_empty() {
+        for f in &failed {
+            eprintln!("skipped {f}");
+        }
+        anyhow::bail!(
+            "no frame could be read: no table written to {}",
+            a.out.display()
+        );
+    }
+    let rig = calibrate_rig(&frames, &settings)
+        .with_context(|| format!("no table written to {}", a.out.display()))?;
+    report_calibration_fits(&names, &rig.fits, a.quiet, &mut failed);
+    for f in &failed {
+        eprintln!("skipped {f}");
+    }
+    epd_io::atomic::write_bytes_atomic(&a.out, rig.table.to_json().as_bytes())?;
+    if !a.quiet {
+        print_table_summary(&a.out, &rig.table);
+    }
+    Ok(if failed.is_empty() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
+}

@@ -1,0 +1,204 @@
+//! One frame measured, the same way for every front end (`epd estimate`, `epd.estimate`,
+//! the bench harness's pipeline run): the depth table's correction, the scene ahead
+//! ([`crate::scene`]), the fit of the straight section, and the report's context
+//! ([`measure_frame`]; [`measure_file`] reads a file first).
+
+use std::borrow::Cow;
+use std::path::Path;
+use std::time::Instant;
+
+use epd_core::{Method, estimate, estimate_weighted, rms_range_residual};
+
+use crate::config::EstimateConfig;
+use crate::input::{CALIBRATION_NEEDS_INTENSITY, has_intensity, intensity, ranges, read_input};
+use crate::report::{FileEstimate, FileReport};
+use crate::scene::FrameScene;
+
+/// A frame's points and what comes with them, as [`measure_frame`] takes them.
+#[derive(Clone, Debug)]
+pub struct FrameInput<'a> {
+    /// The points, in metres in the sensor frame (invalid pixels as zeros or NaN are
+    /// dropped and counted by the estimator). Borrowed points are copied only when a
+    /// depth table moves them.
+    pub points: Cow<'a, [[f64; 3]]>,
+    /// One camera intensity per point, when the input has them (needed by a depth table).
+    pub intensity: Option<&'a [f64]>,
+    /// One range standard deviation per point (m), when known: the fit is weighted by it.
+    pub sigma: Option<&'a [f64]>,
+    /// The time taken to get the points (ms), reported as `read_ms`.
+    pub read_ms: f64,
+}
+
+/// Read one file (or standard input for `-`) and measure it ([`measure_frame`]).
+pub fn measure_file(path: &Path, cfg: &EstimateConfig) -> FileReport {
+    let file = path.display().to_string();
+    let run = || -> Result<FileEstimate, String> {
+        let t0 = Instant::now();
+        let cloud = read_input(path, &cfg.input)?;
+        let read_ms = t0.elapsed().as_secs_f64() * 1e3;
+        if cloud.points.is_empty() {
+            return Err("the file holds no points".into());
+        }
+        let i = match &cfg.calibration {
+            None => None,
+            Some(_) => Some(intensity(&cloud, CALIBRATION_NEEDS_INTENSITY)?),
+        };
+        let camera = has_intensity(&cloud);
+        let input = FrameInput {
+            points: Cow::Owned(cloud.points),
+            intensity: i.as_deref(),
+            sigma: None,
+            read_ms,
+        };
+        let mut e = measure_frame(input, cfg)?;
+        e.intensity_without_table = camera && cfg.calibration.is_none();
+        Ok(e)
+    };
+    FileReport {
+        file,
+        outcome: run(),
+    }
+}
+
+/// Measure one frame, in this order:
+/// 1. the depth table's correction, when the configuration has a table
+///    ([`crate::table::CalibrationTable::correct_points`]; it needs `intensity`), which
+///    may also give each point its σᵢ;
+/// 2. the scene ahead, unless the configuration fits every point as one straight pipe
+///    ([`FrameScene::survey`]): straight, a bend or a tee ahead, or in a bend, and which points
+///    belong to the straight section;
+/// 3. the fit of the straight section's points (weighted by the table's σᵢ or by
+///    `sigma` when given) with its checks and 1-σ (`epd_core::estimate`);
+/// 4. the report's context: the loss scale, the RMS residual, the counts, the times.
+///
+/// The error is a message for the user (the number of points read appended).
+pub fn measure_frame(input: FrameInput<'_>, cfg: &EstimateConfig) -> Result<FileEstimate, String> {
+    let FrameInput {
+        mut points,
+        intensity,
+        sigma,
+        read_ms,
+    } = input;
+    let n_read = points.len();
+    if cfg.calibration.is_some() {
+        // The table moves the points: a copy of borrowed ones, before the clock starts.
+        points = Cow::Owned(points.into_owned());
+    }
+    let t1 = Instant::now();
+    // The measured ranges before the table moves the points: where the table observed
+    // the camera's error is looked up by them (the bend's points, in the scene step).
+    let raw_range_m: Option<Vec<f64>> =
+        (cfg.calibration.is_some() && cfg.geometry).then(|| ranges(&points));
+    let mut n_calibrated = None;
+    let mut sigmas: Option<Cow<'_, [f64]>> = sigma.map(Cow::Borrowed);
+    if let Some(cal) = &cfg.calibration {
+        let (moved, table_sigmas) =
+            cal.correct_points(cfg.weighted, points.to_mut(), intensity, sigma.is_some())?;
+        n_calibrated = Some(moved);
+        if let Some(s) = table_sigmas {
+            sigmas = Some(Cow::Owned(s));
+        }
+    }
+    // Invalid pixels (NaN, inf, zeros) are dropped and counted by the estimator; the
+    // range gate keeps points by their model range (see EstimateOptions).
+    let kept: &[[f64; 3]] = &points;
+    let failed = |e: epd_core::EpdError| format!("{e} ({n_read} points read)");
+    let scene = if cfg.geometry {
+        let table = match (&cfg.calibration, raw_range_m.as_deref(), intensity) {
+            (Some(cal), Some(r), Some(i)) => Some((&cal.table, r, i)),
+            _ => None,
+        };
+        Some(FrameScene::survey(kept, cfg.method, &cfg.options, table).map_err(failed)?)
+    } else {
+        None
+    };
+    let est = fit_straight(kept, sigmas.as_deref(), scene.as_ref(), cfg).map_err(failed)?;
+    let mask = scene.as_ref().and_then(|s| s.straight.as_deref());
+    let elapsed_ms = t1.elapsed().as_secs_f64() * 1e3;
+    Ok(FileEstimate {
+        loss: (cfg.loss.clone(), radial_loss_scale_m(&est)),
+        rms_residual_mm: straight_rms_mm(kept, mask, &est, cfg),
+        n_out_of_range: est.n_out_of_gate,
+        estimate: est,
+        n_read,
+        elapsed_ms,
+        read_ms,
+        nominal_od_mm: cfg.nominal_od_mm,
+        n_calibrated,
+        weighted: sigmas.is_some(),
+        geometry: scene.map(|s| s.geometry),
+        intensity_without_table: false,
+    })
+}
+
+/// The estimate on the straight section's points (those the scene keeps; all of them
+/// when nothing lies ahead): unweighted, the survey's own straight estimate when there is
+/// a scene; weighted by `sigmas` when given.
+fn fit_straight(
+    points: &[[f64; 3]],
+    sigmas: Option<&[f64]>,
+    scene: Option<&FrameScene>,
+    cfg: &EstimateConfig,
+) -> Result<epd_core::Estimate, epd_core::EpdError> {
+    let survey = scene.map(|s| &s.survey);
+    let mask = scene.and_then(|s| s.straight.as_deref());
+    match (sigmas, survey, mask) {
+        // No straight section to fit on its own (in a bend, or its end too close): the
+        // report withholds the estimate and says why; nothing more to fit.
+        (_, Some(s), _) if s.segmentation.straight_withheld => Ok(s.segmentation.straight),
+        // The survey's straight estimate is the (unweighted) estimate on the straight
+        // section's points: all of them when nothing lies ahead.
+        (None, Some(s), _) => Ok(s.segmentation.straight),
+        (None, None, _) => estimate(points, cfg.method, &cfg.options),
+        (Some(sig), _, Some(keep)) => {
+            let (p, w): (Vec<[f64; 3]>, Vec<f64>) = points
+                .iter()
+                .zip(sig)
+                .zip(keep)
+                .filter(|(_, k)| **k)
+                .map(|((p, w), _)| (*p, *w))
+                .unzip();
+            estimate_weighted(&p, &w, cfg.method, &cfg.options)
+        }
+        (Some(sig), _, None) => estimate_weighted(points, sig, cfg.method, &cfg.options),
+    }
+}
+
+/// The loss's scale in metres of radial error (NaN without a loss). C-EPD's residual
+/// r_c ≈ 2δ/R: its scale k is k·(D_max + D_min)/8 m.
+fn radial_loss_scale_m(est: &epd_core::Estimate) -> f64 {
+    match (est.method, est.loss.scale()) {
+        (_, None) => f64::NAN,
+        (Method::CEpd, Some(k)) => k * (est.params.d_max + est.params.d_min) / 8.0,
+        (_, Some(k)) => k,
+    }
+}
+
+/// RMS range residual (mm) of the straight section's points (those `mask` keeps; all of
+/// them when nothing lies ahead) within the range gate, about the estimate.
+fn straight_rms_mm(
+    points: &[[f64; 3]],
+    mask: Option<&[bool]>,
+    est: &epd_core::Estimate,
+    cfg: &EstimateConfig,
+) -> Option<f64> {
+    let straight: Cow<'_, [[f64; 3]]> = match mask {
+        None => Cow::Borrowed(points),
+        Some(keep) => points
+            .iter()
+            .zip(keep)
+            .filter(|(_, k)| **k)
+            .map(|(p, _)| *p)
+            .collect(),
+    };
+    let fitted: Cow<'_, [[f64; 3]]> = match cfg.options.range_gate() {
+        None => straight,
+        Some((lo, hi)) => Cow::Owned(epd_core::gate_by_model_range(
+            &straight,
+            &est.params,
+            lo,
+            hi,
+        )),
+    };
+    rms_range_residual(&fitted, &est.params).map(|v| v * 1e3)
+}
