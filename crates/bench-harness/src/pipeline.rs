@@ -1307,13 +1307,10 @@ fn kept<T: Copy>(keep: Option<&[bool]>, v: &[T]) -> Vec<T> {
     }
 }
 
-/// Two-sided 95 % quantile of Student's t with ν degrees of freedom (Cornish–Fisher
-/// expansion about the normal quantile; within 0.2 % of the exact value for ν ≥ 3).
+/// Two-sided 95 % quantile of Student's t with ν degrees of freedom (the exact 0.975
+/// quantile, [`crate::stats::student_t_quantile`]).
 pub fn t95(nu: f64) -> f64 {
-    let z: f64 = 1.959_963_984_540_054;
-    z + (z.powi(3) + z) / (4.0 * nu)
-        + (5.0 * z.powi(5) + 16.0 * z.powi(3) + 3.0 * z) / (96.0 * nu * nu)
-        + (3.0 * z.powi(7) + 19.0 * z.powi(5) + 17.0 * z.powi(3) - 15.0 * z) / (384.0 * nu.powi(3))
+    crate::stats::student_t_quantile(0.975, nu)
 }
 
 fn summarise(s: &PipelineScenario, rows: &[Row]) -> Vec<SectionRow> {

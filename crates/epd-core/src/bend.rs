@@ -143,7 +143,7 @@ pub fn fit_bend(
     // First order from the start (smooth in θ, converges from far), then the exact
     // range error from there (unbiased when the noise is not small against the tube).
     let loss = Loss::Cauchy {
-        scale: 2.3849 * sigma0,
+        scale: crate::loss::CAUCHY_K95 * sigma0,
     };
     let mut problem = BendProblem {
         origin,
@@ -217,14 +217,13 @@ fn straight_robust_sigma(rays: &[(Vector3<f64>, Vector3<f64>)], axes: (f64, f64)
     mad_sigma(e).unwrap_or(f64::NAN)
 }
 
-/// 1.4826·MAD of `e` (the normal σ of its robust spread); `None` when empty.
+/// 1.4826·MAD of `e` (the normal σ of its robust spread,
+/// [`crate::loss::median_and_mad_sigma`]); `None` when empty.
 fn mad_sigma(mut e: Vec<f64>) -> Option<f64> {
     if e.is_empty() {
         return None;
     }
-    let med = crate::check::quantile(&mut e, 0.5);
-    let mut dev: Vec<f64> = e.iter().map(|x| (x - med).abs()).collect();
-    Some(1.4826 * crate::check::quantile(&mut dev, 0.5))
+    Some(crate::loss::median_and_mad_sigma(&mut e).1)
 }
 
 /// eᵢ = s(q)/|n·d|: the distance along the ray from q to the wall, to first order.

@@ -719,9 +719,7 @@ impl DepthTable {
 /// The clipped mean of `v` (mean within median ± 4·1.4826·MAD) and 1.4826·MAD. `v` is
 /// reordered.
 fn clipped_mean(v: &mut [f64]) -> (f64, f64) {
-    let med = crate::check::quantile(v, 0.5);
-    let mut dev: Vec<f64> = v.iter().map(|x| (x - med).abs()).collect();
-    let spread = 1.4826 * crate::check::quantile(&mut dev, 0.5);
+    let (med, spread) = crate::loss::median_and_mad_sigma(v);
     let cut = 4.0 * spread;
     let (mut s, mut n) = (0.0, 0usize);
     for &x in v.iter() {

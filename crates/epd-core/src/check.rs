@@ -306,7 +306,7 @@ pub fn assess(points: &[[f64; 3]], beta: &Params) -> Result<Diagnostics, Implaus
     let span_y = span(&mut ys);
     let span_z = span(&mut zs);
     let mut abs_r: Vec<f64> = r.iter().map(|v| v.abs()).collect();
-    let s = 1.4826 * quantile(&mut abs_r, 0.5);
+    let s = crate::loss::mad_sigma(&mut abs_r);
     // A floor for noise-free clouds, where the medians are rounding.
     let s_eff = s.max(1e-9 * (beta.d_max + beta.d_min));
     let mut misfit: f64 = 0.0;

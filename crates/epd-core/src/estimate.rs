@@ -90,8 +90,9 @@ pub enum LossScale {
     /// through r_c ≈ 2δ/R with the initial guess's mean radius R).
     #[default]
     Fixed,
-    /// From the data: the loss's 95 %-efficiency constant (Huber 1.345, Cauchy 2.3849)
-    /// times the robust scale 1.4826·median|r| of the method's own residuals, measured
+    /// From the data: the loss's 95 %-efficiency constant ([`Loss::k95`]: Huber 1.345,
+    /// Cauchy 2.3849) times the robust scale [`crate::loss::mad_sigma`] of the method's
+    /// own residuals (1.4826·median|r|), measured
     /// after a first robust pass and again before the final one. The given scale only
     /// seeds the first pass.
     Auto,
@@ -451,17 +452,8 @@ pub fn gate_by_model_range(points: &[[f64; 3]], beta: &Params, lo: f64, hi: f64)
 /// Points (evenly strided) of the sandwich covariance.
 const SANDWICH_POINTS: usize = 16_384;
 
-/// The 95 %-efficiency tuning constant of a loss, in units of the residuals' scale.
-fn tuning(loss: Loss) -> f64 {
-    match loss {
-        Loss::Squared => 1.0,
-        Loss::Huber { .. } => 1.345,
-        Loss::Cauchy { .. } => 2.3849,
-    }
-}
-
-/// 1.4826·median|sᵢrᵢ| of `kind`'s (scaled) residuals of `pts` at `x`, or `None`
-/// outside the model.
+/// [`crate::loss::mad_sigma`] (1.4826·median|sᵢrᵢ|) of `kind`'s (scaled) residuals of
+/// `pts` at `x`, or `None` outside the model.
 fn residual_scale(pts: View<'_>, kind: Residual, x: &SVector<f64, N_PARAMS>) -> Option<f64> {
     let geom = Geometry::new(&Params::from_array((*x).into()))?;
     let stride = pts.len().div_ceil(8192).max(1);
@@ -469,7 +461,7 @@ fn residual_scale(pts: View<'_>, kind: Residual, x: &SVector<f64, N_PARAMS>) -> 
         .step_by(stride)
         .map(|i| (pts.scale(i) * geom.residual(kind, &pts.points[i])).abs())
         .collect();
-    let s = 1.4826 * crate::check::quantile(&mut r, 0.5);
+    let s = crate::loss::mad_sigma(&mut r);
     (s > 0.0 && s.is_finite()).then_some(s)
 }
 
@@ -635,7 +627,7 @@ impl Stages<'_, '_> {
             return fixed;
         }
         residual_scale(self.stage_pts, kind, x)
-            .map(|s| fixed.with_scale(tuning(fixed) * s))
+            .map(|s| fixed.with_scale(fixed.k95() * s))
             .unwrap_or(fixed)
     }
 

@@ -241,9 +241,8 @@ fn trimmed_quadric(pts: &[Vector3<f64>]) -> Result<(Matrix3<f64>, Vec<usize>), E
             };
         }
         let mut sorted: Vec<f64> = kept.iter().map(|&i| dist[i]).collect();
-        let mid = sorted.len() / 2;
-        let (_, med, _) = sorted.select_nth_unstable_by(mid, |x, y| x.total_cmp(y));
-        let sigma = 1.4826 * *med;
+        // `kept` is never empty: fit_quadric refuses fewer than 9 points.
+        let sigma = crate::loss::mad_sigma(&mut sorted);
         let limit = TRIM_SIGMAS * sigma;
         let max = dist.iter().fold(0.0f64, |m, &d| m.max(d));
         // A clean cloud: every point within the limit, nothing to trim.

@@ -29,7 +29,6 @@
 
 use nalgebra::{Point3, Vector3};
 
-use crate::check::quantile;
 use crate::cloud::clean;
 use crate::error::EpdError;
 use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
@@ -311,9 +310,7 @@ fn slice_stats(sectors: &mut [Vec<f64>], start_m: f64, o: &SegmentOptions) -> Sl
             continue;
         }
         let n = v.len() as f64;
-        let m = quantile(v, 0.5);
-        let mut dev: Vec<f64> = v.iter().map(|x| (x - m).abs()).collect();
-        let s = 1.4826 * quantile(&mut dev, 0.5);
+        let (m, s) = crate::loss::median_and_mad_sigma(v);
         // Var(median) ≈ (π/2)·σ²/n, floored so that a noise-free slice is not infinitely
         // certain.
         let var = (std::f64::consts::FRAC_PI_2 * s * s / n).max(1e-12);
