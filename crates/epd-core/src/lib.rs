@@ -27,22 +27,19 @@
 //! ```
 #![deny(missing_docs)]
 
-pub mod bend;
+// One folder per concept; the modules keep their paths (`epd_core::params`, …).
 pub mod calibration;
-pub mod check;
-pub mod cloud;
 pub mod error;
-pub mod estimate;
-pub mod init;
-pub mod lm;
-pub mod loss;
-pub mod params;
-pub mod problem;
+pub mod fit;
+pub mod model;
 pub mod report;
-pub mod residual;
-pub mod segment;
-pub mod symmetry;
-pub mod torus;
+pub mod scene;
+pub mod solver;
+
+pub use fit::{check, cloud, estimate, init, uncertainty};
+pub use model::{params, residual, symmetry};
+pub use scene::{bend, segment, torus};
+pub use solver::{lm, loss, problem};
 
 pub use calibration::{DepthTable, Observation, TableBins};
 pub use check::{Diagnostics, FitOutcome, FitStatus, Implausible};

@@ -1,205 +1,11 @@
-//! Depth calibration by lookup table (the paper's §4.2, its ref. 27).
-//!
-//! A ToF camera's systematic range error (wiggling, an amplitude-dependent offset,
-//! multipath) depends mostly on the measured range r and the return's intensity I. In a
-//! pipe of known diameter the pose of each frame is fitted with the diameters held at
-//! their known values; every point then gives one observation of the error along its
-//! sensing line,
-//!
-//!   δᵢ = ‖x̂ᵢ‖ − t(x̂ᵢ)·‖x̂ᵢ‖  (measured range − model range, m),
-//!
-//! with t the line parameter of eq. (21) at the fitted β ([`offsets`]). A [`DepthTable`]
-//! stores, per (range × log-intensity) bin, the robust mean of δ over many frames (the
-//! random error averages out) and its robust spread (the random error's σ there).
-//! [`DepthTable::correct`] moves each measured point of a new frame along its own ray by
-//! −T(r, I), interpolated between bin centres.
-//!
-//! Binning uses the *model* range of each observation: binned by measured range, a
-//! bin would collect the points whose noise pushed them in, and store that noise's
-//! conditional mean along with the systematic error. A new frame has no model: its
-//! correction solves ρ + T(ρ, I) = r for the wall range ρ of each measured range r.
+//! The depth table: per (range × log-intensity) bin the robust mean of the range error
+//! and its spread ([`DepthTable`]), its axes, the correction of a new frame by inverting
+//! ρ + T(ρ, I) = r, and the per-point σ it implies.
 
-use crate::error::EpdError;
-use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
-use crate::params::Params;
-use crate::residual::Geometry;
 use rayon::prelude::*;
 
-/// One observation of the systematic range error: a point of a calibration frame.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Observation {
-    /// Range where the point's sensing line meets the known wall (m).
-    pub model_range_m: f64,
-    /// The point's intensity (camera units).
-    pub intensity: f64,
-    /// Measured range − model range (m): positive when the camera reads long.
-    pub offset_m: f64,
-}
-
-/// The observations of one calibration frame: every finite, non-zero point with a finite
-/// positive intensity whose model range at `beta` (the frame's fit with the diameters
-/// held at the known values) lies in `gate` (m).
-pub fn offsets(
-    points: &[[f64; 3]],
-    intensity: &[f64],
-    beta: &Params,
-    gate: (f64, f64),
-) -> Result<Vec<Observation>, EpdError> {
-    if points.len() != intensity.len() {
-        return Err(EpdError::InvalidOption(format!(
-            "{} points but {} intensities: one intensity per point is needed",
-            points.len(),
-            intensity.len()
-        )));
-    }
-    let geom = Geometry::new(beta).ok_or_else(|| {
-        EpdError::InvalidOption("the fitted β puts the sensor outside the pipe".into())
-    })?;
-    Ok(points
-        .iter()
-        .zip(intensity)
-        .filter(|(p, i)| usable(p) && i.is_finite() && **i > 0.0)
-        .filter_map(|(p, &i)| {
-            let r = norm(p);
-            let model = geom.line_parameter(p) * r;
-            ((gate.0..=gate.1).contains(&model) && model.is_finite()).then_some(Observation {
-                model_range_m: model,
-                intensity: i,
-                offset_m: r - model,
-            })
-        })
-        .collect())
-}
-
-/// One calibration frame: measured points (SCS, m; invalid pixels as zeros) and their
-/// intensities.
-#[derive(Clone, Copy, Debug)]
-pub struct CalibrationFrame<'a> {
-    /// Measured points.
-    pub points: &'a [[f64; 3]],
-    /// One intensity per point.
-    pub intensity: &'a [f64],
-}
-
-/// How a table is made from calibration frames.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct CalibrationSettings {
-    /// The known (Dmax, Dmin) of the calibration pipe (m).
-    pub known: (f64, f64),
-    /// Range gate on the model range (m): the points used.
-    pub gate: (f64, f64),
-    /// Range × intensity bins.
-    pub bins: (usize, usize),
-    /// Least observations of a filled bin.
-    pub min_count: usize,
-    /// Passes of the alternating refinement (≥ 1; see [`calibrate`]).
-    pub passes: usize,
-}
-
-/// A depth table with the frames' fitted poses.
-#[derive(Clone, Debug)]
-pub struct Calibration {
-    /// The table.
-    pub table: DepthTable,
-    /// Per frame: its fit with the diameters held, or why it failed (the frame is then
-    /// left out).
-    pub fits: Vec<Result<Estimate, EpdError>>,
-    /// Observations behind the table.
-    pub n_observations: usize,
-}
-
-/// The depth table of frames recorded in a pipe of known diameter.
-///
-/// The systematic error and the pose are found together: a frame's pose, fitted with
-/// the diameters held, absorbs the part of the error that looks like a pose change (a
-/// range error larger on one side shifts δy, δz), and the table built on that pose
-/// inherits the pose's error. So the fit alternates, like the joint least squares of
-/// one table and one pose per frame: pass 1 fits each frame's pose on its measured
-/// points and builds the table from their offsets (measured − model range); each
-/// further pass fits the poses again on the points corrected by the current table and
-/// rebuilds the table from the raw points' offsets to the new poses. The table's
-/// bins span the observations of the first pass (range clipped to the gate).
-/// Frames whose fit does not converge are left out; fails when none is left.
-pub fn calibrate(
-    frames: &[CalibrationFrame<'_>],
-    settings: &CalibrationSettings,
-    options: &EstimateOptions,
-) -> Result<Calibration, EpdError> {
-    let (d_max, d_min) = settings.known;
-    let (lo, hi) = settings.gate;
-    let options = options
-        .with_fixed_diameters(d_max, d_min)?
-        .with_range_gate(lo, hi)?;
-    let mut table: Option<DepthTable> = None;
-    let mut bins: Option<TableBins> = None;
-    let mut last = None;
-    for _ in 0..settings.passes.max(1) {
-        let per_frame: Vec<Result<(Estimate, Vec<Observation>), EpdError>> = frames
-            .par_iter()
-            .with_max_len(1)
-            .map(|f| {
-                let corrected;
-                let pts = match &table {
-                    None => f.points,
-                    Some(t) => {
-                        let mut c = f.points.to_vec();
-                        t.correct(&mut c, f.intensity)?;
-                        corrected = c;
-                        &corrected
-                    }
-                };
-                let est = estimate(pts, Method::MlEpd, &options)?;
-                if !est.status.is_converged() {
-                    return Err(EpdError::Degenerate(format!(
-                        "the pose fit with the known diameters ended {}: {}",
-                        est.status.name(),
-                        est.status.reason()
-                    )));
-                }
-                let obs = offsets(f.points, f.intensity, &est.params, settings.gate)?;
-                Ok((est, obs))
-            })
-            .collect();
-        let obs: Vec<Observation> = per_frame
-            .iter()
-            .filter_map(|r| r.as_ref().ok())
-            .flat_map(|(_, o)| o.iter().copied())
-            .collect();
-        if obs.is_empty() {
-            let why = per_frame
-                .iter()
-                .find_map(|r| r.as_ref().err().map(|e| e.to_string()))
-                .unwrap_or_else(|| "no point lies in the range gate".into());
-            return Err(EpdError::InvalidOption(format!(
-                "no calibration frame could be used: {why}"
-            )));
-        }
-        let b = match bins {
-            Some(b) => b,
-            None => {
-                let mut b = TableBins::spanning(&obs, settings.bins.0, settings.bins.1)?;
-                b.range.lo = b.range.lo.max(lo);
-                b.range.hi = b.range.hi.min(hi);
-                if !(b.range.hi > b.range.lo) {
-                    (b.range.lo, b.range.hi) = (lo, hi);
-                }
-                b.min_count = settings.min_count.max(1);
-                bins = Some(b);
-                b
-            }
-        };
-        table = Some(DepthTable::build(&obs, &b)?);
-        last = Some((per_frame, obs.len()));
-    }
-    let (Some(table), Some((per_frame, n_observations))) = (table, last) else {
-        return Err(EpdError::InvalidOption("no calibration pass ran".into()));
-    };
-    Ok(Calibration {
-        table,
-        fits: per_frame.into_iter().map(|r| r.map(|(e, _)| e)).collect(),
-        n_observations,
-    })
-}
+use super::rig::Observation;
+use crate::error::EpdError;
 
 /// An axis of the table: `n` equal bins over [lo, hi] of a coordinate (the range in m,
 /// or the natural log of the intensity).
@@ -340,7 +146,7 @@ pub struct DepthTable {
 
 /// The offsets of the usable observations (finite, intensity > 0, inside both axes) by
 /// bin: bin k = range bin × log-intensity bins + log-intensity bin.
-fn bin_offsets(obs: &[Observation], bins: &TableBins, cells: usize) -> Vec<Vec<f64>> {
+pub(super) fn bin_offsets(obs: &[Observation], bins: &TableBins, cells: usize) -> Vec<Vec<f64>> {
     let ni = bins.log_intensity.n;
     let mut per_bin: Vec<Vec<f64>> = vec![Vec::new(); cells];
     for o in obs {
@@ -665,7 +471,7 @@ impl DepthTable {
     /// [`true_range`](Self::true_range) tabulated once for a whole frame: at
     /// INVERSE_STEPS nodes per range bin over the measured ranges the table can produce,
     /// for each intensity bin centre; a point then costs one bilinear interpolation.
-    fn inverse(&self) -> Inverse {
+    pub(super) fn inverse(&self) -> Inverse {
         let ni = self.log_intensity.n;
         let (tmin, tmax) = self
             .offset_m
@@ -718,7 +524,7 @@ impl DepthTable {
 
 /// The clipped mean of `v` (mean within median ± 4·1.4826·MAD) and 1.4826·MAD. `v` is
 /// reordered.
-fn clipped_mean(v: &mut [f64]) -> (f64, f64) {
+pub(super) fn clipped_mean(v: &mut [f64]) -> (f64, f64) {
     let (med, spread) = crate::loss::median_and_mad_sigma(v);
     let cut = 4.0 * spread;
     let (mut s, mut n) = (0.0, 0usize);
@@ -750,7 +556,7 @@ const INVERSE_STEPS: usize = 8;
 
 /// The wall range ρ as a function of (measured range, log-intensity), tabulated: nodes
 /// every `step` metres from `lo`, columns at the table's intensity bin centres.
-struct Inverse {
+pub(super) struct Inverse {
     lo: f64,
     step: f64,
     n: usize,
@@ -762,7 +568,7 @@ impl Inverse {
     /// ρ at measured range r and log-intensity li: linear between range nodes and
     /// between intensity centres (constant beyond the outer ones); beyond the nodes, ρ
     /// is r minus the outermost node's offset.
-    fn true_range(&self, r: f64, li: f64) -> f64 {
+    pub(super) fn true_range(&self, r: f64, li: f64) -> f64 {
         let (j0, j1, fj) = self.log_intensity.bracket(li);
         let ni = self.log_intensity.n;
         let at = |k: usize| {
@@ -786,7 +592,7 @@ impl Inverse {
 }
 
 /// ln(I), or −∞ (the lowest bin) for a non-positive or non-finite intensity.
-fn log_of(intensity: f64) -> f64 {
+pub(super) fn log_of(intensity: f64) -> f64 {
     if intensity > 0.0 && intensity.is_finite() {
         intensity.ln()
     } else {
@@ -794,276 +600,10 @@ fn log_of(intensity: f64) -> f64 {
     }
 }
 
-fn usable(p: &[f64; 3]) -> bool {
+pub(super) fn usable(p: &[f64; 3]) -> bool {
     p.iter().all(|v| v.is_finite()) && p.iter().any(|&v| v != 0.0)
 }
 
-fn norm(p: &[f64; 3]) -> f64 {
+pub(super) fn norm(p: &[f64; 3]) -> f64 {
     (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn bins(nr: usize, ni: usize) -> TableBins {
-        TableBins {
-            range: Axis {
-                lo: 0.5,
-                hi: 2.0,
-                n: nr,
-            },
-            log_intensity: Axis {
-                lo: 0.0,
-                hi: 6.0,
-                n: ni,
-            },
-            min_count: 10,
-        }
-    }
-
-    /// A smooth known error: the table reproduces it at the bin centres exactly and in
-    /// between to the interpolation error of a linear function (zero).
-    #[test]
-    fn linear_error_is_reproduced_everywhere() {
-        let f = |r: f64, li: f64| 0.004 * r - 0.001 * li + 0.002;
-        let mut obs = vec![];
-        for a in 0..300 {
-            for b in 0..60 {
-                let r = 0.5 + 1.5 * (a as f64 + 0.5) / 300.0;
-                let li = 6.0 * (b as f64 + 0.5) / 60.0;
-                obs.push(Observation {
-                    model_range_m: r,
-                    intensity: li.exp(),
-                    offset_m: f(r, li),
-                });
-            }
-        }
-        let t = DepthTable::build(&obs, &bins(15, 6)).unwrap();
-        assert!(t.count.iter().all(|&c| c > 0));
-        // Within the outer centres the bilinear interpolation of a linear function is
-        // exact up to the mean within a bin (also exact: the bins sample it evenly).
-        for (r, li) in [(0.6, 0.6), (1.23, 2.7), (1.9, 5.4)] {
-            let got = t.offset_at(r, f64::exp(li));
-            assert!(
-                (got - f(r, li)).abs() < 1e-9,
-                "{r} {li}: {got} vs {}",
-                f(r, li)
-            );
-        }
-        // Beyond the outer centres the table is constant.
-        assert_eq!(t.offset_at(0.1, 1.0), t.offset_at(0.5, 1.0));
-        assert_eq!(t.offset_at(9.0, 1e9), t.offset_at(2.0, 6f64.exp()));
-    }
-
-    #[test]
-    fn robust_mean_ignores_flying_pixels_and_spread_is_sigma() {
-        // Deterministic "noise": a symmetric comb of ±σ·z values, plus 5 % gross errors.
-        let mut v: Vec<f64> = (0..2000)
-            .map(|k| {
-                let z = (k as f64 + 0.5) / 2000.0;
-                0.003 + 0.01 * inverse_normal(z)
-            })
-            .collect();
-        v.extend(std::iter::repeat_n(1.0, 100));
-        let (m, s) = clipped_mean(&mut v);
-        assert!((m - 0.003).abs() < 2e-4, "{m}");
-        // The MAD is not deaf to 5 % one-sided contamination: its median moves into the
-        // tail, ≈ +6 % here (without the gross errors it is exact to 0.2 %).
-        assert!((s - 0.01).abs() < 8e-4, "{s}");
-        let mut clean: Vec<f64> = v[..].iter().copied().filter(|x| *x < 0.5).collect();
-        let (_, s0) = clipped_mean(&mut clean);
-        assert!((s0 - 0.01).abs() < 2e-5, "{s0}");
-    }
-
-    /// Acklam-free inverse normal by bisection of erf (test only).
-    fn inverse_normal(p: f64) -> f64 {
-        let cdf = |x: f64| 0.5 * (1.0 + erf(x / std::f64::consts::SQRT_2));
-        let (mut lo, mut hi) = (-10.0, 10.0);
-        for _ in 0..100 {
-            let mid = 0.5 * (lo + hi);
-            if cdf(mid) < p { lo = mid } else { hi = mid }
-        }
-        0.5 * (lo + hi)
-    }
-
-    fn erf(x: f64) -> f64 {
-        // Abramowitz & Stegun 7.1.26 is too coarse for a test oracle; integrate instead.
-        let n = 2000;
-        let h = x / n as f64;
-        let f = |t: f64| (-t * t).exp();
-        let mut s = f(0.0) + f(x);
-        for k in 1..n {
-            s += f(k as f64 * h) * if k % 2 == 1 { 4.0 } else { 2.0 };
-        }
-        s * h / 3.0 * 2.0 / std::f64::consts::PI.sqrt()
-    }
-
-    #[test]
-    fn empty_bins_take_the_nearest_filled_bin() {
-        // Observations only in range bin 0 (intensity bin 0) and range bin 3 (bin 1).
-        let mut obs = vec![];
-        for k in 0..20 {
-            // ± 1 mm of noise about the bin's offset.
-            let e = if k % 2 == 0 { 0.001 } else { -0.001 };
-            obs.push(Observation {
-                model_range_m: 0.6,
-                intensity: 1.5,
-                offset_m: 0.01 + e,
-            });
-            obs.push(Observation {
-                model_range_m: 1.9,
-                intensity: 3f64.exp(),
-                offset_m: -0.02 + e,
-            });
-        }
-        let t = DepthTable::build(&obs, &bins(4, 2)).unwrap();
-        assert_eq!(t.count, vec![20, 0, 0, 0, 0, 0, 0, 20]);
-        // Row 0: bin (0, 1) from (0, 0); row 3: (3, 0) from (3, 1); the empty rows 1
-        // and 2 from their nearest filled rows, 0 and 3.
-        let (a, b) = (t.offset_m[0], t.offset_m[7]);
-        assert!((a - 0.01).abs() < 1e-12 && (b + 0.02).abs() < 1e-12);
-        assert_eq!(&t.offset_m[..4], &[a, a, a, a]);
-        assert_eq!(&t.offset_m[4..], &[b, b, b, b]);
-        assert!(t.validate().is_ok());
-        // Only the observed bins are covered; filled ones and points off the axes are not.
-        assert!(t.covers(0.6, 1.5) && t.covers(1.9, 3f64.exp()));
-        assert!(!t.covers(0.6, 3f64.exp()) && !t.covers(1.0, 1.5));
-        assert!(!t.covers(2.1, 3f64.exp()) && !t.covers(0.6, 1e4) && !t.covers(0.6, 0.0));
-        // No observation at all: refused with a reason.
-        let e = DepthTable::build(&[], &bins(4, 2)).unwrap_err().to_string();
-        assert!(e.contains("no bin"), "{e}");
-    }
-
-    #[test]
-    fn correction_moves_points_along_their_ray() {
-        let obs: Vec<Observation> = (0..100)
-            .map(|k| Observation {
-                model_range_m: 0.5 + 1.5 * k as f64 / 100.0,
-                intensity: 10.0,
-                offset_m: 0.02 + if k % 2 == 0 { 0.001 } else { -0.001 },
-            })
-            .collect();
-        let b = TableBins {
-            min_count: 1,
-            ..bins(1, 1)
-        };
-        let t = DepthTable::build(&obs, &b).unwrap();
-        let mut pts = [[1.0, 0.2, -0.1], [0.0, 0.0, 0.0], [f64::NAN, 1.0, 1.0]];
-        let before = pts;
-        let mut again = pts;
-        let moved = t.correct(&mut pts, &[10.0, 10.0, 10.0]).unwrap();
-        assert_eq!(moved, 1);
-        let (m2, sig) = t.correct_with_sigmas(&mut again, &[10.0; 3]).unwrap();
-        assert_eq!(m2, 1);
-        assert_eq!(again[0], pts[0]);
-        assert_eq!(sig[0], t.sigma_at(norm(&pts[0]), 10.0));
-        assert!(sig[1].is_nan() && sig[2].is_nan());
-        let r0 = norm(&before[0]);
-        assert!((norm(&pts[0]) - (r0 - 0.02)).abs() < 1e-12);
-        assert!((t.true_range(1.3, 10.0) - 1.28).abs() < 1e-12);
-        // Without a usable intensity a valid point cannot be corrected: it becomes NaN.
-        let mut q = [[1.0, 0.2, -0.1], [1.0, 0.1, 0.1]];
-        assert_eq!(t.correct(&mut q, &[0.0, f64::NAN]).unwrap(), 0);
-        assert!(q.iter().all(|p| p[0].is_nan()));
-        // Same direction.
-        let c = (0..3).map(|k| pts[0][k] * before[0][k]).sum::<f64>() / (norm(&pts[0]) * r0);
-        assert!((c - 1.0).abs() < 1e-12);
-        assert_eq!(pts[1], [0.0; 3]);
-        assert!(pts[2][0].is_nan());
-        assert!(t.correct(&mut pts, &[1.0]).is_err());
-    }
-
-    /// The tabulated inverse that `correct` uses agrees with the fixed-point solution
-    /// of ρ + T(ρ, I) = r to 20 µm on a table with wiggles and an intensity trend.
-    #[test]
-    fn tabulated_inverse_matches_the_fixed_point() {
-        let f = |r: f64, li: f64| 0.03 + 0.02 * r + 0.006 * (4.19 * r).sin() - 0.003 * li;
-        let mut obs = vec![];
-        for a in 0..600 {
-            for b in 0..40 {
-                let r = 0.5 + 1.5 * (a as f64 + 0.5) / 600.0;
-                let li = 1.0 + 6.0 * (b as f64 + 0.5) / 40.0;
-                obs.push(Observation {
-                    model_range_m: r,
-                    intensity: li.exp(),
-                    offset_m: f(r, li),
-                });
-            }
-        }
-        let b = TableBins {
-            range: Axis {
-                lo: 0.5,
-                hi: 2.0,
-                n: 30,
-            },
-            log_intensity: Axis {
-                lo: 1.0,
-                hi: 7.0,
-                n: 12,
-            },
-            min_count: 10,
-        };
-        let t = DepthTable::build(&obs, &b).unwrap();
-        let inv = t.inverse();
-        let mut worst: f64 = 0.0;
-        for k in 0..5000 {
-            let r = 0.3 + 2.2 * (k as f64 * 0.618_034).fract();
-            let li = 0.5 + 7.0 * (k as f64 * 0.414_214).fract();
-            let exact = t.true_range(r, li.exp());
-            // The fixed point holds to its own tolerance.
-            assert!((exact + t.offset_at(exact, li.exp()) - r).abs() < 2e-5);
-            worst = worst.max((inv.true_range(r, li) - exact).abs());
-        }
-        assert!(worst < 2e-5, "{worst}");
-    }
-
-    #[test]
-    fn corrupt_tables_are_refused() {
-        let obs: Vec<Observation> = (0..100)
-            .map(|k| Observation {
-                model_range_m: 0.5 + 1.5 * k as f64 / 100.0,
-                intensity: 10.0,
-                offset_m: if k % 2 == 0 { 0.001 } else { -0.001 },
-            })
-            .collect();
-        let mut t = DepthTable::build(
-            &obs,
-            &TableBins {
-                min_count: 1,
-                ..bins(2, 1)
-            },
-        )
-        .unwrap();
-        t.offset_m.pop();
-        assert!(t.validate().unwrap_err().to_string().contains("offsets"));
-        t.offset_m.push(f64::NAN);
-        assert!(
-            t.validate()
-                .unwrap_err()
-                .to_string()
-                .contains("not a depth error")
-        );
-        *t.offset_m.last_mut().unwrap() = 1e300;
-        assert!(
-            t.validate()
-                .unwrap_err()
-                .to_string()
-                .contains("not a depth error")
-        );
-        *t.offset_m.last_mut().unwrap() = 0.0;
-        t.spread_m[0] = 0.0;
-        assert!(t.validate().unwrap_err().to_string().contains("spread"));
-        t.spread_m[0] = 0.01;
-        t.range.lo = -5.0;
-        assert!(t.validate().unwrap_err().to_string().contains("range axis"));
-        t.range.lo = 0.5;
-        t.log_intensity.hi = 1e308;
-        assert!(
-            t.validate()
-                .unwrap_err()
-                .to_string()
-                .contains("log-intensity")
-        );
-    }
 }

@@ -1,0 +1,187 @@
+//! A calibration rig: frames in a pipe of known diameter, each frame's pose fitted with the
+//! diameters held ([`calibrate`]), and the observations of the error along each sensing
+//! line ([`offsets`]) from which the [`DepthTable`] is built.
+
+use rayon::prelude::*;
+
+use super::table::{DepthTable, TableBins, norm, usable};
+use crate::error::EpdError;
+use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
+use crate::params::Params;
+use crate::residual::Geometry;
+
+/// One observation of the systematic range error: a point of a calibration frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Observation {
+    /// Range where the point's sensing line meets the known wall (m).
+    pub model_range_m: f64,
+    /// The point's intensity (camera units).
+    pub intensity: f64,
+    /// Measured range − model range (m): positive when the camera reads long.
+    pub offset_m: f64,
+}
+
+/// The observations of one calibration frame: every finite, non-zero point with a finite
+/// positive intensity whose model range at `beta` (the frame's fit with the diameters
+/// held at the known values) lies in `gate` (m).
+pub fn offsets(
+    points: &[[f64; 3]],
+    intensity: &[f64],
+    beta: &Params,
+    gate: (f64, f64),
+) -> Result<Vec<Observation>, EpdError> {
+    if points.len() != intensity.len() {
+        return Err(EpdError::InvalidOption(format!(
+            "{} points but {} intensities: one intensity per point is needed",
+            points.len(),
+            intensity.len()
+        )));
+    }
+    let geom = Geometry::new(beta).ok_or_else(|| {
+        EpdError::InvalidOption("the fitted β puts the sensor outside the pipe".into())
+    })?;
+    Ok(points
+        .iter()
+        .zip(intensity)
+        .filter(|(p, i)| usable(p) && i.is_finite() && **i > 0.0)
+        .filter_map(|(p, &i)| {
+            let r = norm(p);
+            let model = geom.line_parameter(p) * r;
+            ((gate.0..=gate.1).contains(&model) && model.is_finite()).then_some(Observation {
+                model_range_m: model,
+                intensity: i,
+                offset_m: r - model,
+            })
+        })
+        .collect())
+}
+
+/// One calibration frame: measured points (SCS, m; invalid pixels as zeros) and their
+/// intensities.
+#[derive(Clone, Copy, Debug)]
+pub struct CalibrationFrame<'a> {
+    /// Measured points.
+    pub points: &'a [[f64; 3]],
+    /// One intensity per point.
+    pub intensity: &'a [f64],
+}
+
+/// How a table is made from calibration frames.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CalibrationSettings {
+    /// The known (Dmax, Dmin) of the calibration pipe (m).
+    pub known: (f64, f64),
+    /// Range gate on the model range (m): the points used.
+    pub gate: (f64, f64),
+    /// Range × intensity bins.
+    pub bins: (usize, usize),
+    /// Least observations of a filled bin.
+    pub min_count: usize,
+    /// Passes of the alternating refinement (≥ 1; see [`calibrate`]).
+    pub passes: usize,
+}
+
+/// A depth table with the frames' fitted poses.
+#[derive(Clone, Debug)]
+pub struct Calibration {
+    /// The table.
+    pub table: DepthTable,
+    /// Per frame: its fit with the diameters held, or why it failed (the frame is then
+    /// left out).
+    pub fits: Vec<Result<Estimate, EpdError>>,
+    /// Observations behind the table.
+    pub n_observations: usize,
+}
+
+/// The depth table of frames recorded in a pipe of known diameter.
+///
+/// The systematic error and the pose are found together: a frame's pose, fitted with
+/// the diameters held, absorbs the part of the error that looks like a pose change (a
+/// range error larger on one side shifts δy, δz), and the table built on that pose
+/// inherits the pose's error. So the fit alternates, like the joint least squares of
+/// one table and one pose per frame: pass 1 fits each frame's pose on its measured
+/// points and builds the table from their offsets (measured − model range); each
+/// further pass fits the poses again on the points corrected by the current table and
+/// rebuilds the table from the raw points' offsets to the new poses. The table's
+/// bins span the observations of the first pass (range clipped to the gate).
+/// Frames whose fit does not converge are left out; fails when none is left.
+pub fn calibrate(
+    frames: &[CalibrationFrame<'_>],
+    settings: &CalibrationSettings,
+    options: &EstimateOptions,
+) -> Result<Calibration, EpdError> {
+    let (d_max, d_min) = settings.known;
+    let (lo, hi) = settings.gate;
+    let options = options
+        .with_fixed_diameters(d_max, d_min)?
+        .with_range_gate(lo, hi)?;
+    let mut table: Option<DepthTable> = None;
+    let mut bins: Option<TableBins> = None;
+    let mut last = None;
+    for _ in 0..settings.passes.max(1) {
+        let per_frame: Vec<Result<(Estimate, Vec<Observation>), EpdError>> = frames
+            .par_iter()
+            .with_max_len(1)
+            .map(|f| {
+                let corrected;
+                let pts = match &table {
+                    None => f.points,
+                    Some(t) => {
+                        let mut c = f.points.to_vec();
+                        t.correct(&mut c, f.intensity)?;
+                        corrected = c;
+                        &corrected
+                    }
+                };
+                let est = estimate(pts, Method::MlEpd, &options)?;
+                if !est.status.is_converged() {
+                    return Err(EpdError::Degenerate(format!(
+                        "the pose fit with the known diameters ended {}: {}",
+                        est.status.name(),
+                        est.status.reason()
+                    )));
+                }
+                let obs = offsets(f.points, f.intensity, &est.params, settings.gate)?;
+                Ok((est, obs))
+            })
+            .collect();
+        let obs: Vec<Observation> = per_frame
+            .iter()
+            .filter_map(|r| r.as_ref().ok())
+            .flat_map(|(_, o)| o.iter().copied())
+            .collect();
+        if obs.is_empty() {
+            let why = per_frame
+                .iter()
+                .find_map(|r| r.as_ref().err().map(|e| e.to_string()))
+                .unwrap_or_else(|| "no point lies in the range gate".into());
+            return Err(EpdError::InvalidOption(format!(
+                "no calibration frame could be used: {why}"
+            )));
+        }
+        let b = match bins {
+            Some(b) => b,
+            None => {
+                let mut b = TableBins::spanning(&obs, settings.bins.0, settings.bins.1)?;
+                b.range.lo = b.range.lo.max(lo);
+                b.range.hi = b.range.hi.min(hi);
+                if !(b.range.hi > b.range.lo) {
+                    (b.range.lo, b.range.hi) = (lo, hi);
+                }
+                b.min_count = settings.min_count.max(1);
+                bins = Some(b);
+                b
+            }
+        };
+        table = Some(DepthTable::build(&obs, &b)?);
+        last = Some((per_frame, obs.len()));
+    }
+    let (Some(table), Some((per_frame, n_observations))) = (table, last) else {
+        return Err(EpdError::InvalidOption("no calibration pass ran".into()));
+    };
+    Ok(Calibration {
+        table,
+        fits: per_frame.into_iter().map(|r| r.map(|(e, _)| e)).collect(),
+        n_observations,
+    })
+}

@@ -1,0 +1,9 @@
+//! Fitting a frame: the cleaning of its points, the data-only initial guess, the staged
+//! estimate with its covariance and Cramér–Rao bound, and the checks that the result
+//! agrees with its points.
+
+pub mod check;
+pub mod cloud;
+pub mod estimate;
+pub mod init;
+pub mod uncertainty;

@@ -1,0 +1,7 @@
+//! What lies ahead of the sensor: the survey of a frame near a bend or a tee
+//! (`segment`), the torus of a bend with its exact ray cast (`torus`) and the bend's fit
+//! (`bend`).
+
+pub mod bend;
+pub mod segment;
+pub mod torus;
