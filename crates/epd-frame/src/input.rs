@@ -8,10 +8,16 @@ use std::path::Path;
 use crate::config::{InputConfig, InputFrame, Units};
 use crate::read::{MAX_INPUT_BYTES, PointCloud, read_from, read_path};
 
-/// A cloud whose median distance from the sensor exceeds this (m) is not in metres.
+/// A cloud whose median distance from the sensor exceeds this (m) is not in metres. From
+/// inside a pipe the median range of a ToF frame is a fraction of the camera's reach
+/// (0.3–5 m for the Helios2's 6 m mode and pipes of 8"–48"); the same frame read as
+/// millimetres is 1000 times farther (300–5000 "m"). 30 m sits between the two with a
+/// factor of 6 to spare above the farthest plausible median and 10 below the nearest
+/// misread one, so the hint "pass --units mm" is right whenever it is given.
 const MAX_MEDIAN_RANGE_M: f64 = 30.0;
 /// A cloud whose median distance from the sensor is below this (m) is not in the unit
-/// given (e.g. metres read as millimetres).
+/// given (e.g. metres read as millimetres: 0.3–5 mm). 2 cm is 15 times below the nearest
+/// plausible median (0.3 m) and 4 times above the farthest misread one (5 mm).
 const MIN_MEDIAN_RANGE_M: f64 = 0.02;
 
 /// Convert the points to metres in the sensor frame, in place, and check that the

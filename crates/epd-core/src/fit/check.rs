@@ -19,7 +19,7 @@
 //!   pipe whose wall is blurred by more than that is not measured by the frame;
 //! - no region of the wall is systematically missed: around the axis, in
 //!   [`SECTORS`] sectors, the median range residual of each sector stays within
-//!   [`MAX_SECTOR_MEDIAN`]·s + 5·s/√n (n the sector's points). A fit with a wrong tilt
+//!   [`MAX_SECTOR_MEDIAN`]·s + [`SECTOR_SAMPLING`]·s/√n (n the sector's points). A fit with a wrong tilt
 //!   or in a wrong basin leaves whole sectors on one side of the wall.
 
 use crate::lm::{Convergence, DegenerateReason, Status};
@@ -27,20 +27,44 @@ use crate::params::Params;
 use crate::residual::{Geometry, Residual};
 
 /// Largest angle between the pipe axis and the sensor's optical (X) axis for a camera
-/// looking along a pipe (deg).
+/// looking along a pipe (deg). A plausibility bound, not a statistic: a robot's camera
+/// looks along the pipe (the paper's poses tilt at most 7°: pitch and yaw within ±5°);
+/// at 60° the axis runs across the view and the far wall, which fixes the axis, is out
+/// of a 69° × 51° field of view, so such a fit stands on the near wall alone.
 pub const MAX_TILT_DEG: f64 = 60.0;
-/// Smallest ratio of the cloud's lateral span to the fitted diameter.
+/// Smallest ratio of the cloud's lateral span (1st to 99th percentile across the axis)
+/// to the fitted diameter: a wall seen from inside spans its whole diameter on both
+/// cross-section axes unless half of it is out of view; a fitted diameter twice the
+/// points' extent is extrapolated, not measured.
 pub const MIN_SPAN_RATIO: f64 = 0.5;
-/// Largest ratio of the cloud's lateral span to the fitted diameter (plus 8 s).
+/// Largest ratio of the cloud's lateral span to the fitted diameter (plus
+/// [`SPAN_NOISE_ALLOWANCE`]·s/D): points 50 % beyond the wall are not of this pipe.
 pub const MAX_SPAN_RATIO: f64 = 1.5;
+/// How far noise of scale s widens the 1st–99th percentile span, in units of s: each end
+/// moves out by up to z₀.₉₉ = 2.33 s, so 4.65 s at both ends, and 8 s leaves 3.3 s for
+/// the percentiles' own sampling error.
+pub const SPAN_NOISE_ALLOWANCE: f64 = 8.0;
 /// Largest robust scale of the range residuals, as a fraction of the mean radius.
 pub const MAX_NOISE_TO_RADIUS: f64 = 0.5;
 /// Angular sectors around the axis for the lack-of-fit test.
 pub const SECTORS: usize = 8;
-/// Largest |median residual| of a sector, in units of s (beyond the sampling term).
+/// Largest |median residual| of a sector, in units of s (beyond the sampling term): a
+/// whole sector one noise scale off the wall is a wrong tilt or basin, not noise.
 pub const MAX_SECTOR_MEDIAN: f64 = 1.0;
+/// The sector median's sampling allowance, in standard errors: the median of n
+/// independent residuals of scale s has standard error √(π/2)·s/√n = 1.2533·s/√n, and the
+/// allowance [`SECTOR_SAMPLING`]·s/√n = 5·s/√n is 5/1.2533 = 3.99 of them — a one-sided
+/// false alarm of 3.3·10⁻⁵ per sector, 2.6·10⁻⁴ per frame over [`SECTORS`] sectors, for
+/// independent noise.
+pub const SECTOR_SAMPLING: f64 = 5.0;
+/// Fewest points a sector needs to be tested: at n = 32 the median's standard error is
+/// 1.2533/√32 = 0.22 s, so a misfit of [`MAX_SECTOR_MEDIAN`] = 1 s is 4.5 standard
+/// errors; fewer points (the far wall seen edge-on) cannot resolve it.
+pub const MIN_SECTOR_POINTS: usize = 32;
 
-/// At most this many points (evenly strided) are assessed.
+/// At most this many points (evenly strided) are assessed: the statistics above then
+/// cost O(4096) whatever the frame, and their standard errors are those of 4096 points
+/// (a sector of 512 points resolves 1.2533·5/√512 = 0.28 s).
 const MAX_ASSESSED: usize = 4096;
 
 /// Measures of how a fitted β agrees with its points (see the module doc).
@@ -256,7 +280,7 @@ impl Diagnostics {
         .into_iter()
         .enumerate()
         {
-            let hi = MAX_SPAN_RATIO + 8.0 * s / d;
+            let hi = MAX_SPAN_RATIO + SPAN_NOISE_ALLOWANCE * s / d;
             if !(ratio >= MIN_SPAN_RATIO && ratio <= hi) {
                 return Some(Implausible::DiameterVsExtent {
                     axis,
@@ -320,11 +344,11 @@ pub fn assess(points: &[[f64; 3]], beta: &Params) -> Result<Diagnostics, Implaus
                 .map(|(&v, _)| v),
         );
         // Sectors with few points (the far wall seen edge-on) say little.
-        if in_sector.len() < 32 {
+        if in_sector.len() < MIN_SECTOR_POINTS {
             continue;
         }
         let med = quantile(&mut in_sector, 0.5);
-        let sampling = 5.0 / (in_sector.len() as f64).sqrt();
+        let sampling = SECTOR_SAMPLING / (in_sector.len() as f64).sqrt();
         misfit = misfit.max(med.abs() / s_eff - sampling);
     }
     Ok(Diagnostics {

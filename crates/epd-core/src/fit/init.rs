@@ -55,6 +55,22 @@ const TRIM_STEPS: usize = 4;
 /// A kept point lies within this many robust standard deviations of the surface.
 const TRIM_SIGMAS: f64 = 3.0;
 
+/// A cloud is clean — nothing to trim — when no point lies beyond this many robust
+/// standard deviations of the surface: for normal noise P(|z| > 5) = 5.7·10⁻⁷, so a
+/// clean frame of 10⁵ points passes with probability 0.94, and a frame with one gross
+/// outlier is trimmed.
+const CLEAN_SIGMAS: f64 = 5.0;
+
+/// Smallest cosine between a point's direction and the axis guess for the point to be
+/// projected on the cross-section plane (cos 80° = 0.17): at more grazing angles the
+/// projection 1/cos grows past 5.8 and one point's noise moves it across the grid.
+const MIN_PROJECTION_COS: f64 = 0.17;
+
+/// Where noise put the sensor just outside the guessed ellipse, it is pulled back to this
+/// fraction of the way to the wall (in units of the normalised radius): inside, with a
+/// margin of a tenth of the radius for the solver's first steps.
+const PULL_INSIDE: f64 = 0.9;
+
 /// The sensor may lie this far outside the guessed ellipse (in units of its normalised
 /// radius) and still be pulled inside; beyond, the points are not a pipe around it.
 const MAX_OUTSIDE: f64 = 1.5;
@@ -188,7 +204,7 @@ fn bin_medians(points: &[[f64; 3]]) -> Vec<[f64; 3]> {
         .map(|p| {
             let u = unit(p);
             let c = u.dot(&m);
-            (c > 0.17).then(|| (u.dot(&e1) / c, u.dot(&e2) / c))
+            (c > MIN_PROJECTION_COS).then(|| (u.dot(&e1) / c, u.dot(&e2) / c))
         })
         .collect();
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
@@ -246,7 +262,7 @@ fn trimmed_quadric(pts: &[Vector3<f64>]) -> Result<(Matrix3<f64>, Vec<usize>), E
         let limit = TRIM_SIGMAS * sigma;
         let max = dist.iter().fold(0.0f64, |m, &d| m.max(d));
         // A clean cloud: every point within the limit, nothing to trim.
-        if step == 0 && max <= limit * 5.0 / TRIM_SIGMAS {
+        if step == 0 && max <= limit * CLEAN_SIGMAS / TRIM_SIGMAS {
             break;
         }
         let next: Vec<usize> = if step == 0 {
@@ -429,8 +445,8 @@ fn section_guess(pts: &[Vector3<f64>], axis: &Vector3<f64>) -> Result<Params, Ep
             ));
         }
         // Noise put the sensor just outside: start from inside; the solver refines.
-        guess.dy *= 0.9 / outside;
-        guess.dz *= 0.9 / outside;
+        guess.dy *= PULL_INSIDE / outside;
+        guess.dz *= PULL_INSIDE / outside;
     }
     Ok(guess)
 }
