@@ -180,10 +180,12 @@ pub(crate) struct Placed {
     floor_z: Option<f64>,
     /// The obstacle's base z_b (PCS).
     base_z: f64,
+    /// (sin φ_d, cos φ_d) of the dent's clock angle (0, 1 without a dent).
+    dent_sin_cos: (f64, f64),
 }
 
 /// A hit on the contaminated scene: range along the unit SCS ray (m) and the unit
-/// normal of the surface hit, in the PCS.
+/// normal of the surface hit, in the PCS (zero when the cast was asked for no normal).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Hit {
     pub(crate) range: f64,
@@ -336,6 +338,7 @@ impl Placed {
             origin,
             floor_z,
             base_z,
+            dent_sin_cos: c.dent.map_or((0.0, 1.0), |d| d.clock_rad.sin_cos()),
         };
         if c.dent.is_some() && placed.dent_implicit(&origin) >= 0.0 {
             return Err(SimError::invalid(
@@ -361,18 +364,22 @@ impl Placed {
     }
 
     /// The first hit along the unit SCS ray `dir` within `max_range`: the nearest of the
-    /// wall (`wall`: the undented wall's hit, range and PCS normal, cast without a limit
-    /// when there is a dent), the floor layer and the obstacle.
+    /// wall (`wall(limit)`: the undented wall's hit within `limit`, range and PCS normal,
+    /// cast without a limit when there is a dent), the floor layer and the obstacle. The
+    /// dented wall's normal only `with_normal` (else zero, as `wall` may give it).
     pub(crate) fn cast(
         &self,
         dir: &Vector3<f64>,
         max_range: f64,
+        with_normal: bool,
         wall: impl FnOnce(f64) -> Option<Hit>,
     ) -> Option<Hit> {
         let d = self.to_pcs(dir);
         let mut best = match &self.parts.dent {
             None => wall(max_range),
-            Some(dent) => wall(f64::INFINITY).map(|h| self.dent_cast(dent, &d, h.range)),
+            Some(dent) => {
+                wall(f64::INFINITY).map(|h| self.dent_cast(dent, &d, h.range, with_normal))
+            }
         }
         .filter(|h| h.range <= max_range);
         let mut take = |h: Option<Hit>| {
@@ -473,14 +480,46 @@ impl Placed {
 
     /// F(p) = ρ − ρ_w(x, φ) = ρ − ρ_E(φ) + h·G(x, φ) at PCS point `p`: < 0 inside the
     /// dented wall, 0 on it.
+    ///
+    /// Without trigonometry but one atan2: ρ_E(φ) = ρ / √(y²/a² + z²/b²), and
+    /// Δφ = atan2(y cos φ_d − z sin φ_d, z cos φ_d + y sin φ_d), only within the dent's
+    /// axial reach.
     fn dent_implicit(&self, p: &Vector3<f64>) -> f64 {
         let Some(dent) = &self.parts.dent else {
             return f64::NAN;
         };
-        let phi = clock_angle(p);
-        let (re, _) = ellipse_radius(self.a, self.b, phi);
-        let (g, _, _) = dent.gaussian(p.x, phi, 0.5 * (self.a + self.b));
-        p.y.hypot(p.z) - re + dent.depth_m * g
+        let (y2, z2) = (p.y * p.y, p.z * p.z);
+        let rho = (y2 + z2).sqrt();
+        let re = rho / (y2 / (self.a * self.a) + z2 / (self.b * self.b)).sqrt();
+        let sx = dent.axial_sigma_m;
+        let dx = p.x - dent.x_m;
+        if dx.abs() > DENT_REACH * sx {
+            return rho - re;
+        }
+        let sphi = dent.circumferential_sigma_m / (0.5 * (self.a + self.b));
+        let (sd, cd) = self.dent_sin_cos;
+        let dphi = (p.y * cd - p.z * sd).atan2(p.z * cd + p.y * sd);
+        if dphi.abs() > DENT_REACH * sphi {
+            return rho - re;
+        }
+        let g = (-0.5 * (dx * dx / (sx * sx) + dphi * dphi / (sphi * sphi))).exp();
+        rho - re + dent.depth_m * g
+    }
+
+    /// A bound on |d²F/dt²| along a unit ray where ρ ≥ b − h (the only stretch searched),
+    /// with a safety factor 2: ρ″ ≤ 1/ρ; (ρ_E∘φ)″ = ρ_E″φ′² + ρ_E′φ″ with φ′ ≤ 1/ρ,
+    /// |φ″| ≤ 2/ρ², |ρ_E′|, |ρ_E″| ≤ 2|a − b|·((a/b)³ + (b/a)³); (hG)″ ≤ 2h·(1/s_x² +
+    /// (R̄/(ρ s_c))²) (the Gaussian's second derivative along the ray).
+    fn dent_curvature(&self, dent: &Dent) -> f64 {
+        let (a, b) = (self.a, self.b);
+        let rho = a.min(b) - dent.depth_m;
+        let k = 2.0 * (a - b).abs() * ((a / b).powi(3) + (b / a).powi(3));
+        let r_mean = 0.5 * (a + b);
+        let g = 2.0
+            * dent.depth_m
+            * (1.0 / dent.axial_sigma_m.powi(2)
+                + (r_mean / (rho * dent.circumferential_sigma_m)).powi(2));
+        2.0 * (1.0 / rho + 3.0 * k / (rho * rho) + g)
     }
 
     /// The unit outward normal ∇F/|∇F| of the dented wall at PCS point `p`:
@@ -501,19 +540,24 @@ impl Placed {
     /// sensor, given the undented wall's range `t_e`. The dent lies inside the ellipse
     /// (h ≥ 0), so the crossing is in (0, t_e]: where the ray passes the dent's reach
     /// (|x − x_d| ≤ 8 s_x), F is sampled in steps of at most s_x/(4|d_x|) and
-    /// s_c/(4|d_yz|) (a quarter of the dent's scale, so a crossing is missed only by a
-    /// ray grazing the dent within that quarter), the first sign change bisected to
-    /// adjacent floats; no crossing: the ellipse at t_e.
-    fn dent_cast(&self, dent: &Dent, d: &Vector3<f64>, t_e: f64) -> Hit {
+    /// s_c/(4|d_yz|) (a quarter of the dent's scale); the first sign change is bisected
+    /// to adjacent floats. A ray that skims the dent's crest goes out and back in within
+    /// a step (over k²s²/h in x for a ray of slope k against a crest of depth h and width
+    /// s): at every negative local maximum of the samples, F's maximum between its
+    /// neighbours is found by golden section, and a crossing before it bisected if it
+    /// reaches 0. No crossing: the ellipse at t_e.
+    fn dent_cast(&self, dent: &Dent, d: &Vector3<f64>, t_e: f64, with_normal: bool) -> Hit {
         let o = self.origin;
         let at = |t: f64| o + d * t;
-        let ellipse = |t: f64| {
-            let p = at(t);
-            Hit {
-                range: t,
-                normal: self.dent_normal(dent, &p),
-            }
+        let hit = |t: f64| Hit {
+            range: t,
+            normal: if with_normal {
+                self.dent_normal(dent, &at(t))
+            } else {
+                Vector3::zeros()
+            },
         };
+        let ellipse = hit;
         // The t-interval of the dent's axial reach, within (0, t_e].
         let reach = DENT_REACH * dent.axial_sigma_m;
         let (mut t0, mut t1) = if d.x.abs() < 1e-300 {
@@ -528,8 +572,41 @@ impl Placed {
         };
         t0 = t0.max(0.0);
         t1 = t1.min(t_e);
+        // Only where ρ ≥ b − h (no wall point is nearer the axis; for a > b too, as
+        // ρ_E ≥ min(a, b)) can the ray meet the dent: ρ(t)² = |o_yz + t·d_yz|² is convex,
+        // so that is t ≥ the larger root of ρ(t)² = (b − h)².
+        let rho_min = self.a.min(self.b) - dent.depth_m;
+        let qa = d.y * d.y + d.z * d.z;
+        let qb = o.y * d.y + o.z * d.z;
+        let qc = o.y * o.y + o.z * o.z - rho_min * rho_min;
+        if qa > 0.0 && qc < 0.0 {
+            t0 = t0.max((-qb + (qb * qb - qa * qc).sqrt()) / qa);
+        }
         if t0 >= t1 {
             return ellipse(t_e);
+        }
+        // The clock angle sweeps monotonically along a line (its projection on the YZ
+        // plane misses the axis there, ρ ≥ b − h > 0), through less than π: skip a ray
+        // whose arc [φ(t0), φ(t1)] stays beyond the dent's angular reach.
+        let r_mean = 0.5 * (self.a + self.b);
+        let reach_phi = DENT_REACH * dent.circumferential_sigma_m / r_mean;
+        if reach_phi < PI {
+            let (p0, p1) = (clock_angle(&at(t0)), clock_angle(&at(t1)));
+            let sweep = wrap(p1 - p0);
+            let (from, width) = if sweep >= 0.0 {
+                (p0, sweep)
+            } else {
+                (p1, -sweep)
+            };
+            let rel = (dent.clock_rad - from).rem_euclid(TAU);
+            let gap = if rel <= width {
+                0.0
+            } else {
+                (rel - width).min(TAU - rel)
+            };
+            if gap > reach_phi {
+                return ellipse(t_e);
+            }
         }
         let dyz = d.y.hypot(d.z);
         let mut step = f64::INFINITY;
@@ -541,41 +618,127 @@ impl Placed {
         }
         let n = ((t1 - t0) / step).ceil().clamp(1.0, 1e6) as usize;
         let f = |t: f64| self.dent_implicit(&at(t));
-        let mut lo = t0;
-        let mut f_lo = f(lo);
-        for k in 1..=n {
-            let hi = if k == n {
+        let sample = |k: usize| {
+            if k == n {
                 t1
             } else {
                 t0 + (t1 - t0) * k as f64 / n as f64
-            };
-            let f_hi = f(hi);
-            if f_lo < 0.0 && f_hi >= 0.0 {
-                let t = bisect(&f, lo, hi);
-                return Hit {
-                    range: t,
-                    normal: self.dent_normal(dent, &at(t)),
-                };
             }
-            lo = hi;
-            f_lo = f_hi;
+        };
+        // (t, F) at samples k − 1 and k.
+        let mut prev: Option<(f64, f64)> = None;
+        let mut cur = (t0, f(t0));
+        for k in 1..=n {
+            let next = (sample(k), f(sample(k)));
+            if cur.1 < 0.0 && next.1 >= 0.0 {
+                return hit(bisect(&f, cur.0, next.0));
+            }
+            // A local maximum below 0: the ray may cross the crest and come back between
+            // samples. Its maximum by golden section; if it reaches 0, the crossing
+            // before it.
+            if let Some(p) = prev
+                && cur.1 > p.1
+                && cur.1 >= next.1
+            {
+                let (tm, fm) = golden_max(&f, p.0, next.0, self.dent_curvature(dent));
+                if fm >= 0.0 {
+                    let t_lo = if tm > cur.0 && cur.1 < 0.0 {
+                        cur.0
+                    } else {
+                        p.0
+                    };
+                    return hit(bisect(&f, t_lo, tm));
+                }
+            }
+            prev = Some(cur);
+            cur = next;
         }
         ellipse(t_e)
     }
 }
 
-/// The root of `f` in [lo, hi] with f(lo) < 0 ≤ f(hi), bisected until the two ends are
-/// adjacent floats; returns the end where f ≥ 0.
-fn bisect(f: &impl Fn(f64) -> f64, mut lo: f64, mut hi: f64) -> f64 {
+/// The maximum of `f` on [lo, hi], assumed unimodal there, by golden-section search:
+/// (argmax, max), stopped as soon as a value ≥ 0 is found, or the bracket is down to
+/// adjacent floats, or the maximum is certainly < 0: with |f″| ≤ `curvature`, the
+/// maximum exceeds the best value found by at most ½·curvature·w² (w the bracket's
+/// width, which holds the maximum).
+fn golden_max(f: &impl Fn(f64) -> f64, mut lo: f64, mut hi: f64, curvature: f64) -> (f64, f64) {
+    const INV_PHI: f64 = 0.618_033_988_749_894_9;
+    let mut x1 = hi - INV_PHI * (hi - lo);
+    let mut x2 = lo + INV_PHI * (hi - lo);
+    let (mut f1, mut f2) = (f(x1), f(x2));
     for _ in 0..200 {
+        if f1 >= 0.0 {
+            return (x1, f1);
+        }
+        if f2 >= 0.0 {
+            return (x2, f2);
+        }
+        if !(x1 > lo && x2 < hi && x1 < x2)
+            || f1.max(f2) + 0.5 * curvature * (hi - lo).powi(2) < 0.0
+        {
+            break;
+        }
+        if f1 < f2 {
+            lo = x1;
+            x1 = x2;
+            f1 = f2;
+            x2 = lo + INV_PHI * (hi - lo);
+            f2 = f(x2);
+        } else {
+            hi = x2;
+            x2 = x1;
+            f2 = f1;
+            x1 = hi - INV_PHI * (hi - lo);
+            f1 = f(x1);
+        }
+    }
+    if f1 >= f2 { (x1, f1) } else { (x2, f2) }
+}
+
+/// The root of `f` in [lo, hi] with f(lo) < 0 ≤ f(hi), to adjacent floats: the
+/// Illinois variant of regula falsi (superlinear), with a bisection step whenever a step
+/// leaves the bracket wider than half of what it was two steps before, so the bracket
+/// always closes; returns its end where f ≥ 0.
+fn bisect(f: &impl Fn(f64) -> f64, mut lo: f64, mut hi: f64) -> f64 {
+    let (mut f_lo, mut f_hi) = (f(lo), f(hi));
+    if f_hi == 0.0 {
+        return hi;
+    }
+    // Which end moved last: −1 lo, +1 hi.
+    let mut side = 0;
+    let mut widths = [hi - lo; 2];
+    for k in 0..400 {
+        let width = hi - lo;
         let mid = 0.5 * (lo + hi);
         if mid <= lo || mid >= hi {
             break;
         }
-        if f(mid) < 0.0 {
-            lo = mid;
+        let falsi = hi - f_hi * (hi - lo) / (f_hi - f_lo);
+        let x = if width > 0.5 * widths[k % 2] || !(falsi > lo && falsi < hi) {
+            mid
         } else {
-            hi = mid;
+            falsi
+        };
+        widths[k % 2] = width;
+        let fx = f(x);
+        if fx < 0.0 {
+            lo = x;
+            f_lo = fx;
+            if side == -1 {
+                f_hi *= 0.5;
+            }
+            side = -1;
+        } else {
+            hi = x;
+            f_hi = fx;
+            if fx == 0.0 {
+                break;
+            }
+            if side == 1 {
+                f_lo *= 0.5;
+            }
+            side = 1;
         }
     }
     hi
@@ -597,6 +760,26 @@ mod tests {
             range: 0.25 / s,
             normal: Vector3::new(0.0, d.y, d.z) / s,
         })
+    }
+
+    #[test]
+    fn root_and_maximum_finders_reach_adjacent_floats() {
+        let f = |x: f64| x * x * x - 2.0;
+        let r = bisect(&f, 0.0, 5.0);
+        assert!((r - 2f64.cbrt()).abs() <= 4.0 * f64::EPSILON, "{r}");
+        assert!(f(r) >= 0.0);
+        // A root where f is flat on one side.
+        let g = |x: f64| if x < 1.0 { -1.0 } else { (x - 1.0) * 1e-3 };
+        assert!((bisect(&g, 0.0, 3.0) - 1.0).abs() <= 4.0 * f64::EPSILON);
+        // A hump peaking at 0.3 just below zero, and one just above.
+        let h = |c: f64| move |x: f64| c - (x - 0.3) * (x - 0.3);
+        let (x, y) = golden_max(&h(-1e-12), 0.0, 1.0, 2.0);
+        assert!(y < 0.0 && (x - 0.3).abs() < 1e-5, "{x} {y}");
+        let (x, y) = golden_max(&h(1e-12), 0.0, 1.0, 2.0);
+        assert!(y >= 0.0 && (x - 0.3).abs() < 2e-6, "{x} {y}");
+        // Certainly below zero: stops at once.
+        let (_, y) = golden_max(&h(-1.0), 0.0, 1.0, 2.0);
+        assert!(y < -1.0);
     }
 
     #[test]
@@ -624,12 +807,12 @@ mod tests {
         })
         .unwrap();
         let d = Vector3::new(1.0, 0.1, -0.3).normalize();
-        let h = p.cast(&d, 10.0, |_| circle(&d)).unwrap();
+        let h = p.cast(&d, 10.0, true, |_| circle(&d)).unwrap();
         assert!((d.z * h.range - (-0.2)).abs() < 1e-15);
         assert_eq!(h.normal, Vector3::z());
         // Upwards: the wall.
         let d = Vector3::new(1.0, 0.1, 0.3).normalize();
-        let h = p.cast(&d, 10.0, |_| circle(&d)).unwrap();
+        let h = p.cast(&d, 10.0, true, |_| circle(&d)).unwrap();
         assert!((h.range - circle(&d).unwrap().range).abs() < 1e-15);
     }
 
@@ -649,12 +832,12 @@ mod tests {
         .unwrap();
         // Towards the near face's centre (x = 1, y = 0, z = −0.2): hits it at x = 1.
         let d = Vector3::new(1.0, 0.0, -0.2).normalize();
-        let h = p.cast(&d, 10.0, |_| circle(&d)).unwrap();
+        let h = p.cast(&d, 10.0, true, |_| circle(&d)).unwrap();
         assert!((h.range - 1.04f64.sqrt()).abs() < 1e-15);
         assert_eq!(h.normal, Vector3::new(-1.0, 0.0, 0.0));
         // Over the top (z = −0.15 at x = 1.1): the top face.
         let d = Vector3::new(1.1, 0.0, -0.15).normalize();
-        let h = p.cast(&d, 10.0, |_| circle(&d)).unwrap();
+        let h = p.cast(&d, 10.0, true, |_| circle(&d)).unwrap();
         assert!((h.range - (1.1f64 * 1.1 + 0.15 * 0.15).sqrt()).abs() < 1e-14);
         assert_eq!(h.normal, Vector3::z());
         let hc = Obstacle::HalfCylinder {
@@ -668,7 +851,7 @@ mod tests {
         .unwrap();
         // Towards its top (x = 1, z = −0.15).
         let d = Vector3::new(1.0, 0.0, -0.15).normalize();
-        let h = p.cast(&d, 10.0, |_| circle(&d)).unwrap();
+        let h = p.cast(&d, 10.0, true, |_| circle(&d)).unwrap();
         assert!((h.range - (1.0f64 + 0.0225).sqrt()).abs() < 1e-14);
         assert!((h.normal - Vector3::z()).norm() < 1e-12);
         // The sensor inside the obstacle is refused.
@@ -720,7 +903,7 @@ mod tests {
                 normal: Vector3::zeros(),
             })
         };
-        let h = p.cast(&d, 10.0, wall).unwrap();
+        let h = p.cast(&d, 10.0, true, wall).unwrap();
         let want = (centre - p.origin).norm();
         assert!((h.range - want).abs() < 1e-12, "{} vs {want}", h.range);
         // The normal against central differences of F.

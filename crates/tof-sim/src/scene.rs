@@ -211,7 +211,9 @@ impl Scene {
     /// With a contamination, the first of the wall and its objects.
     pub fn cast(&self, dir: &Vector3<f64>, max_range: f64) -> Option<f64> {
         if let Some(p) = &self.contamination {
-            return self.contaminated_cast(p, dir, max_range).map(|h| h.range);
+            return self
+                .contaminated_cast(p, dir, max_range, false)
+                .map(|h| h.range);
         }
         self.cast_wall(dir, max_range)
     }
@@ -234,16 +236,29 @@ impl Scene {
     /// normal.
     pub fn cast_with_normal(&self, dir: &Vector3<f64>, max_range: f64) -> Option<(f64, f64)> {
         if let Some(p) = &self.contamination {
-            let h = self.contaminated_cast(p, dir, max_range)?;
+            let h = self.contaminated_cast(p, dir, max_range, true)?;
             let cos = (h.normal.dot(&p.to_pcs(dir)) / dir.norm()).abs().min(1.0);
             return Some((h.range, cos));
         }
         self.cast_wall_with_normal(dir, max_range)
     }
 
-    /// The contaminated scene's first hit along `dir` (PCS normal).
-    fn contaminated_cast(&self, p: &Placed, dir: &Vector3<f64>, max_range: f64) -> Option<Hit> {
-        p.cast(dir, max_range, |limit| {
+    /// The contaminated scene's first hit along `dir`, with its PCS normal if
+    /// `with_normal` (else zero).
+    fn contaminated_cast(
+        &self,
+        p: &Placed,
+        dir: &Vector3<f64>,
+        max_range: f64,
+        with_normal: bool,
+    ) -> Option<Hit> {
+        p.cast(dir, max_range, with_normal, |limit| {
+            if !with_normal {
+                return self.cast_wall(dir, limit).map(|range| Hit {
+                    range,
+                    normal: Vector3::zeros(),
+                });
+            }
             let ray = Ray::new(DVec3::ZERO, to_glam(dir));
             let hit = match &self.wall {
                 Wall::Exact(c) => c.cast_ray_and_get_normal(&self.pose, &ray, limit, false),
