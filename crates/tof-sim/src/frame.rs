@@ -6,6 +6,7 @@ use rand::RngExt;
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
+use crate::camera::{CameraNoise, correlated_field};
 use crate::error::SimError;
 use crate::noise::{Noise, NoiseModel, Stream, stream};
 use crate::physics::ToFPhysics;
@@ -153,7 +154,8 @@ impl Frame {
 /// The outliers and the random error of one point: `r` is the range with its systematic
 /// errors, `sigma` the standard deviation of the random error (`Noise::sigma` or σ(A) of
 /// the physical model). Draws, in this order: the outlier test (and its range), the far
-/// outlier test (and its range), the Gaussian error(s).
+/// outlier test (and its range), the Gaussian error(s) — of which the range model takes
+/// `field` instead when given (the pixel's correlated ε, [`correlated_field`]).
 #[inline]
 fn displace(
     noise: &Noise,
@@ -161,6 +163,7 @@ fn displace(
     dir: &Vector3<f64>,
     range: f64,
     mut r: f64,
+    field: Option<f64>,
     rng: &mut rand_pcg::Pcg64,
 ) -> Vector3<f64> {
     if noise.outlier_fraction > 0.0 && rng.random::<f64>() < noise.outlier_fraction {
@@ -171,10 +174,10 @@ fn displace(
     }
     match noise.model {
         NoiseModel::Range => {
-            let e: f64 = if sigma > 0.0 {
-                StandardNormal.sample(rng)
-            } else {
-                0.0
+            let e: f64 = match field {
+                Some(e) => e,
+                None if sigma > 0.0 => StandardNormal.sample(rng),
+                None => 0.0,
             };
             dir * (r + sigma * e)
         }
@@ -206,6 +209,22 @@ pub fn simulate(
     Ok(frame)
 }
 
+/// [`simulate`] with the camera's own noise options ([`CameraNoise`]): correlated range
+/// errors, a range-dependent σ, wiggling, multipath bands, flying pixels. With
+/// `CameraNoise::default()` the frame is bit-identical to [`simulate`]'s.
+pub fn simulate_with(
+    sensor: &Sensor,
+    scene: &Scene,
+    noise: &Noise,
+    camera: &CameraNoise,
+    subsample: Subsample,
+    seeds: FrameSeed,
+) -> Result<Frame, SimError> {
+    let mut frame = Frame::empty();
+    simulate_into_with(sensor, scene, noise, camera, subsample, seeds, &mut frame)?;
+    Ok(frame)
+}
+
 /// [`simulate`] into an existing frame, reusing its buffers: after the first frame of a
 /// given size no memory is allocated (fresh pages cost more than the ray casting here).
 ///
@@ -225,6 +244,11 @@ pub fn simulate(
 /// For a scene with labels ([`Scene::is_labeled`]: a pipeline) every ray is cast with
 /// [`Scene::cast_labeled`] and the hit part goes to [`Frame::part`]; otherwise the casts
 /// are as they always were and `part` is left empty.
+///
+/// A scene's contamination ([`Scene::with_contamination`]) changes the casts; a pixel
+/// whose hit lies outside its view sector ([`Scene::in_view`]) is dropped by the plain
+/// model, and is invalid (zeros, its exact point kept, no random draw) under the
+/// physical one.
 pub fn simulate_into(
     sensor: &Sensor,
     scene: &Scene,
@@ -233,24 +257,88 @@ pub fn simulate_into(
     seeds: FrameSeed,
     frame: &mut Frame,
 ) -> Result<(), SimError> {
+    simulate_into_with(
+        sensor,
+        scene,
+        noise,
+        &CameraNoise::default(),
+        subsample,
+        seeds,
+        frame,
+    )
+}
+
+/// [`simulate_into`] with the camera's own noise ([`CameraNoise`]). Per pixel, with r
+/// the true range of its ray and r_s the range it sees (r, or the mixed range of a flying
+/// pixel, which then stands for r in every model below): the plain model reads
+/// r_s + b0 + b1·r_s + wiggle(r_s) + bands(r_s), then the outliers, then adds σ(r_s)·ε;
+/// the physical one r_s plus its own systematic errors plus wiggle(r_s) and bands(r_s),
+/// then the outliers, then σ(A)·ε. ε is the pixel's value of the correlated field
+/// ([`correlated_field`], streams (seed, trial, sweep index, field, padded row)) when
+/// ℓ > 0, else the row stream's draw as before. The flying-pixel draws take the stream
+/// (seed, trial, sweep index, flying, row) and the random wiggle phase (seed, trial,
+/// sweep index, wiggle), so each option leaves the other draws as they were.
+pub fn simulate_into_with(
+    sensor: &Sensor,
+    scene: &Scene,
+    noise: &Noise,
+    camera: &CameraNoise,
+    subsample: Subsample,
+    seeds: FrameSeed,
+    frame: &mut Frame,
+) -> Result<(), SimError> {
     sensor.validate()?;
     noise.validate()?;
+    camera.validate(noise)?;
     // Cast far enough that noise may bring a point back into range; with the physical
     // model, also as far as a pixel may be valid.
     let cast_limit = match &noise.physics {
-        None => sensor.max_range * 2.0 + 10.0 * noise.sigma + 1.0,
+        None if camera.is_off() => sensor.max_range * 2.0 + 10.0 * noise.sigma + 1.0,
+        None => {
+            let far = sensor.max_range * 2.0 + 1.0;
+            let wiggle = camera.wiggle.map_or(0.0, |w| w.amplitude_m);
+            far + 10.0 * camera.sigma_at(noise.sigma, far) + wiggle
+        }
         Some(p) => (sensor.max_range * 2.0 + 1.0).max(p.max_valid_range()),
     };
     let w = sensor.width as usize;
+    let pinhole = sensor.rays();
+    let random_error = noise.sigma > 0.0 || noise.physics.is_some();
+    let field = (camera.correlation_length_px > 0.0 && random_error).then(|| {
+        correlated_field(
+            w,
+            sensor.height as usize,
+            camera.correlation_length_px,
+            seeds,
+        )
+    });
+    let flying = camera
+        .flying_pixels
+        .filter(|f| f.probability > 0.0)
+        .map(|f| {
+            let ranges = true_ranges(sensor, &pinhole, scene, cast_limit);
+            let partners = f.edge_partners(&ranges, w);
+            Flying {
+                probability: f.probability,
+                ranges,
+                partners,
+            }
+        });
     let labeled = scene.is_labeled();
     frame.resize_for(sensor.pixel_count(), labeled);
     let job = RowJob {
         sensor,
-        pinhole: sensor.rays(),
+        pinhole,
         scene,
         noise,
         cast_limit,
         seeds,
+        camera: (!camera.is_off()).then(|| CameraJob {
+            noise: camera,
+            wiggle_phase: camera.wiggle_phase(seeds),
+            field: field.as_deref(),
+            flying: flying.as_ref(),
+        }),
     };
     let row =
         |v: usize, bufs: RowBuffers, part: Option<&mut [Option<Part>]>| job.run(v, bufs, part);
@@ -302,6 +390,68 @@ pub fn simulate_into(
     Ok(())
 }
 
+/// The true range (m) of every pixel's ray, row-major, NaN where it meets nothing
+/// within `cast_limit` or its hit is out of view: the image the depth edges are found in.
+fn true_ranges(sensor: &Sensor, pinhole: &Pinhole, scene: &Scene, cast_limit: f64) -> Vec<f64> {
+    let w = sensor.width as usize;
+    let mut ranges = vec![f64::NAN; sensor.pixel_count()];
+    ranges.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
+        for (u, r) in row.iter_mut().enumerate() {
+            let dir = pinhole.direction(u as u32, v as u32);
+            if let Some(t) = scene.cast(&dir, cast_limit)
+                && scene.in_view(&dir, t)
+            {
+                *r = t;
+            }
+        }
+    });
+    ranges
+}
+
+/// The flying pixels of a frame: who may fly, across which edge.
+struct Flying {
+    probability: f64,
+    /// [`true_ranges`].
+    ranges: Vec<f64>,
+    /// [`crate::FlyingPixels::edge_partners`] of `ranges`.
+    partners: Vec<Option<usize>>,
+}
+
+/// What the camera's options share over a frame.
+struct CameraJob<'a> {
+    noise: &'a CameraNoise,
+    /// The frame's wiggle phase (rad).
+    wiggle_phase: f64,
+    /// The correlated ε of every pixel, row-major (ℓ > 0 and a random error).
+    field: Option<&'a [f64]>,
+    flying: Option<&'a Flying>,
+}
+
+/// What the camera adds to one pixel.
+struct PixelCamera<'a> {
+    noise: &'a CameraNoise,
+    wiggle_phase: f64,
+    /// The pixel's correlated ε.
+    field: Option<f64>,
+    /// The range a flying pixel sees instead of its ray's.
+    flown: Option<f64>,
+}
+
+impl PixelCamera<'_> {
+    /// The range the pixel sees: its flown range, or the true one.
+    fn seen(cam: Option<&Self>, range: f64) -> f64 {
+        cam.and_then(|c| c.flown).unwrap_or(range)
+    }
+
+    /// `r` plus the wiggle and the multipath bands at the seen range `seen`.
+    fn systematic(cam: Option<&Self>, seen: f64, r: f64) -> f64 {
+        match cam {
+            Some(c) if c.noise.has_systematic() => r + c.noise.systematic(seen, c.wiggle_phase),
+            _ => r,
+        }
+    }
+}
+
 /// What every image row of a frame shares.
 struct RowJob<'a> {
     sensor: &'a Sensor,
@@ -310,6 +460,8 @@ struct RowJob<'a> {
     noise: &'a Noise,
     cast_limit: f64,
     seeds: FrameSeed,
+    /// `None` when every camera option is off: the frame as [`simulate_into`] gave it.
+    camera: Option<CameraJob<'a>>,
 }
 
 impl RowJob<'_> {
@@ -334,11 +486,37 @@ impl RowJob<'_> {
             Stream::Row,
             v as u64,
         );
+        let mut flying_rng = self.camera.as_ref().and_then(|c| c.flying).map(|_| {
+            stream(
+                seeds.seed,
+                seeds.trial,
+                seeds.sweep_index,
+                Stream::Flying,
+                v as u64,
+            )
+        });
+        let w = sensor.width as usize;
         let mut k = 0;
         for u in 0..sensor.width {
             let dir = self.pinhole.direction(u, v);
-            let Some(px) = sample_pixel(self.scene, self.noise, &dir, self.cast_limit, &mut rng)
-            else {
+            let i = v as usize * w + u as usize;
+            let cam = self.camera.as_ref().map(|c| PixelCamera {
+                noise: c.noise,
+                wiggle_phase: c.wiggle_phase,
+                field: c.field.map(|f| f[i]),
+                flown: match (c.flying, flying_rng.as_mut()) {
+                    (Some(f), Some(rng)) => fly(f, i, rng),
+                    _ => None,
+                },
+            });
+            let Some(px) = sample_pixel(
+                self.scene,
+                self.noise,
+                cam.as_ref(),
+                &dir,
+                self.cast_limit,
+                &mut rng,
+            ) else {
                 continue;
             };
             let keep = match &px.measured {
@@ -446,6 +624,7 @@ struct PixelSample {
 fn sample_pixel(
     scene: &Scene,
     noise: &Noise,
+    cam: Option<&PixelCamera>,
     dir: &Vector3<f64>,
     cast_limit: f64,
     rng: &mut rand_pcg::Pcg64,
@@ -462,14 +641,22 @@ fn sample_pixel(
             } else {
                 scene.cast(dir, cast_limit)
             }?;
-            // Depth bias and outliers act on the range along the ray.
-            let r = range + noise.bias_b0 + noise.bias_b1 * range;
-            let m = displace(noise, noise.sigma, dir, range, r, rng);
+            if !scene.in_view(dir, range) {
+                return None;
+            }
+            // Depth bias and outliers act on the range along the ray (the one the pixel
+            // sees: a flying pixel's is not its ray's).
+            let seen = PixelCamera::seen(cam, range);
+            let r = seen + noise.bias_b0 + noise.bias_b1 * seen;
+            let r = PixelCamera::systematic(cam, seen, r);
+            let sigma = cam.map_or(noise.sigma, |c| c.noise.sigma_at(noise.sigma, seen));
+            let e = cam.and_then(|c| c.field);
+            let m = displace(noise, sigma, dir, seen, r, e, rng);
             PixelSample {
                 measured: Some(m),
                 exact: dir * range,
                 intensity: f32::NAN,
-                sigma: noise.sigma,
+                sigma,
                 part,
             }
         }
@@ -482,7 +669,7 @@ fn sample_pixel(
             } else {
                 scene.cast_with_normal(dir, cast_limit)
             };
-            let q = physical_point(p, noise, dir, hit, rng);
+            let q = physical_point(p, noise, scene, cam, dir, hit, rng);
             PixelSample {
                 measured: q.measured,
                 exact: q.exact,
@@ -492,6 +679,18 @@ fn sample_pixel(
             }
         }
     })
+}
+
+/// Whether pixel `i` flies, and the range it then sees: for an edge pixel, a draw
+/// U[0, 1) < p, then α ~ U[0, ½) and r_i + α·(r_partner − r_i) ([`crate::FlyingPixels`]).
+fn fly(f: &Flying, i: usize, rng: &mut rand_pcg::Pcg64) -> Option<f64> {
+    let j = f.partners[i]?;
+    if rng.random::<f64>() >= f.probability {
+        return None;
+    }
+    let alpha = rng.random_range(0.0..0.5);
+    let (ri, rj) = (f.ranges[i], f.ranges[j]);
+    Some(ri + alpha * (rj - ri))
 }
 
 /// One image row's slices of a frame's buffers.
@@ -522,6 +721,8 @@ struct PhysicalPixel {
 fn physical_point(
     p: &ToFPhysics,
     noise: &Noise,
+    scene: &Scene,
+    cam: Option<&PixelCamera>,
     dir: &Vector3<f64>,
     hit: Option<(f64, f64)>,
     rng: &mut rand_pcg::Pcg64,
@@ -536,15 +737,21 @@ fn physical_point(
         return invalid(Vector3::repeat(f64::NAN));
     };
     let x = dir * range;
+    if !scene.in_view(dir, range) {
+        return invalid(x);
+    }
     let a = p.amplitude(range, cos_incidence);
     let (shift, a_m) = p.multipath(range, a);
     if !p.is_valid(a_m) {
         return invalid(x);
     }
-    let r = range + p.wiggle(range) + p.amplitude_offset(a_m) + shift;
+    let seen = PixelCamera::seen(cam, range);
+    let r = seen + p.wiggle(seen) + p.amplitude_offset(a_m) + shift;
+    let r = PixelCamera::systematic(cam, seen, r);
     let s = p.sigma_at(a_m);
+    let e = cam.and_then(|c| c.field);
     PhysicalPixel {
-        measured: Some(displace(noise, s, dir, range, r, rng)),
+        measured: Some(displace(noise, s, dir, seen, r, e, rng)),
         exact: x,
         amplitude: a_m,
         sigma: s,

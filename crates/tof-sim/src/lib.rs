@@ -29,6 +29,8 @@
 //! ```
 #![deny(missing_docs)]
 
+pub mod camera;
+pub mod contamination;
 pub mod elliptic_cylinder;
 pub mod error;
 pub mod export;
@@ -43,9 +45,13 @@ pub mod scene;
 pub mod sensor;
 pub mod settings;
 
+pub use camera::{CameraNoise, FlyingPixels, MultipathBand, Wiggle};
+pub use contamination::{Contamination, Dent, FloorLayer, Obstacle, ViewSector};
 pub use elliptic_cylinder::EllipticCylinder;
 pub use error::SimError;
-pub use frame::{Frame, FrameSeed, Subsample, simulate, simulate_into};
+pub use frame::{
+    Frame, FrameSeed, Subsample, simulate, simulate_into, simulate_into_with, simulate_with,
+};
 pub use noise::{Noise, NoiseModel};
 pub use physics::ToFPhysics;
 pub use pipe::Pipe;

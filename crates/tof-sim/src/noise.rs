@@ -130,6 +130,13 @@ pub enum Stream {
     Row = 2,
     /// The subsample of a frame.
     Subsample = 3,
+    /// One padded row of the i.i.d. field behind correlated range errors
+    /// ([`crate::CameraNoise::correlation_length_px`]).
+    Field = 4,
+    /// The flying-pixel draws of one image row ([`crate::FlyingPixels`]).
+    Flying = 5,
+    /// A frame's random wiggling phase ([`crate::Wiggle::random_phase`]).
+    Wiggle = 6,
 }
 
 /// A PCG-64 (rand_pcg's `Lcg128Xsl64`, a named, version-stable generator) whose seed is

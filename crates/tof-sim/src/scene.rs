@@ -7,6 +7,7 @@ use parry3d_f64::math::Pose;
 use parry3d_f64::query::{Ray, RayCast};
 use parry3d_f64::shape::TriMesh;
 
+use crate::contamination::{Contamination, Hit, Placed};
 use crate::elliptic_cylinder::EllipticCylinder;
 use crate::error::SimError;
 use crate::mesh::tube_mesh;
@@ -47,6 +48,8 @@ pub struct Scene {
     pose: Pose,
     /// The true β.
     truth: Params,
+    /// A floor layer, an obstacle, a dent, a partial view ([`Scene::with_contamination`]).
+    contamination: Option<Box<Placed>>,
 }
 
 /// nalgebra → glam at this crate's boundary.
@@ -81,7 +84,56 @@ impl Scene {
             wall,
             pose: Pose::from_parts(to_glam(&t), rot),
             truth: *truth,
+            contamination: None,
         })
+    }
+
+    /// This scene with `contamination` ([`crate::contamination`]): a floor layer, an
+    /// obstacle, a dent, a partial view, placed in the PCS of `truth`'s pipe. From then
+    /// on every cast ([`Scene::cast`], [`Scene::cast_with_normal`],
+    /// [`Scene::cast_labeled`]) stops at the first of the wall and those objects, and
+    /// [`Scene::in_view`] says which hits the camera sees. Refused, naming the field:
+    /// a value out of its range (see each type), a layer or obstacle that holds the
+    /// sensor, a dent that reaches it, a dent on a meshed wall, any contamination of a
+    /// pipeline scene (its floor would follow the bends: not modelled). A
+    /// [`Contamination::default`] (all `None`) leaves the scene as it was.
+    pub fn with_contamination(mut self, contamination: Contamination) -> Result<Self, SimError> {
+        if contamination == Contamination::default() {
+            self.contamination = None;
+            return Ok(self);
+        }
+        if self.is_labeled() {
+            return Err(SimError::invalid(
+                "contamination",
+                "on a pipeline scene",
+                "applies to one straight pipe (Scene::new or Scene::with_mesh)",
+            ));
+        }
+        let t = &self.truth;
+        let placed = Placed::new(
+            contamination,
+            t.d_max / 2.0,
+            t.d_min / 2.0,
+            *t.rotation().matrix(),
+            Vector3::new(0.0, t.dy, t.dz),
+            matches!(self.wall, Wall::Exact(_)),
+        )?;
+        self.contamination = Some(Box::new(placed));
+        Ok(self)
+    }
+
+    /// The scene's contamination, if any ([`Scene::with_contamination`]).
+    pub fn contamination(&self) -> Option<&Contamination> {
+        self.contamination.as_deref().map(|p| &p.parts)
+    }
+
+    /// Whether the camera sees the hit at `range` (m) along the unit SCS ray `dir`: its
+    /// clock angle (PCS) lies in the contamination's [`crate::ViewSector`]; always true
+    /// without one.
+    pub fn in_view(&self, dir: &Vector3<f64>, range: f64) -> bool {
+        self.contamination
+            .as_deref()
+            .is_none_or(|p| p.in_view(dir, range))
     }
 
     /// A scene over a custom mesh of the wall given in the PCS (a dented pipe, an
@@ -156,7 +208,18 @@ impl Scene {
 
     /// Range (m) along the unit direction `dir` (SCS) from the sensor origin to the wall,
     /// up to `max_range`, through parry's `RayCast`.
+    /// With a contamination, the first of the wall and its objects.
     pub fn cast(&self, dir: &Vector3<f64>, max_range: f64) -> Option<f64> {
+        if let Some(p) = &self.contamination {
+            return self
+                .contaminated_cast(p, dir, max_range, false)
+                .map(|h| h.range);
+        }
+        self.cast_wall(dir, max_range)
+    }
+
+    /// The wall's range along `dir`, contamination aside.
+    fn cast_wall(&self, dir: &Vector3<f64>, max_range: f64) -> Option<f64> {
         let ray = Ray::new(DVec3::ZERO, to_glam(dir));
         match &self.wall {
             Wall::Exact(c) => c.cast_ray(&self.pose, &ray, max_range, false),
@@ -169,7 +232,51 @@ impl Scene {
     /// the range (m) and the cosine of the incidence angle θ between the ray and the wall
     /// normal, cos θ = |d·n| ∈ [0, 1] (the gradient normal of the exact cylinder, the hit
     /// triangle's normal for a mesh).
+    /// With a contamination, the first of the wall and its objects, with that surface's
+    /// normal.
     pub fn cast_with_normal(&self, dir: &Vector3<f64>, max_range: f64) -> Option<(f64, f64)> {
+        if let Some(p) = &self.contamination {
+            let h = self.contaminated_cast(p, dir, max_range, true)?;
+            let cos = (h.normal.dot(&p.to_pcs(dir)) / dir.norm()).abs().min(1.0);
+            return Some((h.range, cos));
+        }
+        self.cast_wall_with_normal(dir, max_range)
+    }
+
+    /// The contaminated scene's first hit along `dir`, with its PCS normal if
+    /// `with_normal` (else zero).
+    fn contaminated_cast(
+        &self,
+        p: &Placed,
+        dir: &Vector3<f64>,
+        max_range: f64,
+        with_normal: bool,
+    ) -> Option<Hit> {
+        p.cast(dir, max_range, with_normal, |limit| {
+            if !with_normal {
+                return self.cast_wall(dir, limit).map(|range| Hit {
+                    range,
+                    normal: Vector3::zeros(),
+                });
+            }
+            let ray = Ray::new(DVec3::ZERO, to_glam(dir));
+            let hit = match &self.wall {
+                Wall::Exact(c) => c.cast_ray_and_get_normal(&self.pose, &ray, limit, false),
+                Wall::Mesh(m) => m.cast_ray_and_get_normal(&self.pose, &ray, limit, false),
+                Wall::Labeled(m) => m
+                    .mesh
+                    .cast_ray_and_get_normal(&self.pose, &ray, limit, false),
+            }?;
+            let n = Vector3::new(hit.normal.x, hit.normal.y, hit.normal.z);
+            Some(Hit {
+                range: hit.time_of_impact,
+                normal: p.to_pcs(&n),
+            })
+        })
+    }
+
+    /// The wall's range and incidence along `dir`, contamination aside.
+    fn cast_wall_with_normal(&self, dir: &Vector3<f64>, max_range: f64) -> Option<(f64, f64)> {
         let d = to_glam(dir);
         let ray = Ray::new(DVec3::ZERO, d);
         let hit = match &self.wall {
