@@ -40,8 +40,10 @@ pub struct Contamination {
 }
 
 /// A floor layer: everything of the pipe below the plane z = −Dmin/2 + `depth_m` (PCS),
-/// a plane parallel to the axis `depth_m` above the bottom of the wall. Rays that meet
-/// its surface before the wall stop there, with the plane's normal +Z.
+/// a plane parallel to the axis `depth_m` above the bottom of the wall, endless along it
+/// (past the end of a finite meshed wall, rays meet it far away). Rays that meet its
+/// surface before the wall stop there, with the plane's normal +Z; under the physical
+/// model it reflects as the wall does (`ToFPhysics::reflectivity`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FloorLayer {
     /// The layer's depth (m) above the bottom of the wall, in [0, Dmin); the sensor must

@@ -50,7 +50,8 @@ pub struct Frame {
     pub intensity: Vec<f32>,
     /// The true standard deviation σ (m) of the random range error drawn for each point:
     /// σ(A) of the physical model, the constant `Noise::sigma` of the plain one (the
-    /// total rms for the isotropic model); NaN for invalid pixels.
+    /// total rms for the isotropic model), or its σ(r) with a range exponent
+    /// ([`CameraNoise::sigma_range_exponent`]); NaN for invalid pixels.
     pub sigma: Vec<f64>,
     /// What each point's ray hit, for a scene with labels ([`Scene::pipeline`]): the
     /// segment and the kind of wall of the exact point; `None` for a pixel whose ray met
@@ -292,12 +293,13 @@ pub fn simulate_into_with(
     camera.validate(noise)?;
     // Cast far enough that noise may bring a point back into range; with the physical
     // model, also as far as a pixel may be valid.
+    // (With a range exponent, σ as at twice the range; a wiggle may shorten ranges by
+    // its amplitude.)
     let cast_limit = match &noise.physics {
-        None if camera.is_off() => sensor.max_range * 2.0 + 10.0 * noise.sigma + 1.0,
         None => {
-            let far = sensor.max_range * 2.0 + 1.0;
+            let sigma = camera.sigma_at(noise.sigma, sensor.max_range * 2.0 + 1.0);
             let wiggle = camera.wiggle.map_or(0.0, |w| w.amplitude_m);
-            far + 10.0 * camera.sigma_at(noise.sigma, far) + wiggle
+            sensor.max_range * 2.0 + 10.0 * sigma + 1.0 + wiggle
         }
         Some(p) => (sensor.max_range * 2.0 + 1.0).max(p.max_valid_range()),
     };

@@ -17,6 +17,15 @@
 //! [`Frame::cloud`] (module [`export`]) hands a frame to the writers of `epd-io` (PLY, the
 //! depth image); [`settings`] holds what `epd simulate` and `epd.simulate` do for a frame.
 //!
+//! [`CameraNoise`] (module [`camera`], through [`simulate_with`]) adds what a camera does
+//! beyond that: range errors correlated over the pixel grid, a range-dependent σ,
+//! wiggling of a given period and phase (random per frame if asked), multipath bands and
+//! flying pixels at depth edges. [`Contamination`] (module [`contamination`], through
+//! [`Scene::with_contamination`]) puts a floor layer, an obstacle and a dent in a
+//! straight pipe, and limits the view to a sector of clock angles. Every one of them is
+//! off by default, and frames with them off are bit-identical to the frames before they
+//! existed.
+//!
 //! ```
 //! use tof_sim::{FrameSeed, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, WallModel, simulate};
 //! let sensor = Sensor::helios2();
@@ -25,6 +34,21 @@
 //! let scene = Scene::new(&truth, WallModel::Exact, sensor.max_range)?;
 //! let frame = simulate(&sensor, &scene, &Noise::range(0.03), Subsample::Points(1000), FrameSeed::default())?;
 //! assert_eq!(frame.measured.len(), 1000);
+//!
+//! // Sediment 5 cm deep, correlated noise (ℓ = 2 px) and flying pixels.
+//! use tof_sim::{CameraNoise, Contamination, FloorLayer, FlyingPixels, simulate_with};
+//! let dirty = Scene::new(&truth, WallModel::Exact, sensor.max_range)?
+//!     .with_contamination(Contamination {
+//!         floor: Some(FloorLayer { depth_m: 0.05 }),
+//!         ..Contamination::default()
+//!     })?;
+//! let camera = CameraNoise {
+//!     correlation_length_px: 2.0,
+//!     flying_pixels: Some(FlyingPixels::new(0.2)),
+//!     ..CameraNoise::default()
+//! };
+//! let frame = simulate_with(&sensor, &dirty, &Noise::range(0.01), &camera, Subsample::All, FrameSeed::default())?;
+//! assert!(frame.len() > 300_000);
 //! # Ok::<(), tof_sim::SimError>(())
 //! ```
 #![deny(missing_docs)]

@@ -112,6 +112,28 @@ fn floor_layer_points_lie_on_its_plane() {
         }
         eprintln!("floor points: {on_floor} of {}", f.len());
         assert!(on_floor > 10_000);
+        // On a meshed wall too: floor points on the plane to 1e-9 m and before the wall,
+        // the others within the 2048-segment mesh's 10 µm of it (tests/frames.rs).
+        let meshed = Scene::new(&t, WallModel::Mesh { segments: 2048 }, 8.0)
+            .unwrap()
+            .with_contamination(Contamination {
+                floor: Some(FloorLayer { depth_m: depth }),
+                ..Contamination::default()
+            })
+            .unwrap();
+        let g = frame(&meshed, &Noise::none());
+        for (i, x) in g.exact.iter().enumerate() {
+            let (o, dp) = pcs_ray(&t, &Vector3::from(g.directions[i]));
+            let p = t.scs_to_pcs(&Point3::from(*x));
+            let tw = wall_t(&t, &o, &dp);
+            let r = Vector3::from(*x).norm();
+            if (p.z - zf).abs() < 1e-9 {
+                // (Past the mesh's end at x = 8 m a ray meets the endless floor.)
+                assert!(r <= tw + 10e-6 || p.x > 8.0, "{p:?}");
+            } else {
+                assert!(p.z > zf && (r - tw).abs() < 10e-6, "{}", r - tw);
+            }
+        }
     }
 }
 
