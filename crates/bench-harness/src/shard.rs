@@ -1270,7 +1270,13 @@ mod tests {
         let names = FitOutcome::ALL.map(FitOutcome::name);
         assert_eq!(
             names,
-            ["converged", "iteration_limit", "degenerate", "implausible"]
+            [
+                "converged",
+                "iteration_limit",
+                "degenerate",
+                "implausible",
+                "lack_of_fit"
+            ]
         );
     }
 

@@ -24,8 +24,9 @@ const MM: f64 = 1e3;
 const DEG: f64 = 180.0 / std::f64::consts::PI;
 
 /// The keys of [`estimate_fields`], in order: the solver's account, then β (eq. 2) in mm
-/// and degrees, then the 1-σ of each parameter.
-pub const ESTIMATE_KEYS: [&str; 21] = [
+/// and degrees, then the 1-σ of each parameter, then what an inspection engineer reads:
+/// the mean diameter and the ovality (in % of the mean diameter) with their 1-σ.
+pub const ESTIMATE_KEYS: [&str; 25] = [
     "method",
     "status",
     "status_reason",
@@ -47,6 +48,10 @@ pub const ESTIMATE_KEYS: [&str; 21] = [
     "sigma_yaw_deg",
     "sigma_dy_mm",
     "sigma_dz_mm",
+    "d_mean_mm",
+    "sigma_d_mean_mm",
+    "ovality_pct",
+    "sigma_ovality_pct",
 ];
 
 /// The index in [`ESTIMATE_KEYS`] of the first result (`d_max_mm`): from there on the
@@ -87,6 +92,10 @@ pub fn estimate_fields(est: &Estimate) -> Vec<(&'static str, Field)> {
         sig(4, DEG),
         sig(5, MM),
         sig(6, MM),
+        num(est.d_mean() * MM),
+        est.sigma_d_mean().map_or(Field::Null, |v| num(v * MM)),
+        num(est.ovality() * 100.0),
+        est.sigma_ovality().map_or(Field::Null, |v| num(v * 100.0)),
     ];
     ESTIMATE_KEYS.into_iter().zip(values).collect()
 }

@@ -86,22 +86,21 @@ fn ru_tilt_bias_mm(sigma: f64, w: f64) -> (f64, f64) {
     (0.5487 * scale, 0.0269 * scale)
 }
 
-/// RU-EPD's scatter over 2000 noise draws of [`reported_sigma_matches_scatter_and_crb`]'s
-/// pose (seeds 500…2499, which include the test's) divided by its mean reported 1-σ,
-/// for roll, pitch, yaw, δy, δz: its reported 1-σ of the pose overstates the scatter by
-/// 10–22 %. (The 1-σ is the least-squares σ̂²(JᵀJ)⁻¹, which is the covariance when every
-/// residual carries the same noise, as ML-EPD's range residuals do; RU-EPD's depth
-/// residual, eqs. (20)–(23), is not the range error.) Its diameters' 1-σ matches
-/// (1.020 and 0.972 in the same run). Each ratio has a relative standard error of
-/// 1/√(2·1999) = 0.016. Measured by
-/// `EPD_TEST_DRAWS=2000 cargo test -p epd-core --test bias -- reported --nocapture`.
-const RU_POSE_SD_OVER_REPORTED: [f64; 5] = [0.9099, 0.8953, 0.8222, 0.9065, 0.9109];
+/// The least ratio scatter/reported 1-σ allowed: the 1-σ is the cluster jackknife
+/// (`epd_core::fit::uncertainty`), conservative in expectation (Efron–Stein) — it may
+/// overstate the scatter, never understate it beyond sampling. Measured with it
+/// (`cargo test -p epd-core --test bias -- reported --nocapture`, 600 draws, relative
+/// SE 0.03): ML-EPD 0.90–0.98 (its 1-σ 5–9 % above the Cramér–Rao bound, its scatter
+/// 0–6 % above), RU-EPD's diameters 0.96–1.04 and its pose 0.86–0.99 (RU-EPD's depth
+/// residual, eqs. (20)–(23), is not the range error, so its scores are not its
+/// likelihood's). A 1-σ more than a third above the scatter fails.
+const MIN_SD_OVER_REPORTED: f64 = 0.75;
 
 /// The reported 1-σ against the scatter over repeated noise draws of one pose (σ = 0.03
-/// m, 160×120 pixels, 600 draws): ML-EPD's 1-σ matches its scatter for all 7
-/// parameters, and both sit at the Cramér–Rao bound; RU-EPD's matches its scatter for
-/// the two diameters and overstates it for the pose by the measured
-/// [`RU_POSE_SD_OVER_REPORTED`].
+/// m, 160×120 pixels, 600 draws): for both methods and all 7 parameters the 1-σ does
+/// not understate the scatter (sd/reported below 1 + 4 SE) nor overstate it beyond
+/// [`MIN_SD_OVER_REPORTED`]; ML-EPD's scatter sits at the Cramér–Rao bound and its
+/// 1-σ never below it.
 ///
 /// Tolerances: the sample sd of n normal draws has a relative standard error
 /// 1/√(2(n − 1)) (0.029 for n = 600); the mean reported 1-σ has its own, sd(reported)/
@@ -159,13 +158,14 @@ fn reported_sigma_matches_scatter_and_crb() {
                 rep / bound
             );
             let what = format!("{method} {}: sd/reported {ratio:.4} ± {se:.4}", names[i]);
-            if method == Method::RuEpd && i >= 2 {
-                let want = RU_POSE_SD_OVER_REPORTED[i - 2];
-                let tol = Z * se.hypot(1.0 / (2.0 * 1999.0f64).sqrt());
-                assert!((ratio - want).abs() < tol, "{what}, measured {want}");
-            } else {
-                assert!((ratio - 1.0).abs() < Z * se, "{what}");
-            }
+            assert!(
+                ratio < 1.0 + Z * se,
+                "{what}: the 1-σ understates the scatter"
+            );
+            assert!(
+                ratio > MIN_SD_OVER_REPORTED,
+                "{what}: the 1-σ overstates the scatter by more than a third"
+            );
             if method == Method::MlEpd {
                 assert!(
                     (sd / bound - 1.0).abs() < Z * se_sd,
@@ -173,8 +173,8 @@ fn reported_sigma_matches_scatter_and_crb() {
                     names[i]
                 );
                 assert!(
-                    (rep / bound - 1.0).abs() < Z * se_rep,
-                    "ML-EPD {}: reported {rep} (relative SE {se_rep:.2e}) vs CRB {bound}",
+                    rep / bound > 1.0 - Z * se_rep,
+                    "ML-EPD {}: reported {rep} (relative SE {se_rep:.2e}) below the CRB {bound}",
                     names[i]
                 );
             }

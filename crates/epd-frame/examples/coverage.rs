@@ -211,14 +211,16 @@ fn frame_outcome(case: &Case, k: u64, cfg: &EstimateConfig) -> Outcome {
         est.status.name().to_string()
     };
     if withheld || !est.status.is_converged() {
+        if std::env::var_os("EPD_REASONS").is_some() {
+            eprintln!("{} frame {k}: {status}: {}", case.name, est.status.reason());
+        }
         return Outcome { status, z: None };
     }
     let err = errors_against(&est.params, &truth);
     let (s_max, s_min) = (est.sigma[0], est.sigma[1]);
     let z = match (s_max, s_min) {
         (Some(a), Some(b)) => {
-            let cov = 0.0; // TODO: Cov(Dmax, Dmin)
-            let s_mean = (0.25 * (a * a + b * b + 2.0 * cov)).max(0.0).sqrt();
+            let s_mean = est.sigma_d_mean().unwrap_or(f64::NAN);
             Some([
                 (err.d_max / a, err.d_max.abs() * 1e3),
                 (err.d_min / b, err.d_min.abs() * 1e3),
@@ -261,9 +263,7 @@ fn main() {
             let c = conv.iter().filter(|z| z[q].0.abs() <= 1.96).count() as f64 / n.max(1.0);
             format!("{c:.3} ± {:.3}", (c * (1.0 - c) / n.max(1.0)).sqrt())
         };
-        let sd = |q: usize| {
-            (conv.iter().map(|z| z[q].0 * z[q].0).sum::<f64>() / n.max(1.0)).sqrt()
-        };
+        let sd = |q: usize| (conv.iter().map(|z| z[q].0 * z[q].0).sum::<f64>() / n.max(1.0)).sqrt();
         // Converged more than max(5σ̂, 0.5 mm) off, on Dmax or Dmin.
         let far_off = conv
             .iter()

@@ -22,6 +22,7 @@
 //!   [`MAX_SECTOR_MEDIAN`]·s + [`SECTOR_SAMPLING`]·s/√n (n the sector's points). A fit with a wrong tilt
 //!   or in a wrong basin leaves whole sectors on one side of the wall.
 
+use crate::fit::form::FormMisfit;
 use crate::lm::{Convergence, DegenerateReason, Status};
 use crate::params::Params;
 use crate::residual::{Geometry, Residual};
@@ -61,6 +62,12 @@ pub const SECTOR_SAMPLING: f64 = 5.0;
 /// 1.2533/√32 = 0.22 s, so a misfit of [`MAX_SECTOR_MEDIAN`] = 1 s is 4.5 standard
 /// errors; fewer points (the far wall seen edge-on) cannot resolve it.
 pub const MIN_SECTOR_POINTS: usize = 32;
+
+/// An inlier's range residual is within this many robust scales s of the wall: for
+/// normal noise |z| ≤ 3.29 holds for 99.9 % of the points, so the spans of the inliers are
+/// those of the wall, and a far outlier (a return from anywhere along its ray) is left
+/// out unless it falls within 3.29 s of the wall.
+pub const INLIER_SCALES: f64 = 3.29;
 
 /// At most this many points (evenly strided) are assessed: the statistics above then
 /// cost O(4096) whatever the frame, and their standard errors are those of 4096 points
@@ -175,6 +182,10 @@ pub enum FitStatus {
     Degenerate(DegenerateReason),
     /// The solver stopped, but the result disagrees with the data.
     Implausible(Implausible),
+    /// The fit is consistent, but a region of the wall lies off the model beyond its
+    /// tolerance ([`crate::fit::form::form_test`]): the diameters are not those of an
+    /// elliptic cylinder seen whole.
+    LackOfFit(FormMisfit),
 }
 
 impl FitStatus {
@@ -188,13 +199,14 @@ impl FitStatus {
         }
     }
 
-    /// Which of the four statuses this is, without its reason: what files write.
+    /// Which of the five statuses this is, without its reason: what files write.
     pub fn outcome(&self) -> FitOutcome {
         match self {
             FitStatus::Converged(_) => FitOutcome::Converged,
             FitStatus::IterationLimit => FitOutcome::IterationLimit,
             FitStatus::Degenerate(_) => FitOutcome::Degenerate,
             FitStatus::Implausible(_) => FitOutcome::Implausible,
+            FitStatus::LackOfFit(_) => FitOutcome::LackOfFit,
         }
     }
 
@@ -210,6 +222,7 @@ impl FitStatus {
             FitStatus::IterationLimit => Status::IterationLimit.reason().into(),
             FitStatus::Degenerate(d) => Status::Degenerate(*d).reason().into(),
             FitStatus::Implausible(i) => i.to_string(),
+            FitStatus::LackOfFit(m) => m.to_string(),
         }
     }
 
@@ -220,7 +233,7 @@ impl FitStatus {
 }
 
 /// A [`FitStatus`] without its reason: the value of a `status` column or key
-/// (`converged`, `iteration_limit`, `degenerate`, `implausible`), with the feature
+/// (`converged`, `iteration_limit`, `degenerate`, `implausible`, `lack_of_fit`), with the feature
 /// `serde` serialised as exactly those names. Only [`FitOutcome::Converged`] is a result.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(
@@ -237,15 +250,18 @@ pub enum FitOutcome {
     Degenerate,
     /// The solver stopped, but the result disagrees with the data.
     Implausible,
+    /// A region of the wall lies off the fitted model beyond tolerance.
+    LackOfFit,
 }
 
 impl FitOutcome {
     /// Every outcome, in the order above.
-    pub const ALL: [FitOutcome; 4] = [
+    pub const ALL: [FitOutcome; 5] = [
         FitOutcome::Converged,
         FitOutcome::IterationLimit,
         FitOutcome::Degenerate,
         FitOutcome::Implausible,
+        FitOutcome::LackOfFit,
     ];
 
     /// The name written in files: the variant in snake case (the same as serde's).
@@ -255,6 +271,7 @@ impl FitOutcome {
             FitOutcome::IterationLimit => "iteration_limit",
             FitOutcome::Degenerate => "degenerate",
             FitOutcome::Implausible => "implausible",
+            FitOutcome::LackOfFit => "lack_of_fit",
         }
     }
 }
@@ -326,11 +343,20 @@ pub fn assess(points: &[[f64; 3]], beta: &Params) -> Result<Diagnostics, Implaus
         zs.push(z);
         sector.push(octant(y, z));
     }
-    let span = |v: &mut Vec<f64>| quantile(v, 0.99) - quantile(v, 0.01);
-    let span_y = span(&mut ys);
-    let span_z = span(&mut zs);
     let mut abs_r: Vec<f64> = r.iter().map(|v| v.abs()).collect();
     let s = crate::loss::mad_sigma(&mut abs_r);
+    // The spans over the inliers only: far outliers (dust, flying pixels, stray light)
+    // lie anywhere along their rays, beyond the wall too, and would widen the span of a
+    // good fit.
+    let inlier = |k: usize| !(r[k].abs() > INLIER_SCALES * s);
+    let mut ys_in: Vec<f64> = (0..r.len()).filter(|&k| inlier(k)).map(|k| ys[k]).collect();
+    let mut zs_in: Vec<f64> = (0..r.len()).filter(|&k| inlier(k)).map(|k| zs[k]).collect();
+    if ys_in.is_empty() {
+        (ys_in, zs_in) = (ys.clone(), zs.clone());
+    }
+    let span = |v: &mut Vec<f64>| quantile(v, 0.99) - quantile(v, 0.01);
+    let span_y = span(&mut ys_in);
+    let span_z = span(&mut zs_in);
     // A floor for noise-free clouds, where the medians are rounding.
     let s_eff = s.max(1e-9 * (beta.d_max + beta.d_min));
     let mut misfit: f64 = 0.0;

@@ -5,5 +5,6 @@
 pub mod check;
 pub mod cloud;
 pub mod estimate;
+pub mod form;
 pub mod init;
 pub mod uncertainty;

@@ -39,12 +39,27 @@ pub(crate) fn covariance(eq: &NormalEquations<N_PARAMS>, sigma2: f64) -> (Sigmas
     sigmas_of(&(inv * sigma2), &keep)
 }
 
-/// The M-estimator's sandwich c·H⁻¹·B·H⁻¹ (H the robust Gauss–Newton matrix, B the
-/// outer product of the per-point gradients ψ(rᵢ)Jᵢ, c the small-sample factor
-/// N/(N − 7)), with the undetermined parameters left out as in [`covariance`].
-pub(crate) fn sandwich_covariance(bread: &Mat7, meat: &Mat7, c: f64) -> (Sigmas, Option<Mat7>) {
-    let (inv, keep) = determined_inverse(bread);
-    sigmas_of(&(inv * meat * inv * c), &keep)
+/// The cluster jackknife covariance ("CR3"): (G − 1)/G · Σ_g A_g s_g s_gᵀ A_gᵀ with
+/// A_g = (H − H_g)⁻¹, s_g the score and H_g the bread of cell g — each term the one-step
+/// change of the estimate when cell g is left out, exact for linear least squares. Unlike
+/// H⁻¹BH⁻¹ it does not shrink the cells that weigh most in the fit (whose scores the fit
+/// itself has pulled towards zero), which makes H⁻¹BH⁻¹ too small when a few cells carry
+/// most of the information — as the near wall does in a ToF frame of a pipe, where most
+/// points lie within a metre. Undetermined parameters are left out as in [`covariance`].
+pub(crate) fn jackknife_covariance(
+    bread: &Mat7,
+    cells: &[(nalgebra::SVector<f64, N_PARAMS>, Mat7)],
+) -> (Sigmas, Option<Mat7>) {
+    let (_, keep) = determined_inverse(bread);
+    let g = cells.len() as f64;
+    let mut v = Mat7::zeros();
+    for (s, h) in cells {
+        let (a, _) = determined_inverse(&(bread - h));
+        let d = a * s;
+        v += d * d.transpose();
+    }
+    v *= (g - 1.0) / g;
+    sigmas_of(&v, &keep)
 }
 
 /// 1-σ of the determined parameters and, when all are determined, the covariance.

@@ -1,0 +1,211 @@
+//! A test that the model fits: does any region of the wall lie off the fitted elliptic
+//! cylinder by more than the scatter of its own points?
+//!
+//! The wall is cut into the cells of the cluster-robust covariance
+//! ([`crate::problem::Cells`], by where each sensing line meets the fitted wall, so a
+//! point's own noise does not choose its cell). In each cell g of n_g points, m_g is the
+//! median range residual (robust to a minority of stray returns) and s_g = 1.4826·MAD its
+//! points' robust scatter. The form tolerance is the frame's noise scale, τ = 1.4826·
+//! median|r| over all points: a region off by less than one point's noise is within what
+//! one frame can tell from the noise, and a camera's own smooth systematic errors
+//! (wiggling of a few mm under σ of 1–3 cm) stay within it; a floor layer, debris, a dent
+//! deeper than the noise, a fitting or multipath that lengthens a band of ranges do not.
+//! The median of n points of scale s has standard error √(π/2)·s/√n, so the cell's
+//! statistic is
+//!
+//!   z_g = (|m_g| − τ) / (1.2533·s_g/√n_g),
+//!
+//! and the frame fails when max_g z_g exceeds z*, the two-sided normal quantile at the
+//! level [`LACK_OF_FIT_ALPHA`] shared by the G cells (Bonferroni: 1 − α/(2G)). With the
+//! model exact, |m_g| ≪ τ and z_g is far below zero, so the false-alarm rate is at
+//! most α whatever the correlation of the noise within a cell (which widens the median's
+//! spread by a few times at most, against a margin of √n_g/1.2533 ≫ z*).
+
+use crate::params::Params;
+use crate::problem::{Cells, wall_point_pcs};
+use crate::residual::{Geometry, Residual};
+
+/// The level of the form test per frame: at most one frame in a thousand whose wall is
+/// an elliptic cylinder is flagged.
+pub const LACK_OF_FIT_ALPHA: f64 = 1e-3;
+
+/// The least tolerance, as a fraction of Dmax + Dmin: 10⁷ times the rounding of the
+/// geometry in f64 and far below any physical form deviation (0.5 nm on a 20" pipe), so
+/// noise-free clouds are not failed for their rounding.
+pub const NOISE_FREE_FLOOR: f64 = 1e-9;
+
+/// At most this many points (evenly strided) are tested: 32 768 points put about 340 in
+/// each of the 96 cells, whose median then has a standard error of 1.2533/√340 = 0.07 of
+/// the noise — a region off by 1.3 times the noise is found — and the test's memory stays
+/// at 0.5 MB whatever the frame.
+pub const FORM_POINTS: usize = 32_768;
+
+/// A cell holding less than 1/[`SLIVER_FRACTION`] of its share N/G of the points is not
+/// tested: the cells are cut to hold equal shares, so such a cell is a sliver at the edge
+/// of the view whose points come from a few patches of pixels; correlated as one, its
+/// median spreads like one point's error, not like s/√n.
+pub const SLIVER_FRACTION: usize = 4;
+
+/// Fewest points a cell needs to be tested: with n = 32 the median's standard error is
+/// 1.2533/√32 = 0.22 of the cell's scatter, so a region off by twice its scatter is
+/// 4.5 standard errors beyond the tolerance.
+pub const MIN_CELL_POINTS: usize = 32;
+
+/// Where the wall departs from the fitted model most, when it does beyond tolerance.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FormMisfit {
+    /// Distance along the pipe axis from the sensor of the region's centre (m, PCS x).
+    pub x_m: f64,
+    /// Its clock angle around the pipe axis (deg, PCS: 0 along +Z, the minor axis; 90
+    /// along +Y, the major axis).
+    pub clock_deg: f64,
+    /// Its median range residual (m; positive: the points lie beyond the fitted wall).
+    pub offset_m: f64,
+    /// The tolerance it exceeds: the frame's noise scale (m).
+    pub tolerance_m: f64,
+    /// The statistic z_g against the critical value.
+    pub z: f64,
+    /// The critical value z*.
+    pub critical: f64,
+}
+
+impl std::fmt::Display for FormMisfit {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "the wall {:.2} m ahead at clock {:.0}° lies {:.1} mm {} the fitted pipe, more than \
+             the frame's {:.1} mm noise scale (z = {:.1} > {:.1}): the pipe is not an \
+             elliptic cylinder there (debris, a deposit, a dent, a fitting) or the camera's \
+             error is systematic there (multipath)",
+            self.x_m,
+            self.clock_deg,
+            self.offset_m.abs() * 1e3,
+            if self.offset_m > 0.0 {
+                "beyond"
+            } else {
+                "inside"
+            },
+            self.tolerance_m * 1e3,
+            self.z,
+            self.critical
+        )
+    }
+}
+
+/// The upper α quantile of the standard normal, z with P(Z > z) = α, for 0 < α < 0.5 (the
+/// tail of Abramowitz & Stegun 26.2.23, refined by two Newton steps on erfc: accurate to
+/// 1e-9 for α ≥ 1e-15).
+pub fn normal_upper_quantile(alpha: f64) -> f64 {
+    let t = (-2.0 * alpha.ln()).sqrt();
+    let mut z = t
+        - (2.515517 + 0.802853 * t + 0.010328 * t * t)
+            / (1.0 + 1.432788 * t + 0.189269 * t * t + 0.001308 * t * t * t);
+    for _ in 0..2 {
+        let tail = 0.5 * erfc(z / std::f64::consts::SQRT_2);
+        let density = (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt();
+        z += (tail - alpha) / density;
+    }
+    z
+}
+
+/// The complementary error function (Numerical Recipes' erfcc, fractional error < 1.2e-7,
+/// then good enough for the Newton steps of [`normal_upper_quantile`] to converge on it).
+fn erfc(x: f64) -> f64 {
+    let z = x.abs();
+    let t = 1.0 / (1.0 + 0.5 * z);
+    let r = t
+        * (-z * z - 1.26551223
+            + t * (1.00002368
+                + t * (0.37409196
+                    + t * (0.09678418
+                        + t * (-0.18628806
+                            + t * (0.27886807
+                                + t * (-1.13520398
+                                    + t * (1.48851587 + t * (-0.82215223 + t * 0.17087277)))))))))
+            .exp();
+    if x >= 0.0 { r } else { 2.0 - r }
+}
+
+/// The form test of `points` (SCS, m) against β over `cells` (see the module doc):
+/// `Some` misfit when a region lies off the fitted wall beyond tolerance at the level
+/// [`LACK_OF_FIT_ALPHA`], `None` when none does (or β is outside the model).
+pub fn form_test(points: &[[f64; 3]], beta: &Params, cells: &Cells) -> Option<FormMisfit> {
+    let geom = Geometry::new(beta)?;
+    let rot = beta.rotation();
+    let m = *rot.matrix();
+    let g = cells.len();
+    // On at most FORM_POINTS evenly strided points: each cell's residuals, and the sums
+    // of its points' axial distances and clock-angle sines and cosines.
+    let stride = points.len().div_ceil(FORM_POINTS).max(1);
+    let mut per_cell: Vec<Vec<f64>> = vec![Vec::new(); g];
+    let mut centre = vec![[0.0f64; 3]; g];
+    for p in points.iter().step_by(stride) {
+        let r = geom.residual(Residual::Range, p);
+        if !r.is_finite() {
+            continue;
+        }
+        let [x, y, z] = wall_point_pcs(&geom, &m, beta, p);
+        let c = cells.index(x, y, z);
+        per_cell[c].push(r);
+        let phi = y.atan2(z);
+        centre[c][0] += x;
+        centre[c][1] += phi.sin();
+        centre[c][2] += phi.cos();
+    }
+    let n_all: usize = per_cell.iter().map(Vec::len).sum();
+    let min_points = MIN_CELL_POINTS.max(n_all / (SLIVER_FRACTION * g));
+    let tested = per_cell.iter().filter(|c| c.len() >= min_points).count();
+    if tested == 0 {
+        return None;
+    }
+    // The frame's noise scale: the robust scale of every residual.
+    let mut abs_r: Vec<f64> = per_cell.iter().flatten().map(|r| r.abs()).collect();
+    // A floor for noise-free clouds, whose residuals are rounding (~1e-16 relative):
+    // 1e-9 of the diameter, far below any physical form deviation.
+    let tolerance =
+        crate::loss::mad_sigma(&mut abs_r).max(NOISE_FREE_FLOOR * (beta.d_max + beta.d_min));
+    let critical = normal_upper_quantile(LACK_OF_FIT_ALPHA / (2.0 * tested as f64));
+    let mut worst: Option<FormMisfit> = None;
+    for (cell, c) in per_cell.iter_mut().zip(&centre) {
+        if cell.len() < min_points {
+            continue;
+        }
+        let n = cell.len() as f64;
+        let med = crate::fit::check::quantile(cell, 0.5);
+        let mut dev: Vec<f64> = cell.iter().map(|v| (v - med).abs()).collect();
+        let scale = crate::loss::mad_sigma(&mut dev);
+        if !(scale > 0.0) {
+            continue;
+        }
+        let z = (med.abs() - tolerance) / (1.2533 * scale / n.sqrt());
+        if z > critical && worst.is_none_or(|w| z > w.z) {
+            worst = Some(FormMisfit {
+                x_m: c[0] / n,
+                clock_deg: c[1].atan2(c[2]).to_degrees().rem_euclid(360.0),
+                offset_m: med,
+                tolerance_m: tolerance,
+                z,
+                critical,
+            });
+        }
+    }
+    worst
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The normal quantile against reference values (Abramowitz & Stegun, table 26.1).
+    #[test]
+    fn normal_quantiles() {
+        for (alpha, z) in [
+            (0.025, 1.959_963_985),
+            (0.005, 2.575_829_304),
+            (1e-3, 3.090_232_306),
+            (1e-6, 4.753_424_309),
+        ] {
+            assert!((normal_upper_quantile(alpha) - z).abs() < 1e-6, "{alpha}");
+        }
+    }
+}
