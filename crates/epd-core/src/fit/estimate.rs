@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use crate::check::{Diagnostics, FitStatus, assess};
 use crate::cloud::{CleanWeighted, clean, clean_weighted};
 use crate::error::EpdError;
-use crate::fit::form::form_test;
+use crate::fit::form::{FORM_AXIAL_CELLS, form_test};
 use crate::init::initial_guess;
 use crate::lm::{LmOptions, LmReport, NormalEquations, minimize};
 use crate::loss::Loss;
@@ -557,8 +557,9 @@ fn fit_cloud(
     if status.is_converged()
         && let Some(misfit) = form_test(
             cloud.points,
+            cloud.scales,
             &canonical,
-            &wall_cells(cloud.points, &canonical),
+            &wall_cells(cloud.points, &canonical, FORM_AXIAL_CELLS),
         )
     {
         status = FitStatus::LackOfFit(misfit);
@@ -799,10 +800,10 @@ pub const AXIAL_CELLS: usize = 8;
 /// median) of the whole frame's, so the cells hold equal counts to that precision.
 const CELL_EDGE_POINTS: usize = 4096;
 
-/// The wall's cells at `beta`: [`AXIAL_CELLS`] axial bins of equal counts of `points`
+/// The wall's cells at `beta`: `axial` bins of equal counts of `points`
 /// (by where their sensing lines meet the wall, [`wall_point_pcs`]) times
 /// [`CLOCK_SECTORS`] sectors.
-fn wall_cells(points: &[[f64; 3]], beta: &Params) -> Cells {
+pub(crate) fn wall_cells(points: &[[f64; 3]], beta: &Params, axial: usize) -> Cells {
     let rot = beta.rotation();
     let m = *rot.matrix();
     let stride = points.len().div_ceil(CELL_EDGE_POINTS).max(1);
@@ -819,8 +820,8 @@ fn wall_cells(points: &[[f64; 3]], beta: &Params) -> Cells {
     let axial_edges = if x.is_empty() {
         Vec::new()
     } else {
-        (1..AXIAL_CELLS)
-            .map(|k| x[(k * x.len() / AXIAL_CELLS).min(x.len() - 1)])
+        (1..axial)
+            .map(|k| x[(k * x.len() / axial).min(x.len() - 1)])
             .collect()
     };
     Cells {
@@ -845,7 +846,7 @@ fn cluster_sandwich_uncertainty(
     canonical: &Params,
     n_free: usize,
 ) -> Option<(Sigmas, Option<Mat7>, f64)> {
-    let cells = wall_cells(cloud.points, canonical);
+    let cells = wall_cells(cloud.points, canonical, AXIAL_CELLS);
     let sw = problem(cloud, kind, loss, fixed).cluster_sandwich_at(canonical, &cells)?;
     if sw.clusters <= n_free || cloud.len() <= n_free {
         return None;

@@ -5,11 +5,11 @@
 //! ([`crate::problem::Cells`], by where each sensing line meets the fitted wall, so a
 //! point's own noise does not choose its cell). In each cell g of n_g points, m_g is the
 //! median range residual (robust to a minority of stray returns) and s_g = 1.4826·MAD its
-//! points' robust scatter. The form tolerance is the frame's noise scale, τ = 1.4826·
-//! median|r| over all points: a region off by less than one point's noise is within what
-//! one frame can tell from the noise, and a camera's own smooth systematic errors
-//! (wiggling of a few mm under σ of 1–3 cm) stay within it; a floor layer, debris, a dent
-//! deeper than the noise, a fitting or multipath that lengthens a band of ranges do not.
+//! points' robust scatter. The form tolerance is twice the frame's noise scale,
+//! τ = [`FORM_TOLERANCE_SCALES`]·1.4826·median|r| over all points: a camera's own smooth
+//! systematic errors left after its depth table (wiggling of a few mm under σ of 1–3 cm)
+//! stay within it; a floor layer, debris, a fitting or multipath that lengthens a band of
+//! ranges by a few noise scales do not.
 //! The median of n points of scale s has standard error √(π/2)·s/√n, so the cell's
 //! statistic is
 //!
@@ -33,6 +33,21 @@ pub const LACK_OF_FIT_ALPHA: f64 = 1e-3;
 /// geometry in f64 and far below any physical form deviation (0.5 nm on a 20" pipe), so
 /// noise-free clouds are not failed for their rounding.
 pub const NOISE_FREE_FLOOR: f64 = 1e-9;
+
+/// Axial bins of the form test's cells (of equal point counts, times the 12 clock
+/// sectors of the covariance's cells): twice the covariance's, so that a band of the wall
+/// a tenth of the points long (multipath over a metre of range, a deposit, a dent) fills
+/// whole cells rather than half of one.
+pub const FORM_AXIAL_CELLS: usize = 16;
+
+/// The form tolerance in units of the frame's noise scale: a region is off the model
+/// when its median lies more than twice the noise scale from the fitted wall. Measured:
+/// the Helios2 model's frames after their depth table (`epd calibrate` on a 484 mm rig,
+/// frames of a 488.8 × 479.2 mm pipe: estimates within 0.2 mm) keep regions up to 1.3
+/// noise scales off the wall — the table's residual error — and are good frames; a floor
+/// deposit, multipath of a few noise scales and the uncalibrated camera's own error (2.4
+/// noise scales) are not.
+pub const FORM_TOLERANCE_SCALES: f64 = 2.0;
 
 /// At most this many points (evenly strided) are tested: 32 768 points put about 340 in
 /// each of the 96 cells, whose median then has a standard error of 1.2533/√340 = 0.07 of
@@ -61,7 +76,7 @@ pub struct FormMisfit {
     pub clock_deg: f64,
     /// Its median range residual (m; positive: the points lie beyond the fitted wall).
     pub offset_m: f64,
-    /// The tolerance it exceeds: the frame's noise scale (m).
+    /// The tolerance it exceeds: [`FORM_TOLERANCE_SCALES`] times the frame's noise scale (m).
     pub tolerance_m: f64,
     /// The statistic z_g against the critical value.
     pub z: f64,
@@ -74,7 +89,7 @@ impl std::fmt::Display for FormMisfit {
         write!(
             f,
             "the wall {:.2} m ahead at clock {:.0}° lies {:.1} mm {} the fitted pipe, more than \
-             the frame's {:.1} mm noise scale (z = {:.1} > {:.1}): the pipe is not an \
+             the tolerance of {:.1} mm (twice the frame's noise scale; z = {:.1} > {:.1}): the pipe is not an \
              elliptic cylinder there (debris, a deposit, a dent, a fitting) or the camera's \
              error is systematic there (multipath)",
             self.x_m,
@@ -126,10 +141,19 @@ fn erfc(x: f64) -> f64 {
     if x >= 0.0 { r } else { 2.0 - r }
 }
 
-/// The form test of `points` (SCS, m) against β over `cells` (see the module doc):
+/// The form test of `points` (SCS, m) against β over `cells` (see the module doc), each
+/// range residual multiplied by its point's scale sᵢ = σ̃/σᵢ when the fit is weighted
+/// (`scales`, one per point): a weighted fit's model says the points' noise differs, and
+/// a region is then judged in units of its own points' σᵢ (offsets reported in the
+/// scaled metres):
 /// `Some` misfit when a region lies off the fitted wall beyond tolerance at the level
 /// [`LACK_OF_FIT_ALPHA`], `None` when none does (or β is outside the model).
-pub fn form_test(points: &[[f64; 3]], beta: &Params, cells: &Cells) -> Option<FormMisfit> {
+pub fn form_test(
+    points: &[[f64; 3]],
+    scales: Option<&[f64]>,
+    beta: &Params,
+    cells: &Cells,
+) -> Option<FormMisfit> {
     let geom = Geometry::new(beta)?;
     let rot = beta.rotation();
     let m = *rot.matrix();
@@ -139,8 +163,9 @@ pub fn form_test(points: &[[f64; 3]], beta: &Params, cells: &Cells) -> Option<Fo
     let stride = points.len().div_ceil(FORM_POINTS).max(1);
     let mut per_cell: Vec<Vec<f64>> = vec![Vec::new(); g];
     let mut centre = vec![[0.0f64; 3]; g];
-    for p in points.iter().step_by(stride) {
-        let r = geom.residual(Residual::Range, p);
+    for (i, p) in points.iter().enumerate().step_by(stride) {
+        let scale = scales.and_then(|s| s.get(i)).copied().unwrap_or(1.0);
+        let r = scale * geom.residual(Residual::Range, p);
         if !r.is_finite() {
             continue;
         }
@@ -162,8 +187,8 @@ pub fn form_test(points: &[[f64; 3]], beta: &Params, cells: &Cells) -> Option<Fo
     let mut abs_r: Vec<f64> = per_cell.iter().flatten().map(|r| r.abs()).collect();
     // A floor for noise-free clouds, whose residuals are rounding (~1e-16 relative):
     // 1e-9 of the diameter, far below any physical form deviation.
-    let tolerance =
-        crate::loss::mad_sigma(&mut abs_r).max(NOISE_FREE_FLOOR * (beta.d_max + beta.d_min));
+    let tolerance = FORM_TOLERANCE_SCALES
+        * crate::loss::mad_sigma(&mut abs_r).max(NOISE_FREE_FLOOR * (beta.d_max + beta.d_min));
     let critical = normal_upper_quantile(LACK_OF_FIT_ALPHA / (2.0 * tested as f64));
     let mut worst: Option<FormMisfit> = None;
     for (cell, c) in per_cell.iter_mut().zip(&centre) {
