@@ -1,6 +1,12 @@
 //! What ran: the commit and dirty flag the binary was built from, its build profile and
 //! the machine's CPU, as every run's `metadata.json` (and a shard's manifest) records them.
 
+use std::fs::File;
+use std::io::Read;
+
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
 /// The CPU's model name (`/proc/cpuinfo`; `unknown` where there is none).
 pub(crate) fn cpu_model() -> String {
     std::fs::read_to_string("/proc/cpuinfo")
@@ -29,4 +35,87 @@ pub(crate) fn profile() -> &'static str {
     } else {
         "release"
     }
+}
+
+/// What made a shard: `bench-harness`'s version, the git commit of its workspace (when
+/// it ran in one), the build profile and the SHA-256 of the executable itself (when it
+/// could be read). Two shards merge only when all four agree.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CodeVersion {
+    /// The crate version.
+    pub crate_version: String,
+    /// `git rev-parse HEAD` of the workspace the binary was built from, if any.
+    pub git_commit: Option<String>,
+    /// `dev` or `release`.
+    pub profile: String,
+    /// SHA-256 (hex) of the running executable, if it could be read.
+    pub executable_sha256: Option<String>,
+}
+
+impl CodeVersion {
+    /// The code of this process.
+    pub fn current() -> Self {
+        // /proc/self/exe opens the running program even when its file has been replaced
+        // since it started (a rebuild during a long shard); the path is the fallback.
+        let executable_sha256 = File::open("/proc/self/exe")
+            .or_else(|_| std::env::current_exe().and_then(File::open))
+            .ok()
+            .and_then(|f| sha256_of(f).ok());
+        Self {
+            crate_version: env!("CARGO_PKG_VERSION").to_string(),
+            git_commit: git_provenance().0,
+            profile: profile().to_string(),
+            executable_sha256,
+        }
+    }
+}
+
+impl std::fmt::Display for CodeVersion {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let short = |s: &Option<String>| {
+            s.as_deref()
+                .map_or("unknown".to_string(), |c| c.chars().take(12).collect())
+        };
+        write!(
+            f,
+            "bench-harness {} (commit {}, {} build, executable sha256 {})",
+            self.crate_version,
+            short(&self.git_commit),
+            self.profile,
+            short(&self.executable_sha256)
+        )
+    }
+}
+
+/// SHA-256 (hex) of everything `r` yields.
+pub(crate) fn sha256_of(mut r: impl Read) -> std::io::Result<String> {
+    let mut h = Sha256::new();
+    let mut buf = vec![0u8; 1 << 16];
+    loop {
+        let n = r.read(&mut buf)?;
+        if n == 0 {
+            break;
+        }
+        h.update(&buf[..n]);
+    }
+    Ok(hex(&h.finalize()))
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// SHA-256 (hex) of a scenario's text.
+pub fn scenario_sha256(source: &str) -> String {
+    hex(&Sha256::digest(source.as_bytes()))
+}
+
+/// The host's name, if known.
+pub(crate) fn host_name() -> Option<String> {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .ok()
+        .or_else(|| std::env::var("HOSTNAME").ok())
+        .map(|s| s.trim().to_string())
+        .filter(|s| !s.is_empty())
 }

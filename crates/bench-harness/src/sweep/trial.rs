@@ -10,7 +10,7 @@ use epd_core::{
 };
 use tof_sim::{Frame, FrameSeed, Scene, WallModel, simulate_into};
 
-use crate::scenario::Setting;
+use super::scenario::Setting;
 
 /// The outcome of one method on one frame.
 #[derive(Clone, Debug, PartialEq)]

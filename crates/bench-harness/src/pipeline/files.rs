@@ -1,0 +1,227 @@
+//! What a pipeline run writes besides the figures: `profile.csv` and `sections.csv` (their
+//! columns and rows), `depth_table.json` and `metadata.json`, and the per-frame values the
+//! figures draw.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use epd_core::DepthTable;
+use epd_frame::table::CalibrationTable;
+use epd_io::csv::num;
+
+use super::PipelineScenario;
+use super::rows::Row;
+use super::summary::SectionRow;
+use crate::output::{create_new, finish, wrote};
+use crate::route::TruthAhead;
+
+/// `profile.csv` columns (the first eleven are the interface; the rest add the truth, the
+/// Cramér–Rao bound of the heteroscedastic model, and the geometry ahead: the survey's
+/// verdict as `epd estimate` reports it, and the route's truth; last, the bend radius as
+/// fitted, also where `epd estimate` withholds it, and the fraction of the bend's points
+/// the depth table observed, `epd_frame::scene::bend_table_coverage`).
+pub const PROFILE_COLUMNS: &[&str] = &[
+    "section",
+    "frame",
+    "distance_m",
+    "method",
+    "calibrated",
+    "status",
+    "d_max_mm",
+    "d_min_mm",
+    "d_mean_mm",
+    "ovality_pct",
+    "wall_mm",
+    "d_max_true_mm",
+    "d_min_true_mm",
+    "n_points",
+    "crb_d_max_mm",
+    "crb_d_min_mm",
+    "geometry",
+    "straight_until_m",
+    "bend_radius_mm",
+    "geometry_true",
+    "straight_until_true_m",
+    "bend_radius_fit_mm",
+    "bend_table_coverage",
+];
+
+/// `sections.csv` columns (the first eleven are the interface).
+pub const SECTION_COLUMNS: &[&str] = &[
+    "section",
+    "method",
+    "calibrated",
+    "n_frames",
+    "wall_true_mm",
+    "wall_est_mm",
+    "wall_ci95_mm",
+    "dmean_bias_mm",
+    "dmean_range_mm",
+    "dmax_bias_mm",
+    "dmin_bias_mm",
+    "n_failed",
+    "dmax_range_mm",
+    "dmin_range_mm",
+    "dmax_std_mm",
+    "dmin_std_mm",
+    "dmean_std_mm",
+    "crb_dmax_mm",
+    "crb_dmin_mm",
+];
+
+pub(super) fn profile_line(s: &PipelineScenario, r: &Row) -> String {
+    let id = r.pipe.inner_diameter();
+    let od = r.pipe.outer_diameter();
+    let opt = |v: Option<f64>| v.map_or(String::new(), num);
+    let (dmax, dmin, dmean, ovality, wall) = match r.d {
+        Some((a, b)) => (
+            Some(a * 1e3),
+            Some(b * 1e3),
+            Some(0.5 * (a + b) * 1e3),
+            Some(100.0 * (a - b) / id),
+            Some((od - 0.5 * (a + b)) / 2.0 * 1e3),
+        ),
+        None => (None, None, None, None, None),
+    };
+    let g = &r.geometry;
+    [
+        s.place_name(r.section),
+        r.frame.to_string(),
+        num(r.distance_m),
+        r.method.to_string(),
+        r.calibrated.to_string(),
+        r.status.name().to_string(),
+        opt(dmax),
+        opt(dmin),
+        opt(dmean),
+        opt(ovality),
+        opt(wall),
+        num(r.truth.0 * 1e3),
+        num(r.truth.1 * 1e3),
+        r.n_points.to_string(),
+        opt(r.crb.0.map(|v| v * 1e3)),
+        opt(r.crb.1.map(|v| v * 1e3)),
+        g.found.to_string(),
+        opt(g.straight_until),
+        opt(g.bend_radius_mm),
+        g.truth.geometry.to_string(),
+        opt(g.truth.straight_until_m),
+        opt(g.bend_radius_fit_mm),
+        opt(g.bend_table_coverage),
+    ]
+    .join(",")
+}
+
+pub(super) fn section_line(r: &SectionRow) -> String {
+    [
+        r.section.clone(),
+        r.method.to_string(),
+        r.calibrated.to_string(),
+        r.n_frames.to_string(),
+        num(r.wall_true_mm),
+        num(r.wall_est_mm),
+        num(r.wall_ci95_mm),
+        num(r.dmean.mean),
+        num(r.dmean.range),
+        num(r.dmax.mean),
+        num(r.dmin.mean),
+        r.n_failed.to_string(),
+        num(r.dmax.range),
+        num(r.dmin.range),
+        num(r.dmax.std),
+        num(r.dmin.std),
+        num(r.dmean.std),
+        num(r.crb.0),
+        num(r.crb.1),
+    ]
+    .join(",")
+}
+
+/// A CSV file at `path`: the header `columns`, then one line per entry of `lines`.
+pub(super) fn write_lines(
+    path: &Path,
+    columns: &[&str],
+    lines: impl Iterator<Item = String>,
+) -> anyhow::Result<PathBuf> {
+    let mut w = create_new(path)?;
+    writeln!(w, "{}", columns.join(",")).map_err(wrote(path))?;
+    for line in lines {
+        writeln!(w, "{line}").map_err(wrote(path))?;
+    }
+    finish(w, path)
+}
+
+/// `metadata.json`: the scenario, the build and the machine, the run's wall time and
+/// the depth table's fill (`filled` bins from `n_obs` points).
+pub(super) fn metadata(
+    s: &PipelineScenario,
+    wall_time_s: f64,
+    filled: usize,
+    n_obs: usize,
+) -> serde_json::Value {
+    let (git_commit, git_dirty) = crate::provenance::git_provenance();
+    serde_json::json!({
+        "scenario": s.name,
+        "kind": "pipeline",
+        "scenario_file": s.path.display().to_string(),
+        "seed": s.seed,
+        "crate_version": env!("CARGO_PKG_VERSION"),
+        "git_commit": git_commit,
+        "git_dirty": git_dirty,
+        "threads": rayon::current_num_threads(),
+        "cpu_model": crate::provenance::cpu_model(),
+        "wall_time_s": wall_time_s,
+        "depth_table": { "bins_filled": filled, "observations": n_obs },
+        "profile": if cfg!(debug_assertions) { "dev" } else { "release" },
+    })
+}
+
+/// The depth table in the file format of `epd calibrate` (`epd estimate --calibration`
+/// reads it).
+pub(super) fn table_file(t: &DepthTable, n_obs: usize, s: &PipelineScenario) -> CalibrationTable {
+    CalibrationTable {
+        table: t.clone(),
+        known: (s.rig.d_max(), s.rig.d_min()),
+        frames: s.rig_frames,
+        n_observations: n_obs as u64,
+    }
+}
+
+/// Per-frame values for the figures.
+#[derive(Clone, Debug)]
+pub struct ProfilePoint {
+    /// Section index.
+    pub section: usize,
+    /// Frame index in the section.
+    pub frame: usize,
+    /// Odometer distance (m).
+    pub distance_m: f64,
+    /// Method name.
+    pub method: &'static str,
+    /// With the depth table.
+    pub calibrated: bool,
+    /// Dmax, Dmin (mm) when converged.
+    pub d_mm: Option<(f64, f64)>,
+    /// The survey's verdict (layout name).
+    pub geometry: &'static str,
+    /// The survey's distance to the straight section's end (m).
+    pub straight_until_m: Option<f64>,
+    /// The route's truth.
+    pub truth: TruthAhead,
+}
+
+pub(super) fn profile_points(rows: &[Row]) -> Vec<ProfilePoint> {
+    rows.iter()
+        .map(|r| ProfilePoint {
+            section: r.section,
+            frame: r.frame,
+            distance_m: r.distance_m,
+            method: r.method,
+            calibrated: r.calibrated,
+            d_mm: r.d.map(|(a, b)| (a * 1e3, b * 1e3)),
+            geometry: r.geometry.found,
+            straight_until_m: r.geometry.straight_until,
+            truth: r.geometry.truth,
+        })
+        .collect()
+}

@@ -1,0 +1,231 @@
+//! A sweep: one variable of a scenario swept over simulated frames, every method on the
+//! same clouds. Its trials (in parallel, or one at a time for timings) are streamed to
+//! `trials.csv`, their statistics to `summary.csv`, with metadata and plots; a run can be
+//! split into shards and merged again.
+//!
+//! Its folder is written through [`crate::output`]: every file into a staging folder,
+//! which then takes the output folder's place as a whole.
+//!
+//! - [`scenario`]: the scenario file, checked into [`scenario::Setting`]s;
+//! - [`trial`]: one trial (a frame, every method) and its [`trial::TrialRecord`];
+//! - [`runner`]: the trials of a setting in batches;
+//! - [`rows`]: the columns and rows of `trials.csv` and `summary.csv`;
+//! - [`summary`]: the statistics of a setting ([`summary::SummaryRow`]);
+//! - [`figures`]: the PNGs drawn from the summary;
+//! - [`shard`] and [`merge`]: a run in parts and their merge.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
+use std::time::Instant;
+
+use crate::output::{
+    INTERRUPTED, Interrupted, StagedFiles, create_new, finish, write_new, write_run, wrote,
+};
+use crate::provenance::{cpu_model, git_provenance, profile};
+use rows::{SUMMARY_COLUMNS, TRIAL_COLUMNS, summary_line, trial_rows};
+use runner::{TrialRunner, progress_bar};
+use scenario::Scenario;
+use summary::{SummaryRow, summarise};
+use trial::TrialRecord;
+
+pub mod figures;
+pub mod merge;
+pub mod rows;
+mod runner;
+pub mod scenario;
+pub mod shard;
+pub mod summary;
+pub mod trial;
+
+/// Where and how to run.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// The output folder.
+    pub out: PathBuf,
+    /// Trials per setting, overriding the scenario's.
+    pub trials: Option<usize>,
+    /// Show a progress bar (it hides itself anyway when stderr is not a terminal).
+    pub progress: bool,
+}
+
+impl RunOptions {
+    /// The trials per setting: `--trials` when given, else the scenario's, checked
+    /// against the scenario's size (the error names the key the count came from).
+    pub fn checked_trials(&self, scenario: &Scenario) -> anyhow::Result<usize> {
+        let trials = self.trials.unwrap_or(scenario.trials);
+        let key = if self.trials.is_some() {
+            "--trials"
+        } else {
+            "trials"
+        };
+        scenario.check_trials(key, trials)?;
+        Ok(trials)
+    }
+}
+
+/// What a run produced.
+#[derive(Clone, Debug)]
+pub struct RunReport {
+    /// The summary rows, in file order.
+    pub summary: Vec<SummaryRow>,
+    /// Files written.
+    pub files: Vec<PathBuf>,
+    /// Wall time (s).
+    pub wall_time_s: f64,
+    /// Trials or estimates that could not be made at all (status `error`).
+    pub trial_errors: usize,
+}
+/// Run `scenario` into `options.out`.
+pub fn run(scenario: &Scenario, options: &RunOptions) -> anyhow::Result<RunReport> {
+    let start = Instant::now();
+    let trials = options.checked_trials(scenario)?;
+    let staged = write_run(&options.out, |dir| {
+        stage(scenario, options.progress, trials, dir, start)
+    })?;
+    Ok(RunReport {
+        summary: staged.summary,
+        files: staged.files,
+        wall_time_s: staged.wall_time_s,
+        trial_errors: staged.trial_errors,
+    })
+}
+
+impl StagedFiles for Staged {
+    fn files_mut(&mut self) -> &mut Vec<PathBuf> {
+        &mut self.files
+    }
+}
+
+/// A run written into its staging folder, not yet in place.
+struct Staged {
+    summary: Vec<SummaryRow>,
+    files: Vec<PathBuf>,
+    wall_time_s: f64,
+    trial_errors: usize,
+}
+
+/// The run's `metadata.json` (keys sorted): the scenario, the code, the machine and the
+/// wall time.
+pub(crate) fn metadata(
+    scenario: &Scenario,
+    trials: usize,
+    wall_time_s: f64,
+) -> serde_json::Map<String, serde_json::Value> {
+    let (git_commit, git_dirty) = git_provenance();
+    let meta = serde_json::json!({
+        "scenario": scenario.name,
+        "scenario_file": scenario.path.display().to_string(),
+        "sweep_variable": scenario.sweep_variable,
+        "trials_per_setting": trials,
+        "seed": scenario.seed,
+        "crate_version": env!("CARGO_PKG_VERSION"),
+        "git_commit": git_commit,
+        "git_dirty": git_dirty,
+        "threads": rayon::current_num_threads(),
+        "cpu_model": cpu_model(),
+        "wall_time_s": wall_time_s,
+        "finished_unix_s": std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0),
+        "timing": if scenario.timing {
+            "trials one at a time: time_ms is the uncontended estimate call alone (each estimate may still use all threads internally)"
+        } else {
+            "trials in parallel: time_ms is the estimate call alone, contended by concurrent trials"
+        },
+        "crb": "crb_* and crb_std: Cramér–Rao 1-σ for range noise of the setting's σ (exact for noise.model = range)",
+        "profile": profile(),
+    });
+    match meta {
+        serde_json::Value::Object(m) => m,
+        _ => serde_json::Map::new(),
+    }
+}
+
+/// Write `summary.csv`, `scenario.toml`, the plots and `metadata.json` of a whole run
+/// into `dir` (after `trials.csv`); `extra` keys go into the metadata. Returns the files
+/// and the wall time written in the metadata.
+pub(crate) fn finish_run(
+    scenario: &Scenario,
+    summary: &[SummaryRow],
+    trials: usize,
+    dir: &Path,
+    start: Instant,
+    extra: serde_json::Map<String, serde_json::Value>,
+) -> anyhow::Result<(Vec<PathBuf>, f64)> {
+    let summary_path = dir.join("summary.csv");
+    let mut summary_csv = create_new(&summary_path)?;
+    writeln!(summary_csv, "{}", epd_io::csv::line(SUMMARY_COLUMNS))
+        .map_err(wrote(&summary_path))?;
+    for row in summary {
+        writeln!(
+            summary_csv,
+            "{}",
+            summary_line(&scenario.sweep_variable, row)
+        )
+        .map_err(wrote(&summary_path))?;
+    }
+    let mut files = vec![finish(summary_csv, &summary_path)?];
+    files.push(write_new(
+        &dir.join("scenario.toml"),
+        scenario.source.as_bytes(),
+    )?);
+    for png in figures::plot_all(scenario, summary)? {
+        files.push(write_new(&dir.join(&png.name), &png.bytes)?);
+    }
+    let wall_time_s = start.elapsed().as_secs_f64();
+    let mut meta = metadata(scenario, trials, wall_time_s);
+    meta.extend(extra);
+    files.push(write_new(
+        &dir.join("metadata.json"),
+        serde_json::to_string_pretty(&meta)?.as_bytes(),
+    )?);
+    Ok((files, wall_time_s))
+}
+
+/// Run the trials and write every file of the run into `dir` (the staging folder).
+fn stage(
+    scenario: &Scenario,
+    progress: bool,
+    trials: usize,
+    dir: &Path,
+    start: Instant,
+) -> anyhow::Result<Staged> {
+    let trials_path = dir.join("trials.csv");
+    let mut trials_csv = create_new(&trials_path)?;
+    writeln!(trials_csv, "{}", epd_io::csv::line(TRIAL_COLUMNS)).map_err(wrote(&trials_path))?;
+    let bar = progress_bar(progress, (trials * scenario.sweeps.len()) as u64);
+    let runner = TrialRunner::new(scenario, &bar);
+    let all: Vec<usize> = (0..trials).collect();
+    let mut summary = Vec::new();
+    let mut trial_errors = 0;
+    for (si, (value, setting)) in scenario.sweeps.iter().enumerate() {
+        let mut results: Vec<TrialRecord> = Vec::with_capacity(trials);
+        runner.run_setting(si, &all, |t| {
+            trial_rows(&mut trials_csv, &scenario.sweep_variable, value, &t)
+                .map_err(wrote(&trials_path))?;
+            trial_errors += t.errors();
+            results.push(t);
+            Ok(())
+        })?;
+        summary.extend(summarise(value, &setting.methods, &results));
+    }
+    bar.finish_and_clear();
+    if INTERRUPTED.load(Ordering::SeqCst) {
+        return Err(Interrupted.into());
+    }
+    let mut files = vec![finish(trials_csv, &trials_path)?];
+    let (rest, wall_time_s) = finish_run(
+        scenario,
+        &summary,
+        trials,
+        dir,
+        start,
+        serde_json::Map::new(),
+    )?;
+    files.extend(rest);
+    Ok(Staged {
+        summary,
+        files,
+        wall_time_s,
+        trial_errors,
+    })
+}
