@@ -20,11 +20,11 @@ use std::time::Instant;
 
 use epd_core::Method;
 
+use super::record::TrialRecord;
 use super::rows::{TRIAL_COLUMNS, trial_rows};
 use super::scenario::Scenario;
-use super::shard::{ShardManifest, WireTrial};
+use super::shard::ShardManifest;
 use super::summary::{SummaryRow, summarise};
-use super::trial::TrialRecord;
 use super::{RunReport, finish_run};
 use crate::output::{
     INTERRUPTED, Interrupted, MANIFEST_FILE, RECORDS_FILE, StagedFiles, create_new, finish,
@@ -118,15 +118,15 @@ impl RecordReader {
                     "cut short (no end of line)".into()
                 }));
             }
-            let wire: WireTrial = serde_json::from_slice(&buf)
+            let record: TrialRecord = serde_json::from_slice(&buf)
                 .map_err(|e| self.damaged(format!("not a trial record: {e}")))?;
-            if wire.setting > setting {
+            if record.setting > setting {
                 // The next setting's: read again then (the reader is dropped unless
                 // kept, and a kept one is moved back to this line).
                 reader.seek(SeekFrom::Start(self.offset))?;
                 break;
             }
-            let record = wire.into_record(methods).map_err(|e| self.damaged(e))?;
+            record.check_methods(methods).map_err(|e| self.damaged(e))?;
             self.offset += n as u64;
             self.line += 1;
             out.push(record);

@@ -7,7 +7,9 @@
 //! which then takes the output folder's place as a whole.
 //!
 //! - [`scenario`]: the scenario file, checked into [`scenario::Setting`]s;
-//! - [`trial`]: one trial (a frame, every method) and its [`trial::TrialRecord`];
+//! - [`trial`]: one trial (a frame, every method), made into a [`record::TrialRecord`];
+//! - [`record`]: a trial's record, one row of `trials.csv` per method, and a shard's
+//!   records file;
 //! - [`runner`]: the trials of a setting in batches;
 //! - [`rows`]: the columns and rows of `trials.csv` and `summary.csv`;
 //! - [`summary`]: the statistics of a setting ([`summary::SummaryRow`]);
@@ -23,14 +25,15 @@ use crate::output::{
     INTERRUPTED, Interrupted, StagedFiles, create_new, finish, write_new, write_run, wrote,
 };
 use crate::provenance::{cpu_model, git_provenance, profile};
+use record::TrialRecord;
 use rows::{SUMMARY_COLUMNS, TRIAL_COLUMNS, summary_line, trial_rows};
 use runner::{TrialRunner, progress_bar};
 use scenario::Scenario;
 use summary::{SummaryRow, summarise};
-use trial::TrialRecord;
 
 pub mod figures;
 pub mod merge;
+pub mod record;
 pub mod rows;
 mod runner;
 pub mod scenario;

@@ -6,8 +6,8 @@ use std::io::Write;
 
 use epd_core::ParamErrors;
 
+use super::record::TrialRecord;
 use super::summary::SummaryRow;
-use super::trial::TrialRecord;
 
 /// A summarised quantity: its name in `summary.csv`, unit, the error it reads (in that
 /// unit) and the index of its parameter in β for the Cramér–Rao bound.

@@ -6,8 +6,9 @@ use std::sync::atomic::Ordering;
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 
+use super::record::TrialRecord;
 use super::scenario::Scenario;
-use super::trial::{FramePool, TrialRecord, TrialResult, run_trial};
+use super::trial::{FramePool, run_trial};
 use crate::output::{INTERRUPTED, Interrupted};
 
 /// A progress bar over `total` trials (hidden unless `progress`).
@@ -68,14 +69,14 @@ impl<'a> TrialRunner<'a> {
                 return Err(Interrupted.into());
             }
             let run_one = |&t: &usize| run_trial(setting, self.scenario.seed, t, si, &self.pool);
-            let done: Vec<TrialResult> = if self.scenario.timing {
+            let done: Vec<TrialRecord> = if self.scenario.timing {
                 ks.iter().map(run_one).collect()
             } else {
                 ks.par_iter().map(run_one).collect()
             };
             self.bar.inc(done.len() as u64);
-            for t in &done {
-                each(TrialRecord::new(si, t))?;
+            for t in done {
+                each(t)?;
             }
         }
         Ok(())

@@ -16,9 +16,10 @@
 //! in the unsharded order; for reading, not for merging), `scenario.toml`,
 //! `metadata.json`, [`MANIFEST_FILE`] (a [`ShardManifest`]: which shard, the scenario's
 //! SHA-256, seed, trials, methods and the code that ran) and [`RECORDS_FILE`]: one JSON
-//! object per trial and line, in the unsharded order, every floating-point value as the
-//! integer of its IEEE-754 bit pattern ([`f64::to_bits`]), so nothing is lost to
-//! decimal text. No `summary.csv` and no plots: those of a part would mislead.
+//! object per trial and line ([`super::record::TrialRecord`]), in the unsharded order,
+//! every floating-point value as the integer of its IEEE-754 bit pattern
+//! ([`f64::to_bits`]), so nothing is lost to decimal text. No `summary.csv` and no plots:
+//! those of a part would mislead.
 //!
 //!
 //! Pipeline scenarios (`[pipeline]`) cannot be sharded: every frame is corrected by one
@@ -29,14 +30,12 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
-use epd_core::{FitOutcome, Method, N_PARAMS, ParamErrors, Params, Sigmas};
 use epd_frame::shard::ShardSpec;
 use serde::{Deserialize, Serialize};
 
 use super::rows::{TRIAL_COLUMNS, trial_rows};
 use super::runner::{TrialRunner, progress_bar};
 use super::scenario::Scenario;
-use super::trial::{MethodRecord, TrialRecord};
 use super::{RunOptions, RunReport, metadata};
 use crate::output::{
     INTERRUPTED, Interrupted, MANIFEST_FILE, RECORDS_FILE, StagedFiles, create_new, finish,
@@ -102,134 +101,6 @@ pub fn shard_trial_count(shard: ShardSpec, settings: usize, trials: usize) -> us
         0
     } else {
         ((total - first).div_ceil(u128::from(shard.n()))) as usize
-    }
-}
-
-/// One method of a trial as stored in [`RECORDS_FILE`]: floats as their bit patterns.
-#[derive(Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub(super) struct WireMethod {
-    method: String,
-    status: Option<FitOutcome>,
-    message: String,
-    iterations: usize,
-    time_ms: u64,
-    estimate: Option<[u64; N_PARAMS]>,
-    sigma: [Option<u64>; N_PARAMS],
-    errors: Option<[u64; 8]>,
-}
-
-/// One trial as stored in [`RECORDS_FILE`]: floats as their bit patterns.
-#[derive(Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub(super) struct WireTrial {
-    pub(super) setting: usize,
-    trial: usize,
-    n_points: usize,
-    truth: [u64; N_PARAMS],
-    crb: [Option<u64>; N_PARAMS],
-    error: Option<String>,
-    methods: Vec<WireMethod>,
-}
-
-fn bits7(a: [f64; N_PARAMS]) -> [u64; N_PARAMS] {
-    a.map(f64::to_bits)
-}
-
-fn sigma_bits(s: &Sigmas) -> [Option<u64>; N_PARAMS] {
-    s.map(|v| v.map(f64::to_bits))
-}
-
-fn error_array(e: &ParamErrors) -> [f64; 8] {
-    [
-        e.d_max, e.d_min, e.d_mean, e.roll, e.pitch, e.yaw, e.dy, e.dz,
-    ]
-}
-
-impl From<&TrialRecord> for WireTrial {
-    fn from(t: &TrialRecord) -> Self {
-        Self {
-            setting: t.setting,
-            trial: t.trial,
-            n_points: t.n_points,
-            truth: bits7(t.truth.to_array()),
-            crb: sigma_bits(&t.crb),
-            error: t.error.clone(),
-            methods: t
-                .methods
-                .iter()
-                .map(|m| WireMethod {
-                    method: m.method.name().to_string(),
-                    status: m.status,
-                    message: m.message.clone(),
-                    iterations: m.iterations,
-                    time_ms: m.time_ms.to_bits(),
-                    estimate: m.estimate.map(|p| bits7(p.to_array())),
-                    sigma: sigma_bits(&m.sigma),
-                    errors: m.errors.map(|e| error_array(&e).map(f64::to_bits)),
-                })
-                .collect(),
-        }
-    }
-}
-
-impl WireTrial {
-    /// The record, checked against the scenario's methods.
-    pub(super) fn into_record(self, methods: &[Method]) -> Result<TrialRecord, String> {
-        if self.methods.len() != methods.len() {
-            return Err(format!(
-                "trial {} of setting {} has {} methods, the scenario {}",
-                self.trial,
-                self.setting,
-                self.methods.len(),
-                methods.len()
-            ));
-        }
-        let f = f64::from_bits;
-        let sig = |s: [Option<u64>; N_PARAMS]| s.map(|v| v.map(f));
-        let mut out = Vec::with_capacity(methods.len());
-        for (w, &m) in self.methods.into_iter().zip(methods) {
-            if w.method != m.name() {
-                return Err(format!(
-                    "trial {} of setting {}: method `{}` where the scenario has `{}`",
-                    self.trial,
-                    self.setting,
-                    w.method,
-                    m.name()
-                ));
-            }
-            out.push(MethodRecord {
-                method: m,
-                status: w.status,
-                message: w.message,
-                iterations: w.iterations,
-                time_ms: f(w.time_ms),
-                estimate: w.estimate.map(|a| Params::from_array(a.map(f))),
-                sigma: sig(w.sigma),
-                errors: w.errors.map(|e| {
-                    let e = e.map(f);
-                    ParamErrors {
-                        d_max: e[0],
-                        d_min: e[1],
-                        d_mean: e[2],
-                        roll: e[3],
-                        pitch: e[4],
-                        yaw: e[5],
-                        dy: e[6],
-                        dz: e[7],
-                    }
-                }),
-            });
-        }
-        Ok(TrialRecord {
-            setting: self.setting,
-            trial: self.trial,
-            n_points: self.n_points,
-            truth: Params::from_array(self.truth.map(f)),
-            crb: sig(self.crb),
-            methods: out,
-            error: self.error,
-        })
     }
 }
 
@@ -355,7 +226,7 @@ fn stage_shard(
         runner.run_setting(si, &ts, |t| {
             trial_rows(&mut trials_csv, &scenario.sweep_variable, value, &t)
                 .map_err(wrote(&trials_path))?;
-            serde_json::to_writer(&mut records, &WireTrial::from(&t))
+            serde_json::to_writer(&mut records, &t)
                 .map_err(std::io::Error::from)
                 .and_then(|()| records.write_all(b"\n"))
                 .map_err(wrote(&records_path))?;
@@ -416,101 +287,5 @@ mod tests {
                 }
             }
         }
-    }
-
-    #[test]
-    fn records_round_trip_bit_for_bit() {
-        let nan_payload = f64::from_bits(0x7ff8_0000_0000_1234);
-        let record = TrialRecord {
-            setting: 2,
-            trial: 17,
-            n_points: 306_001,
-            truth: Params::from_array([0.1 + 0.2, 1e-300, -0.0, 5e-324, 1.0 / 3.0, -2.5, 7.0]),
-            crb: [
-                Some(1e-7),
-                None,
-                Some(f64::INFINITY),
-                None,
-                None,
-                None,
-                Some(nan_payload),
-            ],
-            methods: vec![
-                MethodRecord {
-                    method: Method::CEpd,
-                    status: Some(FitOutcome::Implausible),
-                    message: "a \"quoted\", multi\nline message".into(),
-                    iterations: 12,
-                    time_ms: 2.718_281_828_459_1,
-                    estimate: Some(Params::from_array([0.49, 0.48, 0.1, 0.2, 0.3, 0.01, -0.02])),
-                    sigma: [None, Some(1e-5), None, None, None, None, Some(2e-5)],
-                    errors: Some(ParamErrors {
-                        d_max: 1e-4,
-                        d_min: -2e-4,
-                        d_mean: -5e-5,
-                        roll: 0.1,
-                        pitch: f64::NAN,
-                        yaw: -0.0,
-                        dy: 1e-3,
-                        dz: 2e-3,
-                    }),
-                },
-                MethodRecord {
-                    method: Method::MlEpd,
-                    status: None,
-                    message: "no estimate".into(),
-                    iterations: 0,
-                    time_ms: 0.0,
-                    estimate: None,
-                    sigma: [None; N_PARAMS],
-                    errors: None,
-                },
-            ],
-            error: Some("x".into()),
-        };
-        let line = serde_json::to_string(&WireTrial::from(&record)).unwrap();
-        assert!(!line.contains('\n'));
-        let back: WireTrial = serde_json::from_str(&line).unwrap();
-        let back = back.into_record(&[Method::CEpd, Method::MlEpd]).unwrap();
-        // Bit for bit, NaN payloads and signed zeros included.
-        let again = serde_json::to_string(&WireTrial::from(&back)).unwrap();
-        assert_eq!(line, again);
-        assert_eq!(
-            back.truth.to_array().map(f64::to_bits),
-            record.truth.to_array().map(f64::to_bits)
-        );
-        assert_eq!(back.methods[0].message, record.methods[0].message);
-        assert_eq!(
-            back.methods[0].time_ms.to_bits(),
-            record.methods[0].time_ms.to_bits()
-        );
-        // The scenario's methods must match, in order.
-        let w: WireTrial = serde_json::from_str(&line).unwrap();
-        assert!(w.into_record(&[Method::MlEpd, Method::CEpd]).is_err());
-        let w: WireTrial = serde_json::from_str(&line).unwrap();
-        assert!(w.into_record(&[Method::CEpd]).is_err());
-        // The status is written by serde as the name of `trials.csv` (`error` is no
-        // status: a missing estimate is `null`), and an unknown name is refused.
-        assert!(line.contains(r#""status":"implausible""#), "{line}");
-        assert!(line.contains(r#""status":null"#), "{line}");
-        let bad = line.replace("implausible", "fine");
-        let e = serde_json::from_str::<WireTrial>(&bad)
-            .err()
-            .expect("refused");
-        assert!(e.to_string().contains("unknown variant `fine`"), "{e}");
-    }
-
-    #[test]
-    fn statuses_are_written_with_their_names() {
-        for o in FitOutcome::ALL {
-            let json = serde_json::to_string(&o).unwrap();
-            assert_eq!(json, format!("\"{}\"", o.name()));
-            assert_eq!(serde_json::from_str::<FitOutcome>(&json).unwrap(), o);
-        }
-        let names = FitOutcome::ALL.map(FitOutcome::name);
-        assert_eq!(
-            names,
-            ["converged", "iteration_limit", "degenerate", "implausible"]
-        );
     }
 }

@@ -5,8 +5,8 @@ use std::path::Path;
 
 use anyhow::Context;
 
+use super::record::TrialRecord;
 use super::rows::QUANTITIES;
-use super::trial::TrialRecord;
 use crate::stats::Stats;
 
 /// One row of `summary.csv`.

@@ -1,66 +1,17 @@
 //! One trial: a simulated frame, every method on the same cloud, errors against the truth
-//! under the symmetries, and the Cramér–Rao bound of the frame.
+//! under the symmetries, and the Cramér–Rao bound of the frame, as a [`TrialRecord`].
 
 use std::sync::Mutex;
 use std::time::Instant;
 
 use epd_core::{
-    EstimateOptions, FitOutcome, FitStatus, LossScale, Method, N_PARAMS, ParamErrors, Params,
-    Sigmas, cramer_rao_bound, errors_against, estimate,
+    EstimateOptions, LossScale, Method, N_PARAMS, Params, cramer_rao_bound, errors_against,
+    estimate,
 };
 use tof_sim::{Frame, FrameSeed, Scene, WallModel, simulate_into};
 
+use super::record::{MethodRecord, TrialRecord};
 use super::scenario::Setting;
-
-/// The outcome of one method on one frame.
-#[derive(Clone, Debug, PartialEq)]
-pub struct MethodResult {
-    /// The method.
-    pub method: Method,
-    /// The estimate's status; `None` when no estimate could be made (written `error`).
-    pub status: Option<FitStatus>,
-    /// The reason or error message.
-    pub message: String,
-    /// Solver iterations.
-    pub iterations: usize,
-    /// Wall time of the estimate call alone (ms).
-    pub time_ms: f64,
-    /// The canonical estimate, when one was made.
-    pub estimate: Option<Params>,
-    /// Its reported 1-σ.
-    pub sigma: Sigmas,
-    /// Estimate − truth under the symmetries.
-    pub errors: Option<ParamErrors>,
-}
-
-impl MethodResult {
-    /// Whether the fit converged (the trial counts in the statistics).
-    pub fn ok(&self) -> bool {
-        self.status.is_some_and(|s| s.is_converged()) && self.errors.is_some()
-    }
-
-    /// The status as written in `trials.csv`: the estimate's, or `error`.
-    pub fn status_name(&self) -> &'static str {
-        self.status.map_or("error", |s| s.outcome().name())
-    }
-}
-
-/// The outcome of one trial.
-#[derive(Clone, Debug, PartialEq)]
-pub struct TrialResult {
-    /// Trial index.
-    pub trial: usize,
-    /// Points in the cloud the methods saw.
-    pub n_points: usize,
-    /// The true β (canonical form).
-    pub truth: Params,
-    /// Cramér–Rao 1-σ per parameter for range noise of the setting's σ.
-    pub crb: Sigmas,
-    /// One result per method, in the scenario's order.
-    pub methods: Vec<MethodResult>,
-    /// Why the frame could not be made, if it could not.
-    pub error: Option<String>,
-}
 
 /// Frames kept between trials so their buffers are reused.
 #[derive(Default)]
@@ -89,7 +40,7 @@ pub fn run_trial(
     trial: usize,
     sweep_index: usize,
     pool: &FramePool,
-) -> TrialResult {
+) -> TrialRecord {
     let mut frame = pool.take();
     let r = run_with(setting, seed, trial, sweep_index, &mut frame);
     pool.give(frame);
@@ -102,8 +53,9 @@ fn run_with(
     trial: usize,
     sweep_index: usize,
     frame: &mut Frame,
-) -> TrialResult {
-    let fail = |truth: Params, e: String| TrialResult::failed(setting, trial, truth, e);
+) -> TrialRecord {
+    let fail =
+        |truth: Params, e: String| TrialRecord::failed(setting, sweep_index, trial, truth, e);
     let nan = Params {
         d_max: f64::NAN,
         d_min: f64::NAN,
@@ -146,10 +98,11 @@ fn run_with(
             let t0 = Instant::now();
             let est = estimate(&frame.measured, m, &opts);
             let time_ms = t0.elapsed().as_secs_f64() * 1e3;
-            MethodResult::of(m, est, &truth, time_ms)
+            MethodRecord::of(m, est, &truth, time_ms)
         })
         .collect();
-    TrialResult {
+    TrialRecord {
+        setting: sweep_index,
         trial,
         n_points: frame.len(),
         truth: epd_core::canonicalize(&truth),
@@ -176,7 +129,7 @@ fn estimate_options(setting: &Setting) -> EstimateOptions {
     }
 }
 
-impl MethodResult {
+impl MethodRecord {
     /// Method `method`'s result: its estimate `est` against `truth` (under the
     /// symmetries), or the error; `time_ms` the estimate call's wall time.
     fn of(
@@ -186,9 +139,9 @@ impl MethodResult {
         time_ms: f64,
     ) -> Self {
         match est {
-            Ok(e) => MethodResult {
+            Ok(e) => MethodRecord {
                 method,
-                status: Some(e.status),
+                status: Some(e.status.outcome()),
                 message: e.status.reason(),
                 iterations: e.iterations,
                 time_ms,
@@ -196,13 +149,13 @@ impl MethodResult {
                 sigma: e.sigma,
                 errors: Some(errors_against(&e.params, truth)),
             },
-            Err(err) => MethodResult::error(method, err.to_string(), time_ms),
+            Err(err) => MethodRecord::error(method, err.to_string(), time_ms),
         }
     }
 
     /// No estimate: status `error` with `message`.
     fn error(method: Method, message: String, time_ms: f64) -> Self {
-        MethodResult {
+        MethodRecord {
             method,
             status: None,
             message,
@@ -215,10 +168,18 @@ impl MethodResult {
     }
 }
 
-impl TrialResult {
-    /// A trial whose frame could not be made (why: `e`): every method an error.
-    fn failed(setting: &Setting, trial: usize, truth: Params, e: String) -> Self {
-        TrialResult {
+impl TrialRecord {
+    /// Trial `trial` of setting `sweep_index` whose frame could not be made (why: `e`):
+    /// every method an error.
+    fn failed(
+        setting: &Setting,
+        sweep_index: usize,
+        trial: usize,
+        truth: Params,
+        e: String,
+    ) -> Self {
+        TrialRecord {
+            setting: sweep_index,
             trial,
             n_points: 0,
             truth,
@@ -226,104 +187,9 @@ impl TrialResult {
             methods: setting
                 .methods
                 .iter()
-                .map(|&m| MethodResult::error(m, e.clone(), 0.0))
+                .map(|&m| MethodRecord::error(m, e.clone(), 0.0))
                 .collect(),
             error: Some(e),
         }
-    }
-}
-
-/// What the output files need of one method's result on one frame: a
-/// [`MethodResult`] with its status reduced to its [`FitOutcome`], so that it can be
-/// written to a shard's records file ([`crate::output::RECORDS_FILE`]) and read back
-/// exactly.
-#[derive(Clone, Debug, PartialEq)]
-pub struct MethodRecord {
-    /// The method.
-    pub method: Method,
-    /// [`FitStatus::outcome`] of the estimate; `None` when no estimate could be made
-    /// (written `error`).
-    pub status: Option<FitOutcome>,
-    /// The reason or error message.
-    pub message: String,
-    /// Solver iterations.
-    pub iterations: usize,
-    /// Wall time of the estimate call alone (ms).
-    pub time_ms: f64,
-    /// The canonical estimate, when one was made.
-    pub estimate: Option<Params>,
-    /// Its reported 1-σ.
-    pub sigma: Sigmas,
-    /// Estimate − truth under the symmetries.
-    pub errors: Option<ParamErrors>,
-}
-
-impl MethodRecord {
-    /// Whether the fit converged (the trial counts in the statistics), as
-    /// [`MethodResult::ok`].
-    pub fn ok(&self) -> bool {
-        self.status == Some(FitOutcome::Converged) && self.errors.is_some()
-    }
-
-    /// The status as written in `trials.csv`: the estimate's, or `error`.
-    pub fn status_name(&self) -> &'static str {
-        self.status.map_or("error", FitOutcome::name)
-    }
-}
-
-impl From<&MethodResult> for MethodRecord {
-    fn from(m: &MethodResult) -> Self {
-        Self {
-            method: m.method,
-            status: m.status.map(|s| s.outcome()),
-            message: m.message.clone(),
-            iterations: m.iterations,
-            time_ms: m.time_ms,
-            estimate: m.estimate,
-            sigma: m.sigma,
-            errors: m.errors,
-        }
-    }
-}
-
-/// What the output files (`trials.csv`, `summary.csv`) need of one trial, with the
-/// index of its setting: written by a run, or read back from shard files by a merge.
-#[derive(Clone, Debug, PartialEq)]
-pub struct TrialRecord {
-    /// Index of the setting (swept value) in the scenario.
-    pub setting: usize,
-    /// Trial index within the setting.
-    pub trial: usize,
-    /// Points in the cloud the methods saw.
-    pub n_points: usize,
-    /// The true β (canonical form).
-    pub truth: Params,
-    /// Cramér–Rao 1-σ per parameter for range noise of the setting's σ.
-    pub crb: Sigmas,
-    /// One record per method, in the scenario's order.
-    pub methods: Vec<MethodRecord>,
-    /// Why the frame could not be made, if it could not.
-    pub error: Option<String>,
-}
-
-impl TrialRecord {
-    /// The record of `result`, a trial of setting `setting`.
-    pub fn new(setting: usize, result: &TrialResult) -> Self {
-        Self {
-            setting,
-            trial: result.trial,
-            n_points: result.n_points,
-            truth: result.truth,
-            crb: result.crb,
-            methods: result.methods.iter().map(MethodRecord::from).collect(),
-            error: result.error.clone(),
-        }
-    }
-
-    /// Trials or estimates of this trial that could not be made at all (status
-    /// `error`): the frame, and each method without an estimate.
-    pub fn errors(&self) -> usize {
-        usize::from(self.error.is_some())
-            + self.methods.iter().filter(|m| m.status.is_none()).count()
     }
 }
