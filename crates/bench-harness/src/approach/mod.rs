@@ -36,6 +36,7 @@ use anyhow::Context;
 use rayon::prelude::*;
 
 use crate::output::{StagedFiles, write_new, write_run};
+use crate::provenance::Metadata;
 use frames::{frame_rows, write_frames_csv};
 use summary::{summarise, write_approach_csv};
 
@@ -112,23 +113,12 @@ fn stage(s: &ApproachScenario, dir: &Path, progress: bool) -> anyhow::Result<App
     files.push(write_new(&dir.join("scenario.toml"), s.source.as_bytes())?);
     let png = figures::plot_approach(s, &rows)?;
     files.push(write_new(&dir.join(&png.name), &png.bytes)?);
-    let (git_commit, git_dirty) = crate::provenance::git_provenance();
     let wall_time_s = start.elapsed().as_secs_f64();
-    let meta = serde_json::json!({
-        "scenario": s.name,
-        "kind": "approach",
-        "seed": s.seed,
-        "crate_version": env!("CARGO_PKG_VERSION"),
-        "git_commit": git_commit,
-        "git_dirty": git_dirty,
-        "threads": rayon::current_num_threads(),
-        "wall_time_s": wall_time_s,
-        "profile": if cfg!(debug_assertions) { "dev" } else { "release" },
-    });
-    files.push(write_new(
-        &dir.join("metadata.json"),
-        serde_json::to_string_pretty(&meta)?.as_bytes(),
-    )?);
+    files.push(
+        Metadata::new(&s.name, s.seed, wall_time_s)
+            .with("kind", "approach")
+            .write(dir)?,
+    );
     Ok(ApproachReport {
         files,
         rows: summary,

@@ -13,6 +13,7 @@ use super::PipelineScenario;
 use super::rows::Row;
 use super::summary::SectionRow;
 use crate::output::{create_new, finish, wrote};
+use crate::provenance::Metadata;
 use crate::route::TruthAhead;
 
 /// `profile.csv` columns (the first eleven are the interface; the rest add the truth, the
@@ -151,29 +152,23 @@ pub(super) fn write_lines(
     finish(w, path)
 }
 
-/// `metadata.json`: the scenario, the build and the machine, the run's wall time and
-/// the depth table's fill (`filled` bins from `n_obs` points).
+/// A pipeline run's `metadata.json`: what every run records ([`Metadata::new`]), the
+/// machine, the scenario's file and the depth table's fill (`filled` bins from `n_obs`
+/// points).
 pub(super) fn metadata(
     s: &PipelineScenario,
     wall_time_s: f64,
     filled: usize,
     n_obs: usize,
-) -> serde_json::Value {
-    let (git_commit, git_dirty) = crate::provenance::git_provenance();
-    serde_json::json!({
-        "scenario": s.name,
-        "kind": "pipeline",
-        "scenario_file": s.path.display().to_string(),
-        "seed": s.seed,
-        "crate_version": env!("CARGO_PKG_VERSION"),
-        "git_commit": git_commit,
-        "git_dirty": git_dirty,
-        "threads": rayon::current_num_threads(),
-        "cpu_model": crate::provenance::cpu_model(),
-        "wall_time_s": wall_time_s,
-        "depth_table": { "bins_filled": filled, "observations": n_obs },
-        "profile": if cfg!(debug_assertions) { "dev" } else { "release" },
-    })
+) -> Metadata {
+    Metadata::new(&s.name, s.seed, wall_time_s)
+        .with_cpu()
+        .with("kind", "pipeline")
+        .with("scenario_file", s.path.display().to_string())
+        .with(
+            "depth_table",
+            serde_json::json!({ "bins_filled": filled, "observations": n_obs }),
+        )
 }
 
 /// The depth table in the file format of `epd calibrate` (`epd estimate --calibration`

@@ -123,11 +123,7 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
         .filter(|r| r.status == FrameStatus::Error)
         .count();
     let wall_time_s = start.elapsed().as_secs_f64();
-    let meta = metadata(s, wall_time_s, filled, n_obs);
-    files.push(write_new(
-        &dir.join("metadata.json"),
-        serde_json::to_string_pretty(&meta)?.as_bytes(),
-    )?);
+    files.push(metadata(s, wall_time_s, filled, n_obs).write(dir)?);
     Ok(PipelineReport {
         files,
         wall_time_s,

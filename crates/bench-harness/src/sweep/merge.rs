@@ -30,7 +30,7 @@ use crate::output::{
     INTERRUPTED, Interrupted, MANIFEST_FILE, RECORDS_FILE, StagedFiles, create_new, finish,
     write_run, wrote,
 };
-use crate::provenance::{CodeVersion, scenario_sha256};
+use crate::provenance::{CodeVersion, Metadata, scenario_sha256};
 use crate::scenario::MAX_SCENARIO_BYTES;
 pub use check::MergeError;
 use check::{check_shards, read_capped, read_manifest};
@@ -283,8 +283,9 @@ fn stage_merge(
         }
     }
     let mut files = vec![finish(trials_csv, &trials_path)?];
-    let extra = merge_metadata(shards);
-    let (rest, wall_time_s) = finish_run(scenario, &summary, trials, dir, start, extra)?;
+    let (rest, wall_time_s) = finish_run(scenario, &summary, trials, dir, start, |meta| {
+        merge_metadata(meta, shards)
+    })?;
     files.extend(rest);
     Ok(StagedMerge {
         summary,
@@ -341,50 +342,39 @@ fn interleave(
     Ok(results)
 }
 
-/// What a merged run's `metadata.json` adds to a run's: the shards, how the trials were
+/// A merged run's `metadata.json`: a run's `meta` with the shards, how the trials were
 /// split, and each shard's own times, threads and host.
-fn merge_metadata(
-    shards: &[(&PathBuf, &ShardManifest)],
-) -> serde_json::Map<String, serde_json::Value> {
+fn merge_metadata(meta: Metadata, shards: &[(&PathBuf, &ShardManifest)]) -> Metadata {
     let n = shards.len();
     let shard_times: Vec<f64> = shards.iter().map(|(_, m)| m.wall_time_s).collect();
-    let mut extra = serde_json::Map::new();
-    extra.insert("shards".into(), n.into());
-    extra.insert(
-        "sharding".into(),
-        format!(
-            "merged from {n} shards (bench-harness merge); trial g = setting index × trials + \
-             trial was run by shard (g mod N) + 1. wall_time_s and threads are the merge's; \
-             each shard's are under merged_from"
-        )
-        .into(),
-    );
-    extra.insert(
-        "shard_wall_time_s_sum".into(),
-        shard_times.iter().sum::<f64>().into(),
-    );
-    extra.insert(
-        "shard_wall_time_s_max".into(),
-        shard_times.iter().copied().fold(0.0, f64::max).into(),
-    );
-    extra.insert(
-        "merged_from".into(),
-        shards
-            .iter()
-            .map(|(d, m)| {
-                serde_json::json!({
-                    "dir": d.display().to_string(),
-                    "shard": format!("{}/{}", m.shard, m.shards),
-                    "n_trials": m.n_trials,
-                    "wall_time_s": m.wall_time_s,
-                    "threads": m.threads,
-                    "cpu_model": m.cpu_model,
-                    "host": m.host,
-                    "git_dirty": m.git_dirty,
-                })
+    let merged_from: Vec<serde_json::Value> = shards
+        .iter()
+        .map(|(d, m)| {
+            serde_json::json!({
+                "dir": d.display().to_string(),
+                "shard": format!("{}/{}", m.shard, m.shards),
+                "n_trials": m.n_trials,
+                "wall_time_s": m.wall_time_s,
+                "threads": m.threads,
+                "cpu_model": m.cpu_model,
+                "host": m.host,
+                "git_dirty": m.git_dirty,
             })
-            .collect::<Vec<_>>()
-            .into(),
-    );
-    extra
+        })
+        .collect();
+    meta.with("shards", n)
+        .with(
+            "sharding",
+            format!(
+                "merged from {n} shards (bench-harness merge); trial g = setting index × trials \
+                 + trial was run by shard (g mod N) + 1. wall_time_s and threads are the \
+                 merge's; each shard's are under merged_from"
+            ),
+        )
+        .with("shard_wall_time_s_sum", shard_times.iter().sum::<f64>())
+        .with(
+            "shard_wall_time_s_max",
+            shard_times.iter().copied().fold(0.0, f64::max),
+        )
+        .with("merged_from", merged_from)
 }

@@ -24,7 +24,7 @@ use std::time::Instant;
 use crate::output::{
     INTERRUPTED, Interrupted, StagedFiles, create_new, finish, write_new, write_run, wrote,
 };
-use crate::provenance::{cpu_model, git_provenance, profile};
+use crate::provenance::{Metadata, unix_now_s};
 use record::TrialRecord;
 use rows::{SUMMARY_COLUMNS, TRIAL_COLUMNS, summary_line, trial_rows};
 use runner::{TrialRunner, progress_bar};
@@ -108,51 +108,40 @@ struct Staged {
     trial_errors: usize,
 }
 
-/// The run's `metadata.json` (keys sorted): the scenario, the code, the machine and the
-/// wall time.
-pub(crate) fn metadata(
-    scenario: &Scenario,
-    trials: usize,
-    wall_time_s: f64,
-) -> serde_json::Map<String, serde_json::Value> {
-    let (git_commit, git_dirty) = git_provenance();
-    let meta = serde_json::json!({
-        "scenario": scenario.name,
-        "scenario_file": scenario.path.display().to_string(),
-        "sweep_variable": scenario.sweep_variable,
-        "trials_per_setting": trials,
-        "seed": scenario.seed,
-        "crate_version": env!("CARGO_PKG_VERSION"),
-        "git_commit": git_commit,
-        "git_dirty": git_dirty,
-        "threads": rayon::current_num_threads(),
-        "cpu_model": cpu_model(),
-        "wall_time_s": wall_time_s,
-        "finished_unix_s": std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0),
-        "timing": if scenario.timing {
-            "trials one at a time: time_ms is the uncontended estimate call alone (each estimate may still use all threads internally)"
-        } else {
-            "trials in parallel: time_ms is the estimate call alone, contended by concurrent trials"
-        },
-        "crb": "crb_* and crb_std: Cramér–Rao 1-σ for range noise of the setting's σ (exact for noise.model = range)",
-        "profile": profile(),
-    });
-    match meta {
-        serde_json::Value::Object(m) => m,
-        _ => serde_json::Map::new(),
-    }
+/// A sweep's `metadata.json`: what every run records ([`Metadata::new`]), the machine,
+/// the scenario's file, swept key and trials, when the run finished, and what `time_ms`
+/// and the `crb_*` columns mean.
+pub(crate) fn metadata(scenario: &Scenario, trials: usize, wall_time_s: f64) -> Metadata {
+    let timing = if scenario.timing {
+        "trials one at a time: time_ms is the uncontended estimate call alone (each estimate \
+         may still use all threads internally)"
+    } else {
+        "trials in parallel: time_ms is the estimate call alone, contended by concurrent trials"
+    };
+    Metadata::new(&scenario.name, scenario.seed, wall_time_s)
+        .with_cpu()
+        .with("scenario_file", scenario.path.display().to_string())
+        .with("sweep_variable", scenario.sweep_variable.as_str())
+        .with("trials_per_setting", trials)
+        .with("finished_unix_s", unix_now_s())
+        .with("timing", timing)
+        .with(
+            "crb",
+            "crb_* and crb_std: Cramér–Rao 1-σ for range noise of the setting's σ (exact for \
+             noise.model = range)",
+        )
 }
 
 /// Write `summary.csv`, `scenario.toml`, the plots and `metadata.json` of a whole run
-/// into `dir` (after `trials.csv`); `extra` keys go into the metadata. Returns the files
-/// and the wall time written in the metadata.
+/// into `dir` (after `trials.csv`); `extra` adds to the metadata. Returns the files and
+/// the wall time written in the metadata.
 pub(crate) fn finish_run(
     scenario: &Scenario,
     summary: &[SummaryRow],
     trials: usize,
     dir: &Path,
     start: Instant,
-    extra: serde_json::Map<String, serde_json::Value>,
+    extra: impl FnOnce(Metadata) -> Metadata,
 ) -> anyhow::Result<(Vec<PathBuf>, f64)> {
     let summary_path = dir.join("summary.csv");
     let mut summary_csv = create_new(&summary_path)?;
@@ -175,12 +164,7 @@ pub(crate) fn finish_run(
         files.push(write_new(&dir.join(&png.name), &png.bytes)?);
     }
     let wall_time_s = start.elapsed().as_secs_f64();
-    let mut meta = metadata(scenario, trials, wall_time_s);
-    meta.extend(extra);
-    files.push(write_new(
-        &dir.join("metadata.json"),
-        serde_json::to_string_pretty(&meta)?.as_bytes(),
-    )?);
+    files.push(extra(metadata(scenario, trials, wall_time_s)).write(dir)?);
     Ok((files, wall_time_s))
 }
 
@@ -216,14 +200,7 @@ fn stage(
         return Err(Interrupted.into());
     }
     let mut files = vec![finish(trials_csv, &trials_path)?];
-    let (rest, wall_time_s) = finish_run(
-        scenario,
-        &summary,
-        trials,
-        dir,
-        start,
-        serde_json::Map::new(),
-    )?;
+    let (rest, wall_time_s) = finish_run(scenario, &summary, trials, dir, start, |meta| meta)?;
     files.extend(rest);
     Ok(Staged {
         summary,

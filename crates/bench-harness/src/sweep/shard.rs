@@ -41,7 +41,9 @@ use crate::output::{
     INTERRUPTED, Interrupted, MANIFEST_FILE, RECORDS_FILE, StagedFiles, create_new, finish,
     write_new, write_run, wrote,
 };
-use crate::provenance::{CodeVersion, cpu_model, git_provenance, host_name, scenario_sha256};
+use crate::provenance::{
+    CodeVersion, Metadata, cpu_model, git_provenance, host_name, scenario_sha256,
+};
 
 /// The `format` of a [`ShardManifest`] this version writes and reads.
 pub const SHARD_FORMAT: &str = "bench-harness-shard/1";
@@ -185,19 +187,17 @@ fn shard_metadata(
     shard: ShardSpec,
     n_trials: usize,
     wall_time_s: f64,
-) -> serde_json::Map<String, serde_json::Value> {
-    let mut meta = metadata(scenario, trials, wall_time_s);
-    meta.insert("shard".into(), shard.to_string().into());
-    meta.insert(
-        "sharding".into(),
-        format!(
-            "one shard of a sharded run: trial g = setting index × trials + trial is in shard \
-             (g mod N) + 1; {n_trials} trials here. Merge the N shard folders with \
-             `bench-harness merge D_1 … D_N --out M`"
+) -> Metadata {
+    metadata(scenario, trials, wall_time_s)
+        .with("shard", shard.to_string())
+        .with(
+            "sharding",
+            format!(
+                "one shard of a sharded run: trial g = setting index × trials + trial is in \
+                 shard (g mod N) + 1; {n_trials} trials here. Merge the N shard folders with \
+                 `bench-harness merge D_1 … D_N --out M`"
+            ),
         )
-        .into(),
-    );
-    meta
 }
 
 fn stage_shard(
@@ -254,11 +254,7 @@ fn stage_shard(
         &dir.join(MANIFEST_FILE),
         serde_json::to_string_pretty(&manifest)?.as_bytes(),
     )?);
-    let meta = shard_metadata(scenario, trials, shard, n_trials, wall_time_s);
-    files.push(write_new(
-        &dir.join("metadata.json"),
-        serde_json::to_string_pretty(&meta)?.as_bytes(),
-    )?);
+    files.push(shard_metadata(scenario, trials, shard, n_trials, wall_time_s).write(dir)?);
     Ok(StagedShard {
         files,
         wall_time_s,
