@@ -1,16 +1,15 @@
 //! One frame of an approach run scored twice: ML-EPD (Cauchy) on every point, and the
 //! survey (`epd_core::segment::survey`) with its straight section, its end and the bend.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use epd_core::segment::{SegmentOptions, clock_angle_deg, survey};
 use epd_core::{EstimateOptions, Loss, Method, Params, estimate};
+use epd_io::csv::num;
 use tof_sim::{FrameSeed, MeshResolution, Noise, PoseRanges, Scene, Sensor, Subsample, simulate};
 
-use super::num;
 use super::scenario::{ApproachScenario, Feature};
-use crate::output::{create_new, finish, wrote};
+use crate::output::CsvFile;
 
 /// One frame's scores, with or without segmentation.
 #[derive(Clone, Debug, PartialEq)]
@@ -138,12 +137,10 @@ pub const FRAME_COLUMNS: [&str; 10] = [
 
 /// `frames.csv`: one row per frame and fit ([`FRAME_COLUMNS`]).
 pub(super) fn write_frames_csv(dir: &Path, rows: &[FrameRow]) -> anyhow::Result<PathBuf> {
-    let frames_path = dir.join("frames.csv");
-    let mut w = create_new(&frames_path)?;
-    writeln!(w, "{}", epd_io::csv::line(FRAME_COLUMNS)).map_err(wrote(&frames_path))?;
+    let mut csv = CsvFile::create(&dir.join("frames.csv"), &FRAME_COLUMNS)?;
     for r in rows {
-        let row = [
-            r.distance_m.to_string(),
+        csv.row([
+            num(r.distance_m),
             r.frame.to_string(),
             r.segmented.to_string(),
             r.geometry.to_string(),
@@ -153,8 +150,7 @@ pub(super) fn write_frames_csv(dir: &Path, rows: &[FrameRow]) -> anyhow::Result<
             num(r.bend_radius_mm),
             num(r.bend_radius_err_pct),
             num(r.direction_err_deg),
-        ];
-        writeln!(w, "{}", epd_io::csv::line(row)).map_err(wrote(&frames_path))?;
+        ])?;
     }
-    finish(w, &frames_path)
+    csv.finish()
 }

@@ -54,14 +54,6 @@ pub fn is_approach(source: &str) -> bool {
     toml::from_str::<toml::Table>(source).is_ok_and(|t| t.contains_key("approach"))
 }
 
-fn num(v: f64) -> String {
-    if v.is_finite() {
-        format!("{v}")
-    } else {
-        String::new()
-    }
-}
-
 /// What an approach run wrote.
 #[derive(Debug)]
 pub struct ApproachReport {

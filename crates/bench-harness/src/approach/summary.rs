@@ -1,13 +1,13 @@
 //! The summary of an approach run: one [`ApproachRow`] per distance, with and without the
 //! survey.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use super::frames::FrameRow;
-use super::num;
+use epd_io::csv::num;
+
 use super::scenario::{ApproachScenario, Feature};
-use crate::output::{create_new, finish, wrote};
+use crate::output::CsvFile;
 
 /// The columns of `approach.csv`.
 pub const APPROACH_COLUMNS: [&str; 8] = [
@@ -92,12 +92,10 @@ pub(super) fn summarise(s: &ApproachScenario, rows: &[FrameRow]) -> Vec<Approach
 
 /// `approach.csv`: one row per distance and fit ([`APPROACH_COLUMNS`]).
 pub(super) fn write_approach_csv(dir: &Path, summary: &[ApproachRow]) -> anyhow::Result<PathBuf> {
-    let path = dir.join("approach.csv");
-    let mut w = create_new(&path)?;
-    writeln!(w, "{}", epd_io::csv::line(APPROACH_COLUMNS)).map_err(wrote(&path))?;
+    let mut csv = CsvFile::create(&dir.join("approach.csv"), &APPROACH_COLUMNS)?;
     for r in summary {
-        let row = [
-            r.distance_m.to_string(),
+        csv.row([
+            num(r.distance_m),
             r.segmented.to_string(),
             r.n_frames.to_string(),
             r.n_found.to_string(),
@@ -105,8 +103,7 @@ pub(super) fn write_approach_csv(dir: &Path, summary: &[ApproachRow]) -> anyhow:
             num(r.dmean_range_mm),
             num(r.straight_until_err_max_mm),
             num(r.bend_radius_err_max_pct),
-        ];
-        writeln!(w, "{}", epd_io::csv::line(row)).map_err(wrote(&path))?;
+        ])?;
     }
-    finish(w, &path)
+    csv.finish()
 }

@@ -2,7 +2,6 @@
 //! columns and rows), `depth_table.json` and `metadata.json`, and the per-frame values the
 //! figures draw.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use epd_core::DepthTable;
@@ -12,7 +11,7 @@ use epd_io::csv::num;
 use super::PipelineScenario;
 use super::rows::Row;
 use super::summary::SectionRow;
-use crate::output::{create_new, finish, wrote};
+use crate::output::CsvFile;
 use crate::provenance::Metadata;
 use crate::route::TruthAhead;
 
@@ -70,7 +69,32 @@ pub const SECTION_COLUMNS: &[&str] = &[
     "crb_dmin_mm",
 ];
 
-pub(super) fn profile_line(s: &PipelineScenario, r: &Row) -> String {
+/// `profile.csv` in `dir`: one row per frame, method and calibration
+/// ([`PROFILE_COLUMNS`]), in the order of `rows`.
+pub(super) fn write_profile(
+    dir: &Path,
+    s: &PipelineScenario,
+    rows: &[Row],
+) -> anyhow::Result<PathBuf> {
+    let mut csv = CsvFile::create(&dir.join("profile.csv"), PROFILE_COLUMNS)?;
+    for r in rows {
+        csv.row(profile_row(s, r))?;
+    }
+    csv.finish()
+}
+
+/// `sections.csv` in `dir`: one row per section, method and calibration
+/// ([`SECTION_COLUMNS`]).
+pub(super) fn write_sections(dir: &Path, sections: &[SectionRow]) -> anyhow::Result<PathBuf> {
+    let mut csv = CsvFile::create(&dir.join("sections.csv"), SECTION_COLUMNS)?;
+    for r in sections {
+        csv.row(section_row(r))?;
+    }
+    csv.finish()
+}
+
+/// The row of `profile.csv` of `r` ([`PROFILE_COLUMNS`]).
+fn profile_row(s: &PipelineScenario, r: &Row) -> [String; 23] {
     let id = r.pipe.inner_diameter();
     let od = r.pipe.outer_diameter();
     let opt = |v: Option<f64>| v.map_or(String::new(), num);
@@ -110,10 +134,10 @@ pub(super) fn profile_line(s: &PipelineScenario, r: &Row) -> String {
         opt(g.bend_radius_fit_mm),
         opt(g.bend_table_coverage),
     ]
-    .join(",")
 }
 
-pub(super) fn section_line(r: &SectionRow) -> String {
+/// The row of `sections.csv` of `r` ([`SECTION_COLUMNS`]).
+fn section_row(r: &SectionRow) -> [String; 19] {
     [
         r.section.clone(),
         r.method.to_string(),
@@ -135,21 +159,6 @@ pub(super) fn section_line(r: &SectionRow) -> String {
         num(r.crb.0),
         num(r.crb.1),
     ]
-    .join(",")
-}
-
-/// A CSV file at `path`: the header `columns`, then one line per entry of `lines`.
-pub(super) fn write_lines(
-    path: &Path,
-    columns: &[&str],
-    lines: impl Iterator<Item = String>,
-) -> anyhow::Result<PathBuf> {
-    let mut w = create_new(path)?;
-    writeln!(w, "{}", columns.join(",")).map_err(wrote(path))?;
-    for line in lines {
-        writeln!(w, "{line}").map_err(wrote(path))?;
-    }
-    finish(w, path)
 }
 
 /// A pipeline run's `metadata.json`: what every run records ([`Metadata::new`]), the

@@ -29,8 +29,7 @@ use epd_core::DepthTable;
 use rayon::prelude::*;
 
 use crate::output::{INTERRUPTED, Interrupted, StagedFiles, write_new, write_run};
-use files::{metadata, profile_line, profile_points, section_line, table_file, write_lines};
-
+use files::{metadata, profile_points, table_file, write_profile, write_sections};
 use rows::{FrameStatus, Row, calibrate, frame_rows};
 use summary::summarise;
 
@@ -97,19 +96,9 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
         table.range.n, table.log_intensity.n
     ));
     let rows = estimate_run(s, &table, &say)?;
-    let profile = rows.iter().map(|r| profile_line(s, r));
-    let mut files = vec![write_lines(
-        &dir.join("profile.csv"),
-        PROFILE_COLUMNS,
-        profile,
-    )?];
+    let mut files = vec![write_profile(dir, s, &rows)?];
     let sections = summarise(s, &rows);
-    let lines = sections.iter().map(section_line);
-    files.push(write_lines(
-        &dir.join("sections.csv"),
-        SECTION_COLUMNS,
-        lines,
-    )?);
+    files.push(write_sections(dir, &sections)?);
     files.push(write_new(&dir.join("scenario.toml"), s.source.as_bytes())?);
     files.push(write_new(
         &dir.join("depth_table.json"),

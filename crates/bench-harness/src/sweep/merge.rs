@@ -13,7 +13,7 @@
 //! The checks of the shards before anything is read are in [`check`].
 
 use std::fs::File;
-use std::io::{BufRead, BufReader, Read, Seek, SeekFrom, Write};
+use std::io::{BufRead, BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 use std::time::Instant;
@@ -21,14 +21,13 @@ use std::time::Instant;
 use epd_core::Method;
 
 use super::record::TrialRecord;
-use super::rows::{TRIAL_COLUMNS, trial_rows};
+use super::rows::{TRIAL_COLUMNS, write_trial_rows};
 use super::scenario::Scenario;
 use super::shard::ShardManifest;
 use super::summary::{SummaryRow, summarise};
 use super::{RunReport, finish_run};
 use crate::output::{
-    INTERRUPTED, Interrupted, MANIFEST_FILE, RECORDS_FILE, StagedFiles, create_new, finish,
-    write_run, wrote,
+    CsvFile, INTERRUPTED, Interrupted, MANIFEST_FILE, RECORDS_FILE, StagedFiles, write_run,
 };
 use crate::provenance::{CodeVersion, Metadata, scenario_sha256};
 use crate::scenario::MAX_SCENARIO_BYTES;
@@ -245,9 +244,7 @@ fn stage_merge(
     let n = shards.len();
     let keep_open = n <= KEEP_OPEN;
     let mut readers: Vec<RecordReader> = shards.iter().map(|(d, _)| RecordReader::new(d)).collect();
-    let trials_path = dir.join("trials.csv");
-    let mut trials_csv = create_new(&trials_path)?;
-    writeln!(trials_csv, "{}", TRIAL_COLUMNS.join(",")).map_err(wrote(&trials_path))?;
+    let mut trials_csv = CsvFile::create(&dir.join("trials.csv"), TRIAL_COLUMNS)?;
     let mut summary = Vec::new();
     let mut trial_errors = 0;
     for (si, (value, setting)) in scenario.sweeps.iter().enumerate() {
@@ -260,8 +257,7 @@ fn stage_merge(
             parts.push(r.take_setting(si, methods, keep_open)?.into_iter());
         }
         let results = interleave(&mut parts, shards, scenario, si, trials, |record| {
-            trial_rows(&mut trials_csv, &scenario.sweep_variable, value, record)
-                .map_err(wrote(&trials_path))?;
+            write_trial_rows(&mut trials_csv, &scenario.sweep_variable, value, record)?;
             trial_errors += record.errors();
             Ok(())
         })?;
@@ -282,7 +278,7 @@ fn stage_merge(
             .into());
         }
     }
-    let mut files = vec![finish(trials_csv, &trials_path)?];
+    let mut files = vec![trials_csv.finish()?];
     let (rest, wall_time_s) = finish_run(scenario, &summary, trials, dir, start, |meta| {
         merge_metadata(meta, shards)
     })?;

@@ -16,17 +16,14 @@
 //! - [`figures`]: the PNGs drawn from the summary;
 //! - [`shard`] and [`merge`]: a run in parts and their merge.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
-use crate::output::{
-    INTERRUPTED, Interrupted, StagedFiles, create_new, finish, write_new, write_run, wrote,
-};
+use crate::output::{CsvFile, INTERRUPTED, Interrupted, StagedFiles, write_new, write_run};
 use crate::provenance::{Metadata, unix_now_s};
 use record::TrialRecord;
-use rows::{SUMMARY_COLUMNS, TRIAL_COLUMNS, summary_line, trial_rows};
+use rows::{SUMMARY_COLUMNS, TRIAL_COLUMNS, summary_row, write_trial_rows};
 use runner::{TrialRunner, progress_bar};
 use scenario::Scenario;
 use summary::{SummaryRow, summarise};
@@ -143,19 +140,11 @@ pub(crate) fn finish_run(
     start: Instant,
     extra: impl FnOnce(Metadata) -> Metadata,
 ) -> anyhow::Result<(Vec<PathBuf>, f64)> {
-    let summary_path = dir.join("summary.csv");
-    let mut summary_csv = create_new(&summary_path)?;
-    writeln!(summary_csv, "{}", epd_io::csv::line(SUMMARY_COLUMNS))
-        .map_err(wrote(&summary_path))?;
+    let mut summary_csv = CsvFile::create(&dir.join("summary.csv"), SUMMARY_COLUMNS)?;
     for row in summary {
-        writeln!(
-            summary_csv,
-            "{}",
-            summary_line(&scenario.sweep_variable, row)
-        )
-        .map_err(wrote(&summary_path))?;
+        summary_csv.row(summary_row(&scenario.sweep_variable, row))?;
     }
-    let mut files = vec![finish(summary_csv, &summary_path)?];
+    let mut files = vec![summary_csv.finish()?];
     files.push(write_new(
         &dir.join("scenario.toml"),
         scenario.source.as_bytes(),
@@ -176,9 +165,7 @@ fn stage(
     dir: &Path,
     start: Instant,
 ) -> anyhow::Result<Staged> {
-    let trials_path = dir.join("trials.csv");
-    let mut trials_csv = create_new(&trials_path)?;
-    writeln!(trials_csv, "{}", epd_io::csv::line(TRIAL_COLUMNS)).map_err(wrote(&trials_path))?;
+    let mut trials_csv = CsvFile::create(&dir.join("trials.csv"), TRIAL_COLUMNS)?;
     let bar = progress_bar(progress, (trials * scenario.sweeps.len()) as u64);
     let runner = TrialRunner::new(scenario, &bar);
     let all: Vec<usize> = (0..trials).collect();
@@ -187,8 +174,7 @@ fn stage(
     for (si, (value, setting)) in scenario.sweeps.iter().enumerate() {
         let mut results: Vec<TrialRecord> = Vec::with_capacity(trials);
         runner.run_setting(si, &all, |t| {
-            trial_rows(&mut trials_csv, &scenario.sweep_variable, value, &t)
-                .map_err(wrote(&trials_path))?;
+            write_trial_rows(&mut trials_csv, &scenario.sweep_variable, value, &t)?;
             trial_errors += t.errors();
             results.push(t);
             Ok(())
@@ -199,7 +185,7 @@ fn stage(
     if INTERRUPTED.load(Ordering::SeqCst) {
         return Err(Interrupted.into());
     }
-    let mut files = vec![finish(trials_csv, &trials_path)?];
+    let mut files = vec![trials_csv.finish()?];
     let (rest, wall_time_s) = finish_run(scenario, &summary, trials, dir, start, |meta| meta)?;
     files.extend(rest);
     Ok(Staged {

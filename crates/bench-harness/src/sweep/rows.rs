@@ -2,12 +2,12 @@
 //! `summary.csv` (one per setting, method and quantity), their columns and the quantities
 //! summarised.
 
-use std::io::Write;
-
 use epd_core::ParamErrors;
+use epd_io::csv::num;
 
-use super::record::TrialRecord;
+use super::record::{MethodRecord, TrialRecord};
 use super::summary::SummaryRow;
+use crate::output::CsvFile;
 
 /// A summarised quantity: its name in `summary.csv`, unit, the error it reads (in that
 /// unit) and the index of its parameter in β for the Cramér–Rao bound.
@@ -158,68 +158,74 @@ pub const SUMMARY_COLUMNS: &[&str] = &[
     "coverage95",
 ];
 
-/// A number for CSV: shortest round-trip text, empty for NaN/None (epd-io's rule).
-pub use epd_io::csv::num;
-
+/// `v` × `scale` as CSV text, empty when there is no value.
 fn opt(v: Option<f64>, scale: f64) -> String {
     v.map_or(String::new(), |x| num(x * scale))
 }
 
-pub(crate) fn trial_rows(
-    w: &mut impl Write,
+/// Write the rows of trial `t` to `trials.csv` ([`TRIAL_COLUMNS`]), one per method, in
+/// the scenario's order; `variable` and `value` are the setting's swept key and value.
+pub(crate) fn write_trial_rows(
+    csv: &mut CsvFile,
     variable: &str,
     value: &str,
     t: &TrialRecord,
-) -> std::io::Result<()> {
-    let tr = &t.truth;
+) -> anyhow::Result<()> {
     for m in &t.methods {
-        let e = m.errors.as_ref();
-        let est = m.estimate.as_ref();
-        let mut f: Vec<String> = vec![
-            variable.to_string(),
-            value.to_string(),
-            t.trial.to_string(),
-            m.method.name().into(),
-            t.n_points.to_string(),
-            m.status_name().to_string(),
-            m.iterations.to_string(),
-            num(m.time_ms),
-            num(tr.d_max * MM),
-            num(tr.d_min * MM),
-            est.map_or(String::new(), |p| num(p.d_max * MM)),
-            est.map_or(String::new(), |p| num(p.d_min * MM)),
-        ];
-        for q in &QUANTITIES {
-            f.push(e.map_or(String::new(), |e| num((q.error)(e))));
-        }
-        for v in [
-            tr.roll * DEG,
-            tr.pitch * DEG,
-            tr.yaw * DEG,
-            tr.dy * MM,
-            tr.dz * MM,
-        ] {
-            f.push(num(v));
-        }
-        for (i, s) in [(2, DEG), (3, DEG), (4, DEG), (5, MM), (6, MM)] {
-            f.push(est.map_or(String::new(), |p| num(p.to_array()[i] * s)));
-        }
-        let scales = [MM, MM, DEG, DEG, DEG, MM, MM];
-        for i in 0..7 {
-            f.push(opt(m.sigma[i], scales[i]));
-        }
-        for i in 0..7 {
-            f.push(opt(t.crb[i], scales[i]));
-        }
-        f.push(m.message.clone());
-        writeln!(w, "{}", epd_io::csv::line(&f))?;
+        csv.row(trial_row(variable, value, t, m))?;
     }
     Ok(())
 }
 
-pub(crate) fn summary_line(variable: &str, r: &SummaryRow) -> String {
+/// The row of `trials.csv` of method `m` in trial `t` ([`TRIAL_COLUMNS`]).
+fn trial_row(variable: &str, value: &str, t: &TrialRecord, m: &MethodRecord) -> Vec<String> {
+    let tr = &t.truth;
+    let e = m.errors.as_ref();
+    let est = m.estimate.as_ref();
+    let mut f: Vec<String> = vec![
+        variable.to_string(),
+        value.to_string(),
+        t.trial.to_string(),
+        m.method.name().into(),
+        t.n_points.to_string(),
+        m.status_name().to_string(),
+        m.iterations.to_string(),
+        num(m.time_ms),
+        num(tr.d_max * MM),
+        num(tr.d_min * MM),
+        est.map_or(String::new(), |p| num(p.d_max * MM)),
+        est.map_or(String::new(), |p| num(p.d_min * MM)),
+    ];
+    for q in &QUANTITIES {
+        f.push(e.map_or(String::new(), |e| num((q.error)(e))));
+    }
+    for v in [
+        tr.roll * DEG,
+        tr.pitch * DEG,
+        tr.yaw * DEG,
+        tr.dy * MM,
+        tr.dz * MM,
+    ] {
+        f.push(num(v));
+    }
+    for (i, s) in [(2, DEG), (3, DEG), (4, DEG), (5, MM), (6, MM)] {
+        f.push(est.map_or(String::new(), |p| num(p.to_array()[i] * s)));
+    }
+    let scales = [MM, MM, DEG, DEG, DEG, MM, MM];
+    for i in 0..7 {
+        f.push(opt(m.sigma[i], scales[i]));
+    }
+    for i in 0..7 {
+        f.push(opt(t.crb[i], scales[i]));
+    }
+    f.push(m.message.clone());
+    f
+}
+
+/// The row of `summary.csv` of `r` ([`SUMMARY_COLUMNS`]); `variable` is the swept key.
+pub(crate) fn summary_row(variable: &str, r: &SummaryRow) -> [String; 17] {
     let s = &r.stats;
-    epd_io::csv::line([
+    [
         variable.to_string(),
         r.sweep_value.clone(),
         r.method.clone(),
@@ -237,5 +243,5 @@ pub(crate) fn summary_line(variable: &str, r: &SummaryRow) -> String {
         num(s.sem()),
         r.crb_std.map_or(String::new(), num),
         r.coverage95.map_or(String::new(), num),
-    ])
+    ]
 }

@@ -33,13 +33,13 @@ use std::time::Instant;
 use epd_frame::shard::ShardSpec;
 use serde::{Deserialize, Serialize};
 
-use super::rows::{TRIAL_COLUMNS, trial_rows};
+use super::rows::{TRIAL_COLUMNS, write_trial_rows};
 use super::runner::{TrialRunner, progress_bar};
 use super::scenario::Scenario;
 use super::{RunOptions, RunReport, metadata};
 use crate::output::{
-    INTERRUPTED, Interrupted, MANIFEST_FILE, RECORDS_FILE, StagedFiles, create_new, finish,
-    write_new, write_run, wrote,
+    CsvFile, INTERRUPTED, Interrupted, MANIFEST_FILE, RECORDS_FILE, StagedFiles, create_new,
+    finish, write_new, write_run, wrote,
 };
 use crate::provenance::{
     CodeVersion, Metadata, cpu_model, git_provenance, host_name, scenario_sha256,
@@ -208,11 +208,9 @@ fn stage_shard(
     dir: &Path,
     start: Instant,
 ) -> anyhow::Result<StagedShard> {
-    let trials_path = dir.join("trials.csv");
+    let mut trials_csv = CsvFile::create(&dir.join("trials.csv"), TRIAL_COLUMNS)?;
     let records_path = dir.join(RECORDS_FILE);
-    let mut trials_csv = create_new(&trials_path)?;
     let mut records = create_new(&records_path)?;
-    writeln!(trials_csv, "{}", TRIAL_COLUMNS.join(",")).map_err(wrote(&trials_path))?;
     let settings = scenario.sweeps.len();
     let n_trials = shard_trial_count(shard, settings, trials);
     let bar = progress_bar(progress, n_trials as u64);
@@ -224,8 +222,7 @@ fn stage_shard(
             .filter(|&t| shard.owns(si as u64 * trials as u64 + t as u64))
             .collect();
         runner.run_setting(si, &ts, |t| {
-            trial_rows(&mut trials_csv, &scenario.sweep_variable, value, &t)
-                .map_err(wrote(&trials_path))?;
+            write_trial_rows(&mut trials_csv, &scenario.sweep_variable, value, &t)?;
             serde_json::to_writer(&mut records, &t)
                 .map_err(std::io::Error::from)
                 .and_then(|()| records.write_all(b"\n"))
@@ -240,10 +237,7 @@ fn stage_shard(
         return Err(Interrupted.into());
     }
     debug_assert_eq!(written, n_trials);
-    let mut files = vec![
-        finish(trials_csv, &trials_path)?,
-        finish(records, &records_path)?,
-    ];
+    let mut files = vec![trials_csv.finish()?, finish(records, &records_path)?];
     files.push(write_new(
         &dir.join("scenario.toml"),
         scenario.source.as_bytes(),
