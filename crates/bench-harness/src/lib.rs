@@ -8,6 +8,7 @@
 
 pub mod approach;
 mod defaults;
+pub mod experiment;
 pub mod output;
 pub mod pipeline;
 pub mod plots;

@@ -35,8 +35,10 @@ use std::time::Instant;
 use anyhow::Context;
 use rayon::prelude::*;
 
+use crate::experiment::{Experiment, Finished, Refused, Request};
 use crate::output::{StagedFiles, write_new, write_run};
 use crate::provenance::Metadata;
+use crate::scenario::ScenarioError;
 use frames::{frame_rows, write_frames_csv};
 use summary::{summarise, write_approach_csv};
 
@@ -49,9 +51,39 @@ mod frames;
 mod scenario;
 mod summary;
 
-/// Whether a scenario text is an approach run (it has an `[approach]` table).
-pub fn is_approach(source: &str) -> bool {
-    toml::from_str::<toml::Table>(source).is_ok_and(|t| t.contains_key("approach"))
+/// An approach run: whole (no `--trials`, no `--shard`).
+impl Experiment for ApproachScenario {
+    fn parse(path: &Path, source: &str) -> Result<Self, ScenarioError> {
+        ApproachScenario::parse(path, source)
+    }
+
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Neither `--trials` (the frames are `approach.frames`) nor `--shard`.
+    fn check(&self, request: &Request) -> Result<(), Refused> {
+        if request.trials.is_some() || request.shard.is_some() {
+            return Err(Refused(
+                "--trials and --shard do not apply to an approach run (set approach.frames)".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    fn run(&self, out: &Path, request: &Request) -> anyhow::Result<Finished> {
+        let report = run_approach(self, out, request.progress)?;
+        Ok(Finished {
+            what: format!(
+                "{}: {} distances × {} frames",
+                self.name,
+                self.distances_m.len(),
+                self.frames
+            ),
+            wall_time_s: report.wall_time_s,
+            errors: None,
+        })
+    }
 }
 
 /// What an approach run wrote.

@@ -235,14 +235,14 @@ impl ApproachScenario {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::approach::is_approach;
+    use crate::experiment::Kind;
 
     const OK: &str = "name = \"a\"\n[approach]\nkind = \"elbow\"\ndistances_m = [1.0]\nframes = 1\nsigma_m = 0.0\n";
 
     #[test]
     fn parses_and_refuses_with_the_key() {
         let p = Path::new("a.toml");
-        assert!(is_approach(OK));
+        assert_eq!(Kind::of(OK), Kind::Approach);
         let s = ApproachScenario::parse(p, OK).unwrap();
         assert!(matches!(s.feature, Feature::Elbow { .. }));
         assert_eq!(s.pipeline(1.0).straight_until(), Some(1.0));

@@ -28,7 +28,9 @@ use anyhow::Context;
 use epd_core::DepthTable;
 use rayon::prelude::*;
 
+use crate::experiment::{Experiment, Finished, Refused, Request};
 use crate::output::{INTERRUPTED, Interrupted, StagedFiles, write_new, write_run};
+use crate::scenario::ScenarioError;
 use files::{metadata, profile_points, table_file, write_profile, write_sections};
 use rows::{FrameStatus, Row, calibrate, frame_rows};
 use summary::summarise;
@@ -48,9 +50,53 @@ mod summary;
 /// The estimators of a pipeline run, by their names in the CSV files.
 pub const METHODS: [&str; 4] = ["c-epd", "ru-epd", "ml-epd", "ml-epd-w"];
 
-/// Whether a scenario text is a pipeline run (it has a `[pipeline]` table).
-pub fn is_pipeline(source: &str) -> bool {
-    toml::from_str::<toml::Table>(source).is_ok_and(|t| t.contains_key("pipeline"))
+/// A pipeline run: whole (no `--trials`, no `--shard`).
+impl Experiment for PipelineScenario {
+    fn parse(path: &Path, source: &str) -> Result<Self, ScenarioError> {
+        PipelineScenario::parse(path, source)
+    }
+
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Neither `--trials` (the frames are `pipeline.frames_per_section`) nor `--shard`
+    /// (every frame is corrected by one table fitted to all the rig's frames).
+    fn check(&self, request: &Request) -> Result<(), Refused> {
+        if request.trials.is_some() {
+            return Err(Refused(
+                "--trials does not apply to a pipeline run (set pipeline.frames_per_section)"
+                    .into(),
+            ));
+        }
+        if let Some(shard) = request.shard {
+            return Err(Refused(format!(
+                "--shard {shard}: a pipeline run cannot be sharded: every frame is corrected by \
+                 one depth table fitted to all the rig's frames, so its parts are not \
+                 independent; run it whole"
+            )));
+        }
+        Ok(())
+    }
+
+    fn run(&self, out: &Path, request: &Request) -> anyhow::Result<Finished> {
+        let report = run_pipeline(self, out, request.progress)?;
+        Ok(Finished {
+            what: format!(
+                "{}: {} sections × {} frames",
+                self.name,
+                self.sections.len(),
+                self.frames_per_section
+            ),
+            wall_time_s: report.wall_time_s,
+            errors: (report.errors > 0).then(|| {
+                format!(
+                    "{} estimates returned an error (status `error` in profile.csv)",
+                    report.errors
+                )
+            }),
+        })
+    }
 }
 
 /// What a pipeline run wrote.

@@ -20,8 +20,12 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
-use crate::output::{CsvFile, INTERRUPTED, Interrupted, StagedFiles, write_new, write_run};
+use crate::experiment::{Experiment, Finished, Refused, Request};
+use crate::output::{
+    CsvFile, INTERRUPTED, Interrupted, StagedFiles, default_output, write_new, write_run,
+};
 use crate::provenance::{Metadata, unix_now_s};
+use crate::scenario::ScenarioError;
 use record::TrialRecord;
 use rows::{SUMMARY_COLUMNS, TRIAL_COLUMNS, summary_row, write_trial_rows};
 use runner::{TrialRunner, progress_bar};
@@ -76,6 +80,70 @@ pub struct RunReport {
     /// Trials or estimates that could not be made at all (status `error`).
     pub trial_errors: usize,
 }
+
+/// What `bench-harness` says when trials or estimates of a run or merge could not be made
+/// at all (`n` of them; none: nothing to say).
+pub fn trial_errors_note(n: usize) -> Option<String> {
+    (n > 0).then(|| {
+        format!("{n} trials or estimates could not be made (status `error` in trials.csv)")
+    })
+}
+
+/// A sweep, whole or one shard of it (`--shard K/N`, with `--trials` or not).
+impl Experiment for Scenario {
+    fn parse(path: &Path, source: &str) -> Result<Self, ScenarioError> {
+        Scenario::parse(path, source)
+    }
+
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// `--trials` within the limits of the scenario's size.
+    fn check(&self, request: &Request) -> Result<(), Refused> {
+        match request.trials {
+            Some(t) => self
+                .check_trials("--trials", t)
+                .map_err(|e| Refused(e.to_string())),
+            None => Ok(()),
+        }
+    }
+
+    /// `target/results/<name>/`, or `<name>-shard-K-of-N/` for a shard.
+    fn default_output(&self, request: &Request) -> PathBuf {
+        match request.shard {
+            None => default_output(&self.name),
+            Some(s) => default_output(&format!("{}-shard-{}-of-{}", self.name, s.k(), s.n())),
+        }
+    }
+
+    fn run(&self, out: &Path, request: &Request) -> anyhow::Result<Finished> {
+        let options = RunOptions {
+            out: out.to_path_buf(),
+            trials: request.trials,
+            progress: request.progress,
+        };
+        let report = match request.shard {
+            None => run(self, &options)?,
+            Some(shard) => shard::run_shard(self, &options, shard)?,
+        };
+        let per_setting = request.trials.unwrap_or(self.trials);
+        let part = request.shard.map_or(String::new(), |s| {
+            let n = shard::shard_trial_count(s, self.sweeps.len(), per_setting);
+            format!(" shard {s}: {n} trials of")
+        });
+        Ok(Finished {
+            what: format!(
+                "{}{part}: {} settings × {per_setting} trials",
+                self.name,
+                self.sweeps.len()
+            ),
+            wall_time_s: report.wall_time_s,
+            errors: trial_errors_note(report.trial_errors),
+        })
+    }
+}
+
 /// Run `scenario` into `options.out`.
 pub fn run(scenario: &Scenario, options: &RunOptions) -> anyhow::Result<RunReport> {
     let start = Instant::now();
