@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use epd_core::segment::{SegmentOptions, clock_angle_deg, survey};
 use epd_core::{EstimateOptions, Loss, Method, Params, estimate};
+use epd_frame::config::DEFAULT_LOSS_SCALE_M;
 use epd_io::csv::num;
 use tof_sim::{FrameSeed, MeshResolution, Noise, PoseRanges, Scene, Sensor, Subsample, simulate};
 
@@ -58,7 +59,8 @@ pub(super) fn frame_rows(
         sweep_index: di as u64,
     };
     let f = simulate(&Sensor::helios2(), &scene, &noise, Subsample::All, seed)?;
-    let options = EstimateOptions::default().with_loss(Loss::from_name("cauchy", 0.05)?)?;
+    let options =
+        EstimateOptions::default().with_loss(Loss::from_name("cauchy", DEFAULT_LOSS_SCALE_M)?)?;
     let err = |e: &Params| 0.5e3 * ((e.d_max + e.d_min) - (truth.d_max + truth.d_min));
     let want_until = p.straight_until().unwrap_or(f64::NAN);
     let want_clock = clock_angle_deg(&truth, s.direction);

@@ -35,16 +35,21 @@ struct Keys {
     bend_radius_d: f64,
     #[serde(default = "crate::defaults::bend_angle_deg")]
     bend_angle_deg: f64,
-    #[serde(default = "forty")]
+    #[serde(default = "default_direction_deg")]
     direction_deg: f64,
-    #[serde(default = "three_hundred")]
+    #[serde(default = "default_branch_diameter_mm")]
     branch_diameter_mm: f64,
 }
 
-fn forty() -> f64 {
+/// `approach.direction_deg`: the turn (or branch) toward 40° in the PCS, a harness
+/// default, as the committed `scenarios/elbow_approach.toml` and `tee_pass.toml` set it.
+fn default_direction_deg() -> f64 {
     40.0
 }
-fn three_hundred() -> f64 {
+
+/// `approach.branch_diameter_mm`: a tee's 300 mm branch, as the committed
+/// `scenarios/tee_pass.toml` and the pipeline run's tee.
+fn default_branch_diameter_mm() -> f64 {
     300.0
 }
 

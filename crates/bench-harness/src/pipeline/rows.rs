@@ -9,6 +9,7 @@ use epd_core::{
     DepthTable, EstimateOptions, Loss, LossScale, Method, Params, cramer_rao_bound_weighted,
     estimate, estimate_weighted,
 };
+use epd_frame::config::DEFAULT_LOSS_SCALE_M;
 use epd_frame::input::ranges;
 use epd_frame::scene::FrameScene;
 use rayon::prelude::*;
@@ -76,10 +77,14 @@ pub(super) struct Row {
     pub(super) crb: (Option<f64>, Option<f64>),
 }
 
+/// A table bin with fewer rig points is empty and takes the nearest filled bin's values:
+/// 30, as `epd calibrate --min-count` by default.
+const MIN_BIN_COUNT: usize = 30;
+
 /// The estimator options of the run: Cauchy with the scale from the residuals, the gate.
 pub(super) fn options(gate: (f64, f64)) -> anyhow::Result<EstimateOptions> {
     Ok(EstimateOptions::default()
-        .with_loss(Loss::from_name("cauchy", 0.05)?)?
+        .with_loss(Loss::from_name("cauchy", DEFAULT_LOSS_SCALE_M)?)?
         .with_loss_scale(LossScale::Auto)
         .with_range_gate(gate.0, gate.1)?)
 }
@@ -106,7 +111,7 @@ pub(super) fn calibrate(s: &PipelineScenario) -> anyhow::Result<(DepthTable, usi
         known: (s.rig.d_max(), s.rig.d_min()),
         gate: s.range_gate,
         bins: s.table_bins,
-        min_count: 30,
+        min_count: MIN_BIN_COUNT,
         passes: s.calibration_passes,
     };
     let cal = epd_core::calibration::calibrate(&views, &settings, &options(s.range_gate)?)?;

@@ -49,18 +49,18 @@ pub(super) struct FittingFile {
 pub(super) struct RigFile {
     pub(super) nominal_od_in: f64,
     pub(super) wall_mm: f64,
-    #[serde(default = "twenty_frames")]
+    #[serde(default = "default_rig_frames")]
     pub(super) frames: usize,
-    #[serde(default = "thirty")]
+    #[serde(default = "default_range_bins")]
     pub(super) range_bins: usize,
-    #[serde(default = "twelve")]
+    #[serde(default = "default_intensity_bins")]
     pub(super) intensity_bins: usize,
     /// Amplitude of the sensor's offset from the rig's axis (mm): off the axis the rig
     /// shows each range at more incidence angles, hence intensities.
-    #[serde(default = "sixty")]
+    #[serde(default = "default_rig_offset_mm")]
     pub(super) offset_mm: f64,
     /// Passes of the alternating pose/table refinement.
-    #[serde(default = "three")]
+    #[serde(default = "default_calibration_passes")]
     pub(super) passes: usize,
 }
 
@@ -72,11 +72,11 @@ pub(super) struct DriftFile {
     pub(super) roll_deg_per_m: f64,
     #[serde(default)]
     pub(super) tilt_deg: f64,
-    #[serde(default = "five")]
+    #[serde(default = "default_tilt_period_m")]
     pub(super) tilt_period_m: f64,
     #[serde(default)]
     pub(super) offset_mm: f64,
-    #[serde(default = "seven")]
+    #[serde(default = "default_offset_period_m")]
     pub(super) offset_period_m: f64,
 }
 
@@ -96,13 +96,13 @@ pub(super) struct SensorModelFile {
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct PipelineFile {
-    #[serde(default = "fifty")]
+    #[serde(default = "default_frames_per_section")]
     pub(super) frames_per_section: usize,
-    #[serde(default = "spacing")]
+    #[serde(default = "default_frame_spacing_m")]
     pub(super) frame_spacing_m: f64,
-    #[serde(default = "gate")]
+    #[serde(default = "default_range_gate_m")]
     pub(super) range_gate_m: [f64; 2],
-    #[serde(default = "helios2")]
+    #[serde(default = "default_sensor")]
     pub(super) sensor: String,
     #[serde(default)]
     pub(super) sensor_model: SensorModelFile,
@@ -112,7 +112,7 @@ pub(super) struct PipelineFile {
     #[serde(default)]
     pub(super) fitting: Vec<FittingFile>,
     /// Mesh cells around the pipe for frames that see a fitting.
-    #[serde(default = "five_twelve")]
+    #[serde(default = "default_mesh_segments")]
     pub(super) mesh_segments: usize,
 }
 
@@ -125,40 +125,73 @@ pub(super) struct File {
     pub(super) pipeline: PipelineFile,
 }
 
-fn twenty_frames() -> usize {
+/// `pipeline.rig.frames`: 20 rig frames, as the committed `scenarios/pipeline_run.toml`
+/// (the paper does not say how many frames its calibration aggregated).
+fn default_rig_frames() -> usize {
     20
 }
-fn thirty() -> usize {
+
+/// `pipeline.rig.range_bins`: the depth table's range bins over the gate, as `epd
+/// calibrate --range-bins` by default.
+fn default_range_bins() -> usize {
     30
 }
-fn twelve() -> usize {
+
+/// `pipeline.rig.intensity_bins`: the depth table's intensity bins, as `epd calibrate
+/// --intensity-bins` by default (the committed `scenarios/pipeline_run.toml` sets 24).
+fn default_intensity_bins() -> usize {
     12
 }
-fn three() -> usize {
-    3
-}
-fn sixty() -> f64 {
+
+/// `pipeline.rig.offset_mm`: the sensor's offset from the rig's axis, a harness default
+/// (the committed `scenarios/pipeline_run.toml` sets 20 mm, the run's own drift).
+fn default_rig_offset_mm() -> f64 {
     60.0
 }
-fn five() -> f64 {
+
+/// `pipeline.rig.passes`: passes of the alternating pose/table refinement, as the
+/// committed `scenarios/pipeline_run.toml`.
+fn default_calibration_passes() -> usize {
+    3
+}
+
+/// `pipeline.drift.tilt_period_m`: the tilt wanders on a 5 m period, as the committed
+/// `scenarios/pipeline_run.toml`.
+fn default_tilt_period_m() -> f64 {
     5.0
 }
-fn seven() -> f64 {
+
+/// `pipeline.drift.offset_period_m`: the offsets wander on a 7 m period, as the committed
+/// `scenarios/pipeline_run.toml`.
+fn default_offset_period_m() -> f64 {
     7.0
 }
-fn fifty() -> usize {
+
+/// `pipeline.frames_per_section`: the paper's 50 frames in each straight section (§4.2).
+fn default_frames_per_section() -> usize {
     50
 }
-fn spacing() -> f64 {
+
+/// `pipeline.frame_spacing_m`: 0.2 m of odometer between frames, a harness default (the
+/// paper does not give its robot's spacing).
+fn default_frame_spacing_m() -> f64 {
     0.2
 }
-fn gate() -> [f64; 2] {
+
+/// `pipeline.range_gate_m`: the paper kept the points within [0.5, 2] m (§4.2).
+fn default_range_gate_m() -> [f64; 2] {
     [0.5, 2.0]
 }
-fn helios2() -> String {
+
+/// `pipeline.sensor`: the paper's camera, a Helios2 (`tof_sim::ToFPhysics::helios2`, the
+/// one preset).
+fn default_sensor() -> String {
     "helios2".into()
 }
-fn five_twelve() -> usize {
+
+/// `pipeline.mesh_segments`: cells around the pipe of a mesh with a fitting; 256 made the
+/// survey of the frame before the elbow fail (the regression test in `rows.rs`).
+fn default_mesh_segments() -> usize {
     512
 }
 

@@ -1,6 +1,7 @@
 //! A sweep scenario as written: its keys in file units (mm, degrees), read with their
 //! limits ([`Points`], the bounded integers) and turned into the simulator's types.
 
+use epd_frame::config::DEFAULT_LOSS_SCALE_M;
 use serde::Deserialize;
 use tof_sim::{Noise, NoiseModel, Pipe, PoseRanges, Sensor};
 
@@ -142,6 +143,7 @@ impl std::fmt::Display for Points {
     }
 }
 
+/// `methods`: the paper's two estimators and ML-EPD.
 fn default_methods() -> Vec<String> {
     vec!["c-epd".into(), "ru-epd".into(), "ml-epd".into()]
 }
@@ -153,7 +155,7 @@ pub(super) struct File {
     pub(super) name: String,
     #[serde(default = "crate::defaults::seed")]
     pub(super) seed: u64,
-    #[serde(default = "hundred", deserialize_with = "trials_key")]
+    #[serde(default = "default_trials", deserialize_with = "trials_key")]
     pub(super) trials: usize,
     #[serde(default = "default_methods")]
     pub(super) methods: Vec<String>,
@@ -182,17 +184,23 @@ pub(super) struct File {
     pub(super) sweep: Option<SweepFile>,
 }
 
+/// `loss`: least squares, the paper's estimators.
 fn default_loss() -> String {
     "none".into()
 }
+
+/// `loss_scale`: the given `loss_scale_m`, fixed.
 fn default_loss_scale_mode() -> String {
     "fixed".into()
 }
+
+/// `loss_scale_m`: `epd estimate`'s ([`DEFAULT_LOSS_SCALE_M`]).
 fn default_loss_scale() -> f64 {
-    0.05
+    DEFAULT_LOSS_SCALE_M
 }
 
-fn hundred() -> usize {
+/// `trials`: the paper's 100 random poses per simulated setting (§4.1).
+fn default_trials() -> usize {
     100
 }
 
