@@ -22,10 +22,10 @@ use epd_core::Method;
 
 use super::record::TrialRecord;
 use super::rows::{TRIAL_COLUMNS, write_trial_rows};
+use super::run::{RunReport, finish_run};
 use super::scenario::Scenario;
 use super::shard::ShardManifest;
 use super::summary::{SummaryRow, summarise};
-use super::{RunReport, finish_run};
 use crate::output::{
     CsvFile, INTERRUPTED, Interrupted, MANIFEST_FILE, RECORDS_FILE, StagedFiles, write_run,
 };

@@ -34,9 +34,9 @@ use epd_frame::shard::ShardSpec;
 use serde::{Deserialize, Serialize};
 
 use super::rows::{TRIAL_COLUMNS, write_trial_rows};
+use super::run::{RunOptions, RunReport, metadata};
 use super::runner::{TrialRunner, progress_bar};
 use super::scenario::Scenario;
-use super::{RunOptions, RunReport, metadata};
 use crate::output::{
     CsvFile, INTERRUPTED, Interrupted, MANIFEST_FILE, RECORDS_FILE, StagedFiles, create_new,
     finish, write_new, write_run, wrote,
