@@ -1,5 +1,5 @@
 //! What ran: the commit and dirty flag the binary was built from, its build profile and
-//! the machine's CPU, as every run's `metadata.json` records them ([`Metadata`], the one
+//! the machine's CPU, as every run's `metadata.json` records them (`Metadata`, the one
 //! writer of that file for every experiment) and a shard's manifest ([`CodeVersion`]).
 
 use std::fs::File;

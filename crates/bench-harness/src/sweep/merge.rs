@@ -10,7 +10,7 @@
 //! plots and `metadata.json` (with the shards' folders, machines and wall times). At
 //! most one setting's trials are held in memory, as in an unsharded run.
 //!
-//! The checks of the shards before anything is read are in [`check`].
+//! The checks of the shards before anything is read are in `merge/check.rs`.
 
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read, Seek, SeekFrom};

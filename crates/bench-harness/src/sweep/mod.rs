@@ -6,12 +6,12 @@
 //! Its folder is written through [`crate::output`]: every file into a staging folder,
 //! which then takes the output folder's place as a whole.
 //!
-//! - [`run`]: a whole run, setting by setting;
+//! - [`run`](mod@run): a whole run, setting by setting;
 //! - [`scenario`]: the scenario file, checked into [`scenario::Setting`]s;
 //! - [`trial`]: one trial (a frame, every method), made into a [`record::TrialRecord`];
 //! - [`record`]: a trial's record, one row of `trials.csv` per method, and a shard's
 //!   records file;
-//! - [`runner`]: the trials of a setting in batches;
+//! - `runner`: the trials of a setting in batches;
 //! - [`rows`]: the columns and rows of `trials.csv` and `summary.csv`;
 //! - [`summary`]: the statistics of a setting ([`summary::SummaryRow`]);
 //! - [`figures`]: the PNGs drawn from the summary;

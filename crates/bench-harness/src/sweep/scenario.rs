@@ -1,6 +1,6 @@
 //! Sweep scenario files (docs/paper.md, Scenario files): one base setting and one swept
-//! variable, checked into [`Setting`]s before anything runs. The keys as written are read in
-//! [`keys`]; the checks of their ranges and of the run's size are here.
+//! variable, checked into [`Setting`]s before anything runs. The keys as written are read
+//! in `sweep/scenario/keys.rs`; the checks of their ranges and of the run's size are here.
 
 use std::path::{Path, PathBuf};
 
