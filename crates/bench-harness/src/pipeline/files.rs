@@ -9,11 +9,10 @@ use epd_frame::table::CalibrationTable;
 use epd_io::csv::num;
 
 use super::PipelineScenario;
-use super::rows::Row;
+use super::rows::ProfileRow;
 use super::summary::SectionRow;
 use crate::output::CsvFile;
 use crate::provenance::Metadata;
-use crate::route::TruthAhead;
 
 /// `profile.csv` columns (the first eleven are the interface; the rest add the truth, the
 /// Cramér–Rao bound of the heteroscedastic model, and the geometry ahead: the survey's
@@ -74,7 +73,7 @@ pub const SECTION_COLUMNS: &[&str] = &[
 pub(super) fn write_profile(
     dir: &Path,
     s: &PipelineScenario,
-    rows: &[Row],
+    rows: &[ProfileRow],
 ) -> anyhow::Result<PathBuf> {
     let mut csv = CsvFile::create(&dir.join("profile.csv"), PROFILE_COLUMNS)?;
     for r in rows {
@@ -94,7 +93,7 @@ pub(super) fn write_sections(dir: &Path, sections: &[SectionRow]) -> anyhow::Res
 }
 
 /// The row of `profile.csv` of `r` ([`PROFILE_COLUMNS`]).
-fn profile_row(s: &PipelineScenario, r: &Row) -> [String; 23] {
+fn profile_row(s: &PipelineScenario, r: &ProfileRow) -> [String; 23] {
     let id = r.pipe.inner_diameter();
     let od = r.pipe.outer_diameter();
     let opt = |v: Option<f64>| v.map_or(String::new(), num);
@@ -189,43 +188,4 @@ pub(super) fn table_file(t: &DepthTable, n_obs: usize, s: &PipelineScenario) -> 
         frames: s.rig_frames,
         n_observations: n_obs as u64,
     }
-}
-
-/// Per-frame values for the figures.
-#[derive(Clone, Debug)]
-pub struct ProfilePoint {
-    /// Section index.
-    pub section: usize,
-    /// Frame index in the section.
-    pub frame: usize,
-    /// Odometer distance (m).
-    pub distance_m: f64,
-    /// Method name.
-    pub method: &'static str,
-    /// With the depth table.
-    pub calibrated: bool,
-    /// Dmax, Dmin (mm) when converged.
-    pub d_mm: Option<(f64, f64)>,
-    /// The survey's verdict (layout name).
-    pub geometry: &'static str,
-    /// The survey's distance to the straight section's end (m).
-    pub straight_until_m: Option<f64>,
-    /// The route's truth.
-    pub truth: TruthAhead,
-}
-
-pub(super) fn profile_points(rows: &[Row]) -> Vec<ProfilePoint> {
-    rows.iter()
-        .map(|r| ProfilePoint {
-            section: r.section,
-            frame: r.frame,
-            distance_m: r.distance_m,
-            method: r.method,
-            calibrated: r.calibrated,
-            d_mm: r.d.map(|(a, b)| (a * 1e3, b * 1e3)),
-            geometry: r.geometry.found,
-            straight_until_m: r.geometry.straight_until,
-            truth: r.geometry.truth,
-        })
-        .collect()
 }

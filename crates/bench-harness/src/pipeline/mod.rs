@@ -31,11 +31,11 @@ use rayon::prelude::*;
 use crate::experiment::{Experiment, Finished, Refused, Request};
 use crate::output::{INTERRUPTED, Interrupted, StagedFiles, write_new, write_run};
 use crate::scenario::ScenarioError;
-use files::{metadata, profile_points, table_file, write_profile, write_sections};
-use rows::{FrameStatus, Row, calibrate, frame_rows};
+use files::{metadata, table_file, write_profile, write_sections};
+use rows::{FrameStatus, ProfileRow, calibrate, frame_rows};
 use summary::summarise;
 
-pub use files::{PROFILE_COLUMNS, ProfilePoint, SECTION_COLUMNS};
+pub use files::{PROFILE_COLUMNS, SECTION_COLUMNS};
 pub use plan::{Drift, FramePlan};
 pub use scenario::{PipelineScenario, Section};
 pub use summary::{SectionRow, t95};
@@ -150,7 +150,7 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
         &dir.join("depth_table.json"),
         table_file(&table, n_obs, s).to_json().as_bytes(),
     )?);
-    for png in figures::plot_pipeline(s, &profile_points(&rows), &sections)? {
+    for png in figures::plot_pipeline(s, &rows, &sections)? {
         files.push(write_new(&dir.join(&png.name), &png.bytes)?);
     }
     let errors = rows
@@ -174,7 +174,7 @@ fn estimate_run(
     s: &PipelineScenario,
     table: &DepthTable,
     say: &dyn Fn(&str),
-) -> anyhow::Result<Vec<Row>> {
+) -> anyhow::Result<Vec<ProfileRow>> {
     let mut rows = Vec::new();
     let plans = s.plans();
     let mut places: Vec<usize> = plans.iter().map(|p| p.place).collect();
@@ -185,7 +185,7 @@ fn estimate_run(
         }
         let here: Vec<&FramePlan> = plans.iter().filter(|p| p.place == place).collect();
         say(&format!("{}: {} frames", s.place_name(place), here.len()));
-        let done: Vec<anyhow::Result<Vec<Row>>> = here
+        let done: Vec<anyhow::Result<Vec<ProfileRow>>> = here
             .into_par_iter()
             .with_max_len(1)
             .map(|p| frame_rows(s, table, p))

@@ -58,23 +58,41 @@ impl FrameStatus {
     }
 }
 
-/// One estimate of one frame.
+/// One estimate of one frame: a row of `profile.csv`, what the sections' statistics and
+/// the figures read.
 #[derive(Clone, Debug)]
-pub(super) struct Row {
+pub(super) struct ProfileRow {
     /// [`FramePlan::place`].
     pub(super) section: usize,
+    /// The pipe at the frame.
     pub(super) pipe: Pipe,
+    /// The survey's verdict and the route's truth.
     pub(super) geometry: Geometry,
+    /// [`FramePlan::index`].
     pub(super) frame: usize,
+    /// Odometer distance (m).
     pub(super) distance_m: f64,
+    /// One of [`METHODS`].
     pub(super) method: &'static str,
+    /// With the depth table.
     pub(super) calibrated: bool,
+    /// How the estimate ended.
     pub(super) status: FrameStatus,
     /// Dmax, Dmin (m) when converged.
     pub(super) d: Option<(f64, f64)>,
+    /// The true Dmax, Dmin (m).
     pub(super) truth: (f64, f64),
+    /// Points the estimator used.
     pub(super) n_points: usize,
+    /// Cramér–Rao 1-σ of Dmax, Dmin (m) on the straight pipe, when defined.
     pub(super) crb: (Option<f64>, Option<f64>),
+}
+
+impl ProfileRow {
+    /// Dmax, Dmin (mm) when converged.
+    pub(super) fn d_mm(&self) -> Option<(f64, f64)> {
+        self.d.map(|(a, b)| (a * 1e3, b * 1e3))
+    }
 }
 
 /// A table bin with fewer rig points is empty and takes the nearest filled bin's values:
@@ -129,7 +147,7 @@ pub(super) fn frame_rows(
     s: &PipelineScenario,
     table: &DepthTable,
     plan: &FramePlan,
-) -> anyhow::Result<Vec<Row>> {
+) -> anyhow::Result<Vec<ProfileRow>> {
     let (truth, frame, local) = s.frame(plan)?;
     let opts = options(s.range_gate)?;
     let sv = Surveyed::of(s, table, plan, &frame, &opts)?;
@@ -149,7 +167,7 @@ pub(super) fn frame_rows(
             } else {
                 estimate_one(method, &pts, &sigma, &opts)
             };
-            rows.push(Row {
+            rows.push(ProfileRow {
                 section: plan.place,
                 pipe: plan.pipe,
                 geometry: sv.geometry,

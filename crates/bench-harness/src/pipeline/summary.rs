@@ -1,7 +1,7 @@
 //! The statistics of a pipeline run: one [`SectionRow`] per section, method and
 //! calibration, with the 95 % interval of the mean wall from Student's t.
 
-use super::rows::Row;
+use super::rows::ProfileRow;
 use super::{METHODS, PipelineScenario};
 
 /// One row of `sections.csv`.
@@ -39,20 +39,20 @@ pub fn t95(nu: f64) -> f64 {
     crate::stats::student_t_quantile(0.975, nu)
 }
 
-pub(super) fn summarise(s: &PipelineScenario, rows: &[Row]) -> Vec<SectionRow> {
+pub(super) fn summarise(s: &PipelineScenario, rows: &[ProfileRow]) -> Vec<SectionRow> {
     let mut out = Vec::new();
     for (si, sec) in s.sections.iter().enumerate() {
         let od = sec.pipe.outer_diameter();
         let id = sec.pipe.inner_diameter();
         for calibrated in [false, true] {
             for method in METHODS {
-                let sel: Vec<&Row> = rows
+                let sel: Vec<&ProfileRow> = rows
                     .iter()
                     .filter(|r| r.section == si && r.method == method && r.calibrated == calibrated)
                     .collect();
-                let ok: Vec<(&Row, (f64, f64))> =
+                let ok: Vec<(&ProfileRow, (f64, f64))> =
                     sel.iter().filter_map(|r| r.d.map(|d| (*r, d))).collect();
-                let mm = |f: &dyn Fn(&Row, (f64, f64)) -> f64| -> Vec<f64> {
+                let mm = |f: &dyn Fn(&ProfileRow, (f64, f64)) -> f64| -> Vec<f64> {
                     ok.iter().map(|&(r, d)| 1e3 * f(r, d)).collect()
                 };
                 let walls: Vec<f64> = mm(&|_, d| (od - 0.5 * (d.0 + d.1)) / 2.0);
