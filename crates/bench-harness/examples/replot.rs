@@ -17,8 +17,10 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{Context, bail};
-use bench_harness::stats::read_summary;
-use bench_harness::{Scenario, plots};
+use bench_harness::Scenario;
+use bench_harness::sweep::figures::plot_all;
+use bench_harness::sweep::summary::read_summary;
+
 use clap::Parser;
 
 /// Redraw the PNGs of sweep runs from their `scenario.toml` and `summary.csv`.
@@ -36,7 +38,7 @@ fn replot(dir: &Path) -> anyhow::Result<()> {
     if summary.is_empty() {
         bail!("{}: summary.csv has no rows", dir.display());
     }
-    for png in plots::plot_all(&scenario, &summary)? {
+    for png in plot_all(&scenario, &summary)? {
         let path = dir.join(&png.name);
         std::fs::write(&path, &png.bytes)
             .with_context(|| format!("cannot write {}", path.display()))?;

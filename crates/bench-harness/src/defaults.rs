@@ -1,6 +1,7 @@
 //! Default values of scenario keys that more than one scenario kind has, one copy each
-//! (the serde `default = "…"` functions of `scenario.rs`, `approach.rs` and
-//! `pipeline.rs`). A default that only one kind has stays beside its key.
+//! (the serde `default = "…"` functions of `sweep/scenario/keys.rs`,
+//! `pipeline/scenario/keys.rs` and `approach/scenario.rs`). A default that only one kind
+//! has stays beside its key.
 
 /// `seed`: 1.
 pub(crate) fn seed() -> u64 {

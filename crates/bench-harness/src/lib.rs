@@ -1,21 +1,24 @@
-//! The scenario runner behind `bench-harness`: TOML scenarios (README, Scenario files)
-//! that sweep one variable over simulated ToF frames, every listed estimator on the same
-//! clouds, written to `trials.csv`, `summary.csv`, metadata and PNG plots in the paper's
-//! style; a run split into shards (`--shard K/N`) and their merge ([`shard`]).
+//! The scenario runner behind `bench-harness`: TOML scenarios of three experiments, each
+//! in its folder and run through one [`experiment::Experiment`] flow — a sweep of one
+//! variable over simulated ToF frames ([`sweep`]: `trials.csv`, `summary.csv`, plots; in
+//! shards and merged), the paper's pipeline run ([`pipeline`]) and the approach to an
+//! elbow or a tee ([`approach`]) — written as a whole into one output folder
+//! ([`output`]) with one `metadata.json` ([`provenance`]).
 #![deny(missing_docs)]
 
 pub mod approach;
 mod defaults;
+pub mod experiment;
 pub mod output;
 pub mod pipeline;
 pub mod plots;
-mod provenance;
+pub mod provenance;
 pub mod route;
-pub mod run;
 pub mod scenario;
-pub mod shard;
 pub mod stats;
-pub mod trial;
+pub mod sweep;
 
-pub use run::{RunOptions, RunReport, SummaryRow, run};
-pub use scenario::{Scenario, ScenarioError};
+pub use scenario::ScenarioError;
+pub use sweep::scenario::Scenario;
+pub use sweep::summary::SummaryRow;
+pub use sweep::{RunOptions, RunReport, run};

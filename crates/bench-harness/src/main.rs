@@ -14,12 +14,14 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::Ordering;
 
-use bench_harness::approach::{ApproachScenario, is_approach, run_approach};
-use bench_harness::output::{INTERRUPTED, Interrupted, OutputRefused, default_output};
-use bench_harness::pipeline::{PipelineScenario, is_pipeline, run_pipeline};
-use bench_harness::scenario::MAX_SCENARIO_BYTES;
-use bench_harness::shard::{MergeError, MergeOptions, merge, run_shard, shard_trial_count};
-use bench_harness::{RunOptions, Scenario, ScenarioError, run};
+use bench_harness::approach::ApproachScenario;
+use bench_harness::experiment::{Experiment, Kind, Refused, Request};
+use bench_harness::output::{INTERRUPTED, Interrupted, OutputRefused};
+use bench_harness::pipeline::PipelineScenario;
+use bench_harness::scenario::read_source;
+use bench_harness::sweep::merge::{MergeError, MergeOptions, merge};
+use bench_harness::sweep::trial_errors_note;
+use bench_harness::{Scenario, ScenarioError};
 use clap::{Parser, Subcommand};
 use epd_frame::shard::ShardSpec;
 
@@ -113,25 +115,6 @@ struct MergeArgs {
     quiet: bool,
 }
 
-/// The scenario's text, at most [`MAX_SCENARIO_BYTES`] of it.
-fn read_scenario(path: &Path, reader: impl std::io::Read) -> Result<String, ScenarioError> {
-    use std::io::Read;
-    let mut source = String::new();
-    reader
-        .take(MAX_SCENARIO_BYTES + 1)
-        .read_to_string(&mut source)
-        .map_err(|source| ScenarioError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
-    if source.len() as u64 > MAX_SCENARIO_BYTES {
-        return Err(ScenarioError::TooLarge {
-            path: path.to_path_buf(),
-        });
-    }
-    Ok(source)
-}
-
 /// Set up the worker threads and the interrupt handler; `Err` is the exit code.
 fn start_workers(threads: Option<NonZeroUsize>) -> Result<(), ExitCode> {
     if let Some(n) = threads.filter(|n| n.get() > MAX_THREADS) {
@@ -159,6 +142,7 @@ fn start_workers(threads: Option<NonZeroUsize>) -> Result<(), ExitCode> {
 fn failed(e: &anyhow::Error, name: &str) -> ExitCode {
     if e.downcast_ref::<OutputRefused>().is_some()
         || e.downcast_ref::<ScenarioError>().is_some()
+        || e.downcast_ref::<Refused>().is_some()
         || e.downcast_ref::<MergeError>().is_some()
     {
         eprintln!("error: {e}");
@@ -172,27 +156,24 @@ fn failed(e: &anyhow::Error, name: &str) -> ExitCode {
     }
 }
 
-/// A pipeline run (a scenario with a `[pipeline]` table).
-fn run_pipeline_main(cli: &Cli, path: &Path, text: &str) -> ExitCode {
-    let scenario = match PipelineScenario::parse(path, text) {
-        Ok(s) => s,
+/// Run the scenario `text` (read from `path`) as experiment `E`: parse and check it,
+/// check what the command line asks of it, start the workers, run it into `--out` (or its
+/// default folder) and say what ran; the exit code.
+fn run_scenario<E: Experiment>(cli: &Cli, path: &Path, text: &str) -> ExitCode {
+    let experiment = match E::parse(path, text) {
+        Ok(e) => e,
         Err(e) => {
             eprintln!("error: {e}");
             return ExitCode::from(2);
         }
     };
-    if cli.trials.is_some() {
-        eprintln!(
-            "error: --trials does not apply to a pipeline run (set pipeline.frames_per_section)"
-        );
-        return ExitCode::from(2);
-    }
-    if let Some(shard) = cli.shard {
-        eprintln!(
-            "error: --shard {shard}: a pipeline run cannot be sharded: every frame is corrected by \
-             one depth table fitted to all the rig's frames, so its parts are not independent; run \
-             it whole"
-        );
+    let request = Request {
+        trials: cli.trials.map(NonZeroUsize::get),
+        shard: cli.shard,
+        progress: !cli.quiet,
+    };
+    if let Err(e) = experiment.check(&request) {
+        eprintln!("error: {e}");
         return ExitCode::from(2);
     }
     if let Err(code) = start_workers(cli.threads) {
@@ -201,69 +182,20 @@ fn run_pipeline_main(cli: &Cli, path: &Path, text: &str) -> ExitCode {
     let out = cli
         .out
         .clone()
-        .unwrap_or_else(|| default_output(&scenario.name));
-    match run_pipeline(&scenario, &out, !cli.quiet) {
-        Ok(report) => {
+        .unwrap_or_else(|| experiment.default_output(&request));
+    match experiment.run(&out, &request) {
+        Ok(done) => {
             if !cli.quiet {
                 eprintln!(
-                    "{}: {} sections × {} frames in {:.1} s → {}",
-                    scenario.name,
-                    scenario.sections.len(),
-                    scenario.frames_per_section,
-                    report.wall_time_s,
+                    "{} in {:.1} s → {}",
+                    done.what,
+                    done.wall_time_s,
                     out.display()
                 );
             }
-            if report.errors > 0 {
-                eprintln!(
-                    "{} estimates returned an error (status `error` in profile.csv)",
-                    report.errors
-                );
-                return ExitCode::FAILURE;
-            }
-            ExitCode::SUCCESS
+            errors_exit(done.errors)
         }
-        Err(e) => failed(&e, &scenario.name),
-    }
-}
-
-/// An approach run (a scenario with an `[approach]` table: an elbow or a tee ahead).
-fn run_approach_main(cli: &Cli, path: &Path, text: &str) -> ExitCode {
-    let scenario = match ApproachScenario::parse(path, text) {
-        Ok(s) => s,
-        Err(e) => {
-            eprintln!("error: {e}");
-            return ExitCode::from(2);
-        }
-    };
-    if cli.trials.is_some() || cli.shard.is_some() {
-        eprintln!(
-            "error: --trials and --shard do not apply to an approach run (set approach.frames)"
-        );
-        return ExitCode::from(2);
-    }
-    if let Err(code) = start_workers(cli.threads) {
-        return code;
-    }
-    let out = cli
-        .out
-        .clone()
-        .unwrap_or_else(|| default_output(&scenario.name));
-    match run_approach(&scenario, &out, !cli.quiet) {
-        Ok(report) => {
-            if !cli.quiet {
-                eprintln!(
-                    "{}: {} distances × {} frames in {:.1} s → {}",
-                    scenario.name,
-                    scenario.distances_m.len(),
-                    scenario.frames,
-                    report.wall_time_s,
-                    out.display()
-                );
-            }
-            ExitCode::SUCCESS
-        }
-        Err(e) => failed(&e, &scenario.name),
+        Err(e) => failed(&e, experiment.name()),
     }
 }
 
@@ -282,22 +214,22 @@ fn merge_main(a: &MergeArgs) -> ExitCode {
                     a.out.display()
                 );
             }
-            trial_errors_exit(report.trial_errors)
+            errors_exit(trial_errors_note(report.trial_errors))
         }
         Err(e) => failed(&e, "merge"),
     }
 }
 
-/// The exit code of a finished run or merge: 1, saying so, when `trial_errors` trials or
-/// estimates could not be made.
-fn trial_errors_exit(trial_errors: usize) -> ExitCode {
-    if trial_errors > 0 {
-        eprintln!(
-            "{trial_errors} trials or estimates could not be made (status `error` in trials.csv)"
-        );
-        return ExitCode::FAILURE;
+/// The exit code of a finished run or merge: 1, saying why, when trials or estimates
+/// could not be made (`errors`).
+fn errors_exit(errors: Option<String>) -> ExitCode {
+    match errors {
+        Some(note) => {
+            eprintln!("{note}");
+            ExitCode::FAILURE
+        }
+        None => ExitCode::SUCCESS,
     }
-    ExitCode::SUCCESS
 }
 
 /// The scenario's name in messages (`<stdin>` for `-`) and its text; `Err` the exit code.
@@ -308,14 +240,14 @@ fn scenario_text(arg: &Path) -> Result<(PathBuf, String), ExitCode> {
         arg.to_path_buf()
     };
     let text = if arg.as_os_str() == "-" {
-        read_scenario(&path, std::io::stdin().lock())
+        read_source(&path, std::io::stdin().lock())
     } else {
         std::fs::File::open(&path)
             .map_err(|source| ScenarioError::Read {
                 path: path.clone(),
                 source,
             })
-            .and_then(|f| read_scenario(&path, f))
+            .and_then(|f| read_source(&path, f))
     };
     match text {
         Ok(t) => Ok((path, t)),
@@ -346,65 +278,9 @@ fn main() -> ExitCode {
         Ok(t) => t,
         Err(code) => return code,
     };
-    if is_pipeline(&text) {
-        return run_pipeline_main(&cli, &path, &text);
-    }
-    if is_approach(&text) {
-        return run_approach_main(&cli, &path, &text);
-    }
-    run_sweep_main(&cli, &path, &text)
-}
-
-/// A sweep run (a scenario without `[pipeline]` or `[approach]`), whole or one shard.
-fn run_sweep_main(cli: &Cli, path: &Path, text: &str) -> ExitCode {
-    let trials = cli.trials.map(NonZeroUsize::get);
-    let scenario = match Scenario::parse(path, text) {
-        Ok(s) => s,
-        Err(e) => {
-            eprintln!("error: {e}");
-            return ExitCode::from(2);
-        }
-    };
-    if let Some(t) = trials
-        && let Err(e) = scenario.check_trials("--trials", t)
-    {
-        eprintln!("error: {e}");
-        return ExitCode::from(2);
-    }
-    if let Err(code) = start_workers(cli.threads) {
-        return code;
-    }
-    let out = cli.out.clone().unwrap_or_else(|| match cli.shard {
-        None => default_output(&scenario.name),
-        Some(s) => default_output(&format!("{}-shard-{}-of-{}", scenario.name, s.k(), s.n())),
-    });
-    let options = RunOptions {
-        out: out.clone(),
-        trials,
-        progress: !cli.quiet,
-    };
-    let result = match cli.shard {
-        None => run(&scenario, &options),
-        Some(shard) => run_shard(&scenario, &options, shard),
-    };
-    match result {
-        Ok(report) => {
-            if !cli.quiet {
-                let per_setting = trials.unwrap_or(scenario.trials);
-                let part = cli.shard.map_or(String::new(), |s| {
-                    let n = shard_trial_count(s, scenario.sweeps.len(), per_setting);
-                    format!(" shard {s}: {n} trials of")
-                });
-                eprintln!(
-                    "{}{part}: {} settings × {per_setting} trials in {:.1} s → {}",
-                    scenario.name,
-                    scenario.sweeps.len(),
-                    report.wall_time_s,
-                    out.display()
-                );
-            }
-            trial_errors_exit(report.trial_errors)
-        }
-        Err(e) => failed(&e, &scenario.name),
+    match Kind::of(&text) {
+        Kind::Sweep => run_scenario::<Scenario>(&cli, &path, &text),
+        Kind::Pipeline => run_scenario::<PipelineScenario>(&cli, &path, &text),
+        Kind::Approach => run_scenario::<ApproachScenario>(&cli, &path, &text),
     }
 }

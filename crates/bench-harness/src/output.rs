@@ -71,6 +71,40 @@ pub(crate) fn wrote(p: &Path) -> impl Fn(std::io::Error) -> anyhow::Error + '_ {
     move |e| anyhow::Error::new(e).context(format!("cannot write {}", p.display()))
 }
 
+/// A CSV file of a run (in its staging folder), written a record at a time through
+/// [`epd_io::csv`]: the workspace's one quoting rule, numbers as [`epd_io::csv::num`]
+/// gives them. Errors name the file.
+pub(crate) struct CsvFile {
+    path: PathBuf,
+    w: BufWriter<File>,
+}
+
+impl CsvFile {
+    /// Create the new file `path` with the header `columns`.
+    pub(crate) fn create(path: &Path, columns: &[&str]) -> anyhow::Result<Self> {
+        let mut file = Self {
+            path: path.to_path_buf(),
+            w: create_new(path)?,
+        };
+        file.row(columns)?;
+        Ok(file)
+    }
+
+    /// Write one record: `fields`, quoted where the rule says, and `\n`.
+    pub(crate) fn row<I, T>(&mut self, fields: I) -> anyhow::Result<()>
+    where
+        I: IntoIterator<Item = T>,
+        T: AsRef<[u8]>,
+    {
+        writeln!(self.w, "{}", epd_io::csv::line(fields)).map_err(wrote(&self.path))
+    }
+
+    /// Flush and sync the file; its path.
+    pub(crate) fn finish(self) -> anyhow::Result<PathBuf> {
+        finish(self.w, &self.path)
+    }
+}
+
 /// The output folder may not be used (a usage error: nothing was written).
 #[derive(Debug, thiserror::Error)]
 #[error("{0}")]

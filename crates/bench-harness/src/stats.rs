@@ -1,9 +1,5 @@
 //! Statistics over the trials of one setting (README, Conventions): bias, spread, error range.
 
-use std::path::Path;
-
-use anyhow::Context;
-
 /// Summary statistics of a sample.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Stats {
@@ -72,90 +68,6 @@ impl Stats {
     pub fn sem(&self) -> f64 {
         self.std / (self.n as f64).sqrt()
     }
-}
-
-/// One row of `summary.csv`.
-#[derive(Clone, Debug, PartialEq)]
-pub struct SummaryRow {
-    /// The swept value as written in the scenario.
-    pub sweep_value: String,
-    /// Method name.
-    pub method: String,
-    /// Quantity name (dmax, …, time_ms).
-    pub quantity: String,
-    /// Its unit.
-    pub unit: String,
-    /// Statistics over the converged trials.
-    pub stats: Stats,
-    /// Trials that did not converge (or failed).
-    pub n_failed: usize,
-    /// √(mean over trials of the CRB variance): the physical limit of `stats.std`.
-    pub crb_std: Option<f64>,
-    /// Fraction of the converged trials whose |error| ≤ 1.96·(reported 1-σ): the
-    /// coverage of the nominal 95 % interval (parameters only; trials without a
-    /// reported 1-σ, e.g. an undetermined roll, count as not covered).
-    pub coverage95: Option<f64>,
-}
-
-/// The rows of a `summary.csv` as written by a run (columns by name; an empty cell is a
-/// missing value). Every number there is in shortest round-trip decimal, so the rows read
-/// back equal the run's, bit for bit: the figures drawn from them are the run's.
-pub fn read_summary(path: &Path) -> anyhow::Result<Vec<SummaryRow>> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines
-        .next()
-        .ok_or_else(|| anyhow::anyhow!("{}: empty", path.display()))?
-        .split(',')
-        .collect();
-    let mut rows = Vec::new();
-    for (i, line) in lines.enumerate() {
-        let cells: std::collections::HashMap<&str, &str> =
-            header.iter().copied().zip(line.split(',')).collect();
-        let at = || format!("{} line {}", path.display(), i + 2);
-        let text = |k: &str| -> anyhow::Result<String> {
-            cells
-                .get(k)
-                .map(|v| (*v).to_string())
-                .ok_or_else(|| anyhow::anyhow!("{}: no column `{k}`", at()))
-        };
-        let opt = |k: &str| -> anyhow::Result<Option<f64>> {
-            match cells.get(k).copied() {
-                None | Some("") => Ok(None),
-                Some(v) => v
-                    .parse()
-                    .map(Some)
-                    .with_context(|| format!("{}: `{k}` = {v:?} is not a number", at())),
-            }
-        };
-        let num = |k: &str| -> anyhow::Result<f64> { Ok(opt(k)?.unwrap_or(f64::NAN)) };
-        let count = |k: &str| -> anyhow::Result<usize> {
-            let v = text(k)?;
-            v.parse()
-                .with_context(|| format!("{}: `{k}` = {v:?} is not a count", at()))
-        };
-        rows.push(SummaryRow {
-            sweep_value: text("sweep_value")?,
-            method: text("method")?,
-            quantity: text("quantity")?,
-            unit: text("unit")?,
-            stats: Stats {
-                n: count("n")?,
-                mean: num("mean")?,
-                std: num("std")?,
-                rmse: num("rmse")?,
-                median: num("median")?,
-                min: num("min")?,
-                max: num("max")?,
-                range: num("range")?,
-            },
-            n_failed: count("n_failed")?,
-            crb_std: opt("crb_std")?,
-            coverage95: opt("coverage95")?,
-        });
-    }
-    Ok(rows)
 }
 
 /// The p-quantile of Student's t distribution with ν degrees of freedom (ν > 0, not

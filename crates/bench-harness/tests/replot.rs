@@ -6,8 +6,9 @@ mod common;
 
 use common::{temp_dir, workspace};
 
-use bench_harness::stats::read_summary;
-use bench_harness::{RunOptions, Scenario, SummaryRow, plots, run};
+use bench_harness::sweep::figures::plot_all;
+use bench_harness::sweep::summary::read_summary;
+use bench_harness::{RunOptions, Scenario, SummaryRow, run};
 
 /// Every field equal, floats by their bits (NaN included).
 fn same(a: &SummaryRow, b: &SummaryRow) -> bool {
@@ -50,7 +51,7 @@ fn figures_redrawn_from_summary_csv_equal_the_runs() {
     for (a, b) in read.iter().zip(&report.summary) {
         assert!(same(a, b), "{a:?}\n!=\n{b:?}");
     }
-    let pngs = plots::plot_all(&scenario, &read).unwrap();
+    let pngs = plot_all(&scenario, &read).unwrap();
     assert_eq!(pngs.len(), 5);
     for png in pngs {
         let written = std::fs::read(out.join(&png.name)).unwrap();

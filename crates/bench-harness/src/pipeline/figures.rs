@@ -2,7 +2,8 @@
 
 use plotters::style::RGBColor;
 
-use super::{METHODS, PipelineScenario, ProfilePoint, SectionRow};
+use super::rows::ProfileRow;
+use super::{METHODS, PipelineScenario, SectionRow};
 use crate::plots::{
     Axis, BLUE, Figure, GAP, GREEN, Legend, Panel, Png, Point, RED, REFERENCE, Series, colour,
     render,
@@ -16,7 +17,7 @@ use crate::stats::Stats;
 /// `weights.png` (spread of each method against the heteroscedastic Cramér–Rao bound).
 pub(crate) fn plot_pipeline(
     s: &PipelineScenario,
-    points: &[ProfilePoint],
+    points: &[ProfileRow],
     sections: &[SectionRow],
 ) -> anyhow::Result<Vec<Png>> {
     Ok(vec![
@@ -32,7 +33,7 @@ const NOMINAL: RGBColor = RGBColor(90, 90, 90);
 
 /// `diameters.png` (Fig. 11): per-frame Dmax and Dmin of each section, calibrated,
 /// against the nominal ID and the truth.
-fn pipeline_diameters(s: &PipelineScenario, points: &[ProfilePoint]) -> anyhow::Result<Png> {
+fn pipeline_diameters(s: &PipelineScenario, points: &[ProfileRow]) -> anyhow::Result<Png> {
     let name = &s.name;
     let grey = NOMINAL;
     let pick = |si: usize, m: &'static str, cal: bool| {
@@ -67,7 +68,7 @@ fn pipeline_diameters(s: &PipelineScenario, points: &[ProfilePoint]) -> anyhow::
                     colour: colour(m),
                     points: pick(si, m, true)
                         .filter_map(|p| {
-                            let d = p.d_mm?;
+                            let d = p.d_mm()?;
                             let y = if which == 0 { d.0 } else { d.1 };
                             Some((p.frame as f64, y, y, y))
                         })
@@ -197,7 +198,7 @@ fn section_references(
 
 /// `f` of the diameters (Dmax, Dmin) of method `m` along the distance (`driven`: sorted
 /// by distance), broken where the place changes and where an estimate is withheld.
-fn along_distance(driven: &[&ProfilePoint], m: &str, f: fn((f64, f64)) -> f64) -> Vec<Point> {
+fn along_distance(driven: &[&ProfileRow], m: &str, f: fn((f64, f64)) -> f64) -> Vec<Point> {
     let mut v = Vec::new();
     let mut place = None;
     for p in driven.iter().filter(|p| p.method == m) {
@@ -205,7 +206,7 @@ fn along_distance(driven: &[&ProfilePoint], m: &str, f: fn((f64, f64)) -> f64) -
             v.push(GAP);
         }
         place = Some(p.section);
-        v.push(p.d_mm.map_or(GAP, |d| {
+        v.push(p.d_mm().map_or(GAP, |d| {
             let y = f(d);
             (p.distance_m, y, y, y)
         }));
@@ -215,16 +216,16 @@ fn along_distance(driven: &[&ProfilePoint], m: &str, f: fn((f64, f64)) -> f64) -
 
 /// The geometry ahead, once per frame: the survey's distance to the straight section's
 /// end by its verdict, a bend's frames at 0, and the route's truth.
-fn geometry_ahead(frames: &[&ProfilePoint]) -> Vec<Series> {
+fn geometry_ahead(frames: &[&ProfileRow]) -> Vec<Series> {
     let found = |layout: &str| -> Vec<Point> {
         frames
             .iter()
-            .filter(|p| p.geometry == layout)
+            .filter(|p| p.geometry.found == layout)
             .flat_map(|p| {
                 let y = if layout == "in_bend" {
                     0.0
                 } else {
-                    p.straight_until_m.unwrap_or(f64::NAN)
+                    p.geometry.straight_until.unwrap_or(f64::NAN)
                 };
                 [(p.distance_m, y, y, y), GAP]
             })
@@ -233,10 +234,10 @@ fn geometry_ahead(frames: &[&ProfilePoint]) -> Vec<Series> {
     // Broken where the truth changes from one fitting to the next.
     let mut truth_line: Vec<Point> = Vec::new();
     for (k, p) in frames.iter().enumerate() {
-        if k > 0 && frames[k - 1].truth.geometry != p.truth.geometry {
+        if k > 0 && frames[k - 1].geometry.truth.geometry != p.geometry.truth.geometry {
             truth_line.push(GAP);
         }
-        let y = match (p.truth.geometry, p.truth.straight_until_m) {
+        let y = match (p.geometry.truth.geometry, p.geometry.truth.straight_until_m) {
             ("in_bend", _) => 0.0,
             (_, Some(u)) => u,
             _ => f64::NAN,
@@ -257,11 +258,11 @@ fn geometry_ahead(frames: &[&ProfilePoint]) -> Vec<Series> {
 }
 
 /// `profile.png`: mean diameter and ovality along the distance, with the depth table.
-fn pipeline_profile(s: &PipelineScenario, points: &[ProfilePoint]) -> anyhow::Result<Png> {
+fn pipeline_profile(s: &PipelineScenario, points: &[ProfileRow]) -> anyhow::Result<Png> {
     // Along the distance: the sections and the frames between them.
-    let mut driven: Vec<&ProfilePoint> = points.iter().filter(|p| p.calibrated).collect();
+    let mut driven: Vec<&ProfileRow> = points.iter().filter(|p| p.calibrated).collect();
     driven.sort_by(|a, b| a.distance_m.total_cmp(&b.distance_m));
-    let frames: Vec<&ProfilePoint> = driven
+    let frames: Vec<&ProfileRow> = driven
         .iter()
         .copied()
         .filter(|p| p.method == "ml-epd")

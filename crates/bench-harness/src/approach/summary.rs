@@ -1,0 +1,109 @@
+//! The summary of an approach run: one [`ApproachRow`] per distance, with and without the
+//! survey.
+
+use std::path::{Path, PathBuf};
+
+use super::frames::FrameRow;
+use epd_io::csv::num;
+
+use super::scenario::{ApproachScenario, Feature};
+use crate::output::CsvFile;
+
+/// The columns of `approach.csv`.
+pub const APPROACH_COLUMNS: [&str; 8] = [
+    "distance_m",
+    "segmented",
+    "n_frames",
+    "n_found",
+    "dmean_bias_mm",
+    "dmean_range_mm",
+    "straight_until_err_max_mm",
+    "bend_radius_err_max_pct",
+];
+
+/// One row of `approach.csv`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ApproachRow {
+    /// Distance (m).
+    pub distance_m: f64,
+    /// With the survey.
+    pub segmented: bool,
+    /// Frames.
+    pub n_frames: usize,
+    /// Frames whose survey found the feature (`bend_ahead` or `tee_ahead` as the
+    /// scenario's kind).
+    pub n_found: usize,
+    /// Mean of the mean-diameter errors with a result (mm).
+    pub dmean_bias_mm: f64,
+    /// Their max − min (mm).
+    pub dmean_range_mm: f64,
+    /// Largest |error| of `straight_until_m` (mm).
+    pub straight_until_err_max_mm: f64,
+    /// Largest |error| of the bend radius (%).
+    pub bend_radius_err_max_pct: f64,
+}
+
+pub(super) fn summarise(s: &ApproachScenario, rows: &[FrameRow]) -> Vec<ApproachRow> {
+    let found = match s.feature {
+        Feature::Elbow { .. } => "bend_ahead",
+        Feature::Tee { .. } => "tee_ahead",
+    };
+    let mut out = Vec::new();
+    for &d in &s.distances_m {
+        for segmented in [false, true] {
+            let r: Vec<&FrameRow> = rows
+                .iter()
+                .filter(|r| r.distance_m == d && r.segmented == segmented)
+                .collect();
+            let e: Vec<f64> = r
+                .iter()
+                .map(|r| r.dmean_err_mm)
+                .filter(|v| v.is_finite())
+                .collect();
+            let max_abs = |f: fn(&FrameRow) -> f64| {
+                r.iter()
+                    .map(|x| f(x).abs())
+                    .filter(|v| v.is_finite())
+                    .fold(f64::NAN, f64::max)
+            };
+            let (lo, hi) = e
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+                    (a.min(v), b.max(v))
+                });
+            out.push(ApproachRow {
+                distance_m: d,
+                segmented,
+                n_frames: r.len(),
+                n_found: r.iter().filter(|r| r.geometry == found).count(),
+                dmean_bias_mm: if e.is_empty() {
+                    f64::NAN
+                } else {
+                    e.iter().sum::<f64>() / e.len() as f64
+                },
+                dmean_range_mm: if e.is_empty() { f64::NAN } else { hi - lo },
+                straight_until_err_max_mm: max_abs(|r| r.straight_until_err_mm),
+                bend_radius_err_max_pct: max_abs(|r| r.bend_radius_err_pct),
+            });
+        }
+    }
+    out
+}
+
+/// `approach.csv`: one row per distance and fit ([`APPROACH_COLUMNS`]).
+pub(super) fn write_approach_csv(dir: &Path, summary: &[ApproachRow]) -> anyhow::Result<PathBuf> {
+    let mut csv = CsvFile::create(&dir.join("approach.csv"), &APPROACH_COLUMNS)?;
+    for r in summary {
+        csv.row([
+            num(r.distance_m),
+            r.segmented.to_string(),
+            r.n_frames.to_string(),
+            r.n_found.to_string(),
+            num(r.dmean_bias_mm),
+            num(r.dmean_range_mm),
+            num(r.straight_until_err_max_mm),
+            num(r.bend_radius_err_max_pct),
+        ])?;
+    }
+    csv.finish()
+}

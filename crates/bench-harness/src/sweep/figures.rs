@@ -1,0 +1,360 @@
+//! The figures of a sweep, drawn with the primitives of [`crate::plots`] from its summary
+//! rows: the errors against the swept value (Figs. 4–6, 8), the time of an estimate
+//! (Fig. 7) and the spread against the Cramér–Rao bound.
+
+use std::collections::HashMap;
+
+use super::scenario::Scenario;
+use super::summary::SummaryRow;
+use crate::plots::{Axis, Figure, Legend, Panel, Png, REFERENCE, Series, colour, render};
+
+/// Numeric x of each swept value (its index when not a number).
+fn xs(values: &[String]) -> Vec<f64> {
+    let parsed: Vec<Option<f64>> = values.iter().map(|v| v.parse().ok()).collect();
+    if parsed.iter().all(Option::is_some) {
+        parsed.into_iter().flatten().collect()
+    } else {
+        (0..values.len()).map(|i| i as f64).collect()
+    }
+}
+
+/// A reader's label for a swept scenario key.
+fn axis_label(key: &str) -> String {
+    match key {
+        "noise.sigma_m" => "depth error σ (m)".into(),
+        "noise.outlier_fraction" => "fraction of range outliers".into(),
+        "noise.far_outlier_fraction" => "fraction of far outliers".into(),
+        "noise.bias_b0_m" => "depth bias offset b0 (m)".into(),
+        "noise.bias_b1" => "depth bias slope b1".into(),
+        "pipe.nominal_od_in" => "nominal pipe diameter (inch)".into(),
+        "pipe.ovality" => "ovality (Dmax − Dmin)/ID".into(),
+        "pipe.wall_thickness_mm" => "wall thickness (mm)".into(),
+        "poses.tilt_deg" => "tilt between pipe axis and optical axis (°)".into(),
+        "points" => "input size N (points)".into(),
+        "loss_scale_m" => "robust loss scale (m)".into(),
+        "sensor.max_range_m" => "largest range kept (m)".into(),
+        "sensor.min_range_m" => "smallest range kept (m)".into(),
+        other => {
+            // `section.some_key_unit` → "some key (unit)".
+            let last = other.rsplit('.').next().unwrap_or(other);
+            let mut words: Vec<&str> = last.split('_').collect();
+            let unit = match words.last() {
+                Some(&u) if ["m", "mm", "deg", "in"].contains(&u) => {
+                    words.pop();
+                    format!(" ({u})")
+                }
+                _ => String::new(),
+            };
+            format!("{}{unit}", words.join(" "))
+        }
+    }
+}
+
+/// Picks (centre, low, high) from a summary row.
+type Pick = fn(&SummaryRow) -> Option<(f64, f64, f64)>;
+
+/// The bias and the error range: (mean, min, max).
+const BIAS_AND_RANGE: Pick = |r| Some((r.stats.mean, r.stats.min, r.stats.max));
+
+/// What every figure of a sweep shares: its summary rows, the x of each swept value and
+/// the methods, in the scenario's order.
+struct Sweep<'a> {
+    name: &'a str,
+    summary: &'a [SummaryRow],
+    /// The x of each swept value, looked up in constant time (10 000 values × every row
+    /// of the summary would otherwise be quadratic); a repeated value keeps its first x.
+    x_of: HashMap<&'a str, f64>,
+    methods: Vec<String>,
+    x_label: String,
+    xa: Axis,
+    /// Trials were run one at a time (`time_ms` not contended).
+    timing: bool,
+}
+
+impl<'a> Sweep<'a> {
+    fn new(scenario: &'a Scenario, summary: &'a [SummaryRow]) -> Self {
+        let values: Vec<&str> = scenario.sweeps.iter().map(|(v, _)| v.as_str()).collect();
+        let owned: Vec<String> = values.iter().map(|v| (*v).to_string()).collect();
+        let x = xs(&owned);
+        let mut x_of = HashMap::new();
+        for (v, &xi) in values.iter().zip(&x) {
+            x_of.entry(*v).or_insert(xi);
+        }
+        let methods = scenario
+            .sweeps
+            .first()
+            .map(|(_, s)| s.methods.iter().map(|m| m.name().to_string()).collect())
+            .unwrap_or_default();
+        let log_x =
+            scenario.sweep_variable == "points" && x.iter().all(|&v| v > 0.0) && values.len() > 1;
+        Sweep {
+            name: &scenario.name,
+            summary,
+            x_of,
+            methods,
+            x_label: axis_label(&scenario.sweep_variable),
+            xa: Axis { log: log_x },
+            timing: scenario.timing,
+        }
+    }
+
+    /// One series per method of quantity `q`, (centre, low, high) from `pick`.
+    fn series(&self, q: &str, bars: bool, pick: Pick) -> Vec<Series> {
+        self.methods
+            .iter()
+            .map(|m| Series {
+                name: m.to_uppercase(),
+                colour: colour(m),
+                points: self.points(q, m, pick),
+                bars,
+                marker_triangle: false,
+                dashed: false,
+            })
+            .collect()
+    }
+
+    /// (x, centre, low, high) of quantity `q` and method `m`, one per swept value.
+    fn points(&self, q: &str, m: &str, pick: Pick) -> Vec<(f64, f64, f64, f64)> {
+        self.summary
+            .iter()
+            .filter(|r| r.quantity == q && r.method == m)
+            .filter_map(|r| {
+                let (c, lo, hi) = pick(r)?;
+                Some((*self.x_of.get(r.sweep_value.as_str())?, c, lo, hi))
+            })
+            .collect()
+    }
+
+    /// Whether C-EPD is one of several methods (its bias then sets an error plot's
+    /// scale, and a second row without it shows the others').
+    fn has_c(&self) -> bool {
+        self.methods.iter().any(|m| m == "c-epd") && self.methods.len() > 1
+    }
+
+    fn figure(&self, name: &str, title: String, grid: (usize, usize), ya: Axis) -> Figure<'_> {
+        // Panels 500 px high and 700 px wide (460 beyond three columns; a lone column
+        // 1000, so the figure's title fits), plus the title and the legend strip.
+        let width = match grid.1 {
+            1 => 1000,
+            2 | 3 => 700,
+            _ => 460,
+        };
+        Figure {
+            name: name.into(),
+            title,
+            grid,
+            size: (width * grid.1 as u32 + 40, 500 * grid.0 as u32 + 74),
+            x_label: &self.x_label,
+            xa: self.xa,
+            ya,
+            legend: Legend::Shared,
+        }
+    }
+}
+
+/// An error figure (Figs. 4–6, 8): one panel per (quantity, title, unit), the bias as
+/// line and the error range as bars per method; when C-EPD is among several methods a
+/// second row repeats the panels without it, whose bias sets the first row's scale.
+fn error_figure(
+    sw: &Sweep<'_>,
+    qs: &[(&str, &str, &str)],
+    name: &str,
+    what: &str,
+) -> anyhow::Result<Png> {
+    let all: Vec<Vec<Series>> = qs
+        .iter()
+        .map(|(q, _, _)| sw.series(q, true, BIAS_AND_RANGE))
+        .collect();
+    let without_c: Vec<Vec<Series>> = all
+        .iter()
+        .map(|v| {
+            v.iter()
+                .filter(|s| s.name != "C-EPD")
+                .map(Series::clone_line)
+                .collect()
+        })
+        .collect();
+    let mut panels: Vec<Panel<'_>> = qs
+        .iter()
+        .zip(&all)
+        .map(|((_, t, u), s)| Panel {
+            title: (*t).into(),
+            y_label: format!("error ({u})"),
+            series: s,
+        })
+        .collect();
+    let rows = if sw.has_c() {
+        panels.extend(qs.iter().zip(&without_c).map(|((_, t, u), s)| Panel {
+            title: format!("{t}, without C-EPD"),
+            y_label: format!("error ({u})"),
+            series: s,
+        }));
+        2
+    } else {
+        1
+    };
+    render(
+        sw.figure(
+            name,
+            format!(
+                "{}: {what} (line: bias, bars: min…max over the trials)",
+                sw.name
+            ),
+            (rows, qs.len()),
+            Axis { log: false },
+        ),
+        &panels,
+    )
+}
+
+/// `diameter_error.png` (Figs. 4, 5, 8): errors of Dmax and Dmin.
+fn diameter_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
+    error_figure(
+        sw,
+        &[
+            ("dmax", "major axis Dmax", "mm"),
+            ("dmin", "minor axis Dmin", "mm"),
+        ],
+        "diameter_error.png",
+        "diameter estimation error",
+    )
+}
+
+/// `dmean_error.png`: error of the mean diameter (Dmax + Dmin)/2.
+fn dmean_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
+    error_figure(
+        sw,
+        &[("dmean", "mean diameter (Dmax + Dmin)/2", "mm")],
+        "dmean_error.png",
+        "mean-diameter error",
+    )
+}
+
+/// `pose_error.png` (Fig. 6): errors of roll, pitch, yaw, δy and δz.
+fn pose_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
+    error_figure(
+        sw,
+        &[
+            ("roll", "roll θx", "deg"),
+            ("pitch", "pitch θy", "deg"),
+            ("yaw", "yaw θz", "deg"),
+            ("dy", "Y displacement δy", "mm"),
+            ("dz", "Z displacement δz", "mm"),
+        ],
+        "pose_error.png",
+        "pose estimation error",
+    )
+}
+
+/// `time.png` (Fig. 7): time of one estimate call, mean and min…max; log–log over
+/// `points`.
+fn time_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
+    let time = sw.series("time_ms", true, BIAS_AND_RANGE);
+    let how = if sw.timing {
+        "trials one at a time"
+    } else {
+        "trials in parallel: contended"
+    };
+    let mut fig = sw.figure(
+        "time.png",
+        format!("{}: processing time of one estimate ({how})", sw.name),
+        (1, 1),
+        Axis { log: sw.xa.log },
+    );
+    fig.size = (900, 640);
+    render(
+        fig,
+        &[Panel {
+            title: "estimate call (line: mean, bars: min…max)".into(),
+            y_label: "time (ms)".into(),
+            series: &time,
+        }],
+    )
+}
+
+/// `std_vs_crb.png`: the standard deviation of every parameter's estimates (and of the
+/// mean diameter) against the Cramér–Rao bound, dashed beneath (log scale).
+fn crb_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
+    let quantities = [
+        ("dmax", "Dmax", "mm"),
+        ("dmin", "Dmin", "mm"),
+        ("dmean", "mean diameter (no bound)", "mm"),
+        ("roll", "roll θx", "deg"),
+        ("pitch", "pitch θy", "deg"),
+        ("yaw", "yaw θz", "deg"),
+        ("dy", "Y displacement δy", "mm"),
+        ("dz", "Z displacement δz", "mm"),
+    ];
+    let std: Pick = |r| Some((r.stats.std, f64::NAN, f64::NAN));
+    let crb: Pick = |r| Some((r.crb_std?, f64::NAN, f64::NAN));
+    let series: Vec<Vec<Series>> = quantities
+        .iter()
+        .map(|(q, _, _)| {
+            let mut v = Vec::new();
+            // The bound depends on the frame, not the method: the first method's rows.
+            if let Some(m) = sw.methods.first().filter(|_| *q != "dmean") {
+                v.push(Series {
+                    // `crb_std` is the bound for range noise, whatever the scenario's model.
+                    name: "Cramér–Rao bound for range noise".into(),
+                    colour: REFERENCE,
+                    points: sw.points(q, m, crb),
+                    bars: false,
+                    marker_triangle: false,
+                    dashed: true,
+                });
+            }
+            v.extend(sw.series(q, false, std));
+            v
+        })
+        .collect();
+    let panels: Vec<Panel<'_>> = quantities
+        .iter()
+        .zip(&series)
+        .map(|((_, t, u), s)| Panel {
+            title: (*t).into(),
+            y_label: format!("standard deviation ({u})"),
+            series: s,
+        })
+        .collect();
+    render(
+        sw.figure(
+            "std_vs_crb.png",
+            format!(
+                "{}: spread of the estimates over the trials against the Cramér–Rao bound (log scale)",
+                sw.name
+            ),
+            (2, 4),
+            Axis { log: true },
+        ),
+        &panels,
+    )
+}
+
+/// Every figure of a sweep, in [`crate::output::RUN_FILES`] order: `diameter_error.png`,
+/// `dmean_error.png`, `pose_error.png`, `time.png`, `std_vs_crb.png`.
+pub fn plot_all(scenario: &Scenario, summary: &[SummaryRow]) -> anyhow::Result<Vec<Png>> {
+    let sw = Sweep::new(scenario, summary);
+    Ok(vec![
+        diameter_figure(&sw)?,
+        dmean_figure(&sw)?,
+        pose_figure(&sw)?,
+        time_figure(&sw)?,
+        crb_figure(&sw)?,
+    ])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn axis_labels_are_for_people() {
+        assert_eq!(
+            axis_label("noise.outlier_fraction"),
+            "fraction of range outliers"
+        );
+        assert_eq!(axis_label("pipe.some_length_mm"), "some length (mm)");
+        assert_eq!(axis_label("seed"), "seed");
+        assert!(!axis_label("poses.tilt_deg").contains('.'));
+    }
+}

@@ -1,0 +1,382 @@
+//! A sweep scenario as written: its keys in file units (mm, degrees), read with their
+//! limits ([`Points`], the bounded integers) and turned into the simulator's types.
+
+use epd_frame::config::DEFAULT_LOSS_SCALE_M;
+use serde::Deserialize;
+use tof_sim::{Noise, NoiseModel, Pipe, PoseRanges, Sensor};
+
+use super::{MAX_POINTS, MAX_SENSOR_SIDE, MAX_TRIALS, MIN_POINTS};
+use crate::scenario::{KeyError, key_err};
+
+/// `points = "all"` or an integer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Points {
+    /// Every point within range.
+    #[default]
+    All,
+    /// A uniform subsample of this many points.
+    N(usize),
+}
+
+impl<'de> Deserialize<'de> for Points {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        d.deserialize_any(Bounded {
+            key: "points",
+            lo: MIN_POINTS as u64,
+            hi: MAX_POINTS as u64,
+            all: true,
+        })
+        .map(|n| n.map_or(Points::All, |n| Points::N(n as usize)))
+    }
+}
+
+/// A number as the file wrote it, for error messages (`1e18`, not eighteen zeros).
+fn float_text(v: f64) -> String {
+    if v.is_finite() && v.abs() < 1e15 {
+        // `1e7` is shown as `10000000.0`: a float, as the message then says.
+        if v.fract() == 0.0 {
+            format!("{v:.1}")
+        } else {
+            format!("{v}")
+        }
+    } else {
+        format!("{v:e}")
+    }
+}
+
+/// Reads an integer key and checks it against its limits as it is read, so a bad value
+/// (too large, negative, a float such as `1e18`, a string) is one clear message naming
+/// the key, the value and the limits; `Ok(None)` is `"all"` where that is allowed.
+pub(super) struct Bounded {
+    pub(super) key: &'static str,
+    pub(super) lo: u64,
+    pub(super) hi: u64,
+    /// Whether `"all"` is accepted (`points`).
+    pub(super) all: bool,
+}
+
+impl Bounded {
+    fn expected(&self) -> String {
+        let all = if self.all { "\"all\" or " } else { "" };
+        format!("must be {all}an integer in [{}, {}]", self.lo, self.hi)
+    }
+
+    fn error<E: serde::de::Error>(&self, value: impl std::fmt::Display) -> E {
+        E::custom(format!("`{}` = {value}: {}", self.key, self.expected()))
+    }
+}
+
+impl<'de> serde::de::Visitor<'de> for Bounded {
+    type Value = Option<u64>;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "`{}`: {}", self.key, self.expected())
+    }
+
+    fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<Self::Value, E> {
+        if (self.lo..=self.hi).contains(&v) {
+            Ok(Some(v))
+        } else {
+            Err(self.error(v))
+        }
+    }
+
+    fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<Self::Value, E> {
+        match u64::try_from(v) {
+            Ok(v) => self.visit_u64(v),
+            Err(_) => Err(self.error(v)),
+        }
+    }
+
+    fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<Self::Value, E> {
+        Err(self.error(format!("{} (a float)", float_text(v))))
+    }
+
+    fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<Self::Value, E> {
+        if self.all && v == "all" {
+            Ok(None)
+        } else {
+            Err(self.error(format!("{v:?}")))
+        }
+    }
+
+    fn visit_bool<E: serde::de::Error>(self, v: bool) -> Result<Self::Value, E> {
+        Err(self.error(v))
+    }
+}
+
+/// An integer key with limits; `"all"` is not accepted.
+fn bounded<'de, D: serde::Deserializer<'de>>(
+    d: D,
+    key: &'static str,
+    lo: u64,
+    hi: u64,
+) -> Result<u64, D::Error> {
+    let v = d.deserialize_any(Bounded {
+        key,
+        lo,
+        hi,
+        all: false,
+    })?;
+    // Unreachable with `all: false`; kept as an error rather than a panic.
+    v.ok_or_else(|| serde::de::Error::custom(format!("`{key}`: \"all\" is not allowed")))
+}
+
+fn trials_key<'de, D: serde::Deserializer<'de>>(d: D) -> Result<usize, D::Error> {
+    bounded(d, "trials", 1, MAX_TRIALS as u64).map(|v| v as usize)
+}
+
+fn width_key<'de, D: serde::Deserializer<'de>>(d: D) -> Result<u32, D::Error> {
+    bounded(d, "sensor.width", 1, u64::from(MAX_SENSOR_SIDE)).map(|v| v as u32)
+}
+
+fn height_key<'de, D: serde::Deserializer<'de>>(d: D) -> Result<u32, D::Error> {
+    bounded(d, "sensor.height", 1, u64::from(MAX_SENSOR_SIDE)).map(|v| v as u32)
+}
+
+impl std::fmt::Display for Points {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Points::All => f.write_str("all"),
+            Points::N(n) => write!(f, "{n}"),
+        }
+    }
+}
+
+/// `methods`: the paper's two estimators and ML-EPD.
+fn default_methods() -> Vec<String> {
+    vec!["c-epd".into(), "ru-epd".into(), "ml-epd".into()]
+}
+
+/// The file as written (units of the file: mm, degrees).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct File {
+    pub(super) name: String,
+    #[serde(default = "crate::defaults::seed")]
+    pub(super) seed: u64,
+    #[serde(default = "default_trials", deserialize_with = "trials_key")]
+    pub(super) trials: usize,
+    #[serde(default = "default_methods")]
+    pub(super) methods: Vec<String>,
+    #[serde(default)]
+    pub(super) points: Points,
+    #[serde(default)]
+    pub(super) timing: bool,
+    #[serde(default = "default_loss")]
+    pub(super) loss: String,
+    #[serde(default = "default_loss_scale")]
+    pub(super) loss_scale_m: f64,
+    /// `"fixed"` (`loss_scale_m` as given) or `"auto"` (scaled to the residuals).
+    #[serde(default = "default_loss_scale_mode")]
+    pub(super) loss_scale: String,
+    /// The estimator's range gate [min, max] (m) on the model range; unset: none.
+    #[serde(default)]
+    pub(super) range_gate_m: Option<[f64; 2]>,
+    #[serde(default)]
+    pub(super) sensor: SensorFile,
+    #[serde(default)]
+    pub(super) pipe: PipeFile,
+    #[serde(default)]
+    pub(super) noise: NoiseFile,
+    #[serde(default)]
+    pub(super) poses: PosesFile,
+    pub(super) sweep: Option<SweepFile>,
+}
+
+/// `loss`: least squares, the paper's estimators.
+fn default_loss() -> String {
+    "none".into()
+}
+
+/// `loss_scale`: the given `loss_scale_m`, fixed.
+fn default_loss_scale_mode() -> String {
+    "fixed".into()
+}
+
+/// `loss_scale_m`: `epd estimate`'s ([`DEFAULT_LOSS_SCALE_M`]).
+fn default_loss_scale() -> f64 {
+    DEFAULT_LOSS_SCALE_M
+}
+
+/// `trials`: the paper's 100 random poses per simulated setting (§4.1).
+fn default_trials() -> usize {
+    100
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub(super) struct SensorFile {
+    #[serde(deserialize_with = "width_key")]
+    pub(super) width: u32,
+    #[serde(deserialize_with = "height_key")]
+    pub(super) height: u32,
+    pub(super) fov_h_deg: f64,
+    pub(super) fov_v_deg: f64,
+    pub(super) min_range_m: f64,
+    pub(super) max_range_m: f64,
+}
+
+impl Default for SensorFile {
+    fn default() -> Self {
+        Self {
+            width: 640,
+            height: 480,
+            fov_h_deg: 69.0,
+            fov_v_deg: 51.0,
+            min_range_m: 0.0,
+            max_range_m: 6.0,
+        }
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub(super) struct PipeFile {
+    pub(super) nominal_od_in: f64,
+    pub(super) wall_thickness_mm: f64,
+    pub(super) ovality: f64,
+}
+
+impl Default for PipeFile {
+    fn default() -> Self {
+        Self {
+            nominal_od_in: crate::defaults::nominal_od_in(),
+            wall_thickness_mm: crate::defaults::wall_mm(),
+            ovality: crate::defaults::ovality(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub(super) struct NoiseFile {
+    pub(super) model: String,
+    pub(super) sigma_m: f64,
+    pub(super) outlier_fraction: f64,
+    pub(super) far_outlier_fraction: f64,
+    pub(super) bias_b0_m: f64,
+    pub(super) bias_b1: f64,
+}
+
+impl Default for NoiseFile {
+    fn default() -> Self {
+        Self {
+            model: "range".into(),
+            sigma_m: 0.03,
+            outlier_fraction: 0.0,
+            far_outlier_fraction: 0.0,
+            bias_b0_m: 0.0,
+            bias_b1: 0.0,
+        }
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub(super) struct PosesFile {
+    pub(super) roll_deg: [f64; 2],
+    pub(super) pitch_deg: [f64; 2],
+    pub(super) yaw_deg: [f64; 2],
+    pub(super) dy_mm: [f64; 2],
+    pub(super) dz_mm: [f64; 2],
+    /// A fixed tilt (deg) or a range [lo, hi]; replaces pitch and yaw when set.
+    pub(super) tilt_deg: Option<TiltFile>,
+}
+
+/// `poses.tilt_deg`: one angle, or a range.
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(untagged)]
+pub(super) enum TiltFile {
+    Fixed(f64),
+    Range([f64; 2]),
+}
+
+impl Default for PosesFile {
+    fn default() -> Self {
+        Self {
+            roll_deg: [-180.0, 180.0],
+            pitch_deg: [-5.0, 5.0],
+            yaw_deg: [-5.0, 5.0],
+            dy_mm: [-50.0, 50.0],
+            dz_mm: [-50.0, 50.0],
+            tilt_deg: None,
+        }
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct SweepFile {
+    pub(super) variable: String,
+    pub(super) values: Vec<toml::Value>,
+}
+
+impl SensorFile {
+    /// Degrees → radians.
+    pub(super) fn to_sensor(&self) -> Sensor {
+        Sensor {
+            width: self.width,
+            height: self.height,
+            fov_h: self.fov_h_deg.to_radians(),
+            fov_v: self.fov_v_deg.to_radians(),
+            min_range: self.min_range_m,
+            max_range: self.max_range_m,
+        }
+    }
+}
+
+impl PipeFile {
+    /// Wall thickness mm → m.
+    pub(super) fn to_pipe(&self) -> Pipe {
+        Pipe {
+            nominal_od_in: self.nominal_od_in,
+            wall_thickness: self.wall_thickness_mm * 1e-3,
+            ovality: self.ovality,
+        }
+    }
+}
+
+impl NoiseFile {
+    /// The noise model by name (`range` or `isotropic`).
+    pub(super) fn to_noise(&self) -> Result<Noise, KeyError> {
+        let model = match self.model.as_str() {
+            "range" => NoiseModel::Range,
+            "isotropic" => NoiseModel::Isotropic,
+            other => {
+                return Err(key_err(
+                    "noise.model",
+                    format!("= \"{other}\": must be \"range\" or \"isotropic\""),
+                ));
+            }
+        };
+        Ok(Noise {
+            model,
+            sigma: self.sigma_m,
+            outlier_fraction: self.outlier_fraction,
+            far_outlier_fraction: self.far_outlier_fraction,
+            bias_b0: self.bias_b0_m,
+            bias_b1: self.bias_b1,
+            physics: None,
+        })
+    }
+}
+
+impl PosesFile {
+    /// Degrees → radians, mm → m; a fixed tilt as the range [t, t].
+    pub(super) fn to_ranges(&self) -> PoseRanges {
+        let r = |a: [f64; 2]| (a[0].to_radians(), a[1].to_radians());
+        let mm = |a: [f64; 2]| (a[0] * 1e-3, a[1] * 1e-3);
+        PoseRanges {
+            roll: r(self.roll_deg),
+            pitch: r(self.pitch_deg),
+            yaw: r(self.yaw_deg),
+            dy: mm(self.dy_mm),
+            dz: mm(self.dz_mm),
+            tilt: self.tilt_deg.map(|t| match t {
+                TiltFile::Fixed(v) => r([v, v]),
+                TiltFile::Range(a) => r(a),
+            }),
+        }
+    }
+}

@@ -1,0 +1,145 @@
+//! The sweep scenario's keys, limits and messages.
+
+use super::*;
+
+fn parse(s: &str) -> Result<Scenario, ScenarioError> {
+    Scenario::parse(Path::new("test.toml"), s)
+}
+
+#[test]
+fn full_example_parses() {
+    let s = parse(
+        r#"
+name = "sigma_sweep"
+seed = 1
+trials = 100
+methods = ["c-epd", "ru-epd"]
+points = "all"
+[sensor]
+width = 640
+[pipe]
+nominal_od_in = 20.0
+[noise]
+model = "range"
+sigma_m = 0.03
+[poses]
+roll_deg = [-180.0, 180.0]
+[sweep]
+variable = "noise.sigma_m"
+values = [0.01, 0.02, 0.03]
+"#,
+    )
+    .unwrap();
+    assert_eq!(s.sweeps.len(), 3);
+    assert_eq!(s.sweeps[1].0, "0.02");
+    assert_eq!(s.sweeps[1].1.noise.sigma, 0.02);
+    assert_eq!(s.sweeps[1].1.methods, vec![Method::CEpd, Method::RuEpd]);
+    assert!(!s.timing);
+}
+
+#[test]
+fn sweeps_over_points_and_integers() {
+    let s = parse("name = \"n\"\n[sweep]\nvariable = \"points\"\nvalues = [100, 1000, \"all\"]\n")
+        .unwrap();
+    assert_eq!(s.sweeps[0].1.points, Points::N(100));
+    assert_eq!(s.sweeps[2].1.points, Points::All);
+    assert!(s.timing);
+    let s =
+        parse("name = \"n\"\n[sweep]\nvariable = \"pipe.nominal_od_in\"\nvalues = [16, 18.0]\n")
+            .unwrap();
+    assert_eq!(s.sweeps[0].1.pipe.nominal_od_in, 16.0);
+}
+
+#[test]
+fn errors_name_file_and_key() {
+    let e = parse("name = \"x\"\n[noise]\nsigma = 0.1\n")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("test.toml") && e.contains("sigma") && e.contains("line 3"),
+        "{e}"
+    );
+    let e = parse("name = \"x\"\nfoo = 1\n").unwrap_err().to_string();
+    assert!(e.contains("foo"), "{e}");
+    let e = parse("name = \"x\"\n[noise]\nsigma_m = -0.1\n")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("noise.sigma_m"), "{e}");
+    let e = parse("name = \"x\"\n[sweep]\nvariable = \"noise.sigma\"\nvalues = [0.1]\n")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("noise.sigma") && e.contains("unknown field"),
+        "{e}"
+    );
+    let e = parse("name = \"x\"\n[sweep]\nvariable = \"pipe.ovality\"\nvalues = [0.1, 1.5]\n")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("pipe.ovality") && e.contains("1.5"), "{e}");
+    let e = parse("name = \"x\"\nmethods = [\"d-epd\"]\n")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("methods") && e.contains("d-epd"), "{e}");
+    let e = parse("name = \"x\"\npoints = 0\n").unwrap_err().to_string();
+    assert!(e.contains("points"), "{e}");
+    let e = parse("name = \"x\"\n[poses]\ndy_mm = [-300.0, 300.0]\n")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("poses.dy_mm"), "{e}");
+    let e = parse("name = \"x\"\ntrials = 0\n").unwrap_err().to_string();
+    assert!(e.contains("trials"), "{e}");
+    let e = parse("name = \"x\"\n[sensor]\nfov_h_deg = 180.0\n")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("sensor.fov_h_deg"), "{e}");
+    let e = parse("name = \"x\"\n[noise]\nmodel = \"gauss\"\n")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("noise.model"), "{e}");
+}
+
+#[test]
+fn limits_name_the_key_the_value_and_the_limit() {
+    for (src, needles) in [
+        (
+            "trials = 1e18",
+            &["`trials` = 1e18 (a float)", "[1, 1000000]"][..],
+        ),
+        ("trials = 1000001", &["`trials` = 1000001", "[1, 1000000]"]),
+        ("trials = \"10\"", &["`trials` = \"10\""]),
+        ("trials = true", &["`trials` = true"]),
+        (
+            "[sensor]\nwidth = 4097",
+            &["`sensor.width` = 4097", "[1, 4096]"],
+        ),
+        ("[sensor]\nheight = -1", &["`sensor.height` = -1"]),
+        ("points = 6", &["`points` = 6", "[7, 10000000]"]),
+        ("points = 1e7", &["`points` = 10000000.0 (a float)"]),
+    ] {
+        let e = parse(&format!("name = \"x\"\n{src}\n"))
+            .unwrap_err()
+            .to_string();
+        for n in needles {
+            assert!(e.contains(n), "{src}: `{n}` not in {e}");
+        }
+    }
+    let s = parse("name = \"x\"\ntrials = 1000000\npoints = 7\n[sensor]\nwidth = 4096\n").unwrap();
+    assert_eq!(s.trials, MAX_TRIALS);
+    assert!(s.check_trials("--trials", 100).is_ok());
+    let e = s
+        .check_trials("--trials", MAX_TRIALS + 1)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("`--trials` = 1000001"), "{e}");
+    // Three methods by default: 3 × 10^6 estimates is within 10^8, 40 values not.
+    let values = vec!["0.01"; 40].join(", ");
+    let e = parse(&format!(
+        "name = \"x\"\ntrials = 1000000\n[sweep]\nvariable = \"noise.sigma_m\"\nvalues = [{values}]\n"
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("120000000 estimates") && e.contains("100000000"),
+        "{e}"
+    );
+}
