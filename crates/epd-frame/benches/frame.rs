@@ -14,9 +14,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use epd_core::calibration::{CalibrationFrame, CalibrationSettings, calibrate};
 use epd_core::{EstimateOptions, Loss, LossScale, Method, estimate_weighted};
 use epd_frame::read::{Format, read_bytes};
-use epd_frame::{
-    EstimateConfig, EstimateSettings, FrameInput, InputConfig, InputFrame, Units, measure_frame,
-};
+use epd_frame::{EstimateConfig, EstimateSettings, FrameInput, measure_frame};
 use epd_io::ply::{PlyFormat, PlyPrecision, write as write_ply};
 use tof_sim::{
     FrameSeed, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, ToFPhysics, WallModel,
@@ -134,22 +132,7 @@ fn bench(c: &mut Criterion) {
         b.iter(|| read_bytes(Format::Ply, &ply).expect("read"))
     });
     // The whole measurement with `epd estimate`'s defaults on a plain frame.
-    let settings = EstimateSettings {
-        method: Method::MlEpd,
-        min_range: None,
-        max_range: None,
-        nominal_od_in: None,
-        loss: "cauchy".into(),
-        loss_scale: None,
-        calibration: None,
-        unweighted: false,
-        geometry: true,
-        input: InputConfig {
-            units: Units::Metres,
-            frame: InputFrame::Sensor,
-            format: None,
-        },
-    };
+    let settings = EstimateSettings::default();
     let cfg = EstimateConfig::new(&settings).expect("config");
     let truth = PoseRanges::default().sample(&pipe, 3, 11).expect("pose");
     let scene = Scene::new(&truth, WallModel::Exact, 6.0).expect("scene");

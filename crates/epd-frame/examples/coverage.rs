@@ -15,10 +15,8 @@
 use std::borrow::Cow;
 use std::collections::BTreeMap;
 
-use epd_core::{Method, Params, errors_against};
-use epd_frame::{
-    EstimateConfig, EstimateSettings, FrameInput, InputConfig, InputFrame, Units, measure_frame,
-};
+use epd_core::{Params, errors_against};
+use epd_frame::{EstimateConfig, EstimateSettings, FrameInput, measure_frame};
 use tof_sim::camera::{CameraNoise, MultipathBand, Wiggle};
 use tof_sim::contamination::{Contamination, Dent, FloorLayer, Obstacle, ViewSector};
 use tof_sim::{FrameSeed, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, WallModel};
@@ -135,20 +133,8 @@ fn cases() -> Vec<Case> {
 
 fn config() -> EstimateConfig {
     let settings = EstimateSettings {
-        method: Method::MlEpd,
-        min_range: None,
-        max_range: None,
-        nominal_od_in: None,
-        loss: "cauchy".into(),
-        loss_scale: None,
-        calibration: None,
-        unweighted: false,
         geometry: std::env::var_os("EPD_STRAIGHT_ONLY").is_none(),
-        input: InputConfig {
-            units: Units::Metres,
-            frame: InputFrame::Sensor,
-            format: None,
-        },
+        ..EstimateSettings::default()
     };
     EstimateConfig::new(&settings).expect("the defaults are valid")
 }

@@ -71,6 +71,29 @@ pub struct EstimateSettings {
     pub input: InputConfig,
 }
 
+impl Default for EstimateSettings {
+    /// `epd estimate`'s defaults: ML-EPD, the Cauchy loss with its scale from the
+    /// residuals, no range gate, no table, the scene read; metres in the sensor frame.
+    fn default() -> Self {
+        Self {
+            method: Method::MlEpd,
+            min_range: None,
+            max_range: None,
+            nominal_od_in: None,
+            loss: "cauchy".into(),
+            loss_scale: None,
+            calibration: None,
+            unweighted: false,
+            geometry: true,
+            input: InputConfig {
+                units: Units::Metres,
+                frame: InputFrame::Sensor,
+                format: None,
+            },
+        }
+    }
+}
+
 /// Why the settings cannot be used (the `epd` binary's usage errors, exit code 2).
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum ConfigError {

@@ -13,33 +13,15 @@ use std::borrow::Cow;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use epd_core::Method;
 use epd_frame::report::FileReport;
-use epd_frame::{
-    EstimateConfig, EstimateSettings, FrameInput, InputConfig, InputFrame, Units, measure_frame,
-};
+use epd_frame::{EstimateConfig, EstimateSettings, FrameInput, measure_frame};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
     let path = PathBuf::from(args.next().ok_or("usage: overhead FILE [CALLS]")?);
     let calls: usize = args.next().map_or(Ok(20), |s| s.parse())?;
     let cloud = epd_frame::read::read_path(&path)?;
-    let cfg = EstimateConfig::new(&EstimateSettings {
-        method: Method::MlEpd,
-        min_range: None,
-        max_range: None,
-        nominal_od_in: None,
-        loss: "cauchy".into(),
-        loss_scale: None,
-        calibration: None,
-        unweighted: false,
-        geometry: true,
-        input: InputConfig {
-            units: Units::Metres,
-            frame: InputFrame::Sensor,
-            format: None,
-        },
-    })?;
+    let cfg = EstimateConfig::new(&EstimateSettings::default())?;
     // The fields and the fit's own time (ms).
     let pipeline = || -> Result<(usize, f64), String> {
         let input = FrameInput {
