@@ -8,9 +8,10 @@ use epd_core::{EpdError, Estimate, EstimateOptions, Loss, LossScale};
 use crate::config::{ConfigError, DEFAULT_LOSS_SCALE_M};
 use crate::table::CalibrationTable;
 
-/// The most bins a table may have: 2²⁰, about 10⁴ times the default 30 × 12, so a table
-/// stays a few tens of MB in memory whatever its bins are asked to be.
-pub const MAX_TABLE_BINS: usize = 1 << 20;
+/// The most bins a table may have: 2²⁰, about 3 000 times the default 30 × 12, so a
+/// table stays a few tens of MB in memory whatever its bins are asked to be; the table
+/// file's reader accepts as many ([`epd_core::calibration::MAX_TABLE_BINS`]).
+pub const MAX_TABLE_BINS: usize = epd_core::calibration::MAX_TABLE_BINS;
 
 /// The fewest points a bin needs to measure a mean and a spread: with n = 5 the spread's
 /// relative standard error is 1/√(2(n − 1)) ≈ 35 %, the loosest a weight may be.

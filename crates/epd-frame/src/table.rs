@@ -14,8 +14,9 @@
 use std::path::Path;
 
 use epd_core::DepthTable;
-use epd_core::calibration::Axis;
+use epd_core::calibration::{Axis, MAX_TABLE_BINS};
 use serde::{Deserialize, Serialize};
+use serde_json::value::RawValue;
 
 use crate::input::CALIBRATION_NEEDS_INTENSITY;
 
@@ -23,6 +24,19 @@ use crate::input::CALIBRATION_NEEDS_INTENSITY;
 pub const FORMAT: &str = "epd-depth-table";
 /// The `version` this reader understands.
 pub const VERSION: u32 = 1;
+
+/// The largest table file read (bytes): what `epd calibrate` writes for the largest
+/// table it makes ([`MAX_TABLE_BINS`] bins, one range bin each, every value of the
+/// longest form serde_json writes: 24 characters, indented by 6 and followed by `,\n`,
+/// 3 values a bin; 3 rows of 12 bytes of brackets each), plus 4 KiB for the rest: about
+/// 138 MB. Anything larger is not a table `epd calibrate` could have written.
+pub const MAX_TABLE_FILE_BYTES: u64 =
+    4096 + (MAX_TABLE_BINS as u64) * (BYTES_PER_VALUE * 3 + BYTES_PER_ROW * 3);
+
+/// Bytes of one value in a written table at most (see [`MAX_TABLE_FILE_BYTES`]).
+const BYTES_PER_VALUE: u64 = 6 + 24 + 2;
+/// Bytes of one row's brackets in a written table at most.
+const BYTES_PER_ROW: u64 = 12;
 
 /// One axis of the table as written.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize)]
@@ -33,8 +47,8 @@ struct AxisFile {
     bins: usize,
 }
 
-/// The file's contents.
-#[derive(Clone, Debug, Serialize, Deserialize)]
+/// The file's contents, as written.
+#[derive(Clone, Debug, Serialize)]
 struct TableFile {
     format: String,
     version: u32,
@@ -48,6 +62,138 @@ struct TableFile {
     offset_mm: Vec<Vec<f64>>,
     spread_mm: Vec<Vec<f64>>,
     count: Vec<Vec<u64>>,
+}
+
+/// The file's contents as read: the bins' values are left as JSON text until the axes
+/// are checked, so that nothing is allocated for bins beyond [`MAX_TABLE_BINS`].
+#[derive(Debug, Deserialize)]
+struct TableHeader<'a> {
+    format: String,
+    version: u32,
+    known_d_max_mm: f64,
+    known_d_min_mm: f64,
+    frames: usize,
+    n_observations: u64,
+    range_m: AxisFile,
+    log_intensity: AxisFile,
+    #[allow(dead_code)]
+    empty_bins: String,
+    #[serde(borrow)]
+    offset_mm: &'a RawValue,
+    #[serde(borrow)]
+    spread_mm: &'a RawValue,
+    #[serde(borrow)]
+    count: &'a RawValue,
+}
+
+/// A JSON array of at most `rows` arrays of exactly `cols` values each, read into one
+/// flat vector (row after row) with no more than `rows × cols` values allocated.
+struct Rows<T> {
+    name: &'static str,
+    rows: usize,
+    cols: usize,
+    out: Vec<T>,
+}
+
+impl<T> Rows<T> {
+    fn new(name: &'static str, rows: usize, cols: usize) -> Self {
+        Self {
+            name,
+            rows,
+            cols,
+            out: Vec::new(),
+        }
+    }
+
+    /// Parse `raw` (`[[…], …]`): the values, or why not (`name` and its limit).
+    fn read(mut self, raw: &RawValue) -> Result<Vec<T>, String>
+    where
+        T: for<'de> Deserialize<'de>,
+    {
+        let mut de = serde_json::Deserializer::from_str(raw.get());
+        serde::de::DeserializeSeed::deserialize(&mut self, &mut de)
+            .map_err(|e| format!("depth table: `{}`: {e}", self.name))?;
+        Ok(self.out)
+    }
+}
+
+impl<'de, T: Deserialize<'de>> serde::de::DeserializeSeed<'de> for &mut Rows<T> {
+    type Value = ();
+
+    fn deserialize<D: serde::Deserializer<'de>>(self, d: D) -> Result<(), D::Error> {
+        d.deserialize_seq(self)
+    }
+}
+
+impl<'de, T: Deserialize<'de>> serde::de::Visitor<'de> for &mut Rows<T> {
+    type Value = ();
+
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        write!(f, "an array of rows of {} values", self.cols)
+    }
+
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<(), A::Error> {
+        use serde::de::Error;
+        self.out.reserve_exact(self.rows.saturating_mul(self.cols));
+        let mut row = 0;
+        while seq
+            .next_element_seed(Row {
+                cols: self.cols,
+                out: &mut self.out,
+            })?
+            .is_some()
+        {
+            row += 1;
+            if row > self.rows {
+                return Err(A::Error::custom(format!(
+                    "more than {} rows (one per range bin)",
+                    self.rows
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// One row of [`Rows`]: exactly `cols` values, appended to `out`.
+struct Row<'o, T> {
+    cols: usize,
+    out: &'o mut Vec<T>,
+}
+
+impl<'de, T: Deserialize<'de>> serde::de::DeserializeSeed<'de> for Row<'_, T> {
+    type Value = ();
+
+    fn deserialize<D: serde::Deserializer<'de>>(self, d: D) -> Result<(), D::Error> {
+        d.deserialize_seq(self)
+    }
+}
+
+impl<'de, T: Deserialize<'de>> serde::de::Visitor<'de> for Row<'_, T> {
+    type Value = ();
+
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        write!(f, "a row of {} values", self.cols)
+    }
+
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<(), A::Error> {
+        use serde::de::Error;
+        let mut n = 0;
+        while let Some(v) = seq.next_element::<T>()? {
+            n += 1;
+            if n > self.cols {
+                break;
+            }
+            self.out.push(v);
+        }
+        if n != self.cols {
+            return Err(A::Error::custom(format!(
+                "every row needs {} values (one per intensity bin)",
+                self.cols
+            )));
+        }
+        Ok(())
+    }
 }
 
 /// A table with what it was made from.
@@ -83,6 +229,9 @@ impl CalibrationTable {
                 "no per-point `intensity` given; {CALIBRATION_NEEDS_INTENSITY}"
             ));
         };
+        if points.len() == i.len() {
+            self.check_axes(points, i)?;
+        }
         if !weighted {
             let moved = self.table.correct(points, i).map_err(|e| e.to_string())?;
             return Ok((moved, None));
@@ -99,6 +248,26 @@ impl CalibrationTable {
             .correct_with_sigmas(points, i)
             .map_err(|e| e.to_string())?;
         Ok((moved, Some(s)))
+    }
+
+    /// An error when the frame has valid points but none of them lies within the
+    /// table's axes ([`DepthTable::within_axes`]): the table was made for another camera
+    /// or rig, and its correction there would be its edge bins' guess for every point.
+    fn check_axes(&self, points: &[[f64; 3]], intensity: &[f64]) -> Result<(), String> {
+        let (valid, inside) = self.table.within_axes(points, intensity);
+        if valid == 0 || inside > 0 {
+            return Ok(());
+        }
+        let (r, li) = (&self.table.range, &self.table.log_intensity);
+        Err(format!(
+            "none of the frame's {valid} valid points lies within the depth table's axes \
+             (range {:.3} to {:.3} m, intensity {:.4e} to {:.4e}): the table was made with \
+             another camera or rig; make one for this camera with `epd calibrate`",
+            r.lo,
+            r.hi,
+            li.lo.exp(),
+            li.hi.exp()
+        ))
     }
 
     /// The JSON text (pretty-printed).
@@ -130,14 +299,17 @@ impl CalibrationTable {
         serde_json::to_string_pretty(&f).unwrap_or_default()
     }
 
-    /// Parse and check a table file's text.
+    /// Parse and check a table file's text (a UTF-8 byte-order mark first is skipped).
+    /// The axes are checked before any bin's value is read: at most [`MAX_TABLE_BINS`]
+    /// bins.
     pub fn from_json(text: &str) -> Result<Self, String> {
-        let f: TableFile =
+        let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+        let f: TableHeader<'_> =
             serde_json::from_str(text).map_err(|e| format!("not a depth table: {e}"))?;
         if f.format != FORMAT {
             return Err(format!(
                 "not a depth table: `format` is {:?}, expected {FORMAT:?}",
-                f.format
+                f.format.chars().take(64).collect::<String>()
             ));
         }
         if f.version != VERSION {
@@ -151,26 +323,20 @@ impl CalibrationTable {
             hi: a.hi,
             n: a.bins,
         };
-        let ni = f.log_intensity.bins;
-        let flat = |name: &str, v: &[Vec<f64>]| -> Result<Vec<f64>, String> {
-            if v.iter().any(|r| r.len() != ni) {
-                return Err(format!(
-                    "depth table: every row of `{name}` needs {ni} values (one per intensity bin)"
-                ));
-            }
-            Ok(v.iter().flatten().map(|x| x * 1e-3).collect())
-        };
-        if f.count.iter().any(|r| r.len() != ni) {
+        let (nr, ni) = (f.range_m.bins, f.log_intensity.bins);
+        if nr == 0 || ni == 0 || nr.checked_mul(ni).is_none_or(|c| c > MAX_TABLE_BINS) {
             return Err(format!(
-                "depth table: every row of `count` needs {ni} values (one per intensity bin)"
+                "depth table: {nr} range × {ni} intensity bins: need at least 1 each and at \
+                 most {MAX_TABLE_BINS} (2²⁰) bins in all (as `epd calibrate` makes)"
             ));
         }
+        let mm = |v: Vec<f64>| v.into_iter().map(|x| x * 1e-3).collect::<Vec<_>>();
         let table = DepthTable {
             range: axis(f.range_m),
             log_intensity: axis(f.log_intensity),
-            offset_m: flat("offset_mm", &f.offset_mm)?,
-            spread_m: flat("spread_mm", &f.spread_mm)?,
-            count: f.count.into_iter().flatten().collect(),
+            offset_m: mm(Rows::new("offset_mm", nr, ni).read(f.offset_mm)?),
+            spread_m: mm(Rows::new("spread_mm", nr, ni).read(f.spread_mm)?),
+            count: Rows::new("count", nr, ni).read(f.count)?,
         };
         table.validate().map_err(|e| format!("depth table: {e}"))?;
         let ok = |d: f64| d.is_finite() && d > 0.0;
@@ -188,22 +354,30 @@ impl CalibrationTable {
         })
     }
 
-    /// Read a table file: a regular file of at most 64 MiB.
+    /// Read a table file: a regular file (a FIFO is refused, not waited on:
+    /// [`epd_io::read::open_regular`]) of at most [`MAX_TABLE_FILE_BYTES`].
     pub fn read(path: &Path) -> Result<Self, String> {
         use std::io::Read;
-        const MAX: u64 = 64 << 20;
         let name = path.display();
-        let meta = std::fs::metadata(path).map_err(|e| format!("{name}: {e}"))?;
-        if !meta.is_file() {
-            return Err(format!("{name}: not a regular file"));
+        let (file, len) = epd_io::read::open_regular(path).map_err(|e| format!("{name}: {e}"))?;
+        let too_large = || {
+            format!(
+                "{name}: larger than {MAX_TABLE_FILE_BYTES} bytes, the largest table `epd \
+                 calibrate` writes: not a depth table"
+            )
+        };
+        if len > MAX_TABLE_FILE_BYTES {
+            return Err(too_large());
         }
-        let mut text = String::new();
-        std::fs::File::open(path)
-            .and_then(|f| f.take(MAX + 1).read_to_string(&mut text))
-            .map_err(|e| format!("{name}: {e}"))?;
-        if text.len() as u64 > MAX {
-            return Err(format!("{name}: larger than 64 MiB: not a depth table"));
+        let mut bytes = Vec::new();
+        file.take(MAX_TABLE_FILE_BYTES + 1)
+            .read_to_end(&mut bytes)
+            .map_err(|e| format!("{name}: cannot read: {e}"))?;
+        if bytes.len() as u64 > MAX_TABLE_FILE_BYTES {
+            return Err(too_large());
         }
+        let text = String::from_utf8(bytes)
+            .map_err(|e| format!("{name}: not a depth table: not UTF-8 text ({e})"))?;
         Self::from_json(&text).map_err(|e| format!("{name}: {e}"))
     }
 }
@@ -212,6 +386,7 @@ impl CalibrationTable {
 mod tests {
     use super::*;
     use epd_core::calibration::{Observation, TableBins};
+    use epd_core::calibration::Axis;
 
     fn table() -> CalibrationTable {
         let obs: Vec<Observation> = (0..4000)
@@ -266,6 +441,151 @@ mod tests {
                 1
             ))
             .is_err()
+        );
+    }
+
+    /// A table file's text with the given axes' bins and rows of values (no other check).
+    fn file_with(nr: usize, ni: usize, rows: usize, cols: usize) -> String {
+        let row = |v: &str| format!("[{}]", vec![v; cols].join(","));
+        let arr = |v: &str| format!("[{}]", vec![row(v); rows].join(","));
+        format!(
+            r#"{{"format":"epd-depth-table","version":1,"known_d_max_mm":500,"known_d_min_mm":500,
+               "frames":1,"n_observations":10,
+               "range_m":{{"lo":0.5,"hi":2.0,"bins":{nr}}},
+               "log_intensity":{{"lo":1.0,"hi":7.0,"bins":{ni}}},"empty_bins":"",
+               "offset_mm":{},"spread_mm":{},"count":{}}}"#,
+            arr("1.5"),
+            arr("10"),
+            arr("40")
+        )
+    }
+
+    /// Bin counts beyond MAX_TABLE_BINS are refused from the axes alone, with the limit
+    /// in the message, before any value is read (issue 27: `log_intensity.bins = 200000`
+    /// aborted the process once a frame was corrected).
+    #[test]
+    fn bin_counts_beyond_the_limit_are_refused_before_reading_the_values() {
+        assert!(CalibrationTable::from_json(&file_with(3, 2, 3, 2)).is_ok());
+        for (nr, ni) in [
+            (MAX_TABLE_BINS, 2),
+            (2, MAX_TABLE_BINS),
+            (usize::MAX, 2),
+            (1 << 32, 1 << 32),
+            (0, 5),
+        ] {
+            let e = CalibrationTable::from_json(&file_with(nr, ni, 1, 1)).unwrap_err();
+            assert!(e.contains("at most 1048576 (2²⁰) bins"), "{nr} × {ni}: {e}");
+        }
+        // More rows or values than the axes say: refused as they are read.
+        let e = CalibrationTable::from_json(&file_with(3, 2, 4, 2)).unwrap_err();
+        assert!(e.contains("more than 3 rows"), "{e}");
+        let e = CalibrationTable::from_json(&file_with(3, 2, 3, 3)).unwrap_err();
+        assert!(e.contains("needs 2 values"), "{e}");
+        // A range axis 1e-9 m wide.
+        let thin = file_with(3, 2, 3, 2).replace("\"hi\":2.0", "\"hi\":0.500000001");
+        let e = CalibrationTable::from_json(&thin).unwrap_err();
+        assert!(e.contains("at least 0.001"), "{e}");
+    }
+
+    /// A table saved by an editor that writes a UTF-8 byte-order mark (issue 27:
+    /// "expected value at line 1 column 1").
+    #[test]
+    fn a_byte_order_mark_is_accepted() {
+        let t = table();
+        let plain = CalibrationTable::from_json(&t.to_json()).unwrap();
+        let back = CalibrationTable::from_json(&format!("\u{feff}{}", t.to_json())).unwrap();
+        assert!(back == plain);
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("t.json");
+        std::fs::write(&p, format!("\u{feff}{}", t.to_json())).unwrap();
+        assert!(CalibrationTable::read(&p).unwrap() == plain);
+    }
+
+    /// The file-size limit holds the largest table `epd calibrate` makes, its values of
+    /// the longest form serde_json writes.
+    #[test]
+    fn the_largest_table_calibrate_makes_fits_the_file_limit() {
+        for (nr, ni) in [(MAX_TABLE_BINS, 1), (1, MAX_TABLE_BINS)] {
+            let cells = nr * ni;
+            let t = CalibrationTable {
+                table: DepthTable {
+                    range: Axis {
+                        lo: 0.5,
+                        hi: 2.0,
+                        n: nr,
+                    },
+                    log_intensity: Axis {
+                        lo: 1.0,
+                        hi: 7.0,
+                        n: ni,
+                    },
+                    offset_m: vec![-1.234_567_890_123_456_7e-301; cells],
+                    spread_m: vec![1.234_567_890_123_456_7e-301; cells],
+                    count: vec![u64::MAX; cells],
+                },
+                known: (0.5, 0.5),
+                frames: usize::MAX,
+                n_observations: u64::MAX,
+            };
+            let text = t.to_json();
+            assert!(text.contains("-1.2345678901234567e-298"));
+            assert!(
+                text.len() as u64 <= MAX_TABLE_FILE_BYTES,
+                "{nr} × {ni}: {} bytes",
+                text.len()
+            );
+            let back = CalibrationTable::from_json(&text).map_err(|e| e.len());
+            assert!(back.is_ok_and(|b| b.table.count.len() == cells));
+        }
+    }
+
+    /// A FIFO in place of the table is refused at once, not waited on.
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    #[test]
+    fn a_fifo_is_refused_without_blocking() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("t.json");
+        let c = std::ffi::CString::new(p.to_str().unwrap()).unwrap();
+        // SAFETY: a valid NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        let e = CalibrationTable::read(&p).unwrap_err();
+        assert!(e.contains("a FIFO"), "{e}");
+    }
+
+    /// A frame none of whose points lies within the table's axes (another camera, another
+    /// rig) is refused, not corrected by the table's edge bins.
+    #[test]
+    fn a_table_of_another_camera_is_not_applied_silently() {
+        let t = table();
+        let (r, li) = (&t.table.range, &t.table.log_intensity);
+        let inside_i = ((li.lo + li.hi) / 2.0).exp();
+        let inside_r = (r.lo + r.hi) / 2.0;
+        let far = r.hi + 5.0;
+        let mut pts = vec![[inside_r, 0.0, 0.0], [far, 0.0, 0.0]];
+        // One point inside: corrected.
+        assert!(
+            t.correct_points(false, &mut pts, Some(&[inside_i, inside_i]), false)
+                .is_ok()
+        );
+        // Ranges beyond the table's axis, or intensities 1000× brighter: refused.
+        for (p, i) in [
+            ([far, 0.0, 0.0], inside_i),
+            ([inside_r, 0.0, 0.0], inside_i * (li.hi - li.lo).exp() * 1e3),
+        ] {
+            let mut pts = vec![p; 10];
+            let e = t
+                .correct_points(true, &mut pts, Some(&[i; 10]), false)
+                .unwrap_err();
+            assert!(
+                e.contains("none of the frame's 10 valid points") && e.contains("epd calibrate"),
+                "{e}"
+            );
+        }
+        // No valid point: the estimator says so, not the table.
+        let mut pts = vec![[0.0; 3]; 3];
+        assert!(
+            t.correct_points(false, &mut pts, Some(&[1.0; 3]), false)
+                .is_ok()
         );
     }
 }

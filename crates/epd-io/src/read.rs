@@ -269,12 +269,8 @@ pub fn read_path(path: &Path) -> Result<PointCloud, String> {
 
 /// [`read_path`] with the format given (`None`: detected).
 pub(crate) fn read_path_as(path: &Path, format: Option<Format>) -> Result<PointCloud, String> {
-    // Before opening: opening a FIFO for reading blocks until a writer comes.
-    check_regular(&std::fs::metadata(path).map_err(cannot_read)?)?;
-    let file = std::fs::File::open(path).map_err(cannot_read)?;
-    let meta = file.metadata().map_err(cannot_read)?;
-    check_regular(&meta)?;
-    let len = meta.len();
+    // Opening a FIFO for reading would block until a writer comes.
+    let (file, len) = open_regular(path)?;
     if len > MAX_INPUT_BYTES {
         return Err(format!(
             "the file is {len} bytes, more than the {} the readers accept",
@@ -282,6 +278,27 @@ pub(crate) fn read_path_as(path: &Path, format: Option<Format>) -> Result<PointC
         ));
     }
     read_stream(file, Some(path), format, Limit::File(len))
+}
+
+/// Open `path` for reading if it is a regular file (symbolic links followed), without
+/// ever waiting: the kind is checked before it is opened, and it is opened non-blocking
+/// and checked again, so a FIFO put in its place meanwhile is refused too, not waited on.
+/// The file and its length; the error says what is wrong (without the file name, which
+/// the caller adds).
+pub fn open_regular(path: &Path) -> Result<(std::fs::File, u64), String> {
+    check_regular(&std::fs::metadata(path).map_err(cannot_read)?)?;
+    let mut options = std::fs::OpenOptions::new();
+    options.read(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        // O_NONBLOCK: opening a FIFO returns at once; a regular file's reads ignore it.
+        options.custom_flags(libc::O_NONBLOCK);
+    }
+    let file = options.open(path).map_err(cannot_read)?;
+    let meta = file.metadata().map_err(cannot_read)?;
+    check_regular(&meta)?;
+    Ok((file, meta.len()))
 }
 
 /// Read a cloud from a reader (e.g. standard input) holding at most `cap` bytes (more is an

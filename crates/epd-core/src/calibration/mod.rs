@@ -27,4 +27,7 @@ mod tests;
 pub use rig::{
     Calibration, CalibrationFrame, CalibrationSettings, Observation, calibrate, offsets,
 };
-pub use table::{Axis, DepthTable, MAX_OFFSET_M, MAX_TABLE_RANGE_M, TableBins};
+pub use table::{
+    Axis, DepthTable, MAX_INVERSE_CELLS, MAX_OFFSET_M, MAX_TABLE_BINS, MAX_TABLE_RANGE_M,
+    MIN_AXIS_SPAN, TableBins,
+};

@@ -27,7 +27,27 @@ impl Axis {
                 self.lo, self.hi, self.n
             )));
         }
+        if self.n > MAX_TABLE_BINS {
+            return Err(EpdError::InvalidOption(format!(
+                "{name} axis with {} bins: at most {MAX_TABLE_BINS} (2²⁰) bins in a table",
+                self.n
+            )));
+        }
+        if !(self.hi - self.lo >= MIN_AXIS_SPAN) {
+            return Err(EpdError::InvalidOption(format!(
+                "{name} axis [{}, {}] spans {:e}: at least {MIN_AXIS_SPAN} (1 mm of range, a \
+                 0.1 % change of intensity)",
+                self.lo,
+                self.hi,
+                self.hi - self.lo
+            )));
+        }
         Ok(())
+    }
+
+    /// Whether x lies on the axis, [lo, hi].
+    fn holds(&self, x: f64) -> bool {
+        (self.lo..=self.hi).contains(&x)
     }
 
     fn width(&self) -> f64 {
@@ -101,7 +121,9 @@ impl TableBins {
         let span = |v: &mut Vec<f64>| {
             let lo = crate::check::quantile(v, 0.001);
             let hi = crate::check::quantile(v, 0.999);
-            if hi > lo {
+            // Observations closer together than MIN_AXIS_SPAN (the narrowest axis a
+            // table may have): an axis of width 1 from them.
+            if hi - lo >= MIN_AXIS_SPAN {
                 (lo, hi)
             } else {
                 (lo - 0.5, lo + 0.5)
@@ -187,9 +209,11 @@ impl DepthTable {
         let (nr, ni) = (bins.range.n, bins.log_intensity.n);
         let cells = nr
             .checked_mul(ni)
-            .filter(|&c| c <= 1 << 20)
+            .filter(|&c| c <= MAX_TABLE_BINS)
             .ok_or_else(|| {
-                EpdError::InvalidOption(format!("{nr} × {ni} bins: at most 2²⁰ bins"))
+                EpdError::InvalidOption(format!(
+                    "{nr} × {ni} bins: at most {MAX_TABLE_BINS} (2²⁰) bins"
+                ))
             })?;
         let mut table = Self {
             range: bins.range,
@@ -271,8 +295,18 @@ impl DepthTable {
     pub fn validate(&self) -> Result<(), EpdError> {
         self.range.validate("range")?;
         self.log_intensity.validate("log-intensity")?;
-        let cells = self.range.n.checked_mul(self.log_intensity.n);
-        let ok = |len: usize| Some(len) == cells;
+        let cells = self
+            .range
+            .n
+            .checked_mul(self.log_intensity.n)
+            .filter(|&c| c <= MAX_TABLE_BINS);
+        let Some(cells) = cells else {
+            return Err(EpdError::InvalidOption(format!(
+                "depth table: {} × {} bins: at most {MAX_TABLE_BINS} (2²⁰) bins",
+                self.range.n, self.log_intensity.n
+            )));
+        };
+        let ok = |len: usize| len == cells;
         if !(ok(self.offset_m.len()) && ok(self.spread_m.len()) && ok(self.count.len())) {
             return Err(EpdError::InvalidOption(format!(
                 "depth table: {} × {} bins but {} offsets, {} spreads and {} counts",
@@ -346,6 +380,25 @@ impl DepthTable {
                 .count
                 .get(self.range.bin(range_m) * self.log_intensity.n + self.log_intensity.bin(li))
                 .is_some_and(|&c| c > 0)
+    }
+
+    /// Of the frame's valid points (finite, not all zeros), how many there are and how
+    /// many lie within both of the table's axes: their measured range in the range axis
+    /// and the log of their intensity in the log-intensity axis. A frame with valid
+    /// points none of which lies there is from another camera or rig than the table's.
+    /// `intensity` pairs with `points` (the shorter one sets the count).
+    pub fn within_axes(&self, points: &[[f64; 3]], intensity: &[f64]) -> (usize, usize) {
+        points
+            .par_iter()
+            .zip(intensity.par_iter())
+            .map(|(p, &i)| {
+                if !usable(p) {
+                    return (0, 0);
+                }
+                let inside = self.range.holds(norm(p)) && self.log_intensity.holds(log_of(i));
+                (1, usize::from(inside))
+            })
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
     }
 
     /// The systematic range error T(r, I) at measured range r (m) and intensity I (camera units).
@@ -429,7 +482,13 @@ impl DepthTable {
         sigma: Option<&mut [f64]>,
     ) -> usize {
         const CHUNK: usize = 4096;
+        // A table too fine for a tabulated inverse within MAX_INVERSE_CELLS is inverted
+        // point by point: a frame's cost does not grow with the table's bins.
         let inverse = self.inverse();
+        let true_range = |r: f64, li: f64| match &inverse {
+            Some(inv) => inv.true_range(r, li),
+            None => self.true_range_log(r, li),
+        };
         let one = |ps: &mut [[f64; 3]], is: &[f64], mut ss: Option<&mut [f64]>| {
             let mut moved = 0;
             for (k, (p, &i)) in ps.iter_mut().zip(is).enumerate() {
@@ -438,7 +497,7 @@ impl DepthTable {
                 }
                 let r = norm(p);
                 let li = (i > 0.0 && i.is_finite()).then(|| i.ln());
-                let f = li.map_or(f64::NAN, |li| inverse.true_range(r, li) / r);
+                let f = li.map_or(f64::NAN, |li| true_range(r, li) / r);
                 let (Some(li), true) = (li, f > 0.0 && f.is_finite()) else {
                     // No intensity to look up, or a correction through the sensor: the
                     // point cannot be corrected, and an uncorrected point is biased.
@@ -471,7 +530,10 @@ impl DepthTable {
     /// [`true_range`](Self::true_range) tabulated once for a whole frame: at
     /// INVERSE_STEPS nodes per range bin over the measured ranges the table can produce,
     /// for each intensity bin centre; a point then costs one bilinear interpolation.
-    pub(super) fn inverse(&self) -> Inverse {
+    /// `None` when that takes more than [`MAX_INVERSE_CELLS`] cells (a table of more
+    /// than about 8 000 bins, or of range bins much narrower than its offsets): the
+    /// points are then inverted one by one.
+    pub(super) fn inverse(&self) -> Option<Inverse> {
         let ni = self.log_intensity.n;
         let (tmin, tmax) = self
             .offset_m
@@ -481,11 +543,10 @@ impl DepthTable {
         let lo = self.range.lo + tmin - w;
         let hi = self.range.hi + tmax + w;
         let nodes = ((hi - lo) / w * INVERSE_STEPS as f64).ceil();
-        let n = if nodes.is_finite() {
-            (nodes.max(1.0) as usize).min(MAX_INVERSE_NODES) + 1
-        } else {
-            MAX_INVERSE_NODES + 1
-        };
+        if !(nodes * ni as f64 <= MAX_INVERSE_CELLS as f64) {
+            return None;
+        }
+        let n = (nodes.max(1.0) as usize) + 1;
         let step = (hi - lo) / (n - 1) as f64;
         let li_w = self.log_intensity.width();
         let mut rho = Vec::with_capacity(n * ni);
@@ -496,13 +557,13 @@ impl DepthTable {
                 rho.push(self.true_range_log(m, li));
             }
         }
-        Inverse {
+        Some(Inverse {
             lo,
             step,
             n,
             log_intensity: self.log_intensity,
             rho,
-        }
+        })
     }
 
     /// The random range error's σ of each point (m) from the table (NaN for invalid
@@ -548,8 +609,27 @@ pub const MAX_OFFSET_M: f64 = 0.5;
 /// The longest range a table may cover (m).
 pub const MAX_TABLE_RANGE_M: f64 = 100.0;
 
-/// Most nodes of the tabulated inverse.
-const MAX_INVERSE_NODES: usize = 1 << 16;
+/// The most bins (range × intensity) a table may have: 2²⁰, about 3 000 times `epd
+/// calibrate`'s default 30 × 12, so a table's values stay within 24 MiB of memory.
+/// [`DepthTable::build`] and [`DepthTable::validate`] refuse more, and so does the
+/// table file's reader before it allocates anything.
+pub const MAX_TABLE_BINS: usize = 1 << 20;
+
+/// The narrowest span of an axis (metres of range, or natural log of intensity): 1 mm
+/// of range is a tenth of the best ToF camera's noise σ, and 10⁻³ of log-intensity a
+/// 0.1 % change of intensity; a narrower axis cannot have been measured, and bins
+/// narrower than it would only slow the correction down.
+/// [`TableBins::spanning`] widens a narrower span of observations to one bin of 1.
+pub const MIN_AXIS_SPAN: f64 = 1e-3;
+
+/// The most cells (range nodes × intensity columns) of the tabulated inverse: 2¹⁶.
+/// Building it solves the fixed point (≤ 8 interpolations) per cell, a few ms on one
+/// core, a tenth of a 640 × 480 frame's fit; `epd calibrate`'s default 30 × 12 table
+/// needs about 270 × 12 cells. A table that needs more (more than about 8 000 bins, or
+/// range bins much narrower than its offsets) is inverted point by point instead (≤ 8
+/// interpolations a point), so a frame's cost does not grow with the table's bins
+/// (`cargo run --release -p epd-frame --example table_cost` measures both).
+pub const MAX_INVERSE_CELLS: usize = 1 << 16;
 
 /// Nodes per range bin of the tabulated inverse (see [`DepthTable::correct`]).
 const INVERSE_STEPS: usize = 8;

@@ -202,7 +202,7 @@ fn tabulated_inverse_matches_the_fixed_point() {
         min_count: 10,
     };
     let t = DepthTable::build(&obs, &b).unwrap();
-    let inv = t.inverse();
+    let inv = t.inverse().expect("a 30 × 12 table has a tabulated inverse");
     let mut worst: f64 = 0.0;
     for k in 0..5000 {
         let r = 0.3 + 2.2 * (k as f64 * 0.618_034).fract();
@@ -262,4 +262,113 @@ fn corrupt_tables_are_refused() {
             .to_string()
             .contains("log-intensity")
     );
+}
+
+/// A table of `nr × ni` bins over [0.5, 2] m × [1, 7] whose offset is a smooth function
+/// (as `DepthTable::validate` accepts it).
+fn smooth_table(nr: usize, ni: usize) -> DepthTable {
+    let range = Axis {
+        lo: 0.5,
+        hi: 2.0,
+        n: nr,
+    };
+    let log_intensity = Axis {
+        lo: 1.0,
+        hi: 7.0,
+        n: ni,
+    };
+    let cells = nr * ni;
+    let offset_m = (0..cells)
+        .map(|k| {
+            let (i, j) = ((k / ni) as f64 / nr as f64, (k % ni) as f64 / ni as f64);
+            0.01 + 0.006 * (12.0 * i).sin() - 0.003 * j
+        })
+        .collect();
+    let t = DepthTable {
+        range,
+        log_intensity,
+        offset_m,
+        spread_m: vec![0.01; cells],
+        count: vec![40; cells],
+    };
+    t.validate().expect("a valid table");
+    t
+}
+
+/// Points of a frame in a pipe: ranges 0.6 to 1.9 m, intensities e^1.5 to e^6.5.
+fn frame_points(n: usize) -> (Vec<[f64; 3]>, Vec<f64>) {
+    (0..n)
+        .map(|k| {
+            let u = (k as f64 * 0.618_034).fract();
+            let v = (k as f64 * 0.414_214).fract();
+            let r = 0.6 + 1.3 * u;
+            let dir = [0.8, 0.6 * (6.0 * v).cos(), 0.6 * (6.0 * v).sin()];
+            ([r * dir[0], r * dir[1], r * dir[2]], (1.5 + 5.0 * v).exp())
+        })
+        .unzip()
+}
+
+/// A table too fine for the tabulated inverse (issue 27: 200 000 intensity bins made the
+/// inverse allocate 65 537 × 200 000 values and abort the process) is inverted point by
+/// point: the same fixed point as `true_range`, exactly, in bounded memory.
+#[test]
+fn a_table_too_fine_to_tabulate_is_inverted_point_by_point() {
+    let t = smooth_table(1, 200_000);
+    assert!(t.inverse().is_none());
+    let (mut pts, i) = frame_points(5000);
+    let before = pts.clone();
+    let (moved, sigma) = t.correct_with_sigmas(&mut pts, &i).unwrap();
+    assert_eq!(moved, pts.len());
+    for ((p, q), (&ik, &s)) in pts.iter().zip(&before).zip(i.iter().zip(&sigma)) {
+        let rho = t.true_range(norm(q), ik);
+        assert!((norm(p) - rho).abs() < 1e-12, "{} vs {rho}", norm(p));
+        assert!((s - 0.01).abs() < 1e-15, "{s}");
+    }
+    // So is a table of range bins far narrower than its offsets (many nodes).
+    let t = smooth_table(1 << 20, 1);
+    assert!(t.inverse().is_none());
+    let (mut pts, i) = frame_points(2000);
+    let before = pts.clone();
+    assert_eq!(t.correct(&mut pts, &i).unwrap(), pts.len());
+    for (p, (q, &ik)) in pts.iter().zip(before.iter().zip(&i)) {
+        assert!((norm(p) - t.true_range(norm(q), ik)).abs() < 1e-12);
+    }
+    // A real table's size keeps the tabulated inverse.
+    assert!(smooth_table(30, 12).inverse().is_some());
+}
+
+#[test]
+fn bin_counts_and_axis_spans_beyond_the_limits_are_refused() {
+    let mut t = smooth_table(4, 2);
+    t.range.n = MAX_TABLE_BINS;
+    let e = t.validate().unwrap_err().to_string();
+    assert!(e.contains("at most 1048576 (2²⁰) bins"), "{e}");
+    t.range.n = usize::MAX;
+    let e = t.validate().unwrap_err().to_string();
+    assert!(e.contains("1048576"), "{e}");
+    // A range axis 1e-9 m wide cannot have been measured.
+    let mut t = smooth_table(4, 2);
+    t.range.hi = t.range.lo + 1e-9;
+    let e = t.validate().unwrap_err().to_string();
+    assert!(e.contains("range axis") && e.contains("at least 0.001"), "{e}");
+    let mut t = smooth_table(4, 2);
+    t.log_intensity.hi = t.log_intensity.lo + 1e-6;
+    let e = t.validate().unwrap_err().to_string();
+    assert!(e.contains("log-intensity axis"), "{e}");
+}
+
+/// Points counted within both axes, and invalid ones not at all.
+#[test]
+fn points_within_the_axes_are_counted() {
+    let t = smooth_table(4, 2);
+    let pts = [
+        [1.0, 0.0, 0.0],
+        [3.0, 0.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [0.0; 3],
+        [f64::NAN, 0.0, 0.0],
+    ];
+    let i = [10.0, 10.0, 1e9, 10.0, 10.0];
+    assert_eq!(t.within_axes(&pts, &i), (3, 1));
+    assert_eq!(t.within_axes(&pts[1..], &i[1..]), (2, 0));
 }
