@@ -18,7 +18,7 @@ pub enum ScenarioError {
         source: std::io::Error,
     },
     /// TOML syntax, an unknown key or a wrong type (the toml crate names the key and line).
-    #[error("scenario `{path}`: {message}")]
+    #[error("scenario `{path}`: {}", clip(message))]
     Parse {
         /// The file.
         path: PathBuf,
@@ -26,13 +26,16 @@ pub enum ScenarioError {
         message: String,
     },
     /// The file is larger than [`MAX_SCENARIO_BYTES`].
-    #[error("scenario `{path}` is larger than {MAX_SCENARIO_BYTES} bytes: not a scenario file")]
+    #[error(
+        "scenario `{path}` is larger than {MAX_SCENARIO_BYTES} bytes (1 MiB), the most a \
+         scenario file may hold: not a scenario file"
+    )]
     TooLarge {
         /// The file.
         path: PathBuf,
     },
     /// A value outside its range.
-    #[error("scenario `{path}`: `{key}` {message}")]
+    #[error("scenario `{path}`: `{}` {}", clip(key), clip(message))]
     Invalid {
         /// The file.
         path: PathBuf,
@@ -43,8 +46,47 @@ pub enum ScenarioError {
     },
 }
 
-/// Largest scenario file (bytes): a 10 000-value sweep takes about 60 KB.
-pub const MAX_SCENARIO_BYTES: u64 = 16 << 20;
+/// Largest scenario file (bytes): 1 MiB. The largest valid scenario is a sweep of
+/// [`MAX_SWEEP_VALUES`](crate::sweep::scenario::MAX_SWEEP_VALUES) values, each at most
+/// a float's 24 characters and `, `: about 260 KB; the rest of a scenario is a few
+/// hundred bytes. A file of 1 MiB is parsed or refused in a fraction of a second and
+/// about 100 MB of memory (16 MiB took 5.8 s and 1.5 GB).
+pub const MAX_SCENARIO_BYTES: u64 = 1 << 20;
+
+/// Longest line of a message about a scenario (characters): the toml crate echoes the
+/// line at fault, which may be the whole file; past this a line is cut, saying how much
+/// was left out.
+pub const MAX_MESSAGE_LINE_CHARS: usize = 200;
+
+/// Most lines of a message about a scenario.
+pub const MAX_MESSAGE_LINES: usize = 20;
+
+/// `message` with each line cut to [`MAX_MESSAGE_LINE_CHARS`] characters and at most
+/// [`MAX_MESSAGE_LINES`] lines, each cut saying how many characters or lines it left out.
+pub fn clip(message: &str) -> String {
+    let mut out = String::new();
+    let lines: Vec<&str> = message.lines().collect();
+    for (k, line) in lines.iter().take(MAX_MESSAGE_LINES).enumerate() {
+        if k > 0 {
+            out.push('\n');
+        }
+        match line.char_indices().nth(MAX_MESSAGE_LINE_CHARS) {
+            None => out.push_str(line),
+            Some((cut, _)) => {
+                let rest = line[cut..].chars().count();
+                out.push_str(&line[..cut]);
+                out.push_str(&format!("… ({rest} more characters)"));
+            }
+        }
+    }
+    if lines.len() > MAX_MESSAGE_LINES {
+        out.push_str(&format!(
+            "\n… ({} more lines)",
+            lines.len() - MAX_MESSAGE_LINES
+        ));
+    }
+    out
+}
 
 /// The text of a scenario read from `reader` (a file, standard input); `path` names it
 /// in errors. At most [`MAX_SCENARIO_BYTES`] are read, so `/dev/zero` is an error, not a

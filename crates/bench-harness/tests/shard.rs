@@ -321,7 +321,7 @@ fn wrong_sets_of_shards_are_refused_and_nothing_is_written() {
     .unwrap();
     refused(&[&a1, &cut], &out, "damaged shard");
     std::fs::write(cut.join("shard-trials.jsonl"), "").unwrap();
-    refused(&[&a1, &cut], &out, "trial 1 of setting 0");
+    refused(&[&a1, &cut], &out, "shard-trials.jsonl is 0 bytes");
 
     // The output folder may not be one of the shards.
     let o = bin()

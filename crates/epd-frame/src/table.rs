@@ -385,8 +385,8 @@ impl CalibrationTable {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use epd_core::calibration::{Observation, TableBins};
     use epd_core::calibration::Axis;
+    use epd_core::calibration::{Observation, TableBins};
 
     fn table() -> CalibrationTable {
         let obs: Vec<Observation> = (0..4000)

@@ -10,9 +10,12 @@
 //! plots and `metadata.json` (with the shards' folders, machines and wall times). At
 //! most one setting's trials are held in memory, as in an unsharded run.
 //!
-//! The checks of the shards before anything is read are in `merge/check.rs`.
+//! The checks of the shards before anything is read are in `merge/check.rs`; each
+//! shard's records file is then checked against the length and SHA-256 its manifest
+//! records ([`verify_records`]), and each record against itself as it is read
+//! ([`TrialRecord::check_consistent`]): an edited or swapped records file is refused,
+//! naming the file and, where it can be found, the line.
 
-use std::fs::File;
 use std::io::{BufRead, BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
@@ -29,10 +32,10 @@ use super::summary::{SummaryRow, summarise};
 use crate::output::{
     CsvFile, INTERRUPTED, Interrupted, MANIFEST_FILE, RECORDS_FILE, StagedFiles, write_run,
 };
-use crate::provenance::{CodeVersion, Metadata, scenario_sha256};
+use crate::provenance::{CodeVersion, Metadata, scenario_sha256, sha256_of};
 use crate::scenario::MAX_SCENARIO_BYTES;
 pub use check::MergeError;
-use check::{check_shards, read_capped, read_manifest};
+use check::{check_shards, open_regular, read_capped, read_manifest};
 
 mod check;
 
@@ -58,7 +61,7 @@ struct RecordReader {
     /// Lines consumed so far.
     line: usize,
     /// The open file, positioned at `offset`, when kept open.
-    open: Option<BufReader<File>>,
+    open: Option<BufReader<std::fs::File>>,
 }
 
 impl RecordReader {
@@ -91,7 +94,7 @@ impl RecordReader {
         let mut reader = match self.open.take() {
             Some(r) => r,
             None => {
-                let mut f = File::open(&self.path).map_err(|e| MergeError::Damaged {
+                let (mut f, _) = open_regular(&self.path).map_err(|e| MergeError::Damaged {
                     dir: self.dir.clone(),
                     why: format!("cannot read {RECORDS_FILE}: {e}"),
                 })?;
@@ -126,6 +129,7 @@ impl RecordReader {
                 break;
             }
             record.check_methods(methods).map_err(|e| self.damaged(e))?;
+            record.check_consistent().map_err(|e| self.damaged(e))?;
             self.offset += n as u64;
             self.line += 1;
             out.push(record);
@@ -203,6 +207,9 @@ pub fn merge(dirs: &[PathBuf], options: &MergeOptions) -> anyhow::Result<RunRepo
     let trials = m0.trials_per_setting;
     let shards: Vec<(&PathBuf, &ShardManifest)> =
         order.iter().map(|&i| (&dirs[i], &manifests[i])).collect();
+    for (dir, m) in &shards {
+        verify_records(dir, m, &methods)?;
+    }
     let staged = write_run(&options.out, |dir| {
         stage_merge(&scenario, &methods, trials, &shards, dir, start)
     })?;
@@ -212,6 +219,80 @@ pub fn merge(dirs: &[PathBuf], options: &MergeOptions) -> anyhow::Result<RunRepo
         wall_time_s: staged.wall_time_s,
         trial_errors: staged.trial_errors,
     })
+}
+
+/// Check a shard's records against its manifest before anything is merged: its
+/// [`RECORDS_FILE`] a regular file of the length and SHA-256 the manifest records.
+/// Records that differ are refused naming the first line that does not parse or
+/// disagrees with itself ([`TrialRecord::check_consistent`]), when one does.
+fn verify_records(dir: &Path, m: &ShardManifest, methods: &[Method]) -> Result<(), MergeError> {
+    let damaged = |why: String| MergeError::Damaged {
+        dir: dir.to_path_buf(),
+        why,
+    };
+    let path = dir.join(RECORDS_FILE);
+    if m.records_bytes > (m.n_trials as u64).saturating_mul(MAX_RECORD_BYTES + 1) {
+        return Err(damaged(format!(
+            "{MANIFEST_FILE} says {RECORDS_FILE} holds {} bytes, more than {} records of at \
+             most {MAX_RECORD_BYTES} bytes",
+            m.records_bytes, m.n_trials
+        )));
+    }
+    let (file, len) =
+        open_regular(&path).map_err(|e| damaged(format!("cannot read {RECORDS_FILE}: {e}")))?;
+    let differs = |what: String| {
+        let line = first_bad_line(&path, methods)
+            .map(|l| format!("; {RECORDS_FILE} {l}"))
+            .unwrap_or_default();
+        damaged(format!(
+            "{RECORDS_FILE} {what}: the records were changed after the shard ran{line}"
+        ))
+    };
+    if len != m.records_bytes {
+        return Err(differs(format!(
+            "is {len} bytes, {MANIFEST_FILE} says {}",
+            m.records_bytes
+        )));
+    }
+    let sha = sha256_of(file.take(len))
+        .map_err(|e| damaged(format!("cannot read {RECORDS_FILE}: {e}")))?;
+    if sha != m.records_sha256 {
+        return Err(differs(format!(
+            "has SHA-256 {}…, {MANIFEST_FILE} says {}…",
+            &sha[..16],
+            m.records_sha256.chars().take(16).collect::<String>()
+        )));
+    }
+    Ok(())
+}
+
+/// The first line of a records file that is not a trial record of `methods` agreeing
+/// with itself, and why (`line N: …`); `None` when every line is one.
+fn first_bad_line(path: &Path, methods: &[Method]) -> Option<String> {
+    let (file, _) = open_regular(path).ok()?;
+    let mut reader = BufReader::new(file);
+    let mut buf = Vec::new();
+    for line in 1.. {
+        buf.clear();
+        let n = (&mut reader)
+            .take(MAX_RECORD_BYTES + 1)
+            .read_until(b'\n', &mut buf)
+            .ok()?;
+        if n == 0 {
+            return None;
+        }
+        let why = match serde_json::from_slice::<TrialRecord>(&buf) {
+            Err(e) => Some(format!("not a trial record: {e}")),
+            Ok(r) => r
+                .check_methods(methods)
+                .and_then(|()| r.check_consistent())
+                .err(),
+        };
+        if let Some(why) = why {
+            return Some(format!("line {line}: {why}"));
+        }
+    }
+    None
 }
 
 /// A merge written into its staging folder.

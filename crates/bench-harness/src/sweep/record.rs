@@ -7,7 +7,7 @@
 //! its IEEE-754 bit pattern ([`f64::to_bits`]), so a merge reads back exactly the values
 //! the shard computed, NaN payloads and signed zeros included.
 
-use epd_core::{FitOutcome, Method, N_PARAMS, ParamErrors, Params, Sigmas};
+use epd_core::{FitOutcome, Method, N_PARAMS, ParamErrors, Params, Sigmas, errors_against};
 use serde::{Deserialize, Serialize};
 
 /// One method's result on one frame.
@@ -78,6 +78,36 @@ impl TrialRecord {
     pub fn errors(&self) -> usize {
         usize::from(self.error.is_some())
             + self.methods.iter().filter(|m| m.status.is_none()).count()
+    }
+
+    /// Whether the record agrees with itself: each method's `errors` are its estimate
+    /// against the trial's truth ([`errors_against`], bit for bit: the merge runs the
+    /// shards' code), and a method has errors exactly when it has an estimate; else what
+    /// disagrees. An edited estimate or truth (a digit changed by hand) is caught here.
+    pub fn check_consistent(&self) -> Result<(), String> {
+        let bits = |e: &ParamErrors| {
+            [
+                e.d_max, e.d_min, e.d_mean, e.roll, e.pitch, e.yaw, e.dy, e.dz,
+            ]
+            .map(f64::to_bits)
+        };
+        for m in &self.methods {
+            let agrees = match (&m.estimate, &m.errors) {
+                (Some(est), Some(err)) => bits(&errors_against(est, &self.truth)) == bits(err),
+                (None, None) => true,
+                _ => false,
+            };
+            if !agrees {
+                return Err(format!(
+                    "trial {} of setting {}, method `{}`: its errors are not its estimate \
+                     against the trial's truth (the record was changed after the shard ran)",
+                    self.trial,
+                    self.setting,
+                    m.method.name()
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// Whether the record's methods are `methods`, in that order (a record read back from

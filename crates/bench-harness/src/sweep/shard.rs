@@ -15,7 +15,8 @@
 //! Written as a whole like a run's (see [`crate::output`]): `trials.csv` (the shard's rows,
 //! in the unsharded order; for reading, not for merging), `scenario.toml`,
 //! `metadata.json`, [`MANIFEST_FILE`] (a [`ShardManifest`]: which shard, the scenario's
-//! SHA-256, seed, trials, methods and the code that ran) and [`RECORDS_FILE`]: one JSON
+//! SHA-256, seed, trials, methods, the code that ran and the records file's SHA-256 and
+//! length) and [`RECORDS_FILE`]: one JSON
 //! object per trial and line ([`super::record::TrialRecord`]), in the unsharded order,
 //! every floating-point value as the integer of its IEEE-754 bit pattern
 //! ([`f64::to_bits`]), so nothing is lost to decimal text. No `summary.csv` and no plots:
@@ -32,6 +33,7 @@ use std::time::Instant;
 
 use epd_frame::shard::ShardSpec;
 use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
 
 use super::rows::{TRIAL_COLUMNS, write_trial_rows};
 use super::run::{RunOptions, RunReport, metadata};
@@ -42,11 +44,12 @@ use crate::output::{
     finish, write_new, write_run, wrote,
 };
 use crate::provenance::{
-    CodeVersion, Metadata, cpu_model, git_provenance, host_name, scenario_sha256,
+    CodeVersion, Metadata, cpu_model, git_provenance, hex, host_name, scenario_sha256,
 };
 
-/// The `format` of a [`ShardManifest`] this version writes and reads.
-pub const SHARD_FORMAT: &str = "bench-harness-shard/1";
+/// The `format` of a [`ShardManifest`] this version writes and reads (version 2 added
+/// `records_sha256` and `records_bytes`).
+pub const SHARD_FORMAT: &str = "bench-harness-shard/2";
 /// The partition, as named in a manifest.
 pub const PARTITION: &str = "round-robin";
 
@@ -79,6 +82,11 @@ pub struct ShardManifest {
     pub methods: Vec<String>,
     /// Trials in this shard (lines of [`RECORDS_FILE`]).
     pub n_trials: usize,
+    /// SHA-256 (hex) of [`RECORDS_FILE`] as the shard wrote it: the merge refuses
+    /// records that differ.
+    pub records_sha256: String,
+    /// Length of [`RECORDS_FILE`] (bytes).
+    pub records_bytes: u64,
     /// Trials or estimates of this shard that could not be made (status `error`).
     pub trial_errors: usize,
     /// The code that ran.
@@ -104,6 +112,18 @@ pub fn shard_trial_count(shard: ShardSpec, settings: usize, trials: usize) -> us
     } else {
         ((total - first).div_ceil(u128::from(shard.n()))) as usize
     }
+}
+
+/// What a shard wrote to its [`RECORDS_FILE`].
+struct WrittenRecords {
+    /// Trials (lines).
+    n_trials: usize,
+    /// Trials or estimates with an error.
+    trial_errors: usize,
+    /// SHA-256 (hex) of the file.
+    sha256: String,
+    /// Its length (bytes).
+    bytes: u64,
 }
 
 /// A shard written into its staging folder.
@@ -146,8 +166,7 @@ impl ShardManifest {
         scenario: &Scenario,
         shard: ShardSpec,
         trials: usize,
-        n_trials: usize,
-        trial_errors: usize,
+        written: &WrittenRecords,
         wall_time_s: f64,
     ) -> Self {
         let (_, git_dirty) = git_provenance();
@@ -168,8 +187,10 @@ impl ShardManifest {
                 .iter()
                 .map(|m| m.name().to_string())
                 .collect(),
-            n_trials,
-            trial_errors,
+            n_trials: written.n_trials,
+            records_sha256: written.sha256.clone(),
+            records_bytes: written.bytes,
+            trial_errors: written.trial_errors,
             code: CodeVersion::current(),
             git_dirty,
             threads: rayon::current_num_threads(),
@@ -217,16 +238,19 @@ fn stage_shard(
     let runner = TrialRunner::new(scenario, &bar);
     let mut trial_errors = 0;
     let mut written = 0;
+    let mut hash = Sha256::new();
+    let mut bytes = 0u64;
     for (si, (value, _)) in scenario.sweeps.iter().enumerate() {
         let ts: Vec<usize> = (0..trials)
             .filter(|&t| shard.owns(si as u64 * trials as u64 + t as u64))
             .collect();
         runner.run_setting(si, &ts, |t| {
             write_trial_rows(&mut trials_csv, &scenario.sweep_variable, value, &t)?;
-            serde_json::to_writer(&mut records, &t)
-                .map_err(std::io::Error::from)
-                .and_then(|()| records.write_all(b"\n"))
-                .map_err(wrote(&records_path))?;
+            let mut line = serde_json::to_vec(&t)?;
+            line.push(b'\n');
+            hash.update(&line);
+            bytes += line.len() as u64;
+            records.write_all(&line).map_err(wrote(&records_path))?;
             trial_errors += t.errors();
             written += 1;
             Ok(())
@@ -243,7 +267,13 @@ fn stage_shard(
         scenario.source.as_bytes(),
     )?);
     let wall_time_s = start.elapsed().as_secs_f64();
-    let manifest = ShardManifest::new(scenario, shard, trials, written, trial_errors, wall_time_s);
+    let records_written = WrittenRecords {
+        n_trials: written,
+        trial_errors,
+        sha256: hex(&hash.finalize()),
+        bytes,
+    };
+    let manifest = ShardManifest::new(scenario, shard, trials, &records_written, wall_time_s);
     files.push(write_new(
         &dir.join(MANIFEST_FILE),
         serde_json::to_string_pretty(&manifest)?.as_bytes(),

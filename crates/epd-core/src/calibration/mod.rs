@@ -28,6 +28,6 @@ pub use rig::{
     Calibration, CalibrationFrame, CalibrationSettings, Observation, calibrate, offsets,
 };
 pub use table::{
-    Axis, DepthTable, MAX_INVERSE_CELLS, MAX_OFFSET_M, MAX_TABLE_BINS, MAX_TABLE_RANGE_M,
-    MIN_AXIS_SPAN, TableBins,
+    Axis, DepthTable, MAX_INVERSE_CELLS, MAX_INVERSE_COLUMNS, MAX_OFFSET_M, MAX_TABLE_BINS,
+    MAX_TABLE_RANGE_M, MIN_AXIS_SPAN, TableBins,
 };

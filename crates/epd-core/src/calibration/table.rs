@@ -482,13 +482,7 @@ impl DepthTable {
         sigma: Option<&mut [f64]>,
     ) -> usize {
         const CHUNK: usize = 4096;
-        // A table too fine for a tabulated inverse within MAX_INVERSE_CELLS is inverted
-        // point by point: a frame's cost does not grow with the table's bins.
         let inverse = self.inverse();
-        let true_range = |r: f64, li: f64| match &inverse {
-            Some(inv) => inv.true_range(r, li),
-            None => self.true_range_log(r, li),
-        };
         let one = |ps: &mut [[f64; 3]], is: &[f64], mut ss: Option<&mut [f64]>| {
             let mut moved = 0;
             for (k, (p, &i)) in ps.iter_mut().zip(is).enumerate() {
@@ -497,7 +491,7 @@ impl DepthTable {
                 }
                 let r = norm(p);
                 let li = (i > 0.0 && i.is_finite()).then(|| i.ln());
-                let f = li.map_or(f64::NAN, |li| true_range(r, li) / r);
+                let f = li.map_or(f64::NAN, |li| inverse.true_range(r, li) / r);
                 let (Some(li), true) = (li, f > 0.0 && f.is_finite()) else {
                     // No intensity to look up, or a correction through the sensor: the
                     // point cannot be corrected, and an uncorrected point is biased.
@@ -530,11 +524,15 @@ impl DepthTable {
     /// [`true_range`](Self::true_range) tabulated once for a whole frame: at
     /// INVERSE_STEPS nodes per range bin over the measured ranges the table can produce,
     /// for each intensity bin centre; a point then costs one bilinear interpolation.
-    /// `None` when that takes more than [`MAX_INVERSE_CELLS`] cells (a table of more
-    /// than about 8 000 bins, or of range bins much narrower than its offsets): the
-    /// points are then inverted one by one.
-    pub(super) fn inverse(&self) -> Option<Inverse> {
-        let ni = self.log_intensity.n;
+    /// The grid has at most [`MAX_INVERSE_CELLS`] cells: a finer table is tabulated at
+    /// [`MAX_INVERSE_COLUMNS`] intensities evenly over its axis and as many range nodes
+    /// as the cells allow (at least 1024), so a frame's cost does not grow with the
+    /// table's bins.
+    pub(super) fn inverse(&self) -> Inverse {
+        let columns = Axis {
+            n: self.log_intensity.n.min(MAX_INVERSE_COLUMNS),
+            ..self.log_intensity
+        };
         let (tmin, tmax) = self
             .offset_m
             .iter()
@@ -542,28 +540,32 @@ impl DepthTable {
         let w = self.range.width();
         let lo = self.range.lo + tmin - w;
         let hi = self.range.hi + tmax + w;
+        let most = MAX_INVERSE_CELLS / columns.n;
         let nodes = ((hi - lo) / w * INVERSE_STEPS as f64).ceil();
-        if !(nodes * ni as f64 <= MAX_INVERSE_CELLS as f64) {
-            return None;
-        }
-        let n = (nodes.max(1.0) as usize) + 1;
+        let n = if nodes.is_finite() {
+            (nodes.max(1.0) as usize).min(most - 1) + 1
+        } else {
+            most
+        };
         let step = (hi - lo) / (n - 1) as f64;
-        let li_w = self.log_intensity.width();
-        let mut rho = Vec::with_capacity(n * ni);
-        for k in 0..n {
-            let m = lo + k as f64 * step;
-            for j in 0..ni {
-                let li = self.log_intensity.lo + (j as f64 + 0.5) * li_w;
-                rho.push(self.true_range_log(m, li));
-            }
-        }
-        Some(Inverse {
+        let li_w = columns.width();
+        let rho: Vec<f64> = (0..n)
+            .into_par_iter()
+            .flat_map_iter(|k| {
+                let m = lo + k as f64 * step;
+                (0..columns.n).map(move |j| {
+                    let li = columns.lo + (j as f64 + 0.5) * li_w;
+                    self.true_range_log(m, li)
+                })
+            })
+            .collect();
+        Inverse {
             lo,
             step,
             n,
-            log_intensity: self.log_intensity,
+            log_intensity: columns,
             rho,
-        })
+        }
     }
 
     /// The random range error's σ of each point (m) from the table (NaN for invalid
@@ -622,14 +624,19 @@ pub const MAX_TABLE_BINS: usize = 1 << 20;
 /// [`TableBins::spanning`] widens a narrower span of observations to one bin of 1.
 pub const MIN_AXIS_SPAN: f64 = 1e-3;
 
-/// The most cells (range nodes × intensity columns) of the tabulated inverse: 2¹⁶.
-/// Building it solves the fixed point (≤ 8 interpolations) per cell, a few ms on one
-/// core, a tenth of a 640 × 480 frame's fit; `epd calibrate`'s default 30 × 12 table
-/// needs about 270 × 12 cells. A table that needs more (more than about 8 000 bins, or
-/// range bins much narrower than its offsets) is inverted point by point instead (≤ 8
-/// interpolations a point), so a frame's cost does not grow with the table's bins
-/// (`cargo run --release -p epd-frame --example table_cost` measures both).
+/// The most cells (range nodes × intensity columns) of the tabulated inverse that
+/// corrects a frame: 2¹⁶. Building it solves the fixed point (2–8 interpolations) per
+/// cell, a few ms, a fraction of the correction of a 640 × 480 frame; `epd calibrate`'s
+/// default 30 × 12 table needs about 270 × 12 cells, a 200 × 40 one 1 616 × 40. A table
+/// that would need more is tabulated on a coarser grid ([`MAX_INVERSE_COLUMNS`]
+/// intensities, at least 1 024 range nodes): its correction has that grid's resolution
+/// (a node every 1.6 mm over a 1.5 m axis), and a frame's cost stays that of a real table
+/// whatever its bins (`cargo run --release -p epd-frame --example table_cost`).
 pub const MAX_INVERSE_CELLS: usize = 1 << 16;
+
+/// The most intensity columns of the tabulated inverse: 64 (a table's default is 12),
+/// leaving at least 1 024 range nodes within [`MAX_INVERSE_CELLS`].
+pub const MAX_INVERSE_COLUMNS: usize = 64;
 
 /// Nodes per range bin of the tabulated inverse (see [`DepthTable::correct`]).
 const INVERSE_STEPS: usize = 8;
@@ -641,7 +648,7 @@ pub(super) struct Inverse {
     step: f64,
     n: usize,
     log_intensity: Axis,
-    rho: Vec<f64>,
+    pub(super) rho: Vec<f64>,
 }
 
 impl Inverse {

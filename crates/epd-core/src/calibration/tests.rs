@@ -202,7 +202,7 @@ fn tabulated_inverse_matches_the_fixed_point() {
         min_count: 10,
     };
     let t = DepthTable::build(&obs, &b).unwrap();
-    let inv = t.inverse().expect("a 30 × 12 table has a tabulated inverse");
+    let inv = t.inverse();
     let mut worst: f64 = 0.0;
     for k in 0..5000 {
         let r = 0.3 + 2.2 * (k as f64 * 0.618_034).fract();
@@ -308,33 +308,29 @@ fn frame_points(n: usize) -> (Vec<[f64; 3]>, Vec<f64>) {
         .unzip()
 }
 
-/// A table too fine for the tabulated inverse (issue 27: 200 000 intensity bins made the
-/// inverse allocate 65 537 × 200 000 values and abort the process) is inverted point by
-/// point: the same fixed point as `true_range`, exactly, in bounded memory.
+/// A table too fine for the tabulated inverse within MAX_INVERSE_CELLS (issue 27: 200 000
+/// intensity bins made the inverse allocate 65 537 × 200 000 values and abort the
+/// process) is tabulated on a coarser grid: bounded, and as close to the fixed point as a
+/// real table's inverse.
 #[test]
-fn a_table_too_fine_to_tabulate_is_inverted_point_by_point() {
-    let t = smooth_table(1, 200_000);
-    assert!(t.inverse().is_none());
-    let (mut pts, i) = frame_points(5000);
-    let before = pts.clone();
-    let (moved, sigma) = t.correct_with_sigmas(&mut pts, &i).unwrap();
-    assert_eq!(moved, pts.len());
-    for ((p, q), (&ik, &s)) in pts.iter().zip(&before).zip(i.iter().zip(&sigma)) {
-        let rho = t.true_range(norm(q), ik);
-        assert!((norm(p) - rho).abs() < 1e-12, "{} vs {rho}", norm(p));
-        assert!((s - 0.01).abs() < 1e-15, "{s}");
+fn a_table_too_fine_to_tabulate_is_tabulated_coarser() {
+    for (nr, ni) in [(1, 200_000), (1 << 20, 1), (1024, 1024), (30, 12)] {
+        let t = smooth_table(nr, ni);
+        let inv = t.inverse();
+        assert!(inv.rho.len() <= MAX_INVERSE_CELLS, "{nr} × {ni}");
+        let (mut pts, i) = frame_points(5000);
+        let before = pts.clone();
+        let (moved, sigma) = t.correct_with_sigmas(&mut pts, &i).unwrap();
+        assert_eq!(moved, pts.len());
+        let mut worst: f64 = 0.0;
+        for ((p, q), (&ik, &s)) in pts.iter().zip(&before).zip(i.iter().zip(&sigma)) {
+            worst = worst.max((norm(p) - t.true_range(norm(q), ik)).abs());
+            assert!((s - 0.01).abs() < 1e-15, "{s}");
+        }
+        // 50 µm: the 30 × 12 table's own tabulated inverse is 29 µm off its fixed point
+        // here (its offsets wiggle within a few bins).
+        assert!(worst < 5e-5, "{nr} × {ni}: {worst}");
     }
-    // So is a table of range bins far narrower than its offsets (many nodes).
-    let t = smooth_table(1 << 20, 1);
-    assert!(t.inverse().is_none());
-    let (mut pts, i) = frame_points(2000);
-    let before = pts.clone();
-    assert_eq!(t.correct(&mut pts, &i).unwrap(), pts.len());
-    for (p, (q, &ik)) in pts.iter().zip(before.iter().zip(&i)) {
-        assert!((norm(p) - t.true_range(norm(q), ik)).abs() < 1e-12);
-    }
-    // A real table's size keeps the tabulated inverse.
-    assert!(smooth_table(30, 12).inverse().is_some());
 }
 
 #[test]
@@ -350,7 +346,10 @@ fn bin_counts_and_axis_spans_beyond_the_limits_are_refused() {
     let mut t = smooth_table(4, 2);
     t.range.hi = t.range.lo + 1e-9;
     let e = t.validate().unwrap_err().to_string();
-    assert!(e.contains("range axis") && e.contains("at least 0.001"), "{e}");
+    assert!(
+        e.contains("range axis") && e.contains("at least 0.001"),
+        "{e}"
+    );
     let mut t = smooth_table(4, 2);
     t.log_intensity.hi = t.log_intensity.lo + 1e-6;
     let e = t.validate().unwrap_err().to_string();

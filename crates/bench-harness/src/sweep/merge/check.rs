@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 
 use epd_frame::shard::ShardSpec;
 
+use super::super::scenario::{MAX_SWEEP_VALUES, MAX_TRIALS};
 use super::super::shard::{PARTITION, SHARD_FORMAT, ShardManifest, shard_trial_count};
 use crate::output::MANIFEST_FILE;
 
@@ -129,10 +130,12 @@ pub enum MergeError {
         b: PathBuf,
     },
     /// Shards missing.
-    #[error("{} of {n} shards missing: {} (given {given} folders)", missing.len(), list(missing, *n))]
+    #[error("{count} of {n} shards missing: {} (given {given} folders)", list(missing, *count, *n))]
     Missing {
-        /// The missing K's.
+        /// The first [`SHOWN_MISSING`] missing K's.
         missing: Vec<u64>,
+        /// How many are missing.
+        count: u64,
         /// N.
         n: u64,
         /// Folders given.
@@ -143,10 +146,18 @@ pub enum MergeError {
     OutIsInput(PathBuf),
 }
 
-/// `[2, 5, 7]` of 8 → `shard 2/8, 5/8, 7/8`, at most 10 shown.
-fn list(ks: &[u64], n: u64) -> String {
-    let shown: Vec<String> = ks.iter().take(10).map(|k| format!("{k}/{n}")).collect();
-    let more = ks.len().saturating_sub(shown.len());
+/// Missing shards named in a message at most.
+const SHOWN_MISSING: usize = 10;
+
+/// `[2, 5, 7]` (of `count` missing) of 8 → `shard 2/8, 5/8, 7/8`, at most
+/// [`SHOWN_MISSING`] shown.
+fn list(ks: &[u64], count: u64, n: u64) -> String {
+    let shown: Vec<String> = ks
+        .iter()
+        .take(SHOWN_MISSING)
+        .map(|k| format!("{k}/{n}"))
+        .collect();
+    let more = count.saturating_sub(shown.len() as u64);
     format!(
         "shard {}{}",
         shown.join(", "),
@@ -158,10 +169,22 @@ fn list(ks: &[u64], n: u64) -> String {
     )
 }
 
-/// Read at most `limit` bytes of `path`; `None` when there are more.
+/// Open `path` if it is a regular file, never waiting on a FIFO
+/// ([`epd_io::read::open_regular`]); a missing file is an error of kind `NotFound`.
+pub(super) fn open_regular(path: &Path) -> std::io::Result<(File, u64)> {
+    std::fs::metadata(path)?;
+    epd_io::read::open_regular(path).map_err(std::io::Error::other)
+}
+
+/// Read at most `limit` bytes of the regular file `path` ([`open_regular`]); `None`
+/// when it holds more (known from its length before it is read).
 pub(super) fn read_capped(path: &Path, limit: u64) -> std::io::Result<Option<Vec<u8>>> {
+    let (file, len) = open_regular(path)?;
+    if len > limit {
+        return Ok(None);
+    }
     let mut bytes = Vec::new();
-    File::open(path)?.take(limit + 1).read_to_end(&mut bytes)?;
+    file.take(limit + 1).read_to_end(&mut bytes)?;
     Ok((bytes.len() as u64 <= limit).then_some(bytes))
 }
 
@@ -220,6 +243,13 @@ pub(super) fn read_manifest(dir: &Path) -> Result<ShardManifest, MergeError> {
         )));
     }
     let shard = ShardSpec::new(m.shard, m.shards).map_err(|e| damaged(e.to_string()))?;
+    if m.settings > MAX_SWEEP_VALUES || m.trials_per_setting > MAX_TRIALS {
+        return Err(damaged(format!(
+            "{MANIFEST_FILE} says {} settings × {} trials: a scenario has at most \
+             {MAX_SWEEP_VALUES} settings and {MAX_TRIALS} trials each",
+            m.settings, m.trials_per_setting
+        )));
+    }
     let expected = shard_trial_count(shard, m.settings, m.trials_per_setting);
     if m.n_trials != expected {
         return Err(damaged(format!(
@@ -314,10 +344,17 @@ fn check_complete(dirs: &[PathBuf], manifests: &[ShardManifest], n: u64) -> Resu
             });
         }
     }
-    let missing: Vec<u64> = (1..=n).filter(|k| !seen.contains_key(k)).collect();
-    if !missing.is_empty() {
+    // Every K in the manifests is ≤ n, and distinct: n − seen of 1 … n are missing. The
+    // first few are found among the first seen + SHOWN_MISSING numbers (n may be 2⁶⁴ − 1).
+    let count = n - seen.len() as u64;
+    if count > 0 {
+        let missing: Vec<u64> = (1..=n)
+            .filter(|k| !seen.contains_key(k))
+            .take(SHOWN_MISSING)
+            .collect();
         return Err(MergeError::Missing {
             missing,
+            count,
             n,
             given: dirs.len(),
         });
@@ -333,6 +370,7 @@ mod tests {
     fn missing_shards_are_listed() {
         let e = MergeError::Missing {
             missing: vec![2, 4],
+            count: 2,
             n: 4,
             given: 2,
         };
