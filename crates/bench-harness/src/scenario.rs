@@ -127,3 +127,24 @@ pub(crate) fn check_name(name: &str) -> Result<(), KeyError> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn long_lines_and_many_lines_are_cut() {
+        assert_eq!(clip("short\nlines"), "short\nlines");
+        let long = format!(
+            "{}é{}",
+            "a".repeat(MAX_MESSAGE_LINE_CHARS - 1),
+            "b".repeat(50)
+        );
+        let c = clip(&long);
+        assert!(c.ends_with("é… (50 more characters)"), "{c}");
+        let many = vec!["l"; MAX_MESSAGE_LINES + 5].join("\n");
+        let c = clip(&many);
+        assert_eq!(c.lines().count(), MAX_MESSAGE_LINES + 1);
+        assert!(c.ends_with("… (5 more lines)"), "{c}");
+    }
+}

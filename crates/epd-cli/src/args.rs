@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use epd_core::Method;
 use epd_frame::read::Format;
+use epd_frame::rig::MAX_TABLE_BINS;
 use epd_frame::shard::ShardSpec;
 use epd_frame::{InputConfig, InputFrame, Units};
 
@@ -208,11 +209,11 @@ pub struct CalibrateArgs {
         allow_negative_numbers = true
     )]
     pub max_range: f64,
-    /// Range bins of the table.
-    #[arg(long, value_name = "N", default_value_t = 30)]
+    /// Range bins of the table (range × intensity bins at most 2²⁰ = 1048576).
+    #[arg(long, value_name = "N", default_value_t = 30, value_parser = table_bins)]
     pub range_bins: usize,
     /// Intensity bins of the table (even in log-intensity).
-    #[arg(long, value_name = "N", default_value_t = 12)]
+    #[arg(long, value_name = "N", default_value_t = 12, value_parser = table_bins)]
     pub intensity_bins: usize,
     /// A bin with fewer points (at least 5) is empty and takes the nearest filled bin's
     /// values.
@@ -330,5 +331,19 @@ impl From<&InputArgs> for InputConfig {
             },
             format: a.input_format,
         }
+    }
+}
+
+/// A number of table bins: a whole number in [1, [`MAX_TABLE_BINS`]] (the most a table may
+/// have in all), checked as it is parsed, so that no product of two of them can overflow.
+fn table_bins(s: &str) -> Result<usize, String> {
+    let n: u64 = s
+        .parse()
+        .map_err(|_| format!("expected a whole number of bins in [1, {MAX_TABLE_BINS}]"))?;
+    match usize::try_from(n) {
+        Ok(n) if (1..=MAX_TABLE_BINS).contains(&n) => Ok(n),
+        _ => Err(format!(
+            "{n} bins: expected 1 to {MAX_TABLE_BINS} (2²⁰, the most bins a table may have)"
+        )),
     }
 }

@@ -41,6 +41,7 @@ pub fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         SimulateError::Setting(m) => usage(m),
         SimulateError::Sim(e) => e.into(),
     })?;
+    check_out_folder(&out)?;
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     let mut frame = tof_sim::Frame::empty();
     let bar = ProgressBar::new(frames);
@@ -63,4 +64,30 @@ pub fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         out.display()
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// `--out` names a folder, or nothing yet (it is created): a usage error (exit 2) naming
+/// what is there instead — a file, or a symbolic link to something missing (which
+/// `create_dir_all` reports as "File exists").
+fn check_out_folder(out: &std::path::Path) -> anyhow::Result<()> {
+    let Ok(link) = std::fs::symlink_metadata(out) else {
+        return Ok(());
+    };
+    let name = out.display();
+    match std::fs::metadata(out) {
+        Ok(m) if m.is_dir() => Ok(()),
+        Ok(_) => Err(usage(format!(
+            "--out {name}: exists and is not a folder; give a folder (it is created if missing)"
+        ))),
+        Err(_) if link.file_type().is_symlink() => {
+            let target = std::fs::read_link(out)
+                .map(|t| t.display().to_string())
+                .unwrap_or_else(|_| "?".into());
+            Err(usage(format!(
+                "--out {name}: a symbolic link to {target}, which does not exist; create that \
+                 folder or give another --out"
+            )))
+        }
+        Err(e) => Err(usage(format!("--out {name}: {e}"))),
+    }
 }

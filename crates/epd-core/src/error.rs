@@ -17,6 +17,23 @@ pub enum EpdError {
         /// Points needed.
         needed: usize,
     },
+    /// Points farther from the sensor than any time-of-flight camera measures
+    /// ([`crate::cloud::MAX_POINT_RANGE_M`]): a damaged file or a wrong unit.
+    #[error(
+        "{count} points lie farther than {limit_m} m from the sensor (the first, point \
+         {index}, at {range_m:e} m): no time-of-flight camera measures so far; the file is \
+         damaged or its unit is not metres"
+    )]
+    FarPoints {
+        /// How many points.
+        count: usize,
+        /// The first one's index in the input.
+        index: usize,
+        /// Its distance from the sensor (m).
+        range_m: f64,
+        /// The limit (m).
+        limit_m: f64,
+    },
     /// The points do not span a cylinder (identical points, a line, a plane).
     #[error("degenerate point cloud: {0}")]
     Degenerate(String),

@@ -51,6 +51,52 @@ fn non_finite_and_zero_points_are_dropped_and_counted() {
     assert!((est.params.d_max - truth.d_max).abs() < 1e-9);
 }
 
+/// Points absurdly far from the sensor are named (issue 27: one point at 1e300 gave "no
+/// step lowers the cost", 0.3 % at 1e30 "points lie on a plane").
+#[test]
+fn absurdly_far_points_are_named() {
+    let truth = common::random_params(&mut common::rng(3), common::id_m(20.0), 0.02, 5.0, 0.2);
+    let pts = common::cloud(&truth, 160, 120, 6.0, 0.01, 0, 1);
+    let mut one = pts.clone();
+    one[17] = [1e300, 2.0, 3.0];
+    let mut some = pts.clone();
+    let n = pts.len() * 3 / 1000;
+    for p in some.iter_mut().skip(5).step_by(pts.len() / n).take(n) {
+        *p = [p[0] * 1e30, p[1] * 1e30, p[2] * 1e30];
+    }
+    for (cloud, count, index) in [(&one, 1, 17), (&some, n, 5)] {
+        let p = cloud[index];
+        let r = (p[0] / 1e30).hypot(p[1] / 1e30).hypot(p[2] / 1e30) * 1e30;
+        for m in Method::ALL {
+            let e = estimate(cloud, m, &opts()).unwrap_err();
+            assert!(
+                matches!(e, EpdError::FarPoints { count: c, index: i, .. } if c == count && i == index),
+                "{m:?}: {e}"
+            );
+            let text = e.to_string();
+            let at = format!("point {index}, at ");
+            assert!(
+                text.contains("farther than 1000 m") && text.contains(&at),
+                "{text}"
+            );
+            let shown: f64 = text
+                .split(&at)
+                .nth(1)
+                .and_then(|t| t.split(' ').next())
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(f64::NAN);
+            assert!((shown / r - 1.0).abs() < 1e-12, "{text} vs {r}");
+            let sigma = vec![0.01; cloud.len()];
+            let e = epd_core::estimate_weighted(cloud, &sigma, m, &opts()).unwrap_err();
+            assert!(matches!(e, EpdError::FarPoints { .. }), "{e}");
+        }
+    }
+    // At the limit: fitted (a point 999 m away is an outlier, not an error).
+    let mut near = pts.clone();
+    near[3] = [999.0, 0.0, 0.0];
+    assert!(estimate(&near, Method::MlEpd, &opts()).is_ok());
+}
+
 #[test]
 fn degenerate_geometries_are_errors() {
     let plane: Vec<[f64; 3]> = (0..400)

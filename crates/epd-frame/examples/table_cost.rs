@@ -118,6 +118,9 @@ fn main() {
     let max = epd_core::calibration::MAX_TABLE_BINS;
     let tables = [
         ("real 30 × 12", real.clone()),
+        // The same values on as few bins: what the fit costs on a frame corrected by a
+        // table without a range dependence (other data, not the table's size).
+        ("1 × 12", resampled(&real, 1, 12)),
         ("1024 × 1024", resampled(&real, 1024, 1024)),
         ("30 × 34952", resampled(&real, 30, max / 30)),
         ("34952 × 30", resampled(&real, max / 30, 30)),

@@ -71,7 +71,8 @@ impl RigSettings {
             || bins.is_none_or(|b| b > MAX_TABLE_BINS)
         {
             return usage(format!(
-                "--range-bins {} × --intensity-bins {}: need at least 1 each, at most 2²⁰ bins",
+                "--range-bins {} × --intensity-bins {}: need at least 1 each, at most \
+                 {MAX_TABLE_BINS} (2²⁰) bins",
                 self.range_bins, self.intensity_bins
             ));
         }

@@ -502,7 +502,9 @@ impl Scalar {
     }
 }
 
-/// The most header lines PLY and PCD headers may have.
+/// The most header lines PLY and PCD headers may have: a camera's PLY has about 15 (a
+/// few properties and comments), so 10 000 leaves room for any real header and bounds
+/// the work on a crafted one.
 pub(crate) const MAX_HEADER_LINES: usize = 10_000;
 
 /// Split off the header (up to and including the line `end`), returning its lines and the
@@ -535,6 +537,15 @@ pub(crate) fn split_header<'a>(
         if done {
             return Ok((lines, rest));
         }
+    }
+    if lines.len() >= MAX_HEADER_LINES {
+        return Err(err(
+            format,
+            format!(
+                "the header has more than {MAX_HEADER_LINES} lines (elements, properties, \
+                 comments), the most the readers accept: not a point cloud's header"
+            ),
+        ));
     }
     Err(err(format, "the header never ends (truncated file?)"))
 }

@@ -122,6 +122,22 @@ fn ply_vertex_count_1e12_with_a_36_byte_body() {
     );
 }
 
+/// 200 000 properties (issue 27: "header never ends (truncated?)"): the limit is named.
+#[test]
+fn ply_header_of_200000_properties_names_the_line_limit() {
+    let mut b = b"ply\nformat binary_little_endian 1.0\nelement vertex 1\n".to_vec();
+    for k in 0..200_000 {
+        b.extend_from_slice(format!("property float p{k}\n").as_bytes());
+    }
+    b.extend_from_slice(b"end_header\n");
+    expect_error(
+        "props.ply",
+        &b,
+        Some(Format::Ply),
+        &["more than 10000 lines", "the most the readers accept"],
+    );
+}
+
 #[test]
 fn ply_vertex_count_2_pow_63() {
     expect_error(

@@ -43,40 +43,104 @@ impl Default for PoseRanges {
     }
 }
 
-impl PoseRanges {
-    /// Check every range; the error names the first bad one.
-    pub fn validate(&self) -> Result<(), SimError> {
-        let check = |field: &'static str, (lo, hi): (f64, f64), limit: f64| {
-            if lo.is_finite()
-                && hi.is_finite()
-                && lo <= hi
-                && lo.abs() <= limit
-                && hi.abs() <= limit
-            {
-                Ok(())
-            } else {
-                Err(SimError::invalid(
-                    field,
-                    format!("[{lo}, {hi}]"),
-                    "must be a finite range [lo, hi] with lo ≤ hi",
-                ))
-            }
+/// The largest pitch, yaw or tilt (rad): just under 90°, where the pipe's axis would be
+/// perpendicular to the sensor's X axis and the model's cross-section (eq. 3) degenerates.
+const MAX_TILT: f64 = 0.5 * std::f64::consts::PI - 1e-6;
+
+const ROLL_RULE: &str = "must be a range [lo, hi] with lo ≤ hi within [−360°, 360°]";
+const PITCH_RULE: &str = "must be a range [lo, hi] with lo ≤ hi within (−90°, 90°): at ±90° the \
+                          pipe's axis is perpendicular to the sensor's X axis";
+const YAW_RULE: &str = PITCH_RULE;
+const TILT_RULE: &str = "must be an angle or a range [lo, hi] with lo ≤ hi within [0°, 90°): at \
+                         90° the pipe's axis is perpendicular to the sensor's X axis, which then \
+                         sees no pipe ahead";
+const OFFSET_RULE: &str = "must be a finite range [lo, hi] with lo ≤ hi";
+
+/// The unit a range is given in, in a scenario.
+#[derive(Clone, Copy)]
+enum Unit {
+    Degrees,
+    Millimetres,
+}
+
+/// An error naming `field` (values in `unit`) unless `lo`, `hi` are finite, lo ≤ hi, and
+/// both lie in [min, max] (in SI units); `rule` says what a valid range is.
+fn check_range(
+    field: &'static str,
+    (lo, hi): (f64, f64),
+    unit: Unit,
+    min: f64,
+    max: f64,
+    rule: &'static str,
+) -> Result<(), SimError> {
+    if lo.is_finite() && hi.is_finite() && lo <= hi && lo >= min && hi <= max {
+        return Ok(());
+    }
+    // In the scenario's units, rounded to what a person wrote (to_radians and back
+    // leaves 90.00000000000001).
+    let shown = |v: f64| {
+        let v = match unit {
+            Unit::Degrees => v.to_degrees(),
+            Unit::Millimetres => v * 1e3,
         };
+        let r = (v * 1e9).round() / 1e9;
+        if r.is_finite() { r } else { v }
+    };
+    let value = if lo == hi || (lo.is_nan() && hi.is_nan()) {
+        format!("{}", shown(lo))
+    } else {
+        format!("[{}, {}]", shown(lo), shown(hi))
+    };
+    Err(SimError::invalid(field, value, rule))
+}
+
+impl PoseRanges {
+    /// Check every range; the error names the first bad one, its values in the
+    /// scenario's units (degrees, mm) and the rule it breaks.
+    pub fn validate(&self) -> Result<(), SimError> {
         let pi = std::f64::consts::PI;
-        check("poses.roll_deg", self.roll, 2.0 * pi)?;
-        check("poses.pitch_deg", self.pitch, 0.5 * pi - 1e-6)?;
-        check("poses.yaw_deg", self.yaw, 0.5 * pi - 1e-6)?;
-        check("poses.dy_mm", self.dy, f64::MAX)?;
-        check("poses.dz_mm", self.dz, f64::MAX)?;
+        check_range(
+            "poses.roll_deg",
+            self.roll,
+            Unit::Degrees,
+            -2.0 * pi,
+            2.0 * pi,
+            ROLL_RULE,
+        )?;
+        check_range(
+            "poses.pitch_deg",
+            self.pitch,
+            Unit::Degrees,
+            -MAX_TILT,
+            MAX_TILT,
+            PITCH_RULE,
+        )?;
+        check_range(
+            "poses.yaw_deg",
+            self.yaw,
+            Unit::Degrees,
+            -MAX_TILT,
+            MAX_TILT,
+            YAW_RULE,
+        )?;
+        check_range(
+            "poses.dy_mm",
+            self.dy,
+            Unit::Millimetres,
+            f64::MIN,
+            f64::MAX,
+            OFFSET_RULE,
+        )?;
+        check_range(
+            "poses.dz_mm",
+            self.dz,
+            Unit::Millimetres,
+            f64::MIN,
+            f64::MAX,
+            OFFSET_RULE,
+        )?;
         if let Some(t) = self.tilt {
-            check("poses.tilt_deg", t, 0.5 * pi - 1e-6)?;
-            if t.0 < 0.0 {
-                return Err(SimError::invalid(
-                    "poses.tilt_deg",
-                    format!("[{}, {}]", t.0, t.1),
-                    "must lie in [0°, 90°)",
-                ));
-            }
+            check_range("poses.tilt_deg", t, Unit::Degrees, 0.0, MAX_TILT, TILT_RULE)?;
         }
         Ok(())
     }

@@ -78,9 +78,10 @@ pub const MAX_SWEEP_VALUES: usize = 10_000;
 pub const MAX_SENSOR_SIDE: u32 = 4096;
 /// Largest subsample (`points`).
 pub const MAX_POINTS: usize = 10_000_000;
-/// Smallest subsample (`points`): the seven parameters need seven points.
-pub const MIN_POINTS: usize = 7;
-/// Largest scenario file (bytes): a 10 000-value sweep takes about 60 KB.
+/// Smallest subsample (`points`): the estimators' minimum
+/// ([`epd_core::init::MIN_ESTIMATE_POINTS`], nine for the initial guess's quadric), so
+/// that a subsample the scenario accepts is one the estimators take.
+pub const MIN_POINTS: usize = epd_core::init::MIN_ESTIMATE_POINTS;
 /// Most estimates in one run: trials × swept values × methods.
 pub const MAX_ESTIMATES: usize = 100_000_000;
 

@@ -483,6 +483,10 @@ impl DepthTable {
     ) -> usize {
         const CHUNK: usize = 4096;
         let inverse = self.inverse();
+        // A table of more bins than the inverse's cells: its spreads on a grid of as
+        // many, so that a point's σ is not a cache miss in a table of megabytes.
+        let coarse = sigma.is_some().then(|| self.coarse_spreads()).flatten();
+        let spreads = coarse.as_ref().unwrap_or(self);
         let one = |ps: &mut [[f64; 3]], is: &[f64], mut ss: Option<&mut [f64]>| {
             let mut moved = 0;
             for (k, (p, &i)) in ps.iter_mut().zip(is).enumerate() {
@@ -501,7 +505,7 @@ impl DepthTable {
                 *p = [p[0] * f, p[1] * f, p[2] * f];
                 moved += 1;
                 if let Some(s) = ss.as_deref_mut() {
-                    s[k] = self.interpolate(&self.spread_m, r * f, li);
+                    s[k] = spreads.interpolate(&spreads.spread_m, r * f, li);
                 }
             }
             moved
@@ -521,12 +525,48 @@ impl DepthTable {
         }
     }
 
+    /// The table's spreads on a grid of at most [`MAX_INVERSE_CELLS`] bins over the same
+    /// axes (at most [`MAX_INVERSE_COLUMNS`] intensity bins), each the table's
+    /// interpolated spread at its centre; `None` when the table has no more bins than
+    /// that (its own spreads are then used).
+    fn coarse_spreads(&self) -> Option<DepthTable> {
+        if self.spread_m.len() <= MAX_INVERSE_CELLS {
+            return None;
+        }
+        let ni = self.log_intensity.n.min(MAX_INVERSE_COLUMNS);
+        let nr = self.range.n.min(MAX_INVERSE_CELLS / ni);
+        let range = Axis {
+            n: nr,
+            ..self.range
+        };
+        let log_intensity = Axis {
+            n: ni,
+            ..self.log_intensity
+        };
+        let (rw, lw) = (range.width(), log_intensity.width());
+        let spread_m = (0..nr * ni)
+            .into_par_iter()
+            .map(|k| {
+                let r = range.lo + ((k / ni) as f64 + 0.5) * rw;
+                let li = log_intensity.lo + ((k % ni) as f64 + 0.5) * lw;
+                self.interpolate(&self.spread_m, r, li)
+            })
+            .collect();
+        Some(DepthTable {
+            range,
+            log_intensity,
+            offset_m: Vec::new(),
+            spread_m,
+            count: Vec::new(),
+        })
+    }
+
     /// [`true_range`](Self::true_range) tabulated once for a whole frame: at
     /// INVERSE_STEPS nodes per range bin over the measured ranges the table can produce,
     /// for each intensity bin centre; a point then costs one bilinear interpolation.
     /// The grid has at most [`MAX_INVERSE_CELLS`] cells: a finer table is tabulated at
     /// [`MAX_INVERSE_COLUMNS`] intensities evenly over its axis and as many range nodes
-    /// as the cells allow (at least 1024), so a frame's cost does not grow with the
+    /// as the cells allow (at least 256), so a frame's cost does not grow with the
     /// table's bins.
     pub(super) fn inverse(&self) -> Inverse {
         let columns = Axis {
@@ -625,17 +665,17 @@ pub const MAX_TABLE_BINS: usize = 1 << 20;
 pub const MIN_AXIS_SPAN: f64 = 1e-3;
 
 /// The most cells (range nodes × intensity columns) of the tabulated inverse that
-/// corrects a frame: 2¹⁶. Building it solves the fixed point (2–8 interpolations) per
+/// corrects a frame: 2¹⁴. Building it solves the fixed point (2–8 interpolations) per
 /// cell, a few ms, a fraction of the correction of a 640 × 480 frame; `epd calibrate`'s
-/// default 30 × 12 table needs about 270 × 12 cells, a 200 × 40 one 1 616 × 40. A table
-/// that would need more is tabulated on a coarser grid ([`MAX_INVERSE_COLUMNS`]
-/// intensities, at least 1 024 range nodes): its correction has that grid's resolution
-/// (a node every 1.6 mm over a 1.5 m axis), and a frame's cost stays that of a real table
-/// whatever its bins (`cargo run --release -p epd-frame --example table_cost`).
-pub const MAX_INVERSE_CELLS: usize = 1 << 16;
+/// default 30 × 12 table needs about 270 × 12 cells. A table that would need more is
+/// tabulated on a coarser grid ([`MAX_INVERSE_COLUMNS`] intensities at most, and at
+/// least 256 range nodes: a node every 6 mm over a 1.5 m axis, as the default table's
+/// 8 nodes a 5 cm bin), so a frame's cost stays about that of a real table whatever the
+/// table's bins (`cargo run --release -p epd-frame --example table_cost`).
+pub const MAX_INVERSE_CELLS: usize = 1 << 14;
 
 /// The most intensity columns of the tabulated inverse: 64 (a table's default is 12),
-/// leaving at least 1 024 range nodes within [`MAX_INVERSE_CELLS`].
+/// leaving at least 256 range nodes within [`MAX_INVERSE_CELLS`].
 pub const MAX_INVERSE_COLUMNS: usize = 64;
 
 /// Nodes per range bin of the tabulated inverse (see [`DepthTable::correct`]).

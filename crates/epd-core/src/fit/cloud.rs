@@ -4,6 +4,8 @@ use std::borrow::Cow;
 
 use rayon::prelude::*;
 
+use crate::error::EpdError;
+
 /// Measured points (SCS, m) with the unusable ones removed.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct CleanCloud<'a> {
@@ -11,6 +13,40 @@ pub struct CleanCloud<'a> {
     pub points: Cow<'a, [[f64; 3]]>,
     /// How many input points were dropped.
     pub dropped: usize,
+}
+
+/// The farthest a measured point may lie from the sensor (m): 1 km. A continuous-wave
+/// ToF camera measures within its unambiguous range c/(2f), 15 m at the lowest modulation
+/// frequency in use (10 MHz); pulsed ones reach tens of metres. A point 70× beyond that
+/// is not a return: a damaged file or a unit error (1e30 m, 1e300 m). Such points made
+/// the fit fail with "no step lowers the cost" or "points lie on a plane"; they are now
+/// refused by name ([`check_ranges`]).
+pub const MAX_POINT_RANGE_M: f64 = 1000.0;
+
+/// An error naming the points farther than [`MAX_POINT_RANGE_M`] from the sensor (how
+/// many, the first one's index and distance); non-finite points are not looked at (they
+/// are dropped as invalid pixels).
+pub fn check_ranges(points: &[[f64; 3]]) -> Result<(), EpdError> {
+    let far = |p: &[f64; 3]| {
+        let r2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
+        // r² overflows to +inf beyond 1.3e154 m: still far.
+        p.iter().all(|v| v.is_finite()) && r2 > MAX_POINT_RANGE_M * MAX_POINT_RANGE_M
+    };
+    let count = points.par_iter().filter(|p| far(p)).count();
+    if count == 0 {
+        return Ok(());
+    }
+    let index = points.iter().position(far).unwrap_or(0);
+    let p = points[index];
+    // The norm without overflow: scaled by the largest coordinate.
+    let m = p.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    let range_m = m * ((p[0] / m).powi(2) + (p[1] / m).powi(2) + (p[2] / m).powi(2)).sqrt();
+    Err(EpdError::FarPoints {
+        count,
+        index,
+        range_m,
+        limit_m: MAX_POINT_RANGE_M,
+    })
 }
 
 fn usable(p: &[f64; 3]) -> bool {

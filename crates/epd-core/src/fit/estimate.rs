@@ -8,7 +8,7 @@ use nalgebra::{SMatrix, SVector};
 use rayon::prelude::*;
 
 use crate::check::{Diagnostics, FitStatus, assess};
-use crate::cloud::{CleanWeighted, clean, clean_weighted};
+use crate::cloud::{CleanWeighted, check_ranges, clean, clean_weighted};
 use crate::error::EpdError;
 use crate::fit::form::{FORM_AXIAL_CELLS, form_test};
 use crate::init::initial_guess;
@@ -294,7 +294,9 @@ impl Estimate {
 
 /// Estimate β from measured points (SCS, m) with `method`.
 ///
-/// Non-finite points and points at the origin are dropped and counted. The fit starts
+/// Non-finite points and points at the origin are dropped and counted; points farther
+/// than [`MAX_POINT_RANGE_M`](crate::cloud::MAX_POINT_RANGE_M) from the sensor are an
+/// error ([`EpdError::FarPoints`]). The fit starts
 /// from [`initial_guess`]; with more than `stage_points` points it first converges on a
 /// strided subsample, then iterates on all points. ML-EPD starts from the RU-EPD
 /// estimate: its cost has poles where the model axis crosses a measured ray, and started
@@ -308,6 +310,7 @@ pub fn estimate(
     method: Method,
     options: &EstimateOptions,
 ) -> Result<Estimate, EpdError> {
+    check_ranges(points)?;
     let cloud = clean(points);
     let view = View {
         points: &cloud.points,
@@ -345,6 +348,7 @@ pub fn estimate_weighted(
             points.len()
         )));
     }
+    check_ranges(points)?;
     let (cloud, scales, _) = weighted_cloud(points, sigma);
     let view = View {
         points: &cloud.points,

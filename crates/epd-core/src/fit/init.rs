@@ -75,13 +75,18 @@ const PULL_INSIDE: f64 = 0.9;
 /// radius) and still be pulled inside; beyond, the points are not a pipe around it.
 const MAX_OUTSIDE: f64 = 1.5;
 
+/// The fewest usable points an estimate takes: the initial guess fits a quadric of nine
+/// coefficients to the points (step 1 of the module doc), which needs at least nine;
+/// the fit itself needs seven, one per parameter.
+pub const MIN_ESTIMATE_POINTS: usize = 9;
+
 /// The initial guess (see the module doc). `points` are finite, non-zero SCS points.
 pub fn initial_guess(points: &[[f64; 3]]) -> Result<Params, EpdError> {
-    if points.len() < 9 {
+    if points.len() < MIN_ESTIMATE_POINTS {
         return Err(EpdError::TooFewPoints {
             usable: points.len(),
             dropped: 0,
-            needed: 9,
+            needed: MIN_ESTIMATE_POINTS,
         });
     }
     let stride = points.len().div_ceil(MAX_SAMPLE).max(1);

@@ -511,6 +511,7 @@ pub fn segment(
     seg: &SegmentOptions,
 ) -> Result<Segmentation, EpdError> {
     seg.validate()?;
+    crate::cloud::check_ranges(points)?;
     let cloud = clean(points);
     let pts: &[[f64; 3]] = &cloud.points;
     // The fits run on the clean points: an error counts the invalid ones as dropped, as

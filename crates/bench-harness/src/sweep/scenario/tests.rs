@@ -113,7 +113,10 @@ fn limits_name_the_key_the_value_and_the_limit() {
             &["`sensor.width` = 4097", "[1, 4096]"],
         ),
         ("[sensor]\nheight = -1", &["`sensor.height` = -1"]),
-        ("points = 6", &["`points` = 6", "[7, 10000000]"]),
+        ("points = 6", &["`points` = 6", "[9, 10000000]"]),
+        // Issue 27: 7 and 8 passed, and then every trial failed "at least 9 are needed".
+        ("points = 7", &["`points` = 7", "[9, 10000000]"]),
+        ("points = 8", &["`points` = 8", "[9, 10000000]"]),
         ("points = 1e7", &["`points` = 10000000.0 (a float)"]),
     ] {
         let e = parse(&format!("name = \"x\"\n{src}\n"))
@@ -123,7 +126,7 @@ fn limits_name_the_key_the_value_and_the_limit() {
             assert!(e.contains(n), "{src}: `{n}` not in {e}");
         }
     }
-    let s = parse("name = \"x\"\ntrials = 1000000\npoints = 7\n[sensor]\nwidth = 4096\n").unwrap();
+    let s = parse("name = \"x\"\ntrials = 1000000\npoints = 9\n[sensor]\nwidth = 4096\n").unwrap();
     assert_eq!(s.trials, MAX_TRIALS);
     assert!(s.check_trials("--trials", 100).is_ok());
     let e = s
@@ -142,4 +145,34 @@ fn limits_name_the_key_the_value_and_the_limit() {
         e.contains("120000000 estimates") && e.contains("100000000"),
         "{e}"
     );
+}
+
+/// A tilt of 90° is named in degrees with the real reason (issue 27: radians, and "must be
+/// a finite range [lo, hi] with lo ≤ hi").
+#[test]
+fn angles_are_refused_in_degrees_with_the_reason() {
+    for (src, needles) in [
+        (
+            "[poses]\ntilt_deg = 90",
+            &["poses.tilt_deg", "= 90:", "[0°, 90°)", "perpendicular"][..],
+        ),
+        ("[poses]\ntilt_deg = [10, 95]", &["[10, 95]", "[0°, 90°)"]),
+        ("[poses]\ntilt_deg = -1", &["= -1:", "[0°, 90°)"]),
+        (
+            "[poses]\npitch_deg = [-5, 90]",
+            &["poses.pitch_deg", "[-5, 90]", "(−90°, 90°)"],
+        ),
+        (
+            "[poses]\nroll_deg = [0, 400]",
+            &["poses.roll_deg", "[0, 400]", "[−360°, 360°]"],
+        ),
+    ] {
+        let e = parse(&format!("name = \"x\"\n{src}\n"))
+            .unwrap_err()
+            .to_string();
+        for n in needles {
+            assert!(e.contains(n), "{src}: `{n}` not in {e}");
+        }
+        assert!(!e.contains("1.57"), "{src}: radians in {e}");
+    }
 }
