@@ -109,20 +109,27 @@ pub struct CodeVersion {
 }
 
 impl CodeVersion {
-    /// The code of this process.
+    /// The code of this process (found once: the running program does not change, and
+    /// hashing it takes a read of the whole executable).
     pub fn current() -> Self {
-        // /proc/self/exe opens the running program even when its file has been replaced
-        // since it started (a rebuild during a long shard); the path is the fallback.
-        let executable_sha256 = File::open("/proc/self/exe")
-            .or_else(|_| std::env::current_exe().and_then(File::open))
-            .ok()
-            .and_then(|f| sha256_of(f).ok());
-        Self {
-            crate_version: env!("CARGO_PKG_VERSION").to_string(),
-            git_commit: git_provenance().0,
-            profile: profile().to_string(),
-            executable_sha256,
-        }
+        static CURRENT: std::sync::OnceLock<CodeVersion> = std::sync::OnceLock::new();
+        CURRENT
+            .get_or_init(|| {
+                // /proc/self/exe opens the running program even when its file has been
+                // replaced since it started (a rebuild during a long shard); the path is
+                // the fallback.
+                let executable_sha256 = File::open("/proc/self/exe")
+                    .or_else(|_| std::env::current_exe().and_then(File::open))
+                    .ok()
+                    .and_then(|f| sha256_of(f).ok());
+                Self {
+                    crate_version: env!("CARGO_PKG_VERSION").to_string(),
+                    git_commit: git_provenance().0,
+                    profile: profile().to_string(),
+                    executable_sha256,
+                }
+            })
+            .clone()
     }
 }
 

@@ -32,10 +32,11 @@ use super::summary::{SummaryRow, summarise};
 use crate::output::{
     CsvFile, INTERRUPTED, Interrupted, MANIFEST_FILE, RECORDS_FILE, StagedFiles, write_run,
 };
-use crate::provenance::{CodeVersion, Metadata, scenario_sha256, sha256_of};
+use crate::provenance::{CodeVersion, Metadata, hex, scenario_sha256, sha256_of};
 use crate::scenario::MAX_SCENARIO_BYTES;
 pub use check::MergeError;
 use check::{check_shards, open_regular, read_capped, read_manifest};
+use sha2::{Digest, Sha256};
 
 mod check;
 
@@ -208,6 +209,7 @@ pub fn merge(dirs: &[PathBuf], options: &MergeOptions) -> anyhow::Result<RunRepo
     let shards: Vec<(&PathBuf, &ShardManifest)> =
         order.iter().map(|&i| (&dirs[i], &manifests[i])).collect();
     for (dir, m) in &shards {
+        verify_scenario(dir, m)?;
         verify_records(dir, m, &methods)?;
     }
     let staged = write_run(&options.out, |dir| {
@@ -219,6 +221,27 @@ pub fn merge(dirs: &[PathBuf], options: &MergeOptions) -> anyhow::Result<RunRepo
         wall_time_s: staged.wall_time_s,
         trial_errors: staged.trial_errors,
     })
+}
+
+/// Check that a shard's `scenario.toml` is the scenario its manifest names (its SHA-256):
+/// every shard's, not only the one the merge reads.
+fn verify_scenario(dir: &Path, m: &ShardManifest) -> Result<(), MergeError> {
+    let damaged = |why: String| MergeError::Damaged {
+        dir: dir.to_path_buf(),
+        why,
+    };
+    let text = match read_capped(&dir.join("scenario.toml"), MAX_SCENARIO_BYTES) {
+        Ok(Some(b)) => b,
+        Ok(None) => return Err(damaged("scenario.toml is too large".into())),
+        Err(e) => return Err(damaged(format!("cannot read scenario.toml: {e}"))),
+    };
+    if hex(&Sha256::digest(&text)) != m.scenario_sha256 {
+        return Err(damaged(format!(
+            "scenario.toml is not the scenario the shard ran (its sha256 differs from \
+             {MANIFEST_FILE}'s)"
+        )));
+    }
+    Ok(())
 }
 
 /// Check a shard's records against its manifest before anything is merged: its
