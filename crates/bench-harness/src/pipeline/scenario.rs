@@ -135,6 +135,10 @@ fn parse_route(
     Ok(route)
 }
 
+/// The most frames between sections in a run: 10⁵, 20 km of pipe at the default 0.2 m
+/// spacing, days of simulation on this machine; the plan of a run stays a few MB.
+pub const MAX_TRANSIT_FRAMES: usize = 100_000;
+
 impl PipelineScenario {
     /// Check a pipeline scenario given as text (`path` names it in errors).
     pub fn parse(path: &Path, source: &str) -> Result<Self, ScenarioError> {
@@ -187,8 +191,36 @@ impl PipelineScenario {
             source: source.to_string(),
             path: path.to_path_buf(),
         };
+        scenario.check_transit_frames()?;
         scenario.check_sensor_inside(p)?;
         Ok(scenario)
+    }
+
+    /// The frames between sections (recorded through the fittings every
+    /// `frame_spacing_m`) are at most [`MAX_TRANSIT_FRAMES`] in all, counted before any
+    /// is planned: sections 10³⁰⁰ m apart, or a spacing of 10⁻³⁰⁰ m, would plan frames
+    /// until the memory runs out.
+    fn check_transit_frames(&self) -> Result<(), KeyError> {
+        let spacing = self.frame_spacing_m;
+        let mut total = 0.0;
+        for pair in self.sections.windows(2) {
+            let last = pair[0].start_m + (self.frames_per_section as f64 - 1.0) * spacing;
+            let gap = (pair[1].start_m - last) / spacing;
+            if gap > 0.0 {
+                total += gap.ceil();
+            }
+        }
+        if !(total <= MAX_TRANSIT_FRAMES as f64) {
+            return Err(key_err(
+                "pipeline.frame_spacing_m",
+                format!(
+                    "= {spacing}: {total:e} frames between the sections at this spacing; at \
+                     most {MAX_TRANSIT_FRAMES} (move the sections closer, or space the \
+                     frames wider)"
+                ),
+            ));
+        }
+        Ok(())
     }
 
     /// Every pose along the way (the rig's frames, then the run's) must leave the sensor

@@ -270,3 +270,21 @@ fn parse_refuses_fittings_naming_key_and_reason() {
         refused(&source, &format!("pipeline.fitting[{k}].{field}"), reason);
     }
 }
+
+/// Sections far apart or frames spaced finely plan more frames between the sections than
+/// a run can hold (found by the fuzz suite: 14.7 GB planned for one mutated scenario).
+#[test]
+fn frames_between_sections_are_counted_before_they_are_planned() {
+    refused(
+        &set("start_m = 10.0", "start_m = 1e300"),
+        "pipeline.frame_spacing_m",
+        "at most 100000",
+    );
+    refused(
+        &pipeline("frame_spacing_m = 1e-300"),
+        "pipeline.frame_spacing_m",
+        "at most 100000",
+    );
+    // 10 m at the default 0.2 m: within the limit.
+    assert!(PipelineScenario::parse(Path::new("p.toml"), OK).is_ok());
+}
