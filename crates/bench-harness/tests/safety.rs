@@ -475,7 +475,7 @@ fn limits_are_checked_before_anything_is_written() {
             "points = 100000000\n",
             &["`points` = 100000000", "10000000"],
         ),
-        ("points = 3\n", &["`points` = 3", "[7, "]),
+        ("points = 3\n", &["`points` = 3", "[9, "]),
         ("points = 3.5\n", &["`points` = 3.5", "float"]),
         (
             "trials = 1000000\nmethods = [\"c-epd\", \"ru-epd\", \"ml-epd\"]\n\
