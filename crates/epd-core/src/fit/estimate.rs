@@ -804,15 +804,13 @@ const CELL_EDGE_POINTS: usize = 4096;
 /// (by where their sensing lines meet the wall, [`wall_point_pcs`]) times
 /// [`CLOCK_SECTORS`] sectors.
 pub(crate) fn wall_cells(points: &[[f64; 3]], beta: &Params, axial: usize) -> Cells {
-    let rot = beta.rotation();
-    let m = *rot.matrix();
     let stride = points.len().div_ceil(CELL_EDGE_POINTS).max(1);
     let mut x: Vec<f64> = match Geometry::new(beta) {
         None => Vec::new(),
         Some(geom) => points
             .iter()
             .step_by(stride)
-            .map(|p| wall_point_pcs(&geom, &m, beta, p)[0])
+            .map(|p| wall_point_pcs(&geom, p)[0])
             .filter(|v| v.is_finite())
             .collect(),
     };
