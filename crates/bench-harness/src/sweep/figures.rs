@@ -330,8 +330,60 @@ fn crb_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
     )
 }
 
+/// `coverage.png`: how often the reported ±1.96σ̂ interval covered the true Dmax, Dmin
+/// and mean diameter, per swept value (the nominal 0.95 dashed): a 1-σ that holds gives
+/// 0.95 within the binomial standard error √(0.95·0.05/trials) of the count.
+fn coverage_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
+    let quantities = [
+        ("dmax", "Dmax"),
+        ("dmin", "Dmin"),
+        ("dmean", "mean diameter"),
+    ];
+    let cov: Pick = |r| Some((r.coverage95?, f64::NAN, f64::NAN));
+    let nominal: Pick = |r| r.coverage95.map(|_| (0.95, f64::NAN, f64::NAN));
+    let series: Vec<Vec<Series>> = quantities
+        .iter()
+        .map(|(q, _)| {
+            let mut v = Vec::new();
+            if let Some(m) = sw.methods.first() {
+                v.push(Series {
+                    name: "nominal 0.95".into(),
+                    colour: REFERENCE,
+                    points: sw.points(q, m, nominal),
+                    bars: false,
+                    marker_triangle: false,
+                    dashed: true,
+                });
+            }
+            v.extend(sw.series(q, false, cov));
+            v
+        })
+        .collect();
+    let panels: Vec<Panel<'_>> = quantities
+        .iter()
+        .zip(&series)
+        .map(|((_, t), s)| Panel {
+            title: (*t).into(),
+            y_label: "coverage of ±1.96σ̂".into(),
+            series: s,
+        })
+        .collect();
+    render(
+        sw.figure(
+            "coverage.png",
+            format!(
+                "{}: share of trials whose ±1.96σ̂ interval holds the truth",
+                sw.name
+            ),
+            (1, 3),
+            Axis { log: false },
+        ),
+        &panels,
+    )
+}
+
 /// Every figure of a sweep, in [`crate::output::RUN_FILES`] order: `diameter_error.png`,
-/// `dmean_error.png`, `pose_error.png`, `time.png`, `std_vs_crb.png`.
+/// `dmean_error.png`, `pose_error.png`, `time.png`, `std_vs_crb.png`, `coverage.png`.
 pub fn plot_all(scenario: &Scenario, summary: &[SummaryRow]) -> anyhow::Result<Vec<Png>> {
     let sw = Sweep::new(scenario, summary);
     Ok(vec![
@@ -340,6 +392,7 @@ pub fn plot_all(scenario: &Scenario, summary: &[SummaryRow]) -> anyhow::Result<V
         pose_figure(&sw)?,
         time_figure(&sw)?,
         crb_figure(&sw)?,
+        coverage_figure(&sw)?,
     ])
 }
 
