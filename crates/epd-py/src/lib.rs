@@ -207,8 +207,9 @@ fn parse_frame(frame: &str) -> PyResult<InputFrame> {
     match frame {
         "sensor" => Ok(InputFrame::Sensor),
         "optical" => Ok(InputFrame::Optical),
+        "body" => Ok(InputFrame::Body),
         other => Err(PyValueError::new_err(format!(
-            "frame={other:?}: expected \"sensor\" or \"optical\""
+            "frame={other:?}: expected \"sensor\", \"optical\" or \"body\" (ROS REP 103)"
         ))),
     }
 }
@@ -230,7 +231,7 @@ enum Input<'py> {
 /// `points` is an (N, 3) array (float64 C-contiguous arrays are read in place; other
 /// real arrays are converted once) or the path of a PLY/PCD/CSV/XYZ file. The other
 /// arguments are those of `epd estimate`: `method` ("ml-epd", "ru-epd", "c-epd"),
-/// `units` ("m", "mm"), `frame` ("sensor", "optical"), `loss` ("cauchy", "huber",
+/// `units` ("m", "mm"), `frame` ("sensor", "optical", "body": ROS REP 103), `loss` ("cauchy", "huber",
 /// "none"; `None` is "none"), `loss_scale` (m; `None`: from the residuals),
 /// `min_range`/`max_range` (m), `calibration` (a depth-table JSON file; needs
 /// `intensity`, one per point, or a file with an `intensity` property),
@@ -597,6 +598,7 @@ mod tests {
     fn names_of_units_and_frames() {
         assert_eq!(parse_units("mm").ok(), Some(Units::Millimetres));
         assert_eq!(parse_frame("optical").ok(), Some(InputFrame::Optical));
+        assert_eq!(parse_frame("body").ok(), Some(InputFrame::Body));
         Python::initialize();
         Python::attach(|py| {
             let e = parse_units("km").unwrap_err();
