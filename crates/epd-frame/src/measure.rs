@@ -56,6 +56,10 @@ pub fn measure_file(path: &Path, cfg: &EstimateConfig) -> FileReport {
     };
     FileReport {
         file,
+        file_bytes: path
+            .to_str()
+            .is_none()
+            .then(|| path.as_os_str().as_encoded_bytes().to_vec()),
         outcome: run(),
     }
 }

@@ -341,7 +341,7 @@ pub fn write_file_atomic(
         write(out.writer())?;
         out.commit()
     };
-    run().map_err(|e| WriteError::io(path.display().to_string(), e))
+    run().map_err(|e| WriteError::io(crate::name::shown(path), e))
 }
 
 /// [`write_file_atomic`] of bytes.

@@ -68,7 +68,11 @@ pub fn escape_controls(text: &str) -> Cow<'_, str> {
 /// A path as shown to people (see the module): UTF-8 with control characters escaped,
 /// each byte that is not UTF-8 as `\xNN`.
 pub fn shown(path: &Path) -> String {
-    let bytes = path.as_os_str().as_encoded_bytes();
+    shown_bytes(path.as_os_str().as_encoded_bytes())
+}
+
+/// A name's bytes as shown to people: [`shown`] of bytes.
+pub fn shown_bytes(bytes: &[u8]) -> String {
     let mut out = String::with_capacity(bytes.len());
     for chunk in bytes.utf8_chunks() {
         out.push_str(&escape_controls(chunk.valid()));
@@ -85,11 +89,16 @@ pub fn bytes_hex(path: &Path) -> Option<String> {
     if std::str::from_utf8(bytes).is_ok() {
         return None;
     }
+    Some(hex(bytes))
+}
+
+/// Bytes as lowercase hex, two digits each.
+pub fn hex(bytes: &[u8]) -> String {
     let mut hex = String::with_capacity(2 * bytes.len());
     for b in bytes {
         let _ = write!(hex, "{b:02x}");
     }
-    Some(hex)
+    hex
 }
 
 #[cfg(test)]

@@ -353,7 +353,7 @@ fn estimate_file_dict<'py>(
         })
         .map_err(|f| f.into_py_err())?;
     match &report.outcome {
-        Ok(_) => fields_dict(py, &report.fields(), false),
+        Ok(_) => fields_dict(py, &report.keyed_fields(), false),
         Err(msg) => Err(file_error(path, msg.clone())),
     }
 }
@@ -390,9 +390,10 @@ fn estimate_array_dict<'py>(
         .map_err(|f| f.into_py_err())?;
     let report = FileReport {
         file: String::new(),
+        file_bytes: None,
         outcome: Ok(outcome),
     };
-    fields_dict(py, &report.fields(), true)
+    fields_dict(py, &report.keyed_fields(), true)
 }
 
 /// An error found with the GIL released, turned into a Python exception afterwards.
