@@ -532,11 +532,11 @@ fn run_interruptible<R: Send, E: Send>(
     })
 }
 
-/// Working memory of an estimate beyond its input, per point (bytes): the cleaned copy
-/// of the points and the survey's and solver's per-point arrays. Measured: peak RSS of
-/// `epd.estimate` on 10⁷ simulated points less the input array, divided by 10⁷ (see
-/// tests/test_resources.py), rounded up.
-pub const WORKING_BYTES_PER_POINT: usize = 64;
+/// Working memory of an estimate beyond its input, per point (bytes): the survey's and
+/// the solver's per-point arrays. Measured: 37.1 bytes (peak RSS of `epd.estimate` on 10⁷
+/// simulated points, 642 MB, less the 240 MB input and the interpreter's 31 MB, over 10⁷);
+/// reserved with a third more. tests/test_resources.py checks the measurement stays below.
+pub const WORKING_BYTES_PER_POINT: usize = 48;
 
 /// Reserve (and give back) the working memory an estimate of `n` points will need, so
 /// that running out of memory raises `MemoryError` before the fit instead of aborting
