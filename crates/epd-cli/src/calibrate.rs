@@ -142,8 +142,8 @@ pub fn run_calibrate(a: &CalibrateArgs) -> anyhow::Result<ExitCode> {
         print_skipped(&failed);
         anyhow::bail!("no frame could be read: no table written to {out}");
     }
-    let rig = calibrate_rig(&frames, &settings)
-        .with_context(|| format!("no table written to {out}"))?;
+    let rig =
+        calibrate_rig(&frames, &settings).with_context(|| format!("no table written to {out}"))?;
     // The table first: a diagnostic that cannot be written (a closed standard error)
     // never costs the output.
     epd_io::atomic::write_bytes_atomic(&a.out, rig.table.to_json().as_bytes())?;

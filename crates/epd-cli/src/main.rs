@@ -65,7 +65,8 @@ pub(crate) fn usage(msg: impl Into<String>) -> anyhow::Error {
 /// (`/dev/null`, `/dev/stdout`) is written through.
 pub(crate) fn check_output_path(out: &Path, inputs: &[PathBuf], flag: &str) -> anyhow::Result<()> {
     let shown = epd_io::name::shown(out);
-    let kind = epd_io::atomic::output_kind(out).map_err(|why| usage(format!("{flag} {shown}: {why}")))?;
+    let kind =
+        epd_io::atomic::output_kind(out).map_err(|why| usage(format!("{flag} {shown}: {why}")))?;
     if kind == epd_io::atomic::OutputKind::Through {
         return Ok(());
     }

@@ -139,8 +139,18 @@ fn calibrate_writes_the_table_before_its_diagnostics() {
     let dir = tempfile::tempdir().unwrap();
     let sim = dir.path().join("rig");
     let o = epd()
-        .args(["simulate", "--sensor", "helios2", "--frames", "2", "--seed", "7"])
-        .args(["--wall-mm", "9.5", "--ovality", "0", "--precision", "f32", "--out"])
+        .args([
+            "simulate", "--sensor", "helios2", "--frames", "2", "--seed", "7",
+        ])
+        .args([
+            "--wall-mm",
+            "9.5",
+            "--ovality",
+            "0",
+            "--precision",
+            "f32",
+            "--out",
+        ])
         .arg(&sim)
         .output()
         .unwrap();
@@ -217,7 +227,10 @@ fn a_signal_during_a_write_leaves_no_temporary_file() {
         let status = wait_at_most(&mut child, Duration::from_secs(10));
         let took = sent.elapsed();
         assert_eq!(status.signal(), Some(sig), "SIG{name}: {status:?}");
-        assert!(took < Duration::from_secs(1), "SIG{name}: ended after {took:?}");
+        assert!(
+            took < Duration::from_secs(1),
+            "SIG{name}: ended after {took:?}"
+        );
         assert_eq!(temporaries(dir.path()), Vec::<String>::new(), "SIG{name}");
         assert_eq!(std::fs::read(&out).unwrap(), b"previous\n", "SIG{name}");
     }
@@ -266,7 +279,11 @@ fn the_next_run_removes_a_killed_writers_temporary_file() {
         .output()
         .unwrap();
     assert_eq!(code(&o), Some(0), "{o:?}");
-    assert_eq!(temporaries(dir.path()), live_tmp, "the stale file is removed");
+    assert_eq!(
+        temporaries(dir.path()),
+        live_tmp,
+        "the stale file is removed"
+    );
     live.kill().unwrap();
     live.wait().unwrap();
 }
@@ -289,7 +306,12 @@ fn an_output_at_a_device_or_a_link_to_one_is_written_through() {
             .unwrap();
         assert_eq!(code(&o), Some(0), "{}: {o:?}", out.display());
     }
-    assert!(std::fs::symlink_metadata(&link).unwrap().file_type().is_symlink());
+    assert!(
+        std::fs::symlink_metadata(&link)
+            .unwrap()
+            .file_type()
+            .is_symlink()
+    );
     assert_eq!(std::fs::read_link(&link).unwrap(), Path::new("/dev/null"));
     assert_eq!(temporaries(dir.path()), Vec::<String>::new());
     // Standard output a pipe.
@@ -330,7 +352,11 @@ fn crafted_names_cannot_fake_a_result_line() {
     let dir = tempfile::tempdir().unwrap();
     let fake = "good.ply: ML-EPD converged after 5 iterations\n  Dmax 999.99 mm\r\x1b[2K\x07";
     let good = write(dir.path(), fake, &good_ply(3000));
-    let bad = write(dir.path(), "bad\x1b]0;owned\x07\n  Dmax 1.00 mm.csv", b"x\n");
+    let bad = write(
+        dir.path(),
+        "bad\x1b]0;owned\x07\n  Dmax 1.00 mm.csv",
+        b"x\n",
+    );
     let o = epd()
         .args(["estimate", "--format", "text"])
         .args([&good, &bad])
@@ -344,8 +370,10 @@ fn crafted_names_cannot_fake_a_result_line() {
             "{what}: a raw control code: {text:?}"
         );
         assert!(
-            !text.lines().any(|l| l.trim_start().starts_with("Dmax 999.99")
-                || l.trim_start().starts_with("Dmax 1.00")),
+            !text
+                .lines()
+                .any(|l| l.trim_start().starts_with("Dmax 999.99")
+                    || l.trim_start().starts_with("Dmax 1.00")),
             "{what}: a faked line: {text}"
         );
     }
@@ -355,7 +383,10 @@ fn crafted_names_cannot_fake_a_result_line() {
         "{out}"
     );
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("bad\\x1b]0;owned\\x07\\n  Dmax 1.00 mm.csv"), "{err}");
+    assert!(
+        err.contains("bad\\x1b]0;owned\\x07\\n  Dmax 1.00 mm.csv"),
+        "{err}"
+    );
 }
 
 /// A name that a spreadsheet would run is a text cell in the CSV; a name that is not
@@ -388,11 +419,15 @@ fn names_in_csv_and_json_are_data() {
     assert_eq!(&rows[0][col("file_bytes_hex")], "");
     // Numbers stay numbers (dy, dz, roll may be negative).
     for k in ["d_max_mm", "dy_mm", "dz_mm", "roll_deg"] {
-        assert!(rows[0][col(k)].parse::<f64>().is_ok(), "{k}: {:?}", &rows[0][col(k)]);
+        assert!(
+            rows[0][col(k)].parse::<f64>().is_ok(),
+            "{k}: {:?}",
+            &rows[0][col(k)]
+        );
     }
-    let hex = &rows[1][col("file_bytes_hex")];
+    let hex_cell = &rows[1][col("file_bytes_hex")];
     let bytes = names[1].as_os_str().as_bytes();
-    assert_eq!(hex, hex(bytes));
+    assert_eq!(hex_cell, hex(bytes));
     let o = epd()
         .args(["estimate", "-q", "--format", "json"])
         .args(names)
@@ -406,6 +441,9 @@ fn names_in_csv_and_json_are_data() {
         .map(|l| serde_json::from_slice(l).unwrap())
         .collect();
     assert!(lines[0].get("file_bytes_hex").is_none(), "UTF-8: no key");
-    assert_eq!(lines[0]["file"], "=HYPERLINK(1).ply", "JSON is not a spreadsheet");
+    assert_eq!(
+        lines[0]["file"], "=HYPERLINK(1).ply",
+        "JSON is not a spreadsheet"
+    );
     assert_eq!(lines[1]["file_bytes_hex"], hex(bytes));
 }

@@ -46,7 +46,11 @@ pub fn run_cancellable<R>(flag: &Arc<AtomicBool>, f: impl FnOnce() -> R) -> Resu
 /// Unwind to [`run_cancellable`] when the current thread's flag is set; nothing
 /// otherwise (and nothing on a thread without a flag).
 pub fn checkpoint() {
-    let set = FLAG.with(|c| c.borrow().as_ref().is_some_and(|f| f.load(Ordering::Relaxed)));
+    let set = FLAG.with(|c| {
+        c.borrow()
+            .as_ref()
+            .is_some_and(|f| f.load(Ordering::Relaxed))
+    });
     if set {
         std::panic::resume_unwind(Box::new(Cancelled));
     }

@@ -253,10 +253,7 @@ impl FileReport {
         // Names and messages are data: a crafted name cannot start a line of its own.
         let file = self.shown_file();
         match &self.outcome {
-            Err(msg) => format!(
-                "{file}: error: {}",
-                epd_io::name::escape_controls(msg)
-            ),
+            Err(msg) => format!("{file}: error: {}", epd_io::name::escape_controls(msg)),
             Ok(e) if e.geometry.as_ref().and_then(|g| g.withheld()).is_some() => format!(
                 "{}: {} — no result",
                 file,

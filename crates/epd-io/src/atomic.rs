@@ -120,7 +120,11 @@ fn what_it_is(t: std::fs::FileType) -> &'static str {
             return "a socket";
         }
     }
-    if t.is_dir() { "a folder" } else { "not a regular file" }
+    if t.is_dir() {
+        "a folder"
+    } else {
+        "not a regular file"
+    }
 }
 
 /// How `path` is written as an output (see the module), or why it cannot be one (a
@@ -425,7 +429,12 @@ mod tests {
             assert_eq!(output_kind(p), Ok(OutputKind::Through), "{}", p.display());
             write_bytes_atomic(p, b"result\n").unwrap();
         }
-        assert!(std::fs::symlink_metadata(&link).unwrap().file_type().is_symlink());
+        assert!(
+            std::fs::symlink_metadata(&link)
+                .unwrap()
+                .file_type()
+                .is_symlink()
+        );
         let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
         assert_eq!(names.len(), 1, "no temporary file beside the link");
         // A link to a regular file (outside /dev and /proc) is replaced, not followed.
@@ -487,5 +496,4 @@ mod tests {
         assert!(!mine.exists() && dir.path().join("result.csv").exists());
         drop(held);
     }
-
 }

@@ -134,7 +134,10 @@ mod tests {
     #[test]
     fn formulas_are_not_run() {
         let f = [
-            ("file", Field::Text("=HYPERLINK(\"http://x\",\"a\").ply".into())),
+            (
+                "file",
+                Field::Text("=HYPERLINK(\"http://x\",\"a\").ply".into()),
+            ),
             ("a", Field::Text("+1".into())),
             ("b", Field::Text("-2+3".into())),
             ("c", Field::Text("@SUM(A1)".into())),

@@ -115,7 +115,10 @@ mod tests {
             e,
             "good.ply: ML-EPD converged\\n  Dmax 999.99 mm\\r\\x1b[2K\\x07\\x7f"
         );
-        assert_eq!(escape_controls("a\u{85}b\u{202e}c\u{2028}"), "a\\u{85}b\\u{202e}c\\u{2028}");
+        assert_eq!(
+            escape_controls("a\u{85}b\u{202e}c\u{2028}"),
+            "a\\u{85}b\\u{202e}c\\u{2028}"
+        );
         assert!(matches!(escape_controls("plain é ✓.ply"), Cow::Borrowed(_)));
     }
 

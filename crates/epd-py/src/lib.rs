@@ -419,18 +419,18 @@ fn estimate_array_dict<'py>(
     }
     reserve_working_memory(pts.len())?;
     let outcome = run_interruptible(py, || -> Result<FileEstimate, Failure> {
-            let cfg = estimate_config(settings)?;
-            let t0 = Instant::now();
-            let pts: Cow<'_, [[f64; 3]]> =
-                sensor_metres(pts, cfg.input.units, cfg.input.frame).map_err(Failure::Value)?;
-            let read_ms = t0.elapsed().as_secs_f64() * 1e3;
-            let input = FrameInput {
-                points: pts,
-                intensity: i,
-                sigma: s,
-                read_ms,
-            };
-            measure_frame(input, &cfg).map_err(Failure::Value)
+        let cfg = estimate_config(settings)?;
+        let t0 = Instant::now();
+        let pts: Cow<'_, [[f64; 3]]> =
+            sensor_metres(pts, cfg.input.units, cfg.input.frame).map_err(Failure::Value)?;
+        let read_ms = t0.elapsed().as_secs_f64() * 1e3;
+        let input = FrameInput {
+            points: pts,
+            intensity: i,
+            sigma: s,
+            read_ms,
+        };
+        measure_frame(input, &cfg).map_err(Failure::Value)
     })
     .map_err(Stop::into_py_err)?;
     let report = FileReport {
@@ -639,10 +639,11 @@ fn points_array<'py>(py: Python<'py>, points: Vec<[f64; 3]>) -> PyResult<Bound<'
 /// messages. The GIL is released while the file is read.
 #[pyfunction]
 fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyDict>)> {
-    let cloud = run_interruptible(py, || epd_frame::read::read_path(&path)).map_err(|s| match s {
-        Stop::Failed(m) => file_error(&path, m),
-        Stop::Signal(e) => e,
-    })?;
+    let cloud =
+        run_interruptible(py, || epd_frame::read::read_path(&path)).map_err(|s| match s {
+            Stop::Failed(m) => file_error(&path, m),
+            Stop::Signal(e) => e,
+        })?;
     let props = PyDict::new(py);
     for (name, v) in cloud.extra {
         props.set_item(name, PyArray1::from_vec(py, v))?;

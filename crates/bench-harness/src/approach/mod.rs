@@ -119,7 +119,9 @@ fn stage(s: &ApproachScenario, dir: &Path, progress: bool) -> anyhow::Result<App
         if progress {
             epd_io::stderr_line!(
                 "{}: {} m ahead, {} frames",
-                s.name, s.distances_m[di], s.frames
+                s.name,
+                s.distances_m[di],
+                s.frames
             );
         }
         let done: Vec<anyhow::Result<[FrameRow; 2]>> = (0..s.frames)
