@@ -143,7 +143,8 @@ pub fn output_kind(path: &Path) -> Result<OutputKind, String> {
     }
     if !t.is_symlink() {
         return Err(format!(
-            "exists and is {}; name a new or regular file, a character device or a pipe",
+            "exists and is {}, not a regular file; name a new or regular file, a \
+             character device or a pipe",
             what_it_is(t)
         ));
     }
@@ -154,7 +155,8 @@ pub fn output_kind(path: &Path) -> Result<OutputKind, String> {
         Ok(m) if m.is_file() && in_system_folder(path) => Ok(OutputKind::Through),
         Ok(m) if m.is_file() => Ok(OutputKind::Replace),
         Ok(m) => Err(format!(
-            "is a link to {}; name a new or regular file, a character device or a pipe",
+            "is a link to {}, not a regular file; name a new or regular file, a \
+             character device or a pipe",
             what_it_is(m.file_type())
         )),
     }
