@@ -261,7 +261,10 @@ pub fn profile(points: &[[f64; 3]], beta: &Params, o: &SegmentOptions) -> Vec<Sl
     let m = *beta.rotation().matrix();
     let pcs: Vec<(f64, f64, f64)> = points
         .iter()
-        .filter_map(|p| deviation(&geom, &m, beta, p))
+        .filter_map(|p| {
+            crate::cancel::tick();
+            deviation(&geom, &m, beta, p)
+        })
         .collect();
     let Some(x_max) = pcs.iter().map(|v| v.0).reduce(f64::max) else {
         return Vec::new();
@@ -279,6 +282,7 @@ pub fn profile(points: &[[f64; 3]], beta: &Params, o: &SegmentOptions) -> Vec<Sl
     let mut cells: Vec<Vec<f64>> = vec![Vec::new(); n_slices * ns];
     let tau = std::f64::consts::TAU;
     for &(x, d, psi) in &pcs {
+        crate::cancel::tick();
         if x < x_min {
             continue;
         }
@@ -616,7 +620,10 @@ fn model_axial(points: &[[f64; 3]], beta: &Params) -> Option<Vec<f64>> {
     Some(
         points
             .iter()
-            .map(|p| geom.line_parameter(p) * (row[0] * p[0] + row[1] * p[1] + row[2] * p[2]))
+            .map(|p| {
+                crate::cancel::tick();
+                geom.line_parameter(p) * (row[0] * p[0] + row[1] * p[1] + row[2] * p[2])
+            })
             .collect(),
     )
 }
