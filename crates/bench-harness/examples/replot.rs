@@ -4,9 +4,9 @@
 //! cargo run -p bench-harness --example replot -- results/sigma_sweep [more folders…]
 //! ```
 //!
-//! Reads `scenario.toml` and `summary.csv` of each folder and rewrites its five PNGs
+//! Reads `scenario.toml` and `summary.csv` of each folder and rewrites its six PNGs
 //! (`diameter_error.png`, `dmean_error.png`, `pose_error.png`, `time.png`,
-//! `std_vs_crb.png`) with the current plotting code; nothing else in the folder changes,
+//! `std_vs_crb.png`, `coverage.png`) with the current plotting code; nothing else in the folder changes,
 //! so committed results keep their numbers and timings when only the figures change. The
 //! figures equal a fresh run's for the same summary: `summary.csv` holds every number in
 //! shortest round-trip decimal, so it reads back to the same `f64`s.

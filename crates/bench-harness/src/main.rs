@@ -118,7 +118,7 @@ struct MergeArgs {
 /// Set up the worker threads and the interrupt handler; `Err` is the exit code.
 fn start_workers(threads: Option<NonZeroUsize>) -> Result<(), ExitCode> {
     if let Some(n) = threads.filter(|n| n.get() > MAX_THREADS) {
-        eprintln!("error: --threads {n}: at most {MAX_THREADS}");
+        epd_io::stderr_line!("error: --threads {n}: at most {MAX_THREADS}");
         return Err(ExitCode::from(2));
     }
     if let Some(n) = threads
@@ -126,13 +126,13 @@ fn start_workers(threads: Option<NonZeroUsize>) -> Result<(), ExitCode> {
             .num_threads(n.get())
             .build_global()
     {
-        eprintln!("error: cannot start {n} worker threads: {e}");
+        epd_io::stderr_line!("error: cannot start {n} worker threads: {e}");
         return Err(ExitCode::FAILURE);
     }
     // SIGINT and SIGTERM stop the run at the next batch of trials; the staging folder
     // is removed on the way out.
     if let Err(e) = ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst)) {
-        eprintln!("warning: no interrupt handler: {e}");
+        epd_io::stderr_line!("warning: no interrupt handler: {e}");
     }
     Ok(())
 }
@@ -145,13 +145,13 @@ fn failed(e: &anyhow::Error, name: &str) -> ExitCode {
         || e.downcast_ref::<Refused>().is_some()
         || e.downcast_ref::<MergeError>().is_some()
     {
-        eprintln!("error: {e}");
+        epd_io::stderr_line!("error: {e}");
         ExitCode::from(2)
     } else if e.downcast_ref::<Interrupted>().is_some() {
-        eprintln!("{name}: {e}");
+        epd_io::stderr_line!("{name}: {e}");
         ExitCode::from(130)
     } else {
-        eprintln!("error: {e:#}");
+        epd_io::stderr_line!("error: {e:#}");
         ExitCode::FAILURE
     }
 }
@@ -163,7 +163,7 @@ fn run_scenario<E: Experiment>(cli: &Cli, path: &Path, text: &str) -> ExitCode {
     let experiment = match E::parse(path, text) {
         Ok(e) => e,
         Err(e) => {
-            eprintln!("error: {e}");
+            epd_io::stderr_line!("error: {e}");
             return ExitCode::from(2);
         }
     };
@@ -173,7 +173,7 @@ fn run_scenario<E: Experiment>(cli: &Cli, path: &Path, text: &str) -> ExitCode {
         progress: !cli.quiet,
     };
     if let Err(e) = experiment.check(&request) {
-        eprintln!("error: {e}");
+        epd_io::stderr_line!("error: {e}");
         return ExitCode::from(2);
     }
     if let Err(code) = start_workers(cli.threads) {
@@ -186,7 +186,7 @@ fn run_scenario<E: Experiment>(cli: &Cli, path: &Path, text: &str) -> ExitCode {
     match experiment.run(&out, &request) {
         Ok(done) => {
             if !cli.quiet {
-                eprintln!(
+                epd_io::stderr_line!(
                     "{} in {:.1} s → {}",
                     done.what,
                     done.wall_time_s,
@@ -207,7 +207,7 @@ fn merge_main(a: &MergeArgs) -> ExitCode {
     match merge(&a.dirs, &MergeOptions { out: a.out.clone() }) {
         Ok(report) => {
             if !a.quiet {
-                eprintln!(
+                epd_io::stderr_line!(
                     "merged {} shards in {:.2} s → {}",
                     a.dirs.len(),
                     report.wall_time_s,
@@ -225,7 +225,7 @@ fn merge_main(a: &MergeArgs) -> ExitCode {
 fn errors_exit(errors: Option<String>) -> ExitCode {
     match errors {
         Some(note) => {
-            eprintln!("{note}");
+            epd_io::stderr_line!("{note}");
             ExitCode::FAILURE
         }
         None => ExitCode::SUCCESS,
@@ -252,7 +252,7 @@ fn scenario_text(arg: &Path) -> Result<(PathBuf, String), ExitCode> {
     match text {
         Ok(t) => Ok((path, t)),
         Err(e) => {
-            eprintln!("error: {e}");
+            epd_io::stderr_line!("error: {e}");
             Err(ExitCode::from(2))
         }
     }
@@ -271,7 +271,7 @@ fn main() -> ExitCode {
     }
     let Some(scenario_arg) = cli.scenario.clone() else {
         // clap requires SCENARIO without a subcommand; kept as an error, not a panic.
-        eprintln!("error: the scenario file is missing: bench-harness SCENARIO.toml");
+        epd_io::stderr_line!("error: the scenario file is missing: bench-harness SCENARIO.toml");
         return ExitCode::from(2);
     };
     let (path, text) = match scenario_text(&scenario_arg) {

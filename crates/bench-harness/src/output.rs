@@ -123,6 +123,7 @@ pub const RUN_FILES: &[&str] = &[
     "pose_error.png",
     "time.png",
     "std_vs_crb.png",
+    "coverage.png",
 ];
 
 /// The files of a pipeline run (a scenario with `[pipeline]`).

@@ -242,7 +242,7 @@ fn extent(p: &Panel<'_>, xa: Axis, ya: Axis) -> Option<(f64, f64, f64, f64)> {
 fn draw_panel(
     area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
     p: &Panel<'_>,
-    x_label: &str,
+    (x_label, x_names): (&str, &[String]),
     (xa, ya): (Axis, Axis),
     legend: Legend,
 ) -> anyhow::Result<()> {
@@ -267,12 +267,23 @@ fn draw_panel(
         .y_desc(&p.y_label)
         // Fewer x labels on a narrow panel, so they do not run into each other.
         .x_labels(match (xa.log, area.dim_in_pixel().0 < 600) {
+            _ if !x_names.is_empty() => x_names.len(),
             (true, _) => 0,
             (false, true) => 6,
             (false, false) => 10,
         })
         .y_labels(if ya.log { 0 } else { 10 })
-        .x_label_formatter(&|v| linear_label(*v))
+        .x_label_formatter(&|v| {
+            if x_names.is_empty() {
+                return linear_label(*v);
+            }
+            // A category's name at its integer x; nothing between them.
+            let i = v.round();
+            match x_names.get(i as usize) {
+                Some(n) if (v - i).abs() < 1e-9 && i >= 0.0 => n.clone(),
+                _ => String::new(),
+            }
+        })
         .y_label_formatter(&|v| linear_label(*v))
         .label_style((FONT, 13))
         .axis_desc_style((FONT, 15))
@@ -466,6 +477,9 @@ pub(crate) struct Figure<'a> {
     pub(crate) xa: Axis,
     pub(crate) ya: Axis,
     pub(crate) legend: Legend,
+    /// Names of the x values 0, 1, 2, … when they are categories (a swept table), drawn
+    /// as the x tick labels instead of the numbers; empty: numbers.
+    pub(crate) x_names: &'a [String],
 }
 
 /// Render panels in a grid to an encoded PNG.
@@ -479,6 +493,7 @@ pub(crate) fn render(fig: Figure<'_>, panels: &[Panel<'_>]) -> anyhow::Result<Pn
         xa,
         ya,
         legend,
+        x_names,
     } = fig;
     register_font()?;
     let mut buf = vec![0u8; (size.0 * size.1 * 3) as usize];
@@ -495,7 +510,7 @@ pub(crate) fn render(fig: Figure<'_>, panels: &[Panel<'_>]) -> anyhow::Result<Pn
         }
         let areas = root.split_evenly(grid);
         for (a, p) in areas.iter().zip(panels) {
-            draw_panel(a, p, x_label, (xa, ya), legend)?;
+            draw_panel(a, p, (x_label, x_names), (xa, ya), legend)?;
         }
         root.present().map_err(|e| anyhow!("{e}"))?;
     }

@@ -107,6 +107,7 @@ fn run_writes_the_spec_files_and_is_identical_for_1_and_2_threads() {
             "pose_error.png",
             "time.png",
             "std_vs_crb.png",
+            "coverage.png",
         ] {
             assert!(out.join(f).is_file(), "{f} missing");
         }

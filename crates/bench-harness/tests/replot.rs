@@ -52,7 +52,7 @@ fn figures_redrawn_from_summary_csv_equal_the_runs() {
         assert!(same(a, b), "{a:?}\n!=\n{b:?}");
     }
     let pngs = plot_all(&scenario, &read).unwrap();
-    assert_eq!(pngs.len(), 5);
+    assert_eq!(pngs.len(), 6);
     for png in pngs {
         let written = std::fs::read(out.join(&png.name)).unwrap();
         assert!(written == png.bytes, "{} differs from the run's", png.name);

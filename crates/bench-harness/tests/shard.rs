@@ -175,6 +175,7 @@ fn four_shard_processes_merge_into_the_unsharded_run() {
         "pose_error.png",
         "time.png",
         "std_vs_crb.png",
+        "coverage.png",
     ] {
         let bytes = std::fs::read(merged.join(f)).unwrap();
         assert!(bytes.starts_with(b"\x89PNG"), "{f}");

@@ -94,10 +94,14 @@ pub enum UnitsArg {
 /// The coordinate frame of the file.
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum FrameArg {
-    /// X forward (optical axis), Y right, Z up: the paper's frame.
+    /// X forward (optical axis), Y right, Z up: the paper's frame (not ROS's body frame,
+    /// whose Y points left: use `body`).
     Sensor,
-    /// X right, Y down, Z forward: camera SDKs, PCL, Open3D, ROS.
+    /// X right, Y down, Z forward: camera SDKs, PCL, Open3D, ROS `*_optical_frame`.
     Optical,
+    /// X forward, Y left, Z up: a ROS body frame (REP 103: `base_link`, `camera_link`).
+    #[value(alias = "ros-body")]
+    Body,
 }
 
 #[derive(Args, Debug)]
@@ -328,6 +332,7 @@ impl From<&InputArgs> for InputConfig {
             frame: match a.frame {
                 FrameArg::Sensor => InputFrame::Sensor,
                 FrameArg::Optical => InputFrame::Optical,
+                FrameArg::Body => InputFrame::Body,
             },
             format: a.input_format,
         }

@@ -12,6 +12,9 @@ use epd_frame::rig::{RigSettings, calibrate_rig};
 use epd_frame::table::CalibrationTable;
 use rayon::prelude::*;
 
+use epd_io::name::shown;
+use epd_io::stderr_line;
+
 use crate::args::CalibrateArgs;
 use crate::{check_output_path, progress, start_threads, usage};
 
@@ -73,7 +76,7 @@ fn report_calibration_fits(
             Ok(est) => {
                 if !quiet {
                     let p = est.params;
-                    eprintln!(
+                    stderr_line!(
                         "{name}: pose roll {:.2}° pitch {:.3}° yaw {:.3}° δy {:.1} mm δz {:.1} mm, \
                          {} points",
                         p.roll * deg,
@@ -101,10 +104,10 @@ fn print_table_summary(out: &Path, cal: &CalibrationTable) {
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
             (l.min(v), h.max(v))
         });
-    eprintln!(
+    stderr_line!(
         "{}: {} × {} bins ({filled} filled) from {} frames and {} points; offsets \
          {:.1} to {:.1} mm",
-        out.display(),
+        shown(out),
         t.range.n,
         t.log_intensity.n,
         cal.frames,
@@ -125,31 +128,27 @@ pub fn run_calibrate(a: &CalibrateArgs) -> anyhow::Result<ExitCode> {
     for (path, r) in a.files.iter().zip(&read) {
         match r {
             Ok((c, i)) => {
-                names.push(path.display().to_string());
+                names.push(shown(path));
                 frames.push(CalibrationFrame {
                     points: &c.points,
                     intensity: i,
                 });
             }
-            Err(e) => failed.push(format!("{}: {e}", path.display())),
+            Err(e) => failed.push(format!("{}: {e}", shown(path))),
         }
     }
+    let out = shown(&a.out);
     if frames.is_empty() {
-        for f in &failed {
-            eprintln!("skipped {f}");
-        }
-        anyhow::bail!(
-            "no frame could be read: no table written to {}",
-            a.out.display()
-        );
+        print_skipped(&failed);
+        anyhow::bail!("no frame could be read: no table written to {out}");
     }
-    let rig = calibrate_rig(&frames, &settings)
-        .with_context(|| format!("no table written to {}", a.out.display()))?;
-    report_calibration_fits(&names, &rig.fits, a.quiet, &mut failed);
-    for f in &failed {
-        eprintln!("skipped {f}");
-    }
+    let rig =
+        calibrate_rig(&frames, &settings).with_context(|| format!("no table written to {out}"))?;
+    // The table first: a diagnostic that cannot be written (a closed standard error)
+    // never costs the output.
     epd_io::atomic::write_bytes_atomic(&a.out, rig.table.to_json().as_bytes())?;
+    report_calibration_fits(&names, &rig.fits, a.quiet, &mut failed);
+    print_skipped(&failed);
     if !a.quiet {
         print_table_summary(&a.out, &rig.table);
     }
@@ -158,4 +157,11 @@ pub fn run_calibrate(a: &CalibrateArgs) -> anyhow::Result<ExitCode> {
     } else {
         ExitCode::FAILURE
     })
+}
+
+/// One line per skipped frame, control characters escaped.
+fn print_skipped(failed: &[String]) {
+    for f in failed {
+        stderr_line!("skipped {}", epd_io::name::escape_controls(f));
+    }
 }

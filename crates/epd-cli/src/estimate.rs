@@ -13,6 +13,8 @@ use epd_frame::{EstimateConfig, EstimateSettings, measure_file};
 use rayon::prelude::*;
 
 use crate::args::{EstimateArgs, LossArg, OutputFormat};
+use epd_io::stderr_line;
+
 use crate::{check_output_path, progress, start_threads, usage};
 
 fn estimate_config(a: &EstimateArgs) -> anyhow::Result<EstimateConfig> {
@@ -40,11 +42,12 @@ fn estimate_config(a: &EstimateArgs) -> anyhow::Result<EstimateConfig> {
     Ok(cfg)
 }
 
-/// Where results go: standard output, or a temporary file in the target folder that
-/// replaces FILE when the run ends.
+/// Where results go: standard output, or FILE: a temporary file in its folder that
+/// replaces it when the run ends, or FILE itself when it is a device or a pipe
+/// (`epd_io::atomic::Output`).
 enum Sink {
     Stdout(BufWriter<std::io::StdoutLock<'static>>),
-    File(BufWriter<tempfile::NamedTempFile>, PathBuf),
+    File(epd_io::atomic::Output, PathBuf),
 }
 
 impl Sink {
@@ -52,29 +55,16 @@ impl Sink {
         let Some(path) = output else {
             return Ok(Sink::Stdout(BufWriter::new(std::io::stdout().lock())));
         };
-        let dir = match path.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d,
-            _ => Path::new("."),
-        };
         // Created exclusively, with an unpredictable name: never a planted link.
-        let mut builder = tempfile::Builder::new();
-        builder.prefix(".epd-output-");
-        #[cfg(unix)]
-        {
-            use std::os::unix::fs::PermissionsExt;
-            // A results file for the user, not a secret: rw-r--r-- (umask applies).
-            builder.permissions(std::fs::Permissions::from_mode(0o644));
-        }
-        let tmp = builder
-            .tempfile_in(dir)
-            .with_context(|| format!("cannot create a temporary file in {}", dir.display()))?;
-        Ok(Sink::File(BufWriter::new(tmp), path.to_path_buf()))
+        let out = epd_io::atomic::Output::create(path, ".epd-output-")
+            .with_context(|| format!("cannot write {}", epd_io::name::shown(path)))?;
+        Ok(Sink::File(out, path.to_path_buf()))
     }
 
     fn name(&self) -> String {
         match self {
             Sink::Stdout(_) => "standard output".into(),
-            Sink::File(_, p) => p.display().to_string(),
+            Sink::File(_, p) => epd_io::name::shown(p),
         }
     }
 
@@ -88,24 +78,13 @@ impl Sink {
     }
 
     /// Flush; a file is synced and renamed over FILE (a link there is replaced, not
-    /// followed).
+    /// followed), then its folder synced.
     fn finish(self) -> anyhow::Result<()> {
         match self {
             Sink::Stdout(mut w) => w.flush().context("cannot write to standard output"),
-            Sink::File(w, path) => {
-                let name = path.display().to_string();
-                let tmp = w
-                    .into_inner()
-                    .map_err(|e| e.into_error())
-                    .with_context(|| format!("cannot write {name}"))?;
-                tmp.as_file()
-                    .sync_all()
-                    .with_context(|| format!("cannot write {name}"))?;
-                tmp.persist(&path)
-                    .map_err(|e| e.error)
-                    .with_context(|| format!("cannot write {name}"))?;
-                Ok(())
-            }
+            Sink::File(out, path) => out
+                .commit()
+                .with_context(|| format!("cannot write {}", epd_io::name::shown(&path))),
         }
     }
 }
@@ -165,10 +144,13 @@ fn failures_exit(failed: &[String], total: usize, quiet: bool) -> ExitCode {
         return ExitCode::SUCCESS;
     }
     if !quiet {
-        eprintln!("{} of {total} files failed:", failed.len());
+        // One line per file: control characters in names and messages escaped.
+        let mut list = format!("{} of {total} files failed:", failed.len());
         for f in failed {
-            eprintln!("  {f}");
+            list.push_str("\n  ");
+            list.push_str(&epd_io::name::escape_controls(f));
         }
+        stderr_line!("{list}");
     }
     ExitCode::FAILURE
 }
@@ -218,7 +200,7 @@ pub fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
                     OutputFormat::Text => r.text(),
                 };
                 if let Some(e) = r.failure() {
-                    failed.push(format!("{}: {e}", r.file));
+                    failed.push(format!("{}: {e}", r.shown_file()));
                 }
                 uncalibrated +=
                     usize::from(r.outcome.as_ref().is_ok_and(|e| e.intensity_without_table));
@@ -242,7 +224,7 @@ pub fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
         finish_output(sink)?;
     }
     if uncalibrated > 0 && !args.quiet {
-        eprintln!("{}", uncalibrated_note(uncalibrated, files.len()));
+        stderr_line!("{}", uncalibrated_note(uncalibrated, files.len()));
     }
     Ok(failures_exit(&failed, files.len(), args.quiet))
 }

@@ -17,6 +17,16 @@
 //! result consistent with its points (the others are still reported), 2 wrong arguments.
 //! `calibrate` exits 1 when a frame was skipped (the table is written from the others)
 //! or none could be used (no table written).
+//!
+//! Streams and signals: a standard output or error that is closed (or a pipe whose reader
+//! went away) changes no exit code and loses no output file: results are written before
+//! any diagnostic, and diagnostics that cannot be written are dropped
+//! (`epd_io::stderr_line!`). SIGINT, SIGTERM and SIGHUP remove the temporary file of an
+//! output being written (`.epd-output-XXXXXX`, `.epd-io-XXXXXX`) and then end the process
+//! as the signal would have (a previous output at that path is untouched); a signal that
+//! was ignored when `epd` started (`nohup`) stays ignored. Temporary files of a process
+//! killed outright (SIGKILL) are removed by the next output in that folder
+//! (`epd_io::atomic`).
 
 mod args;
 mod calibrate;
@@ -29,6 +39,7 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::Parser;
+use epd_io::stderr_line;
 use indicatif::ProgressBar;
 
 use crate::args::{Cli, Command};
@@ -48,19 +59,16 @@ pub(crate) fn usage(msg: impl Into<String>) -> anyhow::Error {
     anyhow::Error::new(Usage(msg.into()))
 }
 
-/// Refuse an output path that exists but is not a regular file or a link (a device, a
-/// pipe, a folder: the atomic write would replace it), or that names one of the inputs.
+/// Refuse an output path that cannot be one (a folder, a block device, a socket, or a
+/// link to one: `epd_io::atomic::output_kind`), or that names one of the inputs. A new
+/// path, a regular file or a link to one is replaced whole; a character device or a pipe
+/// (`/dev/null`, `/dev/stdout`) is written through.
 pub(crate) fn check_output_path(out: &Path, inputs: &[PathBuf], flag: &str) -> anyhow::Result<()> {
-    let shown = out.display();
-    // A link is replaced, never followed (a planted link cannot redirect the write).
-    match std::fs::symlink_metadata(out) {
-        Ok(m) if !m.file_type().is_file() && !m.file_type().is_symlink() => {
-            return Err(usage(format!(
-                "{flag} {shown}: exists and is not a regular file (a device, pipe or folder); \
-                 the result replaces the file at that path, so name a new or regular file"
-            )));
-        }
-        _ => {}
+    let shown = epd_io::name::shown(out);
+    let kind =
+        epd_io::atomic::output_kind(out).map_err(|why| usage(format!("{flag} {shown}: {why}")))?;
+    if kind == epd_io::atomic::OutputKind::Through {
+        return Ok(());
     }
     if let Ok(o) = out.canonicalize() {
         for i in inputs {
@@ -73,6 +81,47 @@ pub(crate) fn check_output_path(out: &Path, inputs: &[PathBuf], flag: &str) -> a
     }
     Ok(())
 }
+
+/// On SIGINT, SIGTERM and SIGHUP (each unless ignored at start): remove the temporary
+/// files of the outputs being written, then end as the signal would
+/// (`epd_io::atomic::remove_pending_temporaries`). The handler runs on its own thread
+/// (signal-hook's iterator), so it may take locks and remove files.
+#[cfg(unix)]
+fn remove_temporaries_on_signals() {
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
+    let ignored = |sig: libc::c_int| {
+        // SAFETY: a query only (no new action); `old` is written by the call.
+        unsafe {
+            let mut old: libc::sigaction = std::mem::zeroed();
+            libc::sigaction(sig, std::ptr::null(), &mut old) == 0
+                && old.sa_sigaction == libc::SIG_IGN
+        }
+    };
+    let wanted: Vec<libc::c_int> = [SIGINT, SIGTERM, SIGHUP]
+        .into_iter()
+        .filter(|&s| !ignored(s))
+        .collect();
+    let Ok(mut signals) = signal_hook::iterator::Signals::new(&wanted) else {
+        stderr_line!("warning: no signal handler: an interrupted -o may leave a temporary file");
+        return;
+    };
+    let spawned = std::thread::Builder::new()
+        .name("signals".into())
+        .spawn(move || {
+            if let Some(sig) = signals.forever().next() {
+                epd_io::atomic::remove_pending_temporaries();
+                let _ = signal_hook::low_level::emulate_default_handler(sig);
+                // Not reached for these signals (their default ends the process).
+                std::process::exit(128 + sig);
+            }
+        });
+    if spawned.is_err() {
+        stderr_line!("warning: no signal handler: an interrupted -o may leave a temporary file");
+    }
+}
+
+#[cfg(not(unix))]
+fn remove_temporaries_on_signals() {}
 
 /// Start rayon's global pool with `threads` workers (unset: one per core).
 pub(crate) fn start_threads(threads: Option<NonZeroUsize>) -> anyhow::Result<()> {
@@ -96,6 +145,7 @@ pub(crate) fn progress(quiet: bool, n: usize) -> ProgressBar {
 
 fn main() -> ExitCode {
     epd_frame::keep_freed_memory();
+    remove_temporaries_on_signals();
     let cli = match Cli::try_parse() {
         Ok(c) => c,
         // Help and version exit 0, usage errors 2 (clap's codes); a closed stdout while
@@ -112,12 +162,16 @@ fn main() -> ExitCode {
     };
     match result {
         Ok(code) => code,
+        // Names in messages are data: their control characters are escaped.
         Err(e) if e.downcast_ref::<Usage>().is_some() => {
-            eprintln!("error: {e}\n\nFor more information, try '--help'.");
+            let e = e.to_string();
+            let e = epd_io::name::escape_controls(&e);
+            stderr_line!("error: {e}\n\nFor more information, try '--help'.");
             ExitCode::from(2)
         }
         Err(e) => {
-            eprintln!("error: {e:#}");
+            let e = format!("{e:#}");
+            stderr_line!("error: {}", epd_io::name::escape_controls(&e));
             ExitCode::FAILURE
         }
     }

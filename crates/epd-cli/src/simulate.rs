@@ -59,9 +59,9 @@ pub fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         bar.inc(1);
     }
     bar.finish_and_clear();
-    eprintln!(
+    epd_io::stderr_line!(
         "{frames} frames written to {} (PLY + ground-truth JSON)",
-        out.display()
+        epd_io::name::shown(&out)
     );
     Ok(ExitCode::SUCCESS)
 }

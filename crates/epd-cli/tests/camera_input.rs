@@ -59,12 +59,16 @@ fn millimetres_and_the_optical_frame_give_the_sensor_frame_result() {
     let mm = csv(&dir, "mm.csv", |p| p.map(|v| v * 1e3));
     // Optical frame: X right = Y, Y down = −Z, Z forward = X.
     let optical_mm = csv(&dir, "opt.csv", |p| [p[1] * 1e3, -p[2] * 1e3, p[0] * 1e3]);
+    // ROS body frame (REP 103): X forward = X, Y left = −Y, Z up = Z.
+    let body = csv(&dir, "body.csv", |p| [p[0], -p[1], p[2]]);
     let (base, code) = estimate(&metres, &[]);
     assert_eq!(code, 0, "{base}");
     assert_eq!(base["status"], "converged");
     for (file, args) in [
         (&mm, vec!["--units", "mm"]),
         (&optical_mm, vec!["--units", "mm", "--frame", "optical"]),
+        (&body, vec!["--frame", "body"]),
+        (&body, vec!["--frame", "ros-body"]),
     ] {
         let (r, code) = estimate(file, &args);
         assert_eq!(code, 0, "{args:?}: {r}");

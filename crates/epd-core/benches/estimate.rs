@@ -27,8 +27,10 @@ fn bench(c: &mut Criterion) {
     group.finish();
 }
 
-/// The parts an estimate adds to the solver at 10⁵ points: the data-only initial guess
-/// and the plausibility check.
+/// The parts an estimate adds to the solver at 10⁵ points: the data-only initial guess,
+/// the plausibility check, and the uncertainty's cluster pass (every point's cell and the
+/// cells' scores and breads) beside one pass of the solver's normal equations over the
+/// same points, and the form test: what the checks cost in units of a solver pass.
 fn parts(c: &mut Criterion) {
     use epd_core::check::assess;
     use epd_core::init::initial_guess;
@@ -41,6 +43,24 @@ fn parts(c: &mut Criterion) {
     });
     group.bench_function("assess/100000", |b| {
         b.iter(|| assess(&pts, &truth).expect("inside"))
+    });
+    let fit = epd_core::problem::PipeFit::new(&pts, epd_core::Residual::Range);
+    let cells = epd_core::problem::Cells {
+        axial_edges: vec![0.4, 0.6, 0.8, 1.0, 1.3, 1.8, 2.6],
+        sectors: epd_core::estimate::CLOCK_SECTORS,
+    };
+    group.bench_function("equations/100000", |b| {
+        b.iter(|| fit.equations_at(&truth).expect("inside"))
+    });
+    group.bench_function("cluster_sandwich/100000", |b| {
+        b.iter(|| fit.cluster_sandwich_at(&truth, &cells).expect("inside"))
+    });
+    let form_cells = epd_core::problem::Cells {
+        axial_edges: (1..16).map(|k| 0.3 + 0.15 * k as f64).collect(),
+        sectors: epd_core::estimate::CLOCK_SECTORS,
+    };
+    group.bench_function("form_test/100000", |b| {
+        b.iter(|| epd_core::fit::form::form_test(&pts, None, &truth, &form_cells))
     });
     group.finish();
 }

@@ -29,6 +29,7 @@
 
 // One folder per concept; the modules keep their paths (`epd_core::params`, …).
 pub mod calibration;
+pub mod cancel;
 pub mod error;
 pub mod fit;
 pub mod model;

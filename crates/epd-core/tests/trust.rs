@@ -116,3 +116,59 @@ fn sandwich_sigmas_cover_the_errors_under_a_robust_loss() {
         );
     }
 }
+
+/// Small clouds: ν = N − 7 residual degrees of freedom below
+/// `MIN_UNCERTAINTY_DOF` (= 3) are refused with that reason, never answered; at ν = 3 the
+/// reason is not given, and over 200 random 12-point subsets (ν = 5) of noisy frames the
+/// converged answers lie within 5 reported σ at the rate Student's t with 5 degrees of
+/// freedom allows: P(|t₅| > 5·1.96/t₀.₉₇₅(5)) = P(|t₅| > 3.81) = 1.2 %, so more than 10 of
+/// 200 (expected 2.5, standard deviation 1.6) would say the 1-σ does not hold.
+#[test]
+fn small_clouds_get_a_one_sigma_that_holds_or_are_refused() {
+    use epd_core::FitStatus;
+    use epd_core::check::{Implausible, MIN_UNCERTAINTY_DOF};
+    let opts = EstimateOptions::default();
+    let mut rng = common::rng(23);
+    let truth = common::random_params(&mut rng, common::id_m(20.0), 0.02, 5.0, 0.2);
+    let nine = common::cloud(&truth, 160, 120, 6.0, 0.02, 9, 1);
+    let e = estimate(&nine, Method::MlEpd, &opts).unwrap();
+    assert!(
+        matches!(
+            e.status,
+            FitStatus::Implausible(Implausible::TooFewForUncertainty { points: 9, dof: 2 })
+        ),
+        "{:?}",
+        e.status
+    );
+    assert!(e.status.reason().contains(&MIN_UNCERTAINTY_DOF.to_string()));
+    let ten = common::cloud(&truth, 160, 120, 6.0, 0.02, 10, 2);
+    let e = estimate(&ten, Method::MlEpd, &opts).unwrap();
+    assert!(
+        !matches!(
+            e.status,
+            FitStatus::Implausible(Implausible::TooFewForUncertainty { .. })
+        ),
+        "{:?}",
+        e.status
+    );
+    let mut off = 0;
+    let mut converged = 0;
+    for k in 0..200u64 {
+        let truth = common::random_params(&mut rng, common::id_m(20.0), 0.02, 5.0, 0.2);
+        let pts = common::cloud(&truth, 160, 120, 6.0, 0.02, 12, 100 + k);
+        let Ok(e) = estimate(&pts, Method::MlEpd, &opts) else {
+            continue;
+        };
+        if !e.status.is_converged() {
+            continue;
+        }
+        converged += 1;
+        let err = errors_against(&e.params, &truth);
+        let far = |x: f64, s: Option<f64>| s.is_none_or(|s| x.abs() > 5.0 * s);
+        if far(err.d_max, e.sigma[0]) || far(err.d_min, e.sigma[1]) {
+            off += 1;
+        }
+    }
+    assert!(converged >= 150, "only {converged} of 200 converged");
+    assert!(off <= 10, "{off} of {converged} more than 5σ̂ off");
+}

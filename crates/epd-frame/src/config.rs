@@ -27,10 +27,15 @@ pub enum Units {
 /// The coordinate frame of the input.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum InputFrame {
-    /// The paper's sensor frame: X forward (optical axis), Y right, Z up.
+    /// The paper's sensor frame: X forward (optical axis), Y right, Z up (left-handed).
     Sensor,
-    /// A camera's optical frame (Arena SDK, PCL, Open3D, ROS): X right, Y down, Z forward.
+    /// A camera's optical frame (Arena SDK, PCL, Open3D, ROS `*_optical_frame`): X right,
+    /// Y down, Z forward.
     Optical,
+    /// A ROS body frame (REP 103: `base_link`, `camera_link`): X forward, Y left, Z up.
+    /// Read as [`Sensor`](Self::Sensor) it would mirror the pose (roll, yaw and δy change
+    /// sign) while the diameters stay right, so nothing in the data could tell.
+    Body,
 }
 
 /// How the inputs are read, checked.

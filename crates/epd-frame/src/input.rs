@@ -39,6 +39,8 @@ pub fn to_sensor_metres(
             // X_sensor = Z_optical, Y_sensor = X_optical, Z_sensor = −Y_optical (a
             // reflection: the sensor frame is left-handed).
             InputFrame::Optical => [k * z, k * x, -k * y],
+            // Y_sensor (right) = −Y_body (left); X and Z are the same.
+            InputFrame::Body => [k * x, -k * y, k * z],
         };
     }
     check_units(points, units)

@@ -56,6 +56,10 @@ pub fn measure_file(path: &Path, cfg: &EstimateConfig) -> FileReport {
     };
     FileReport {
         file,
+        file_bytes: path
+            .to_str()
+            .is_none()
+            .then(|| path.as_os_str().as_encoded_bytes().to_vec()),
         outcome: run(),
     }
 }
@@ -103,6 +107,8 @@ pub fn measure_frame(input: FrameInput<'_>, cfg: &EstimateConfig) -> Result<File
     // range gate keeps points by their model range (see EstimateOptions).
     let kept: &[[f64; 3]] = &points;
     let failed = |e: epd_core::EpdError| format!("{e} ({n_read} points read)");
+    // Between stages, a caller's stop request is honoured (`epd_core::cancel`).
+    epd_core::cancel::checkpoint();
     let scene = if cfg.geometry {
         let table = match (&cfg.calibration, raw_range_m.as_deref(), intensity) {
             (Some(cal), Some(r), Some(i)) => Some((&cal.table, r, i)),
@@ -112,7 +118,9 @@ pub fn measure_frame(input: FrameInput<'_>, cfg: &EstimateConfig) -> Result<File
     } else {
         None
     };
+    epd_core::cancel::checkpoint();
     let est = fit_straight(kept, sigmas.as_deref(), scene.as_ref(), cfg).map_err(failed)?;
+    epd_core::cancel::checkpoint();
     let mask = scene.as_ref().and_then(|s| s.straight.as_deref());
     let elapsed_ms = t1.elapsed().as_secs_f64() * 1e3;
     Ok(FileEstimate {

@@ -9,8 +9,11 @@ use crate::scene::GeometryReport;
 /// What `epd estimate` found for one file.
 #[derive(Clone, Debug)]
 pub struct FileReport {
-    /// The file as given.
+    /// The file as given (lossy where its name is not UTF-8: see `file_bytes`).
     pub file: String,
+    /// The name's bytes when they are not UTF-8 (`None` when they are, or for no file):
+    /// reported as `file_bytes_hex`, and shown with `\xNN` escapes in text.
+    pub file_bytes: Option<Vec<u8>>,
     /// The estimate and its context, or what went wrong.
     pub outcome: Result<FileEstimate, String>,
 }
@@ -51,6 +54,7 @@ pub struct FileEstimate {
 pub fn columns() -> Vec<&'static str> {
     let failed = FileReport {
         file: String::new(),
+        file_bytes: None,
         outcome: Err(String::new()),
     };
     failed.fields().into_iter().map(|(k, _)| k).collect()
@@ -131,6 +135,18 @@ impl FileReport {
     }
 
     fn all_fields(&self) -> Vec<(&'static str, Field)> {
+        let mut f = self.context_and_result_fields();
+        f.push((
+            "file_bytes_hex",
+            self.file_bytes
+                .as_deref()
+                .map_or(Field::Null, |b| Field::Text(epd_io::name::hex(b))),
+        ));
+        f
+    }
+
+    /// The fields up to `error`.
+    fn context_and_result_fields(&self) -> Vec<(&'static str, Field)> {
         let mut f = vec![("file", Field::Text(self.file.clone()))];
         let num = |v: f64| {
             if v.is_finite() {
@@ -203,9 +219,27 @@ impl FileReport {
         f
     }
 
-    /// One JSON object.
+    /// One JSON object: [`FileReport::fields`], without `file_bytes_hex` when the name
+    /// is UTF-8 ([`FileReport::keyed_fields`]).
     pub fn json(&self) -> String {
-        epd_io::json::object(&self.fields())
+        epd_io::json::object(&self.keyed_fields())
+    }
+
+    /// [`FileReport::fields`] as a JSON object or a Python dict has them: the key
+    /// `file_bytes_hex` only where the name is not UTF-8 (a CSV row has every column).
+    pub fn keyed_fields(&self) -> Vec<(&'static str, Field)> {
+        let mut f = self.fields();
+        f.retain(|(k, v)| *k != "file_bytes_hex" || *v != Field::Null);
+        f
+    }
+
+    /// The file's name as shown to people: control characters escaped, bytes that are not
+    /// UTF-8 as `\xNN` (`epd_io::name`).
+    pub fn shown_file(&self) -> String {
+        match &self.file_bytes {
+            Some(b) => epd_io::name::shown_bytes(b),
+            None => epd_io::name::escape_controls(&self.file).into_owned(),
+        }
     }
 
     /// One CSV row (no final newline), in the order of [`columns`].
@@ -213,13 +247,16 @@ impl FileReport {
         epd_io::csv::fields_line(&self.fields())
     }
 
-    /// A few readable lines.
+    /// A few readable lines (the name and the messages with their control characters
+    /// escaped).
     pub fn text(&self) -> String {
+        // Names and messages are data: a crafted name cannot start a line of its own.
+        let file = self.shown_file();
         match &self.outcome {
-            Err(msg) => format!("{}: error: {msg}", self.file),
+            Err(msg) => format!("{file}: error: {}", epd_io::name::escape_controls(msg)),
             Ok(e) if e.geometry.as_ref().and_then(|g| g.withheld()).is_some() => format!(
                 "{}: {} — no result",
-                self.file,
+                file,
                 e.geometry
                     .as_ref()
                     .and_then(|g| g.withheld())
@@ -227,14 +264,14 @@ impl FileReport {
             ),
             Ok(e) if !e.estimate.status.is_converged() => format!(
                 "{}: {} {} after {} iterations, {} points: {} — no result",
-                self.file,
+                file,
                 e.estimate.method,
                 e.estimate.status.name(),
                 e.estimate.iterations,
                 e.estimate.n_points,
                 e.estimate.status.reason()
             ),
-            Ok(e) => e.text(&self.file),
+            Ok(e) => e.text(&file),
         }
     }
 }
@@ -364,6 +401,7 @@ mod tests {
         let est = epd_core::estimate(&pts, epd_core::Method::RuEpd, &Default::default()).unwrap();
         FileReport {
             file: "a".into(),
+            file_bytes: None,
             outcome: Ok(FileEstimate {
                 estimate: est,
                 n_read: 400,

@@ -2,6 +2,12 @@
 //! delimited, `\n` after each record, a field quoted (with `"` doubled) exactly when it
 //! holds a comma, a quote, `\n` or `\r`. Numbers are their shortest round-trip decimal
 //! text (Rust's `Display`, no exponent), empty for NaN, ±∞ and no value.
+//!
+//! A report's text value that a spreadsheet would run as a formula (it starts with `=`,
+//! `+`, `-`, `@`, a tab or a carriage return: a file named `=HYPERLINK(…).ply`) is
+//! written after a `'`, as OWASP's "CSV injection" advice has it; spreadsheets show the
+//! text and run nothing ([`field`], [`FORMULA_STARTS`]). Numbers are never changed
+//! (`-0.5` stays a number).
 
 use std::borrow::Cow;
 use std::io::Write;
@@ -56,14 +62,29 @@ pub fn num(v: f64) -> String {
     }
 }
 
-/// A report value as CSV text (before quoting): numbers as [`num`], empty for no value.
+/// The first characters that make a spreadsheet (Excel, LibreOffice, Google Sheets) read
+/// a cell as a formula: OWASP's list for CSV injection.
+pub const FORMULA_STARTS: [char; 6] = ['=', '+', '-', '@', '\t', '\r'];
+
+/// `text` as a CSV cell that no spreadsheet runs: after a `'` when it starts with one of
+/// [`FORMULA_STARTS`], else as it is.
+pub fn text_cell(text: &str) -> Cow<'_, str> {
+    if text.starts_with(FORMULA_STARTS) {
+        Cow::Owned(format!("'{text}"))
+    } else {
+        Cow::Borrowed(text)
+    }
+}
+
+/// A report value as CSV text (before quoting): numbers as [`num`], empty for no value,
+/// text through [`text_cell`].
 pub fn field(f: &Field) -> Cow<'_, str> {
     match f {
         Field::Num(v) => Cow::Owned(num(*v)),
         Field::Null => Cow::Borrowed(""),
         Field::Int(v) => Cow::Owned(v.to_string()),
         Field::Bool(b) => Cow::Borrowed(if *b { "true" } else { "false" }),
-        Field::Text(s) => Cow::Borrowed(s),
+        Field::Text(s) => text_cell(s),
     }
 }
 
@@ -107,6 +128,28 @@ mod tests {
         ];
         assert_eq!(fields_line(&f), "1.5,,\"x,y\",true,7,,0.0000001");
         assert_eq!(num(f64::INFINITY), "");
+    }
+
+    /// Text a spreadsheet would run gets a `'`; numbers, negative ones too, stay numbers.
+    #[test]
+    fn formulas_are_not_run() {
+        let f = [
+            (
+                "file",
+                Field::Text("=HYPERLINK(\"http://x\",\"a\").ply".into()),
+            ),
+            ("a", Field::Text("+1".into())),
+            ("b", Field::Text("-2+3".into())),
+            ("c", Field::Text("@SUM(A1)".into())),
+            ("d", Field::Text("\tx".into())),
+            ("e", Field::Text("\rx".into())),
+            ("g", Field::Num(-0.5)),
+            ("h", Field::Text("a=b".into())),
+        ];
+        assert_eq!(
+            fields_line(&f),
+            "\"'=HYPERLINK(\"\"http://x\"\",\"\"a\"\").ply\",'+1,'-2+3,'@SUM(A1),'\tx,\"'\rx\",-0.5,a=b"
+        );
     }
 
     #[test]

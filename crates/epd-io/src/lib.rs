@@ -12,7 +12,12 @@
 //! - [`json`]: JSON through `serde_json`, numbers as shortest round-trip decimals; a
 //!   report's fields ([`epd_core::report::Field`]) as one object.
 //! - [`atomic`]: a file written whole (temporary file, fsync of the file and of its
-//!   folder, rename).
+//!   folder, rename; a device or pipe written through), its temporary files removed on
+//!   a signal and after a kill.
+//! - [`name`]: file names shown as data (control characters escaped, bytes that are not
+//!   UTF-8 kept).
+//! - [`diag`]: diagnostics on standard error that a closed pipe cannot turn into a
+//!   panic.
 //! - [`depth_png`]: a frame's depth image with its colour bar, drawn with plotters in
 //!   the figures' [`font`].
 //!
@@ -24,8 +29,10 @@ pub mod atomic;
 pub mod cloud;
 pub mod csv;
 pub mod depth_png;
+pub mod diag;
 pub mod font;
 pub mod json;
+pub mod name;
 pub mod pcd;
 pub mod ply;
 pub mod read;

@@ -6,9 +6,9 @@ used gives a line with `"status": "error"` and the message in `error`).
 
 Each worker process fits one file at a time with one thread (RAYON_NUM_THREADS=1, set
 before the workers start): over many files that keeps every core busy without the
-workers' thread pools fighting over them. The pool uses the "spawn" start method: a
-process forked after epd's thread pool has started would inherit the pool without its
-threads and hang at its first estimate.
+workers' thread pools fighting over them. The pool uses the "spawn" start method: clean
+workers on every platform, each reading RAYON_NUM_THREADS when it starts (a forked worker
+would also work: epd rebuilds its thread pool in a forked child).
 """
 
 import argparse

@@ -34,6 +34,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let fit_ms = e.elapsed_ms;
         let report = FileReport {
             file: String::new(),
+            file_bytes: None,
             outcome: Ok(e),
         };
         Ok((report.fields().len(), fit_ms))

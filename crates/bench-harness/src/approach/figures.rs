@@ -118,6 +118,7 @@ pub(crate) fn plot_approach(s: &ApproachScenario, rows: &[FrameRow]) -> anyhow::
             xa: Axis { log: false },
             ya: Axis { log: false },
             legend: Legend::PerPanel,
+            x_names: &[],
         },
         &panels,
     )

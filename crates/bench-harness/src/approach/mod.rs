@@ -117,9 +117,11 @@ fn stage(s: &ApproachScenario, dir: &Path, progress: bool) -> anyhow::Result<App
     let mut rows = Vec::new();
     for di in 0..s.distances_m.len() {
         if progress {
-            eprintln!(
+            epd_io::stderr_line!(
                 "{}: {} m ahead, {} frames",
-                s.name, s.distances_m[di], s.frames
+                s.name,
+                s.distances_m[di],
+                s.frames
             );
         }
         let done: Vec<anyhow::Result<[FrameRow; 2]>> = (0..s.frames)

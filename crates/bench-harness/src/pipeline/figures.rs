@@ -101,6 +101,7 @@ fn pipeline_diameters(s: &PipelineScenario, points: &[ProfileRow]) -> anyhow::Re
             xa: Axis { log: false },
             ya: Axis { log: false },
             legend: Legend::PerPanel,
+            x_names: &[],
         },
         &panels,
     )
@@ -171,6 +172,7 @@ fn pipeline_section_errors(s: &PipelineScenario, sections: &[SectionRow]) -> any
             xa: Axis { log: false },
             ya: Axis { log: false },
             legend: Legend::PerPanel,
+            x_names: &[],
         },
         &panels,
     )
@@ -291,6 +293,7 @@ fn pipeline_profile(s: &PipelineScenario, points: &[ProfileRow]) -> anyhow::Resu
             xa: Axis { log: false },
             ya: Axis { log: false },
             legend: Legend::PerPanel,
+            x_names: &[],
         },
         &[
             Panel {
@@ -393,6 +396,7 @@ fn pipeline_weights(s: &PipelineScenario, sections: &[SectionRow]) -> anyhow::Re
             xa: Axis { log: false },
             ya: Axis { log: true },
             legend: Legend::PerPanel,
+            x_names: &[],
         },
         &panels,
     )

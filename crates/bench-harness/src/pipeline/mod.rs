@@ -131,7 +131,7 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
     let start = Instant::now();
     let say = |m: &str| {
         if progress {
-            eprintln!("{}: {m}", s.name);
+            epd_io::stderr_line!("{}: {m}", s.name);
         }
     };
     say(&format!("calibration rig: {} frames", s.rig_frames));

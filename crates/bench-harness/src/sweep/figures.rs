@@ -67,6 +67,8 @@ struct Sweep<'a> {
     methods: Vec<String>,
     x_label: String,
     xa: Axis,
+    /// The swept values' names when they are not numbers (drawn at x = 0, 1, …).
+    x_names: Vec<String>,
     /// Trials were run one at a time (`time_ms` not contended).
     timing: bool,
 }
@@ -76,6 +78,8 @@ impl<'a> Sweep<'a> {
         let values: Vec<&str> = scenario.sweeps.iter().map(|(v, _)| v.as_str()).collect();
         let owned: Vec<String> = values.iter().map(|v| (*v).to_string()).collect();
         let x = xs(&owned);
+        let numeric = owned.iter().all(|v| v.parse::<f64>().is_ok());
+        let x_names = if numeric { Vec::new() } else { owned.clone() };
         let mut x_of = HashMap::new();
         for (v, &xi) in values.iter().zip(&x) {
             x_of.entry(*v).or_insert(xi);
@@ -94,6 +98,7 @@ impl<'a> Sweep<'a> {
             methods,
             x_label: axis_label(&scenario.sweep_variable),
             xa: Axis { log: log_x },
+            x_names,
             timing: scenario.timing,
         }
     }
@@ -148,6 +153,7 @@ impl<'a> Sweep<'a> {
             xa: self.xa,
             ya,
             legend: Legend::Shared,
+            x_names: &self.x_names,
         }
     }
 }
@@ -330,8 +336,79 @@ fn crb_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
     )
 }
 
+/// `coverage.png`: how often the reported ±1.96σ̂ interval covered the true Dmax and Dmin
+/// (and the mean diameter when the summary has its coverage), per swept value (the nominal 0.95 dashed): a 1-σ that holds gives
+/// 0.95 within the binomial standard error √(0.95·0.05/trials) of the count.
+fn coverage_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
+    // The quantities whose coverage the summary holds (the mean diameter's needs its own
+    // 1-σ per trial).
+    let quantities: Vec<(&str, &str)> = [
+        ("dmax", "Dmax"),
+        ("dmin", "Dmin"),
+        ("dmean", "mean diameter"),
+    ]
+    .into_iter()
+    .filter(|(q, _)| {
+        sw.summary
+            .iter()
+            .any(|r| r.quantity == *q && r.coverage95.is_some())
+    })
+    .collect();
+    let cov: Pick = |r| Some((r.coverage95?, f64::NAN, f64::NAN));
+    let nominal: Pick = |r| r.coverage95.map(|_| (0.95, f64::NAN, f64::NAN));
+    let series: Vec<Vec<Series>> = quantities
+        .iter()
+        .map(|(q, _)| {
+            let mut v = Vec::new();
+            if let Some(m) = sw.methods.first() {
+                v.push(Series {
+                    name: "nominal 0.95".into(),
+                    colour: REFERENCE,
+                    points: sw.points(q, m, nominal),
+                    bars: false,
+                    marker_triangle: false,
+                    dashed: true,
+                });
+            }
+            v.extend(sw.series(q, false, cov));
+            v
+        })
+        .collect();
+    let panels: Vec<Panel<'_>> = quantities
+        .iter()
+        .zip(&series)
+        .map(|((_, t), s)| Panel {
+            title: (*t).into(),
+            y_label: "coverage of ±1.96σ̂".into(),
+            series: s,
+        })
+        .collect();
+    // Named values (a swept table) need room for their names: one panel per row, about
+    // 150 px per value.
+    let rows = quantities.len().max(1);
+    let (grid, size) = if sw.x_names.is_empty() {
+        ((1, rows), None)
+    } else {
+        let width = (150 * sw.x_names.len() as u32 + 140).max(1040);
+        ((rows, 1), Some((width, 500 * rows as u32 + 74)))
+    };
+    let mut fig = sw.figure(
+        "coverage.png",
+        format!(
+            "{}: share of trials whose ±1.96σ̂ interval holds the truth",
+            sw.name
+        ),
+        grid,
+        Axis { log: false },
+    );
+    if let Some(size) = size {
+        fig.size = size;
+    }
+    render(fig, &panels)
+}
+
 /// Every figure of a sweep, in [`crate::output::RUN_FILES`] order: `diameter_error.png`,
-/// `dmean_error.png`, `pose_error.png`, `time.png`, `std_vs_crb.png`.
+/// `dmean_error.png`, `pose_error.png`, `time.png`, `std_vs_crb.png`, `coverage.png`.
 pub fn plot_all(scenario: &Scenario, summary: &[SummaryRow]) -> anyhow::Result<Vec<Png>> {
     let sw = Sweep::new(scenario, summary);
     Ok(vec![
@@ -340,6 +417,7 @@ pub fn plot_all(scenario: &Scenario, summary: &[SummaryRow]) -> anyhow::Result<V
         pose_figure(&sw)?,
         time_figure(&sw)?,
         crb_figure(&sw)?,
+        coverage_figure(&sw)?,
     ])
 }
 

@@ -5,7 +5,9 @@
 use std::path::{Path, PathBuf};
 
 use epd_core::{Loss, Method};
-use tof_sim::{Noise, Pipe, PoseRanges, Sensor, Subsample};
+use tof_sim::{
+    CameraNoise, Contamination, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, WallModel,
+};
 
 use crate::scenario::{KeyError, ScenarioError, check_name, key_err, read_source};
 pub use keys::Points;
@@ -24,6 +26,10 @@ pub struct Setting {
     pub pipe: Pipe,
     /// The depth errors.
     pub noise: Noise,
+    /// What a real camera adds to them (`[noise.camera]`).
+    pub camera: CameraNoise,
+    /// What lies in or deforms the pipe (`[contamination]`).
+    pub contamination: Contamination,
     /// The pose ranges.
     pub poses: PoseRanges,
     /// Points kept per frame.
@@ -102,9 +108,16 @@ fn set_dotted(table: &mut toml::Table, dotted: &str, value: toml::Value) -> Resu
     Ok(())
 }
 
+/// A swept value as the results name it: a string as written, a table by its `label`
+/// (when it has one), anything else as TOML.
 fn value_text(v: &toml::Value) -> String {
     match v {
         toml::Value::String(s) => s.clone(),
+        toml::Value::Table(t) if t.get("label").is_some_and(toml::Value::is_str) => t
+            .get("label")
+            .and_then(toml::Value::as_str)
+            .unwrap_or_default()
+            .to_string(),
         other => other.to_string(),
     }
 }
@@ -284,6 +297,27 @@ fn to_setting(f: &File) -> Result<Setting, KeyError> {
     noise.validate().map_err(sim)?;
     poses.validate().map_err(sim)?;
     check_sensor_inside(&pipe, &poses)?;
+    let camera = f.noise.camera.to_camera();
+    camera
+        .validate(&noise)
+        .map_err(sim)
+        .map_err(|(k, m)| (camera_key(&k), m))?;
+    let contamination = f.contamination.to_contamination();
+    // The contamination's own checks (in metres and radians, against the pipe's size) on
+    // the pipe at the centre of the pose ranges: they do not depend on the pose.
+    let centre = PoseRanges {
+        roll: (0.0, 0.0),
+        pitch: (0.0, 0.0),
+        yaw: (0.0, 0.0),
+        dy: (0.0, 0.0),
+        dz: (0.0, 0.0),
+        tilt: None,
+    }
+    .sample(&pipe, 0, 0)
+    .map_err(sim)?;
+    Scene::new(&centre, WallModel::Exact, sensor.max_range)
+        .and_then(|s| s.with_contamination(contamination))
+        .map_err(sim)?;
     let loss_scale_auto = match f.loss_scale.as_str() {
         "fixed" => false,
         "auto" => true,
@@ -316,6 +350,8 @@ fn to_setting(f: &File) -> Result<Setting, KeyError> {
         sensor,
         pipe,
         noise,
+        camera,
+        contamination,
         poses,
         points: f.points,
         methods,
@@ -389,4 +425,22 @@ fn check_sensor_inside(pipe: &Pipe, poses: &PoseRanges) -> Result<(), KeyError> 
         ));
     }
     Ok(())
+}
+
+/// tof-sim names the camera's fields as `CameraNoise` does; the file's key is
+/// `noise.camera.<field>` (the wiggle's and flying pixels' parts by their file names).
+fn camera_key(field: &str) -> String {
+    let last = field.rsplit('.').next().unwrap_or(field);
+    let file_key = match field {
+        f if f.contains("wiggle") => match last {
+            "amplitude_m" => "wiggle_amplitude_m",
+            "period_m" => "wiggle_period_m",
+            "phase_rad" => "wiggle_phase_deg",
+            other => other,
+        },
+        f if f.contains("flying") => "flying_pixel_probability",
+        f if f.contains("multipath") => "multipath_bands",
+        _ => last,
+    };
+    format!("noise.camera.{file_key}")
 }

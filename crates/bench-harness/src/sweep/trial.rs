@@ -8,7 +8,7 @@ use epd_core::{
     EstimateOptions, LossScale, Method, N_PARAMS, Params, cramer_rao_bound, errors_against,
     estimate,
 };
-use tof_sim::{Frame, FrameSeed, Scene, WallModel, simulate_into};
+use tof_sim::{Frame, FrameSeed, Scene, WallModel, simulate_into_with};
 
 use super::record::{MethodRecord, TrialRecord};
 use super::scenario::Setting;
@@ -69,7 +69,9 @@ fn run_with(
         Ok(t) => t,
         Err(e) => return fail(nan, e.to_string()),
     };
-    let scene = match Scene::new(&truth, WallModel::Exact, setting.sensor.max_range) {
+    let scene = match Scene::new(&truth, WallModel::Exact, setting.sensor.max_range)
+        .and_then(|s| s.with_contamination(setting.contamination))
+    {
         Ok(s) => s,
         Err(e) => return fail(truth, e.to_string()),
     };
@@ -78,10 +80,11 @@ fn run_with(
         trial: trial as u64,
         sweep_index: sweep_index as u64,
     };
-    if let Err(e) = simulate_into(
+    if let Err(e) = simulate_into_with(
         &setting.sensor,
         &scene,
         &setting.noise,
+        &setting.camera,
         setting.subsample(),
         seeds,
         frame,

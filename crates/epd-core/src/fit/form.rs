@@ -157,9 +157,8 @@ pub fn form_test(
     cells: &Cells,
 ) -> Option<FormMisfit> {
     let geom = Geometry::new(beta)?;
-    let rot = beta.rotation();
-    let m = *rot.matrix();
     let g = cells.len();
+    let indexer = cells.indexer();
     // On at most FORM_POINTS evenly strided points: each cell's residuals, and the sums
     // of its points' axial distances and clock-angle sines and cosines.
     let stride = points.len().div_ceil(FORM_POINTS).max(1);
@@ -171,13 +170,16 @@ pub fn form_test(
         if !r.is_finite() {
             continue;
         }
-        let [x, y, z] = wall_point_pcs(&geom, &m, beta, p);
-        let c = cells.index(x, y, z);
+        let [x, y, z] = wall_point_pcs(&geom, p);
+        let c = indexer.index(x, y, z);
         per_cell[c].push(r);
-        let phi = y.atan2(z);
+        // sin and cos of the clock angle atan2(y, z).
+        let rho = y.hypot(z);
         centre[c][0] += x;
-        centre[c][1] += phi.sin();
-        centre[c][2] += phi.cos();
+        if rho > 0.0 {
+            centre[c][1] += y / rho;
+            centre[c][2] += z / rho;
+        }
     }
     let n_all: usize = per_cell.iter().map(Vec::len).sum();
     let min_points = MIN_CELL_POINTS.max(n_all / (SLIVER_FRACTION * g));

@@ -7,4 +7,5 @@ pub mod cloud;
 pub mod estimate;
 pub mod form;
 pub mod init;
+pub mod student;
 pub mod uncertainty;

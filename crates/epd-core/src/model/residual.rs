@@ -38,7 +38,8 @@ pub enum Residual {
 /// their derivatives over the three angles, and the ellipse coefficients.
 #[derive(Clone, Copy, Debug)]
 pub struct Geometry {
-    /// Rows Y and Z of R = Rz·Ry·Rx (SCS → PCS).
+    /// Rows X, Y and Z of R = Rz·Ry·Rx (SCS → PCS).
+    r_x: [f64; 3],
     r_y: [f64; 3],
     r_z: [f64; 3],
     /// Rows Y and Z of ∂R/∂θx, ∂R/∂θy, ∂R/∂θz.
@@ -102,6 +103,7 @@ impl Geometry {
         let gamma = 4.0 / (beta.d_min * beta.d_min);
         let (y0, z0) = (beta.dy, beta.dz);
         Some(Self {
+            r_x: row(&r, 0),
             r_y: row(&r, 1),
             r_z: row(&r, 2),
             dr_y: [row(&d[0], 1), row(&d[1], 1), row(&d[2], 1)],
@@ -257,6 +259,34 @@ impl Geometry {
         let v = dot(&self.r_z, p);
         let rho = (u * u + v * v).sqrt();
         1.0 - self.residual(Residual::ErrorBased, p) / rho
+    }
+
+    /// Where the sensing lines of `L` measured points (SCS, m) meet the wall, in the PCS:
+    /// (t·q_x, y0 + t·u, z0 + t·v) with q = R·p and t the positive root of eq. (22) (see
+    /// the module doc), lane by lane. A line along the model axis (A = 0) never meets the
+    /// wall; it is given t = 1 (the measured point itself).
+    #[inline(always)]
+    pub fn wall_points<const L: usize>(&self, p: &[[f64; 3]; L]) -> [[f64; L]; 3] {
+        let mut w = [[0.0; L]; 3];
+        for l in 0..L {
+            let (qx, u, v) = (
+                dot(&self.r_x, &p[l]),
+                dot(&self.r_y, &p[l]),
+                dot(&self.r_z, &p[l]),
+            );
+            let a_raw = self.alpha * u * u + self.gamma * v * v;
+            let valid = a_raw > 1e-300;
+            let a = if valid { a_raw } else { 1.0 };
+            let b = self.alpha * self.y0 * u + self.gamma * self.z0 * v;
+            let sq = (b * b - a * self.c).max(0.0).sqrt();
+            let num = if b > 0.0 { -self.c } else { sq - b };
+            let den = if b > 0.0 { b + sq } else { a };
+            let t = if valid { num / den } else { 1.0 };
+            w[0][l] = t * qx;
+            w[1][l] = self.y0 + t * u;
+            w[2][l] = self.z0 + t * v;
+        }
+        w
     }
 }
 

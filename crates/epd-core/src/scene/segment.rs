@@ -27,7 +27,7 @@
 //! A bend and a tee differ on the far side: a bend pulls the opposite wall in (its
 //! sector's median goes negative with the shift), a tee leaves it on the cylinder.
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::{Matrix3, Vector3};
 
 use crate::cloud::clean;
 use crate::error::EpdError;
@@ -234,15 +234,21 @@ pub struct Segmentation {
 /// out of the binning: a measured point moves along its ray, toward the sensor when its
 /// noise is negative, and near the edge of the view the first slices would collect the
 /// short ones.
-fn deviation(geom: &Geometry, beta: &Params, p: &[f64; 3]) -> Option<(f64, f64, f64)> {
-    let t = geom.line_parameter(p);
+fn deviation(
+    geom: &Geometry,
+    m: &Matrix3<f64>,
+    beta: &Params,
+    p: &[f64; 3],
+) -> Option<(f64, f64, f64)> {
     let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-    let u = beta.dir_scs_to_pcs(&Vector3::new(p[0] / r, p[1] / r, p[2] / r));
-    let q = beta.scs_to_pcs(&Point3::new(t * p[0], t * p[1], t * p[2]));
+    let u = m * Vector3::new(p[0] / r, p[1] / r, p[2] / r);
+    let t = geom.line_parameter(p);
+    let q = m * Vector3::new(t * p[0], t * p[1], t * p[2]);
+    let (qx, qy, qz) = (q.x, q.y + beta.dy, q.z + beta.dz);
     let (a, b) = (0.5 * beta.d_max, 0.5 * beta.d_min);
-    let n = Vector3::new(0.0, q.y / (a * a), q.z / (b * b)).normalize();
+    let n = Vector3::new(0.0, qy / (a * a), qz / (b * b)).normalize();
     let d = (1.0 - t) * r * n.dot(&u).abs();
-    let out = (q.x, d, q.z.atan2(q.y));
+    let out = (qx, d, qz.atan2(qy));
     (out.0.is_finite() && out.1.is_finite() && out.2.is_finite()).then_some(out)
 }
 
@@ -252,9 +258,13 @@ pub fn profile(points: &[[f64; 3]], beta: &Params, o: &SegmentOptions) -> Vec<Sl
     let Some(geom) = Geometry::new(beta) else {
         return Vec::new();
     };
+    let m = *beta.rotation().matrix();
     let pcs: Vec<(f64, f64, f64)> = points
         .iter()
-        .filter_map(|p| deviation(&geom, beta, p))
+        .filter_map(|p| {
+            crate::cancel::tick();
+            deviation(&geom, &m, beta, p)
+        })
         .collect();
     let Some(x_max) = pcs.iter().map(|v| v.0).reduce(f64::max) else {
         return Vec::new();
@@ -272,6 +282,7 @@ pub fn profile(points: &[[f64; 3]], beta: &Params, o: &SegmentOptions) -> Vec<Sl
     let mut cells: Vec<Vec<f64>> = vec![Vec::new(); n_slices * ns];
     let tau = std::f64::consts::TAU;
     for &(x, d, psi) in &pcs {
+        crate::cancel::tick();
         if x < x_min {
             continue;
         }
@@ -610,7 +621,10 @@ fn model_axial(points: &[[f64; 3]], beta: &Params) -> Option<Vec<f64>> {
     Some(
         points
             .iter()
-            .map(|p| geom.line_parameter(p) * (row[0] * p[0] + row[1] * p[1] + row[2] * p[2]))
+            .map(|p| {
+                crate::cancel::tick();
+                geom.line_parameter(p) * (row[0] * p[0] + row[1] * p[1] + row[2] * p[2])
+            })
             .collect(),
     )
 }

@@ -300,10 +300,13 @@ pub fn minimize<const N: usize, P: NormalEquationsProblem<N>>(
         };
     };
     loop {
+        // A caller's stop request (`crate::cancel`: a Python caller's Ctrl-C).
+        crate::cancel::checkpoint();
         if let Some(status) = solver.stop_at_point() {
             return solver.report(status);
         }
         loop {
+            crate::cancel::checkpoint();
             match solver.try_step() {
                 Trial::Accepted => break,
                 Trial::Rejected => continue,

@@ -82,7 +82,7 @@ impl<'a> PipeFit<'a> {
         let kind = self.residual;
         let loss = self.loss;
         let accumulate =
-            |(chunk, s): (&[[f64; 3]], &[f64])| accumulate_chunk(&geom, kind, loss, chunk, s);
+            |(chunk, s): (&[[f64; 3]], &[f64])| accumulate_chunk(&geom, kind, loss, chunk, s).eq;
         let mut total = if self.points.len() <= CHUNK {
             accumulate((self.points, self.scales.unwrap_or(&[])))
         } else {
@@ -193,36 +193,126 @@ impl Cells {
         false
     }
 
-    /// The cell of a PCS point (x along the axis, y and z across it).
+    /// The cell of a PCS point (x along the axis, y and z across it). For many points,
+    /// [`indexer`](Self::indexer) once and its [`CellIndexer::index`] per point.
     pub fn index(&self, x: f64, y: f64, z: f64) -> usize {
-        let a = self.axial_edges.partition_point(|&e| e <= x);
+        self.indexer().index(x, y, z)
+    }
+
+    /// The cells' boundaries prepared for indexing many points.
+    pub fn indexer(&self) -> CellIndexer<'_> {
         let s = self.sectors.max(1);
-        let phi = y.atan2(z) + std::f64::consts::PI; // [0, 2π]
-        let k = ((phi / std::f64::consts::TAU) * s as f64) as usize;
-        a * s + k.min(s - 1)
+        let per_quadrant = if s.is_multiple_of(4) { s / 4 } else { 0 };
+        // Inner boundaries of a quadrant's sectors, at j·2π/s (j = 1 … s/4 − 1).
+        let quadrant_bounds = (1..per_quadrant)
+            .map(|j| {
+                let a = std::f64::consts::TAU * j as f64 / s as f64;
+                (a.cos(), a.sin())
+            })
+            .collect();
+        CellIndexer {
+            axial_edges: &self.axial_edges,
+            sectors: s,
+            per_quadrant,
+            quadrant_bounds,
+        }
     }
 }
 
-/// Where the sensing line of the measured point `p` (SCS, m) meets the wall of β, in the
-/// PCS (`m` = β's rotation matrix): the point t·p with t the line parameter of eq. (21).
+/// [`Cells`] ready to index many points without a transcendental function per point.
+#[derive(Clone, Debug)]
+pub struct CellIndexer<'c> {
+    axial_edges: &'c [f64],
+    sectors: usize,
+    /// s/4 when the sectors divide the quadrants, else 0 (then [`atan2`](f64::atan2)).
+    per_quadrant: usize,
+    /// (cos a_j, sin a_j) of the quadrant's inner sector boundaries a_j = j·2π/s.
+    quadrant_bounds: Vec<(f64, f64)>,
+}
+
+impl CellIndexer<'_> {
+    /// The cell of a PCS point (x along the axis, y and z across it): axial bin × sector
+    /// k = ⌊(atan2(y, z) + π)·s/2π⌋. When s is a multiple of 4 the point is turned into
+    /// its quadrant q (by the signs of y and z), where its angle α = atan2(Y, Z) ∈ [0, π/2)
+    /// has passed a boundary a_j when Y·cos a_j − Z·sin a_j ≥ 0; atan2(y, z) + π is then
+    /// α + (q + 2)·π/2 (mod 2π), that is sector ((q + 2) mod 4)·s/4 + j.
+    #[inline(always)]
+    pub fn index(&self, x: f64, y: f64, z: f64) -> usize {
+        let a = self.axial_edges.iter().filter(|&&e| e <= x).count();
+        let s = self.sectors;
+        if self.per_quadrant == 0 {
+            let phi = y.atan2(z) + std::f64::consts::PI;
+            let k = ((phi / std::f64::consts::TAU) * s as f64) as usize;
+            return a * s + k.min(s - 1);
+        }
+        // Quadrants of ψ = atan2(y, z) in [0, 2π): 0 [0, π/2), 1 [π/2, π), 2 [π, 3π/2),
+        // 3 [3π/2, 2π); (Z, Y) is the point turned back by q·π/2.
+        let (q, zz, yy) = if y >= 0.0 {
+            if z > 0.0 { (0, z, y) } else { (1, y, -z) }
+        } else if z < 0.0 {
+            (2, -z, -y)
+        } else {
+            (3, -y, z)
+        };
+        let j = self
+            .quadrant_bounds
+            .iter()
+            .filter(|&&(c, sn)| yy * c - zz * sn >= 0.0)
+            .count();
+        a * s + ((q + 2) % 4) * self.per_quadrant + j
+    }
+}
+
+/// Where the sensing line of the measured point `p` (SCS, m) meets the wall of the
+/// geometry's β, in the PCS: the point t·p with t the line parameter of eq. (21)
+/// ([`Geometry::wall_points`]).
 /// It depends on the ray's direction only, not on the point's range error: cells chosen
 /// by the measured point itself would be chosen by its noise too (a point pushed out
 /// along its ray crosses a cell's far edge), and the cells' mean residuals would then be
 /// biased — about ±1.3 mm at σ = 20 mm for bins 0.5 m long along a pipe.
-pub fn wall_point_pcs(
+pub fn wall_point_pcs(geom: &Geometry, p: &[f64; 3]) -> [f64; 3] {
+    let [x, y, z] = geom.wall_points::<1>(&[*p]);
+    [x[0], y[0], z[0]]
+}
+
+/// The cell of each of `points` ([`wall_point_pcs`] indexed by `indexer`) into `out`,
+/// compiled for AVX2 + FMA when the CPU has them (as [`accumulate_chunk`]).
+fn cells_of(geom: &Geometry, indexer: &CellIndexer<'_>, points: &[[f64; 3]], out: &mut [u32]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports the features the function is compiled for.
+        return unsafe { cells_of_avx2(geom, indexer, points, out) };
+    }
+    cells_of_lanes(geom, indexer, points, out)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn cells_of_avx2(geom: &Geometry, indexer: &CellIndexer<'_>, points: &[[f64; 3]], out: &mut [u32]) {
+    cells_of_lanes(geom, indexer, points, out)
+}
+
+/// [`cells_of`], [`LANES`] points at a time.
+#[inline(always)]
+fn cells_of_lanes(
     geom: &Geometry,
-    m: &nalgebra::Matrix3<f64>,
-    beta: &Params,
-    p: &[f64; 3],
-) -> [f64; 3] {
-    let t = geom.line_parameter(p);
-    let t = if t.is_finite() { t } else { 1.0 };
-    let q = [t * p[0], t * p[1], t * p[2]];
-    [
-        m[(0, 0)] * q[0] + m[(0, 1)] * q[1] + m[(0, 2)] * q[2],
-        m[(1, 0)] * q[0] + m[(1, 1)] * q[1] + m[(1, 2)] * q[2] + beta.dy,
-        m[(2, 0)] * q[0] + m[(2, 1)] * q[1] + m[(2, 2)] * q[2] + beta.dz,
-    ]
+    indexer: &CellIndexer<'_>,
+    points: &[[f64; 3]],
+    out: &mut [u32],
+) {
+    let mut blocks = points.chunks_exact(LANES);
+    let mut outs = out.chunks_exact_mut(LANES);
+    for (block, o) in (&mut blocks).zip(&mut outs) {
+        let pts: &[[f64; 3]; LANES] = block.try_into().expect("chunks_exact yields LANES points");
+        let [x, y, z] = geom.wall_points::<LANES>(pts);
+        for l in 0..LANES {
+            o[l] = indexer.index(x[l], y[l], z[l]) as u32;
+        }
+    }
+    for (p, o) in blocks.remainder().iter().zip(outs.into_remainder()) {
+        let [x, y, z] = wall_point_pcs(geom, p);
+        *o = indexer.index(x, y, z) as u32;
+    }
 }
 
 /// The cluster-robust sandwich terms at one β ([`PipeFit::cluster_sandwich_at`]).
@@ -245,79 +335,92 @@ impl PipeFit<'_> {
     /// `cells` at the PCS position where each point's sensing line meets the wall of β
     /// ([`wall_point_pcs`]), or `None` outside the model's domain. Scales and held
     /// parameters as in [`sandwich_at`](Self::sandwich_at).
+    ///
+    /// One pass in at most [`CLUSTER_PARTS`] parts, each in blocks of [`CLUSTER_BLOCK`]
+    /// points: a block's points are put in cell order and every cell's run is summed by
+    /// the SIMD kernel of the solver's own normal equations (its Jᵀr is the cell's score,
+    /// its JᵀJ the cell's bread). Parts and blocks are cut by the point count alone and
+    /// added in order, so the result does not depend on the number of threads.
     pub fn cluster_sandwich_at(&self, beta: &Params, cells: &Cells) -> Option<ClusterSandwich> {
         let geom = Geometry::new(beta)?;
-        let rot = beta.rotation();
-        let m = *rot.matrix();
-        let (kind, loss) = (self.residual, self.loss);
+        let indexer = cells.indexer();
         let g = cells.len();
-        type Mat = SMatrix<f64, N_PARAMS, N_PARAMS>;
-        type Part = (Vec<Mat>, Vec<SVector<f64, N_PARAMS>>, f64);
-        let one = |(chunk, scales): (&[[f64; 3]], &[f64])| -> Part {
-            let mut bread = vec![Mat::zeros(); g];
-            let mut score = vec![SVector::<f64, N_PARAMS>::zeros(); g];
-            let mut raw = 0.0;
-            for (i, p) in chunk.iter().enumerate() {
-                let (r, grad) = geom.residual_and_gradient(kind, p);
-                let s = scales.get(i).copied().unwrap_or(1.0);
-                let (r, grad) = (s * r, grad.map(|v| s * v));
-                let (_, wg, wh) = loss.cost_and_weights(r);
-                let j = SVector::<f64, N_PARAMS>::from(grad);
-                let [x, y, z] = wall_point_pcs(&geom, &m, beta, p);
-                let c = cells.index(x, y, z);
-                bread[c].syger(wh, &j, &j, 1.0);
-                score[c] += j * (wg * r);
-                raw += r * r;
-            }
-            (bread, score, raw)
-        };
-        // At most CLUSTER_PARTS partial sums (each G scores and breads), cut by the point
-        // count alone, so the result does not depend on the number of threads and the
-        // memory does not grow with the points.
+        let (kind, loss) = (self.residual, self.loss);
         let n = self.points.len();
-        let size = n.div_ceil(CLUSTER_PARTS).max(CHUNK);
         let scales = self.scales;
-        let parts: Vec<Part> = (0..n.div_ceil(size))
-            .into_par_iter()
-            .map(|k| {
-                let range = k * size..((k + 1) * size).min(n);
-                let sc = scales.map_or(&[][..], |s| &s[range.clone()]);
-                one((&self.points[range], sc))
-            })
-            .collect();
-        let mut cell_bread = vec![Mat::zeros(); g];
-        let mut score = vec![SVector::<f64, N_PARAMS>::zeros(); g];
-        let mut raw_cost = 0.0;
-        for (b, sc, r) in &parts {
-            for (t, v) in cell_bread.iter_mut().zip(b) {
-                *t += v;
-            }
-            for (t, v) in score.iter_mut().zip(sc) {
-                *t += v;
-            }
-            raw_cost += r;
-        }
-        let free = |mut m: Mat| {
-            m.fill_upper_triangle_with_lower_triangle();
-            for i in (0..N_PARAMS).filter(|&i| self.fixed[i]) {
-                for j in 0..N_PARAMS {
-                    m[(i, j)] = 0.0;
-                    m[(j, i)] = 0.0;
+        // One part of the points, block by block into its own per-cell sums.
+        let part = |range: std::ops::Range<usize>| -> Vec<Sums> {
+            let mut sums = vec![Sums::zero(); g];
+            let mut cell = vec![0u32; CLUSTER_BLOCK];
+            let mut sorted = vec![[0.0; 3]; CLUSTER_BLOCK];
+            let mut sorted_scales = vec![0.0; scales.map_or(0, |_| CLUSTER_BLOCK)];
+            let mut start = vec![0usize; g + 1];
+            for from in range.clone().step_by(CLUSTER_BLOCK) {
+                let block = from..(from + CLUSTER_BLOCK).min(range.end);
+                let points = &self.points[block.clone()];
+                let len = points.len();
+                cells_of(&geom, &indexer, points, &mut cell[..len]);
+                // Counting sort of the block's points (and scales) by cell.
+                start.fill(0);
+                for &c in &cell[..len] {
+                    start[c as usize + 1] += 1;
+                }
+                for c in 0..g {
+                    start[c + 1] += start[c];
+                }
+                let mut next = start.clone();
+                for (i, &c) in cell[..len].iter().enumerate() {
+                    let at = next[c as usize];
+                    next[c as usize] += 1;
+                    sorted[at] = points[i];
+                    if let Some(s) = scales {
+                        sorted_scales[at] = s[from + i];
+                    }
+                }
+                for (c, total) in sums.iter_mut().enumerate() {
+                    let run = start[c]..start[c + 1];
+                    if run.is_empty() {
+                        continue;
+                    }
+                    let sc = if sorted_scales.is_empty() {
+                        &[][..]
+                    } else {
+                        &sorted_scales[run.clone()]
+                    };
+                    total.merge(&accumulate_chunk(&geom, kind, loss, &sorted[run], sc));
                 }
             }
-            m
+            sums
         };
+        let size = n.div_ceil(CLUSTER_PARTS).max(CLUSTER_BLOCK);
+        let parts: Vec<Vec<Sums>> = (0..n.div_ceil(size))
+            .into_par_iter()
+            .map(|k| part(k * size..((k + 1) * size).min(n)))
+            .collect();
+        let mut per_cell = vec![Sums::zero(); g];
+        for p in &parts {
+            for (t, v) in per_cell.iter_mut().zip(p) {
+                t.merge(v);
+            }
+        }
         let mut bread = Mat::zeros();
         let mut meat = Mat::zeros();
+        let mut raw_cost = 0.0;
         let mut kept = Vec::new();
-        for (mut s, h) in score.into_iter().zip(cell_bread) {
+        for mut c in per_cell {
+            raw_cost += c.raw_cost;
+            c.eq.symmetrize();
+            let (mut s, mut h) = (c.eq.jtr, c.eq.jtj);
             if s.iter().all(|v| *v == 0.0) && h.iter().all(|v| *v == 0.0) {
                 continue;
             }
             for i in (0..N_PARAMS).filter(|&i| self.fixed[i]) {
                 s[i] = 0.0;
+                for j in 0..N_PARAMS {
+                    h[(i, j)] = 0.0;
+                    h[(j, i)] = 0.0;
+                }
             }
-            let h = free(h);
             bread += h;
             meat += s * s.transpose();
             kept.push((s, h));
@@ -332,10 +435,41 @@ impl PipeFit<'_> {
     }
 }
 
-/// Partial sums of [`PipeFit::cluster_sandwich_at`]: each holds G scores and breads
-/// (G·56 f64, 43 kB for 96 cells), so 8 of them bound its memory at 0.35 MB whatever the
-/// points, with work for 8 threads.
+/// A 7 × 7 matrix over β.
+type Mat = SMatrix<f64, N_PARAMS, N_PARAMS>;
+
+/// Points per block of [`PipeFit::cluster_sandwich_at`]: a block sorted by cell takes
+/// 4096 · 36 B = 147 kB (points, scales and cells); with G = 96 cells a cell's run then
+/// averages 43 points, of which the scalar remainder of the 4-lane kernel (< 4) is a few
+/// per cent.
+const CLUSTER_BLOCK: usize = 4096;
+
+/// Parts of [`PipeFit::cluster_sandwich_at`] summed in parallel: each holds G per-cell
+/// sums (G · 60 f64, 46 kB for 96 cells), so 8 of them bound the pass's memory at
+/// 0.37 MB plus a block's buffers per thread, whatever the points, with work for 8
+/// threads.
 const CLUSTER_PARTS: usize = 8;
+
+/// One pass's sums: the normal equations of the loss and Σ (sᵢrᵢ)² without it.
+#[derive(Clone, Copy, Debug)]
+struct Sums {
+    eq: NormalEquations<N_PARAMS>,
+    raw_cost: f64,
+}
+
+impl Sums {
+    fn zero() -> Self {
+        Self {
+            eq: NormalEquations::zero(),
+            raw_cost: 0.0,
+        }
+    }
+
+    fn merge(&mut self, other: &Self) {
+        self.eq.merge(&other.eq);
+        self.raw_cost += other.raw_cost;
+    }
+}
 
 /// Lanes of the SIMD kernel.
 const LANES: usize = 4;
@@ -352,9 +486,10 @@ fn accumulate_lanes<const WEIGHTED: bool>(
     loss: Loss,
     chunk: &[[f64; 3]],
     scales: &[f64],
-) -> NormalEquations<N_PARAMS> {
+) -> Sums {
     const NT: usize = N_PARAMS * (N_PARAMS + 1) / 2;
     let mut cost = [0.0; LANES];
+    let mut raw = [0.0; LANES];
     let mut jtr = [[0.0; LANES]; N_PARAMS];
     let mut jtj = [[0.0; LANES]; NT];
     let mut blocks = chunk.chunks_exact(LANES);
@@ -388,6 +523,7 @@ fn accumulate_lanes<const WEIGHTED: bool>(
             for l in 0..LANES {
                 let (c, g_w, h_w) = loss.cost_and_weights(r[l]);
                 cost[l] += c;
+                raw[l] += r[l] * r[l];
                 wg[l] = g_w;
                 wh[l] = h_w;
             }
@@ -407,6 +543,7 @@ fn accumulate_lanes<const WEIGHTED: bool>(
         }
     }
     let mut eq = NormalEquations::<N_PARAMS>::zero();
+    let mut raw_cost = 0.0;
     let rest = blocks.remainder();
     let rest_scales = scale_blocks.remainder();
     for (i, p) in rest.iter().enumerate() {
@@ -418,9 +555,15 @@ fn accumulate_lanes<const WEIGHTED: bool>(
         }
         let (c, wg, wh) = loss.cost_and_weights(r);
         eq.push_weighted(r, &g, c, wg, wh);
+        raw_cost += r * r;
     }
     for l in 0..LANES {
         eq.cost += cost[l];
+        raw_cost += if loss == Loss::Squared {
+            cost[l]
+        } else {
+            raw[l]
+        };
         let mut idx = 0;
         for a in 0..N_PARAMS {
             eq.jtr[a] += jtr[a][l];
@@ -431,7 +574,7 @@ fn accumulate_lanes<const WEIGHTED: bool>(
         }
     }
     eq.n_residuals = chunk.len();
-    eq
+    Sums { eq, raw_cost }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -442,7 +585,7 @@ fn accumulate_avx2<const WEIGHTED: bool>(
     loss: Loss,
     chunk: &[[f64; 3]],
     scales: &[f64],
-) -> NormalEquations<N_PARAMS> {
+) -> Sums {
     accumulate_lanes::<WEIGHTED>(geom, kind, loss, chunk, scales)
 }
 
@@ -454,7 +597,7 @@ fn accumulate_chunk(
     loss: Loss,
     chunk: &[[f64; 3]],
     scales: &[f64],
-) -> NormalEquations<N_PARAMS> {
+) -> Sums {
     let weighted = !scales.is_empty();
     debug_assert!(!weighted || scales.len() == chunk.len());
     #[cfg(target_arch = "x86_64")]
@@ -479,5 +622,148 @@ impl NormalEquationsProblem<N_PARAMS> for PipeFit<'_> {
     fn normal_equations(&self, x: &SVector<f64, N_PARAMS>) -> Option<NormalEquations<N_PARAMS>> {
         let beta = Params::from_array(x.as_slice().try_into().ok()?);
         self.equations_at(&beta)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A reproducible stream of numbers in [−1, 1) (an LCG; no dependency needed).
+    fn numbers(seed: u64) -> impl FnMut() -> f64 {
+        let mut s = seed;
+        move || {
+            s = s
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (s >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+        }
+    }
+
+    /// The indexer's sector against the definition with `atan2`, for sector counts that
+    /// divide the quadrants (the comparisons) and that do not (the fallback), on random
+    /// points and on the axes; points within 1e-12 rad of a boundary are skipped (there
+    /// the two may round differently).
+    #[test]
+    fn cell_index_matches_the_atan2_definition() {
+        let mut r = numbers(7);
+        for sectors in [1usize, 3, 4, 8, 12, 16, 36] {
+            let cells = Cells {
+                axial_edges: vec![-0.5, 0.0, 0.7],
+                sectors,
+            };
+            let ix = cells.indexer();
+            let mut pts: Vec<[f64; 3]> = (0..20_000).map(|_| [2.0 * r(), r(), r()]).collect();
+            pts.extend([
+                [0.1, 1.0, 0.0],
+                [0.1, -1.0, 0.0],
+                [0.1, 0.0, 1.0],
+                [0.1, 0.0, -1.0],
+            ]);
+            for [x, y, z] in pts {
+                let phi = y.atan2(z) + std::f64::consts::PI;
+                let u = phi / std::f64::consts::TAU * sectors as f64;
+                if (u - u.round()).abs() < 1e-12 && u.round() != 0.0 && u.round() != sectors as f64
+                {
+                    continue;
+                }
+                let k = (u as usize).min(sectors - 1);
+                let a = cells.axial_edges.iter().filter(|&&e| e <= x).count();
+                assert_eq!(
+                    ix.index(x, y, z),
+                    a * sectors + k,
+                    "{sectors} sectors, ({x}, {y}, {z})"
+                );
+            }
+        }
+    }
+
+    /// The wall point of each sensing line against its definition through the line
+    /// parameter of eq. (21) ([`Geometry::line_parameter`]) and the rotation of eq. (3).
+    #[test]
+    fn wall_points_match_the_line_parameter() {
+        let beta = Params {
+            d_max: 0.51,
+            d_min: 0.47,
+            roll: 0.7,
+            pitch: 0.06,
+            yaw: -0.09,
+            dy: 0.04,
+            dz: -0.03,
+        };
+        let geom = Geometry::new(&beta).expect("inside");
+        let m = *beta.rotation().matrix();
+        let mut r = numbers(3);
+        for _ in 0..5_000 {
+            let p = [3.0 * r().abs() + 0.1, r(), r()];
+            let t = geom.line_parameter(&p);
+            let q = m * nalgebra::Vector3::new(t * p[0], t * p[1], t * p[2]);
+            let want = [q.x, q.y + beta.dy, q.z + beta.dz];
+            let got = wall_point_pcs(&geom, &p);
+            for k in 0..3 {
+                assert!(
+                    (got[k] - want[k]).abs() < 1e-12,
+                    "{p:?}: {got:?} vs {want:?}"
+                );
+            }
+            // On the ellipse of eq. (5).
+            let e = (2.0 * got[1] / beta.d_max).powi(2) + (2.0 * got[2] / beta.d_min).powi(2);
+            assert!((e - 1.0).abs() < 1e-12, "{p:?}: {e}");
+        }
+    }
+
+    /// The blocked cluster pass against a direct per-point sum (scalar residual and
+    /// gradient, each point's cell by `atan2`), weighted and robust, with more points
+    /// than one block.
+    #[test]
+    fn cluster_sums_match_a_direct_sum() {
+        let beta = Params {
+            d_max: 0.50,
+            d_min: 0.48,
+            roll: 0.3,
+            pitch: 0.04,
+            yaw: 0.02,
+            dy: 0.01,
+            dz: -0.02,
+        };
+        let geom = Geometry::new(&beta).expect("inside");
+        let mut r = numbers(5);
+        let n = CLUSTER_PARTS * CLUSTER_BLOCK + 12_345;
+        let pts: Vec<[f64; 3]> = (0..n).map(|_| [2.0 * r().abs() + 0.2, r(), r()]).collect();
+        let scales: Vec<f64> = (0..n).map(|_| 1.0 + 0.5 * r()).collect();
+        let cells = Cells {
+            axial_edges: vec![0.8, 1.4],
+            sectors: 12,
+        };
+        let fit = PipeFit::new(&pts, Residual::Range)
+            .with_loss(Loss::Cauchy { scale: 0.05 })
+            .with_scales(Some(&scales));
+        let sw = fit.cluster_sandwich_at(&beta, &cells).expect("inside");
+        let mut score = vec![SVector::<f64, N_PARAMS>::zeros(); cells.len()];
+        let mut bread = vec![Mat::zeros(); cells.len()];
+        let mut raw = 0.0;
+        for (p, s) in pts.iter().zip(&scales) {
+            let (res, g) = geom.residual_and_gradient(Residual::Range, p);
+            let (res, g) = (s * res, SVector::<f64, N_PARAMS>::from(g.map(|v| s * v)));
+            let (_, wg, wh) = fit.loss.cost_and_weights(res);
+            let [x, y, z] = wall_point_pcs(&geom, p);
+            let a = cells.axial_edges.iter().filter(|&&e| e <= x).count();
+            let phi = y.atan2(z) + std::f64::consts::PI;
+            let k = ((phi / std::f64::consts::TAU * 12.0) as usize).min(11);
+            score[a * 12 + k] += g * (wg * res);
+            bread[a * 12 + k] += g * g.transpose() * wh;
+            raw += res * res;
+        }
+        let kept: Vec<_> = score
+            .iter()
+            .zip(&bread)
+            .filter(|(s, _)| s.norm() > 0.0)
+            .collect();
+        assert_eq!(sw.clusters, kept.len());
+        assert!((sw.raw_cost - raw).abs() <= 1e-10 * raw);
+        for ((s, h), (ws, wh)) in sw.cells.iter().zip(kept) {
+            assert!((s - ws).norm() <= 1e-9 * ws.norm(), "{s} vs {ws}");
+            assert!((h - wh).norm() <= 1e-9 * wh.norm(), "{h} vs {wh}");
+        }
     }
 }

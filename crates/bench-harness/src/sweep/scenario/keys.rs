@@ -3,7 +3,10 @@
 
 use epd_frame::config::DEFAULT_LOSS_SCALE_M;
 use serde::Deserialize;
-use tof_sim::{Noise, NoiseModel, Pipe, PoseRanges, Sensor};
+use tof_sim::{
+    CameraNoise, Contamination, Dent, FloorLayer, FlyingPixels, MultipathBand, Noise, NoiseModel,
+    Obstacle, Pipe, PoseRanges, Sensor, ViewSector, Wiggle,
+};
 
 use super::{MAX_POINTS, MAX_SENSOR_SIDE, MAX_TRIALS, MIN_POINTS};
 use crate::scenario::{KeyError, key_err};
@@ -181,6 +184,8 @@ pub(super) struct File {
     pub(super) noise: NoiseFile,
     #[serde(default)]
     pub(super) poses: PosesFile,
+    #[serde(default)]
+    pub(super) contamination: ContaminationFile,
     pub(super) sweep: Option<SweepFile>,
 }
 
@@ -257,6 +262,11 @@ pub(super) struct NoiseFile {
     pub(super) far_outlier_fraction: f64,
     pub(super) bias_b0_m: f64,
     pub(super) bias_b1: f64,
+    /// A name for this noise model in the results (the swept value's text when the
+    /// whole `noise` table is swept); not used by the simulator.
+    pub(super) label: Option<String>,
+    /// `[noise.camera]`: what a real ToF camera adds (tof-sim's `CameraNoise`).
+    pub(super) camera: CameraFile,
 }
 
 impl Default for NoiseFile {
@@ -268,6 +278,179 @@ impl Default for NoiseFile {
             far_outlier_fraction: 0.0,
             bias_b0_m: 0.0,
             bias_b1: 0.0,
+            label: None,
+            camera: CameraFile::default(),
+        }
+    }
+}
+
+/// `[noise.camera]`: the keys of tof-sim's `CameraNoise` (its doc states each model),
+/// every one off by default.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub(super) struct CameraFile {
+    /// Correlation length of the range error over the pixel grid (pixels).
+    pub(super) correlation_length_px: f64,
+    /// σ(r) = σ·(r/r0)^p: the exponent p.
+    pub(super) sigma_range_exponent: f64,
+    /// r0 (m).
+    pub(super) sigma_reference_range_m: f64,
+    /// Wiggling a·sin(2πr/P + φ): a (m); 0 for none.
+    pub(super) wiggle_amplitude_m: f64,
+    /// P (m).
+    pub(super) wiggle_period_m: f64,
+    /// φ (degrees) when not random.
+    pub(super) wiggle_phase_deg: f64,
+    /// A phase drawn per frame (as a camera's modulation phase drifts).
+    pub(super) wiggle_random_phase: bool,
+    /// Multipath bands `[near_m, far_m, extra_m]`: rays whose true range lies in
+    /// [near, far] read `extra_m` long.
+    pub(super) multipath_bands: Vec<[f64; 3]>,
+    /// Probability of a flying pixel at a depth edge.
+    pub(super) flying_pixel_probability: f64,
+}
+
+impl Default for CameraFile {
+    fn default() -> Self {
+        let d = CameraNoise::default();
+        let w = Wiggle::helios2();
+        Self {
+            correlation_length_px: d.correlation_length_px,
+            sigma_range_exponent: d.sigma_range_exponent,
+            sigma_reference_range_m: d.sigma_reference_range_m,
+            wiggle_amplitude_m: 0.0,
+            wiggle_period_m: w.period_m,
+            wiggle_phase_deg: 0.0,
+            wiggle_random_phase: true,
+            multipath_bands: Vec::new(),
+            flying_pixel_probability: 0.0,
+        }
+    }
+}
+
+impl CameraFile {
+    /// Degrees → radians; zero amplitudes and probabilities turn their part off.
+    pub(super) fn to_camera(&self) -> CameraNoise {
+        CameraNoise {
+            correlation_length_px: self.correlation_length_px,
+            sigma_range_exponent: self.sigma_range_exponent,
+            sigma_reference_range_m: self.sigma_reference_range_m,
+            wiggle: (self.wiggle_amplitude_m != 0.0).then_some(Wiggle {
+                amplitude_m: self.wiggle_amplitude_m,
+                period_m: self.wiggle_period_m,
+                phase_rad: self.wiggle_phase_deg.to_radians(),
+                random_phase: self.wiggle_random_phase,
+            }),
+            multipath_bands: self
+                .multipath_bands
+                .iter()
+                .map(|&[near_m, far_m, extra_m]| MultipathBand {
+                    near_m,
+                    far_m,
+                    extra_m,
+                })
+                .collect(),
+            flying_pixels: (self.flying_pixel_probability != 0.0)
+                .then(|| FlyingPixels::new(self.flying_pixel_probability)),
+        }
+    }
+}
+
+/// `[contamination]`: what lies in or deforms the pipe (tof-sim's `Contamination`),
+/// nothing by default.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub(super) struct ContaminationFile {
+    /// A name for this contamination in the results; not used by the simulator.
+    pub(super) label: Option<String>,
+    /// A flat layer on the floor (sediment, water): its depth (mm).
+    pub(super) floor_depth_mm: Option<f64>,
+    /// `{ x_m, length_m, width_m, height_mm, y_m }` (a box on the floor) or
+    /// `{ x_m, radius_mm }` (a half cylinder across it).
+    pub(super) obstacle: Option<ObstacleFile>,
+    /// `{ x_m, clock_deg, depth_mm, axial_sigma_m, circumferential_sigma_m }`: a local
+    /// inward deformation of the wall.
+    pub(super) dent: Option<DentFile>,
+    /// `{ start_deg, width_deg }`: the only sector of clock angles (tof-sim's
+    /// `ViewSector`: from `start_deg` through `width_deg` of increasing atan2(y, z) in the
+    /// PCS) in which the camera's pixels are valid, as in a half-filled pipe.
+    pub(super) seen_sector: Option<SectorFile>,
+}
+
+/// `contamination.obstacle`.
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(deny_unknown_fields, untagged)]
+pub(super) enum ObstacleFile {
+    Box {
+        x_m: f64,
+        length_m: f64,
+        width_m: f64,
+        height_mm: f64,
+        #[serde(default)]
+        y_m: f64,
+    },
+    HalfCylinder {
+        x_m: f64,
+        radius_mm: f64,
+    },
+}
+
+/// `contamination.dent`.
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct DentFile {
+    x_m: f64,
+    clock_deg: f64,
+    depth_mm: f64,
+    axial_sigma_m: f64,
+    circumferential_sigma_m: f64,
+}
+
+/// `contamination.seen_sector`.
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct SectorFile {
+    start_deg: f64,
+    width_deg: f64,
+}
+
+impl ContaminationFile {
+    /// mm → m, degrees → radians.
+    pub(super) fn to_contamination(&self) -> Contamination {
+        Contamination {
+            floor: self
+                .floor_depth_mm
+                .map(|d| FloorLayer { depth_m: d * 1e-3 }),
+            obstacle: self.obstacle.map(|o| match o {
+                ObstacleFile::Box {
+                    x_m,
+                    length_m,
+                    width_m,
+                    height_mm,
+                    y_m,
+                } => Obstacle::Box {
+                    x_m,
+                    length_m,
+                    width_m,
+                    height_m: height_mm * 1e-3,
+                    y_m,
+                },
+                ObstacleFile::HalfCylinder { x_m, radius_mm } => Obstacle::HalfCylinder {
+                    x_m,
+                    radius_m: radius_mm * 1e-3,
+                },
+            }),
+            dent: self.dent.map(|d| Dent {
+                x_m: d.x_m,
+                clock_rad: d.clock_deg.to_radians(),
+                depth_m: d.depth_mm * 1e-3,
+                axial_sigma_m: d.axial_sigma_m,
+                circumferential_sigma_m: d.circumferential_sigma_m,
+            }),
+            view: self.seen_sector.map(|v| ViewSector {
+                start_rad: v.start_deg.to_radians(),
+                width_rad: v.width_deg.to_radians(),
+            }),
         }
     }
 }

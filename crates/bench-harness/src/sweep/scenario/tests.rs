@@ -176,3 +176,87 @@ fn angles_are_refused_in_degrees_with_the_reason() {
         assert!(!e.contains("1.57"), "{src}: radians in {e}");
     }
 }
+
+/// A sweep over whole `noise` tables: each value named by its label, its camera keys in
+/// the setting (degrees → radians), the keys it leaves out at their defaults.
+#[test]
+fn noise_tables_are_swept_by_label_with_their_camera_keys() {
+    let s = parse(
+        r#"
+name = "n"
+[sweep]
+variable = "noise"
+values = [
+  { label = "plain", sigma_m = 0.02 },
+  { label = "camera", sigma_m = 0.01, camera = { correlation_length_px = 2.0, wiggle_amplitude_m = 0.006, wiggle_phase_deg = 90.0, wiggle_random_phase = false, multipath_bands = [[1.0, 2.0, 0.05]], flying_pixel_probability = 0.25 } },
+  { sigma_m = 0.03 },
+]
+"#,
+    )
+    .unwrap();
+    assert_eq!(s.sweeps[0].0, "plain");
+    assert_eq!(s.sweeps[1].0, "camera");
+    assert_eq!(s.sweeps[2].0, "{ sigma_m = 0.03 }");
+    assert_eq!(s.sweeps[0].1.camera, CameraNoise::default());
+    let c = &s.sweeps[1].1.camera;
+    assert_eq!(s.sweeps[1].1.noise.sigma, 0.01);
+    assert_eq!(c.correlation_length_px, 2.0);
+    let w = c.wiggle.expect("a wiggle");
+    assert_eq!((w.amplitude_m, w.random_phase), (0.006, false));
+    assert!((w.phase_rad - std::f64::consts::FRAC_PI_2).abs() < 1e-15);
+    assert_eq!(c.multipath_bands.len(), 1);
+    assert_eq!(c.multipath_bands[0].extra_m, 0.05);
+    assert_eq!(c.flying_pixels.map(|f| f.probability), Some(0.25));
+}
+
+/// The camera's and the contamination's limits are checked before anything runs, and the
+/// message names the file's key.
+#[test]
+fn camera_and_contamination_keys_are_checked_by_name() {
+    let err = |body: &str| {
+        parse(&format!("name = \"n\"\n{body}"))
+            .unwrap_err()
+            .to_string()
+    };
+    let e = err("[noise.camera]\ncorrelation_length_px = 100.0");
+    assert!(e.contains("noise.camera.correlation_length_px"), "{e}");
+    let e = err("[noise.camera]\nmultipath_bands = [[2.0, 1.0, 0.05]]");
+    assert!(e.contains("noise.camera.multipath_bands"), "{e}");
+    let e = err("[noise.camera]\ncorrelation = 1.0");
+    assert!(e.contains("correlation"), "{e}");
+    let e = err("[contamination]\nfloor_depth_mm = 400.0");
+    assert!(e.contains("contamination.floor.depth_m"), "{e}");
+    let e = err(
+        "[contamination.dent]\nx_m = 1.0\nclock_deg = 0.0\ndepth_mm = -5.0\naxial_sigma_m = 0.1\ncircumferential_sigma_m = 0.1",
+    );
+    assert!(e.contains("contamination.dent.depth_m"), "{e}");
+}
+
+/// The contamination's keys in the file's units reach the simulator in metres and
+/// radians.
+#[test]
+fn contamination_keys_reach_the_simulator_in_si_units() {
+    let s = parse(
+        r#"
+name = "c"
+[contamination]
+floor_depth_mm = 100.0
+obstacle = { x_m = 1.2, radius_mm = 50.0 }
+dent = { x_m = 1.0, clock_deg = 180.0, depth_mm = 25.0, axial_sigma_m = 0.15, circumferential_sigma_m = 0.1 }
+seen_sector = { start_deg = -90.0, width_deg = 180.0 }
+"#,
+    )
+    .unwrap();
+    let c = s.sweeps[0].1.contamination;
+    assert_eq!(c.floor.map(|f| f.depth_m), Some(0.1));
+    assert!(matches!(
+        c.obstacle,
+        Some(tof_sim::Obstacle::HalfCylinder { radius_m, .. }) if (radius_m - 0.05).abs() < 1e-15
+    ));
+    let d = c.dent.expect("a dent");
+    assert!(
+        (d.clock_rad - std::f64::consts::PI).abs() < 1e-15 && (d.depth_m - 0.025).abs() < 1e-15
+    );
+    let v = c.view.expect("a view");
+    assert!((v.width_rad - std::f64::consts::PI).abs() < 1e-15);
+}

@@ -1,0 +1,167 @@
+"""Long calls under the caller's control: Ctrl-C, running out of memory, fork, masked
+arrays and a bad sigma=. Each case runs in a child interpreter where it needs signals,
+limits or fork, so that a failure (a hang, an abort) fails the test and nothing else."""
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import epd
+
+# Bytes per point an estimate may use beyond its input (epd-py's WORKING_BYTES_PER_POINT).
+WORKING_BYTES_PER_POINT = 48
+
+
+def run_child(code, timeout=300):
+    """Run `code` in a fresh interpreter; returns (exit status, stdout, stderr)."""
+    p = subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    return p.returncode, p.stdout, p.stderr
+
+
+MAKE_BIG = """
+import numpy as np, epd
+def big(n):
+    pts, _ = epd.simulate(points=None, seed=3)
+    return np.ascontiguousarray(np.tile(pts, (-(-n // len(pts)), 1))[:n])
+"""
+
+
+def test_ctrl_c_stops_a_long_call_within_half_a_second():
+    # 4·10⁶ points take several seconds; SIGINT 1 s into the call.
+    code, out, err = run_child(
+        MAKE_BIG
+        + """
+import os, signal, threading, time
+a = big(4_000_000)
+sent = []
+def fire():
+    time.sleep(1.0)
+    sent.append(time.perf_counter())
+    os.kill(os.getpid(), signal.SIGINT)
+threading.Thread(target=fire, daemon=True).start()
+t0 = time.perf_counter()
+try:
+    epd.estimate(a)
+    print("finished", time.perf_counter() - t0)
+except KeyboardInterrupt:
+    print("interrupted", time.perf_counter() - sent[0])
+# The package works on after the interrupt.
+print("next", epd.estimate(epd.simulate(points=20_000, seed=5)[0])["status"])
+"""
+    )
+    assert code == 0, err
+    lines = out.split("\n")
+    word, seconds = lines[0].split()
+    assert word == "interrupted", out
+    assert float(seconds) < 0.5, out
+    assert lines[1] == "next converged", out
+
+
+def test_running_out_of_memory_raises_memory_error():
+    # The address space is capped at what the process has plus 64 MiB: the estimate's
+    # working memory for 10⁷ points (several hundred MB) cannot be had.
+    code, out, err = run_child(
+        MAKE_BIG
+        + """
+import resource
+a = big(10_000_000)
+small = a[:20_000].copy()
+with open("/proc/self/statm") as f:
+    vm = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+limit = vm + (64 << 20)
+resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+try:
+    epd.estimate(a)
+    print("no error")
+except MemoryError as e:
+    print("MemoryError:", e)
+print("next", epd.estimate(small)["status"])
+""".replace("import resource", "import os, resource")
+    )
+    assert code == 0, f"exit {code}: {err[-2000:]}"
+    assert out.startswith("MemoryError: epd.estimate: cannot allocate"), out
+    assert "next converged" in out, out
+
+
+def test_a_process_forked_after_a_call_can_call_again():
+    code, out, err = run_child(
+        """
+import os, signal, numpy as np, epd
+pts, _ = epd.simulate(points=20_000, seed=5)
+first = epd.estimate(pts)["d_max_mm"]
+pid = os.fork()
+if pid == 0:
+    signal.alarm(60)  # a hung child ends here instead of hanging the test
+    r = epd.estimate(pts)
+    os._exit(0 if r["d_max_mm"] == first else 3)
+_, status = os.waitpid(pid, 0)
+print("child", os.waitstatus_to_exitcode(status))
+""",
+        timeout=120,
+    )
+    assert code == 0, err
+    assert out.strip() == "child 0", out
+
+
+def test_the_working_memory_stays_under_the_reserved_bound():
+    # Peak RSS of an estimate of 2·10⁶ points, less what the process had before it.
+    code, out, err = run_child(
+        MAKE_BIG
+        + """
+import resource
+a = big(2_000_000)
+before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+epd.estimate(a)
+after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print((after - before) * 1024 / len(a))
+"""
+    )
+    assert code == 0, err
+    per_point = float(out)
+    assert per_point <= WORKING_BYTES_PER_POINT, f"{per_point:.1f} bytes per point"
+
+
+@pytest.fixture(scope="module")
+def frame():
+    points, _ = epd.simulate(points=20_000, seed=9)
+    return points
+
+
+def test_masked_points_are_dropped(frame):
+    mask = np.zeros(frame.shape, dtype=bool)
+    mask[::7, 1] = True  # one coordinate masked in every 7th point
+    masked = np.ma.MaskedArray(frame, mask=mask)
+    r = epd.estimate(masked)
+    kept = epd.estimate(frame[~mask.any(axis=1)])
+    assert r["d_max_mm"] == kept["d_max_mm"]
+    assert r["n_points"] == kept["n_points"]
+    assert r["n_dropped"] == kept["n_dropped"] + int(mask.any(axis=1).sum())
+    # Nothing masked: the data as they are (no copy).
+    same = epd.estimate(np.ma.MaskedArray(frame))
+    assert same["d_max_mm"] == epd.estimate(frame)["d_max_mm"]
+
+
+def test_masked_values_are_refused(frame):
+    sigma = np.ma.MaskedArray(np.full(len(frame), 0.01), mask=np.zeros(len(frame), bool))
+    sigma.mask[3] = True
+    with pytest.raises(ValueError, match="sigma: a masked array"):
+        epd.estimate(frame, sigma=sigma)
+
+
+@pytest.mark.parametrize("bad", [0.0, -0.01, np.nan, np.inf])
+def test_a_bad_sigma_is_named(frame, bad):
+    sigma = np.full(len(frame), 0.01)
+    sigma[5] = bad
+    with pytest.raises(ValueError, match=r"sigma: 1 of 20000 values .* index 5"):
+        epd.estimate(frame, sigma=sigma)
+    with pytest.raises(ValueError, match=r"sigma: 20000 of 20000"):
+        epd.estimate(frame, sigma=np.full(len(frame), bad))
