@@ -234,16 +234,8 @@ impl Geometry {
             let z = self.z0 + v;
             return self.alpha * y * y + self.gamma * z * z - 1.0;
         }
-        let a = self.alpha * u * u + self.gamma * v * v;
-        if a <= 1e-300 {
+        let Some(t) = self.wall_root(u, v) else {
             return 0.0;
-        }
-        let b = self.alpha * self.y0 * u + self.gamma * self.z0 * v;
-        let sq = (b * b - a * self.c).max(0.0).sqrt();
-        let t = if b > 0.0 {
-            -self.c / (b + sq)
-        } else {
-            (sq - b) / a
         };
         if kind == Residual::ErrorBased {
             (1.0 - t) * (u * u + v * v).sqrt()
@@ -261,6 +253,24 @@ impl Geometry {
         1.0 - self.residual(Residual::ErrorBased, p) / rho
     }
 
+    /// The positive root t of eq. (22) for the unnormalised direction (u, v) (see the
+    /// module doc), cancellation-free; `None` for a line along the model axis (A = 0),
+    /// which never meets the wall.
+    #[inline(always)]
+    fn wall_root(&self, u: f64, v: f64) -> Option<f64> {
+        let a = self.alpha * u * u + self.gamma * v * v;
+        if a <= 1e-300 {
+            return None;
+        }
+        let b = self.alpha * self.y0 * u + self.gamma * self.z0 * v;
+        let sq = (b * b - a * self.c).max(0.0).sqrt();
+        Some(if b > 0.0 {
+            -self.c / (b + sq)
+        } else {
+            (sq - b) / a
+        })
+    }
+
     /// Where the sensing lines of `L` measured points (SCS, m) meet the wall, in the PCS:
     /// (t·q_x, y0 + t·u, z0 + t·v) with q = R·p and t the positive root of eq. (22) (see
     /// the module doc), lane by lane. A line along the model axis (A = 0) never meets the
@@ -274,14 +284,7 @@ impl Geometry {
                 dot(&self.r_y, &p[l]),
                 dot(&self.r_z, &p[l]),
             );
-            let a_raw = self.alpha * u * u + self.gamma * v * v;
-            let valid = a_raw > 1e-300;
-            let a = if valid { a_raw } else { 1.0 };
-            let b = self.alpha * self.y0 * u + self.gamma * self.z0 * v;
-            let sq = (b * b - a * self.c).max(0.0).sqrt();
-            let num = if b > 0.0 { -self.c } else { sq - b };
-            let den = if b > 0.0 { b + sq } else { a };
-            let t = if valid { num / den } else { 1.0 };
+            let t = self.wall_root(u, v).unwrap_or(1.0);
             w[0][l] = t * qx;
             w[1][l] = self.y0 + t * u;
             w[2][l] = self.z0 + t * v;
