@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use crate::check::{Diagnostics, FitStatus, Implausible, MIN_UNCERTAINTY_DOF, assess};
 use crate::cloud::{CleanWeighted, check_ranges, clean, clean_weighted};
 use crate::error::EpdError;
-use crate::fit::form::{FORM_AXIAL_CELLS, form_test};
+use crate::fit::form::{FORM_AXIAL_CELLS, WallCells};
 use crate::init::initial_guess;
 use crate::lm::{LmOptions, LmReport, NormalEquations, minimize};
 use crate::loss::Loss;
@@ -18,7 +18,9 @@ use crate::params::{N_PARAMS, Params};
 use crate::problem::{Cells, PipeFit, wall_point_pcs};
 use crate::residual::{Geometry, Residual};
 use crate::symmetry::{canonical_form, canonicalize};
-use crate::uncertainty::{Mat7, covariance, jackknife_covariance, roll_is_determined};
+use crate::uncertainty::{
+    Mat7, SliceCheck, covariance, jackknife_covariance, roll_is_determined, slice_check,
+};
 
 /// An estimator of the paper (C-EPD, RU-EPD) or ours (ML-EPD).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -551,8 +553,18 @@ fn fit_cloud(
     let kind = method.residual();
     let fit = problem(cloud, kind, loss, fixed);
     let (canonical, eq) = canonical_equations(&Params::from_array(x.into()), &rep, &fit, options);
+    let wall = WallCells::gather(
+        cloud.points,
+        cloud.scales,
+        &canonical,
+        &wall_cells(cloud.points, &canonical, FORM_AXIAL_CELLS),
+    );
+    let shared = wall
+        .as_ref()
+        .and_then(WallCells::shared_along_axis)
+        .unwrap_or(false);
     let (sigma, diameter_cov, roll_determined, raw_cost) =
-        uncertainty(cloud, kind, loss, fixed, &canonical, &eq, options);
+        uncertainty(cloud, kind, loss, fixed, &canonical, &eq, options, shared);
     let (diagnostics, implausible) = match assess(stage_pts.points, &canonical) {
         Ok(d) => (Some(d), d.verdict(&canonical)),
         Err(i) => (None, Some(i)),
@@ -563,12 +575,7 @@ fn fit_cloud(
             .then_some(Implausible::TooFewForUncertainty { points: n, dof }));
     let mut status = FitStatus::from_solver(rep.status, implausible);
     if status.is_converged()
-        && let Some(misfit) = form_test(
-            cloud.points,
-            cloud.scales,
-            &canonical,
-            &wall_cells(cloud.points, &canonical, FORM_AXIAL_CELLS),
-        )
+        && let Some(misfit) = wall.as_ref().and_then(WallCells::form_test)
     {
         status = FitStatus::LackOfFit(misfit);
     }
@@ -599,7 +606,12 @@ fn fit_cloud(
 /// ([`roll_is_determined`]). Every 1-σ carries the small-sample factor of its degrees of
 /// freedom ([`small_sample_factor`]). Also whether it is, and the raw cost Σ rᵢ² without the loss
 /// (for [`Estimate::rms_residual`]). `eq` (the normal equations at the estimate) is the
-/// fallback when the sandwich cannot be formed.
+/// fallback when the sandwich cannot be formed. When the wall's slices along the axis
+/// differ more than their cells do (`shared_along_axis`,
+/// [`WallCells::shared_along_axis`]), the errors are shared by each slice's cells and
+/// the cells are not independent: each parameter whose slice jackknife is larger by the
+/// F test of [`slice_check`] takes that 1-σ ([`take_shared_errors`]).
+#[allow(clippy::too_many_arguments)]
 fn uncertainty(
     cloud: View<'_>,
     kind: Residual,
@@ -608,15 +620,22 @@ fn uncertainty(
     canonical: &Params,
     eq: &NormalEquations<N_PARAMS>,
     options: &EstimateOptions,
+    shared_along_axis: bool,
 ) -> (Sigmas, Option<[[f64; 2]; 2]>, bool, f64) {
     let n_free = fixed.iter().filter(|&&f| !f).count();
     let residual_dof = cloud.len().saturating_sub(n_free).max(1);
-    let (mut sigma, mut cov, raw_cost, dof) =
+    let (mut sigma, mut cov, raw_cost, dof, slices) =
         match cluster_sandwich_uncertainty(cloud, kind, loss, fixed, canonical, n_free) {
-            Some((s, c, raw, clusters)) => (s, c, raw, (clusters - 1).min(residual_dof)),
+            Some(c) => (
+                c.sigma,
+                c.cov,
+                c.raw_cost,
+                (c.clusters - 1).min(residual_dof),
+                c.slices,
+            ),
             None => {
                 let (s, c) = covariance(eq, eq.cost / residual_dof as f64);
-                (s, c, eq.cost, residual_dof)
+                (s, c, eq.cost, residual_dof, None)
             }
         };
     let k = small_sample_factor(dof);
@@ -625,6 +644,9 @@ fn uncertainty(
     }
     if let Some(c) = cov.as_mut() {
         *c *= k * k;
+    }
+    if let Some(check) = slices.filter(|_| shared_along_axis) {
+        take_shared_errors(&mut sigma, cov.as_mut(), &check);
     }
     let roll_determined = roll_is_determined(
         canonical,
@@ -859,15 +881,64 @@ fn cluster_sandwich_uncertainty(
     fixed: [bool; N_PARAMS],
     canonical: &Params,
     n_free: usize,
-) -> Option<(Sigmas, Option<Mat7>, f64, usize)> {
+) -> Option<ClusterUncertainty> {
     let cells = wall_cells(cloud.points, canonical, AXIAL_CELLS);
     let sw = problem(cloud, kind, loss, fixed).cluster_sandwich_at(canonical, &cells)?;
     if sw.clusters <= n_free || cloud.len() <= n_free {
         return None;
     }
     let (s, cov) = jackknife_covariance(&sw.bread, &sw.cells);
-    Some((s, cov, sw.raw_cost, sw.clusters))
+    let slices = slice_check(&sw.bread, &sw.meat, &sw.cells, &sw.cell_ids, cells.sectors);
+    Some(ClusterUncertainty {
+        sigma: s,
+        cov,
+        raw_cost: sw.raw_cost,
+        clusters: sw.clusters,
+        slices,
+    })
 }
+
+/// What [`cluster_sandwich_uncertainty`] finds.
+struct ClusterUncertainty {
+    /// The cell jackknife's 1-σ (no small-sample factor yet).
+    sigma: Sigmas,
+    /// Its covariance when every parameter is determined.
+    cov: Option<Mat7>,
+    /// Σ rᵢ² without the loss.
+    raw_cost: f64,
+    /// Cells holding points (G).
+    clusters: usize,
+    /// The jackknife over slices along the axis and its test ([`slice_check`]).
+    slices: Option<SliceCheck>,
+}
+
+/// Every parameter whose errors the slice test finds shared along the pipe
+/// ([`slice_check`]) takes the larger of its two 1-σ: the cells' (as given, with its
+/// small-sample factor) and the slices' jackknife times t₀.₉₇₅(ν)/1.96 of the slices'
+/// Satterthwaite degrees of freedom ν. The covariance's row and column of such a
+/// parameter are scaled by the same ratio (D·C·D with D diagonal: the cells'
+/// correlations kept, the matrix still positive semi-definite).
+fn take_shared_errors(sigma: &mut Sigmas, mut cov: Option<&mut Mat7>, check: &SliceCheck) {
+    for j in (0..N_PARAMS).filter(|&j| check.shared[j]) {
+        let Some(cell_sigma) = sigma[j] else { continue };
+        let t = crate::fit::student::student_t_quantile(0.975, check.dof[j]);
+        let slice_sigma = check.cov[(j, j)].max(0.0).sqrt() * t / Z_975;
+        if !(slice_sigma > cell_sigma) || cell_sigma <= 0.0 {
+            continue;
+        }
+        let r = slice_sigma / cell_sigma;
+        sigma[j] = Some(slice_sigma);
+        if let Some(c) = cov.as_deref_mut() {
+            for i in 0..N_PARAMS {
+                c[(i, j)] *= r;
+                c[(j, i)] *= r;
+            }
+        }
+    }
+}
+
+/// The 0.975 quantile of the standard normal.
+const Z_975: f64 = 1.959_963_984_540_054;
 
 /// The small-sample factor of a 1-σ whose variance was estimated with `dof` degrees of
 /// freedom: t₀.₉₇₅(ν)/z₀.₉₇₅, so that ±1.96 reported σ is the exact 95 % interval of
@@ -878,7 +949,6 @@ fn cluster_sandwich_uncertainty(
 /// Cameron & Miller 2015, J. Human Resources 50:317, §VI). 1.013 at G = 96 cells, 1.31
 /// at ν = 5, 2.20 at ν = 2 (N = 9 points and seven parameters).
 pub(crate) fn small_sample_factor(dof: usize) -> f64 {
-    const Z_975: f64 = 1.959_963_984_540_054;
     let t = crate::fit::student::student_t_quantile(0.975, dof.max(1) as f64);
     if t.is_finite() { t / Z_975 } else { 1.0 }
 }

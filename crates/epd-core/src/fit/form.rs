@@ -21,6 +21,7 @@
 //! most α whatever the correlation of the noise within a cell (which widens the median's
 //! spread by a few times at most, against a margin of √n_g/1.2533 ≫ z*).
 
+use crate::fit::student::f_upper_quantile;
 use crate::params::Params;
 use crate::problem::{Cells, wall_point_pcs};
 use crate::residual::{Geometry, Residual};
@@ -48,7 +49,9 @@ pub const FORM_AXIAL_CELLS: usize = 16;
 /// the table's range lying 1.3–2.4 noise scales off — good frames refused; at two, with
 /// the residuals in units of each point's σᵢ from the table, they pass. A 10 cm floor
 /// deposit (5 noise scales) is caught at two; multipath lengthening a band by 2.5 noise
-/// scales is not (docs/trust.md, "The form test").
+/// scales is not (docs/trust.md, "The form test"): its effect on the estimate is carried
+/// by the 1-σ instead, through the test for errors shared along the axis
+/// ([`WallCells::shared_along_axis`]).
 pub const FORM_TOLERANCE_SCALES: f64 = 2.0;
 
 /// At most this many points (evenly strided) are tested: 32 768 points put about 340 in
@@ -143,87 +146,284 @@ fn erfc(x: f64) -> f64 {
     if x >= 0.0 { r } else { 2.0 - r }
 }
 
-/// The form test of `points` (SCS, m) against β over `cells` (see the module doc), each
-/// range residual multiplied by its point's scale sᵢ = σ̃/σᵢ when the fit is weighted
-/// (`scales`, one per point): a weighted fit's model says the points' noise differs, and
-/// a region is then judged in units of its own points' σᵢ (offsets reported in the
-/// scaled metres):
-/// `Some` misfit when a region lies off the fitted wall beyond tolerance at the level
-/// [`LACK_OF_FIT_ALPHA`], `None` when none does (or β is outside the model).
+/// One cell of the form test: its tested points' median range residual, their robust
+/// scatter, the count, and the sums that place its centre.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CellMedian {
+    /// Index in [`Cells`] (axial bin · sectors + sector).
+    pub id: usize,
+    /// Points tested in the cell.
+    pub n: usize,
+    /// Median range residual m_g (m, scaled by sᵢ when weighted).
+    pub median: f64,
+    /// 1.4826·MAD of the cell's residuals about m_g (m).
+    pub scale: f64,
+    /// Mean axial distance of the cell's wall points (m, PCS x).
+    pub x_m: f64,
+    /// Clock angle of the cell's centre (deg, as [`FormMisfit::clock_deg`]).
+    pub clock_deg: f64,
+}
+
+/// The wall's cells as the form test sees them: each tested cell's median and scatter,
+/// and the frame's noise scale.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct WallCells {
+    /// The cells holding enough points to be tested (see [`MIN_CELL_POINTS`],
+    /// [`SLIVER_FRACTION`]), in cell order.
+    pub cells: Vec<CellMedian>,
+    /// Clock sectors per axial bin.
+    pub sectors: usize,
+    /// The frame's noise scale: 1.4826·median|rᵢ| over every tested point (m), at least
+    /// [`NOISE_FREE_FLOOR`]·(Dmax + Dmin).
+    pub noise_scale: f64,
+}
+
+impl WallCells {
+    /// The residuals of `points` (SCS, m) at β gathered by `cells` (see the module doc),
+    /// each range residual multiplied by its point's scale sᵢ = σ̃/σᵢ when the fit is
+    /// weighted (`scales`, one per point): a weighted fit's model says the points' noise
+    /// differs, and a region is then judged in units of its own points' σᵢ. `None` when
+    /// β is outside the model or no cell holds enough points.
+    pub fn gather(
+        points: &[[f64; 3]],
+        scales: Option<&[f64]>,
+        beta: &Params,
+        cells: &Cells,
+    ) -> Option<Self> {
+        let geom = Geometry::new(beta)?;
+        let g = cells.len();
+        let indexer = cells.indexer();
+        // On at most FORM_POINTS evenly strided points: each cell's residuals, and the
+        // sums of its points' axial distances and clock-angle sines and cosines.
+        let stride = points.len().div_ceil(FORM_POINTS).max(1);
+        let mut per_cell: Vec<Vec<f64>> = vec![Vec::new(); g];
+        let mut centre = vec![[0.0f64; 3]; g];
+        for (i, p) in points.iter().enumerate().step_by(stride) {
+            let scale = scales.and_then(|s| s.get(i)).copied().unwrap_or(1.0);
+            let r = scale * geom.residual(Residual::Range, p);
+            if !r.is_finite() {
+                continue;
+            }
+            let [x, y, z] = wall_point_pcs(&geom, p);
+            let c = indexer.index(x, y, z);
+            per_cell[c].push(r);
+            // sin and cos of the clock angle atan2(y, z).
+            let rho = y.hypot(z);
+            centre[c][0] += x;
+            if rho > 0.0 {
+                centre[c][1] += y / rho;
+                centre[c][2] += z / rho;
+            }
+        }
+        let n_all: usize = per_cell.iter().map(Vec::len).sum();
+        let min_points = MIN_CELL_POINTS.max(n_all / (SLIVER_FRACTION * g));
+        if !per_cell.iter().any(|c| c.len() >= min_points) {
+            return None;
+        }
+        // The frame's noise scale: the robust scale of every residual, with a floor for
+        // noise-free clouds, whose residuals are rounding (~1e-16 relative): 1e-9 of the
+        // diameter, far below any physical form deviation.
+        let mut abs_r: Vec<f64> = per_cell.iter().flatten().map(|r| r.abs()).collect();
+        let noise_scale =
+            crate::loss::mad_sigma(&mut abs_r).max(NOISE_FREE_FLOOR * (beta.d_max + beta.d_min));
+        let mut tested = Vec::new();
+        for (id, (cell, c)) in per_cell.iter_mut().zip(&centre).enumerate() {
+            if cell.len() < min_points {
+                continue;
+            }
+            let n = cell.len();
+            let median = crate::fit::check::quantile(cell, 0.5);
+            let mut dev: Vec<f64> = cell.iter().map(|v| (v - median).abs()).collect();
+            tested.push(CellMedian {
+                id,
+                n,
+                median,
+                scale: crate::loss::mad_sigma(&mut dev),
+                x_m: c[0] / n as f64,
+                clock_deg: c[1].atan2(c[2]).to_degrees().rem_euclid(360.0),
+            });
+        }
+        Some(WallCells {
+            cells: tested,
+            sectors: cells.sectors.max(1),
+            noise_scale,
+        })
+    }
+
+    /// The form test (see the module doc): `Some` misfit when a region lies off the
+    /// fitted wall beyond the tolerance [`FORM_TOLERANCE_SCALES`]·noise scale at the level
+    /// [`LACK_OF_FIT_ALPHA`], `None` when none does.
+    pub fn form_test(&self) -> Option<FormMisfit> {
+        let tolerance = FORM_TOLERANCE_SCALES * self.noise_scale;
+        let critical = normal_upper_quantile(LACK_OF_FIT_ALPHA / (2.0 * self.cells.len() as f64));
+        let mut worst: Option<FormMisfit> = None;
+        for c in &self.cells {
+            if !(c.scale > 0.0) {
+                continue;
+            }
+            let z =
+                (c.median.abs() - tolerance) / (MEDIAN_SE_FACTOR * c.scale / (c.n as f64).sqrt());
+            if z > critical && worst.is_none_or(|w| z > w.z) {
+                worst = Some(FormMisfit {
+                    x_m: c.x_m,
+                    clock_deg: c.clock_deg,
+                    offset_m: c.median,
+                    tolerance_m: tolerance,
+                    z,
+                    critical,
+                });
+            }
+        }
+        worst
+    }
+
+    /// Whether the cells' medians differ between slices along the axis more than within
+    /// them: Welch's one-way analysis of variance (Welch 1951, Biometrika 38:330) of the
+    /// cell medians grouped by axial bin, each slice k holding n_k ≥ 2 tested cells with
+    /// mean ȳ_k and variance s_k² of its medians, weights w_k = n_k/s_k²:
+    ///
+    ///   F = [Σ w_k(ȳ_k − ȳ_w)²/(K − 1)] / [1 + 2(K − 2)/(K² − 1)·Λ],
+    ///   Λ = Σ (1 − w_k/W)²/(n_k − 1),  ν₁ = K − 1,  ν₂ = (K² − 1)/(3Λ),
+    ///
+    /// with W = Σ w_k and ȳ_w = Σ w_k ȳ_k/W; `true` when F exceeds the upper
+    /// [`SHARED_ERROR_ALPHA`] quantile of F(ν₁, ν₂). The within-slice spread is that of the
+    /// cells' own medians, so noise correlated within a cell (which widens each median's
+    /// spread) and noise whose σ changes with range (each slice its own s_k²) do not raise
+    /// F; a range error shared by a slice's clock sectors — multipath over a band of
+    /// ranges, a wiggle of the phase unwrapping, a range offset left by a calibration —
+    /// moves whole slices and does. `None` with fewer than [`MIN_SLICES`] slices of two
+    /// or more cells, or a slice whose medians do not spread.
+    pub fn shared_along_axis(&self) -> Option<bool> {
+        let (f, nu1, nu2) = self.welch_f()?;
+        Some(f > f_upper_quantile(SHARED_ERROR_ALPHA, nu1, nu2))
+    }
+
+    /// Welch's F of [`shared_along_axis`](Self::shared_along_axis) and its degrees of
+    /// freedom (ν₁, ν₂).
+    pub fn welch_f(&self) -> Option<(f64, f64, f64)> {
+        let mut slices: Vec<Vec<f64>> = Vec::new();
+        let mut last = usize::MAX;
+        for c in &self.cells {
+            let k = c.id / self.sectors;
+            if k != last {
+                slices.push(Vec::new());
+                last = k;
+            }
+            if let Some(s) = slices.last_mut() {
+                s.push(c.median);
+            }
+        }
+        slices.retain(|s| s.len() >= 2);
+        let k = slices.len();
+        if k < MIN_SLICES {
+            return None;
+        }
+        let mut stats = Vec::with_capacity(k);
+        for s in &slices {
+            let n = s.len() as f64;
+            let mean = s.iter().sum::<f64>() / n;
+            let var = s.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
+            if !(var > 0.0) {
+                return None;
+            }
+            stats.push((n, mean, n / var));
+        }
+        let w: f64 = stats.iter().map(|s| s.2).sum();
+        let mean_w = stats.iter().map(|s| s.2 * s.1).sum::<f64>() / w;
+        let kf = k as f64;
+        let between = stats
+            .iter()
+            .map(|s| s.2 * (s.1 - mean_w).powi(2))
+            .sum::<f64>()
+            / (kf - 1.0);
+        let lambda: f64 = stats
+            .iter()
+            .map(|s| (1.0 - s.2 / w).powi(2) / (s.0 - 1.0))
+            .sum();
+        let f = between / (1.0 + 2.0 * (kf - 2.0) / (kf * kf - 1.0) * lambda);
+        let nu2 = (kf * kf - 1.0) / (3.0 * lambda);
+        Some((f, kf - 1.0, nu2))
+    }
+}
+
+/// The level of the test for a range error shared along the pipe
+/// ([`WallCells::shared_along_axis`]), per frame: at most one frame in a thousand whose
+/// errors are independent between cells takes a parameter's 1-σ from the slices of the
+/// wall (see `uncertainty::slice_check`, which then decides per parameter).
+pub const SHARED_ERROR_ALPHA: f64 = 1e-3;
+
+/// Fewest slices (axial bins with two or more tested cells) for the shared-error test:
+/// K − 1 = 3 degrees of freedom between slices at least.
+pub const MIN_SLICES: usize = 4;
+
+/// The standard error of a median of n points of scale s is √(π/2)·s/√n = 1.2533·s/√n.
+const MEDIAN_SE_FACTOR: f64 = 1.2533;
+
+/// The form test of `points` against β over `cells` ([`WallCells::gather`], then
+/// [`WallCells::form_test`]).
 pub fn form_test(
     points: &[[f64; 3]],
     scales: Option<&[f64]>,
     beta: &Params,
     cells: &Cells,
 ) -> Option<FormMisfit> {
-    let geom = Geometry::new(beta)?;
-    let g = cells.len();
-    let indexer = cells.indexer();
-    // On at most FORM_POINTS evenly strided points: each cell's residuals, and the sums
-    // of its points' axial distances and clock-angle sines and cosines.
-    let stride = points.len().div_ceil(FORM_POINTS).max(1);
-    let mut per_cell: Vec<Vec<f64>> = vec![Vec::new(); g];
-    let mut centre = vec![[0.0f64; 3]; g];
-    for (i, p) in points.iter().enumerate().step_by(stride) {
-        let scale = scales.and_then(|s| s.get(i)).copied().unwrap_or(1.0);
-        let r = scale * geom.residual(Residual::Range, p);
-        if !r.is_finite() {
-            continue;
-        }
-        let [x, y, z] = wall_point_pcs(&geom, p);
-        let c = indexer.index(x, y, z);
-        per_cell[c].push(r);
-        // sin and cos of the clock angle atan2(y, z).
-        let rho = y.hypot(z);
-        centre[c][0] += x;
-        if rho > 0.0 {
-            centre[c][1] += y / rho;
-            centre[c][2] += z / rho;
-        }
-    }
-    let n_all: usize = per_cell.iter().map(Vec::len).sum();
-    let min_points = MIN_CELL_POINTS.max(n_all / (SLIVER_FRACTION * g));
-    let tested = per_cell.iter().filter(|c| c.len() >= min_points).count();
-    if tested == 0 {
-        return None;
-    }
-    // The frame's noise scale: the robust scale of every residual.
-    let mut abs_r: Vec<f64> = per_cell.iter().flatten().map(|r| r.abs()).collect();
-    // A floor for noise-free clouds, whose residuals are rounding (~1e-16 relative):
-    // 1e-9 of the diameter, far below any physical form deviation.
-    let tolerance = FORM_TOLERANCE_SCALES
-        * crate::loss::mad_sigma(&mut abs_r).max(NOISE_FREE_FLOOR * (beta.d_max + beta.d_min));
-    let critical = normal_upper_quantile(LACK_OF_FIT_ALPHA / (2.0 * tested as f64));
-    let mut worst: Option<FormMisfit> = None;
-    for (cell, c) in per_cell.iter_mut().zip(&centre) {
-        if cell.len() < min_points {
-            continue;
-        }
-        let n = cell.len() as f64;
-        let med = crate::fit::check::quantile(cell, 0.5);
-        let mut dev: Vec<f64> = cell.iter().map(|v| (v - med).abs()).collect();
-        let scale = crate::loss::mad_sigma(&mut dev);
-        if !(scale > 0.0) {
-            continue;
-        }
-        let z = (med.abs() - tolerance) / (1.2533 * scale / n.sqrt());
-        if z > critical && worst.is_none_or(|w| z > w.z) {
-            worst = Some(FormMisfit {
-                x_m: c[0] / n,
-                clock_deg: c[1].atan2(c[2]).to_degrees().rem_euclid(360.0),
-                offset_m: med,
-                tolerance_m: tolerance,
-                z,
-                critical,
-            });
-        }
-    }
-    worst
+    WallCells::gather(points, scales, beta, cells)?.form_test()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Cells of `slices` × 12 sectors whose medians are N(offset_k, s_k²), s_k growing
+    /// fivefold along the axis (as a ToF camera's σ does with range).
+    fn synthetic(rng: &mut rand_pcg::Pcg64, slices: usize, offset: f64) -> WallCells {
+        use rand_distr::{Distribution, StandardNormal};
+        let mut cells = Vec::new();
+        for k in 0..slices {
+            let s = 1.0 + 4.0 * k as f64 / slices as f64;
+            let c: f64 = StandardNormal.sample(rng);
+            let shift = offset * c;
+            for g in 0..12 {
+                let z: f64 = StandardNormal.sample(rng);
+                cells.push(CellMedian {
+                    id: k * 12 + g,
+                    n: 100,
+                    median: shift + s * z,
+                    scale: 1.0,
+                    ..CellMedian::default()
+                });
+            }
+        }
+        WallCells {
+            cells,
+            sectors: 12,
+            noise_scale: 1.0,
+        }
+    }
+
+    /// Welch's test keeps its level when the medians' spread differs between slices,
+    /// and finds slices shifted by errors they share.
+    ///
+    /// 2000 frames of 16 slices with independent medians: at the 5 % level the count of
+    /// rejections is binomial(2000, 0.05), mean 100, standard deviation 9.7; the test
+    /// accepts 100 ± 4·9.7 (61…139). Shifts of one median-noise per slice: rejected at
+    /// [`SHARED_ERROR_ALPHA`] in at least 95 of 100 frames.
+    #[test]
+    fn welch_test_keeps_its_level_and_finds_shared_shifts() {
+        use rand::SeedableRng;
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+        let mut rejected = 0;
+        for _ in 0..2000 {
+            let (f, nu1, nu2) = synthetic(&mut rng, 16, 0.0).welch_f().expect("16 slices");
+            rejected += usize::from(f > f_upper_quantile(0.05, nu1, nu2));
+        }
+        assert!((61..=139).contains(&rejected), "{rejected} of 2000 at 5 %");
+        let found = (0..100)
+            .filter(|_| synthetic(&mut rng, 16, 3.0).shared_along_axis() == Some(true))
+            .count();
+        assert!(found >= 95, "{found} of 100 shifted frames found");
+        assert_eq!(synthetic(&mut rng, 3, 0.0).shared_along_axis(), None);
+    }
 
     /// The normal quantile against reference values (Abramowitz & Stegun, table 26.1).
     #[test]

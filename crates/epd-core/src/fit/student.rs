@@ -1,5 +1,6 @@
 //! Student's t quantile for the small-sample correction of a 1-σ
-//! ([`crate::fit::uncertainty`]) and for the confidence intervals of the benchmarks.
+//! ([`crate::fit::uncertainty`]) and for the confidence intervals of the benchmarks; the
+//! F quantile of the test for errors shared along the pipe (`uncertainty::SliceCheck`).
 
 /// The p-quantile of Student's t distribution with ν degrees of freedom (ν > 0, not
 /// necessarily whole): the t with P(T ≤ t) = p. NaN unless 0 < p < 1 and ν is finite
@@ -41,6 +42,43 @@ pub fn student_t_quantile(p: f64, nu: f64) -> f64 {
             return mid;
         }
         if tail(mid) > target {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+}
+
+/// The upper α quantile of Fisher's F distribution with (ν₁, ν₂) degrees of freedom
+/// (ν₁, ν₂ > 0, not necessarily whole): the f with P(F > f) = α. NaN unless 0 < α < 1
+/// and both ν are finite and > 0.
+///
+/// Exact up to rounding: P(F > f) = I_y(ν₂/2, ν₁/2) with y = ν₂/(ν₂ + ν₁f) (Abramowitz
+/// & Stegun 26.6.2), falling strictly with f; f is found by doubling an upper bracket and
+/// bisecting it to adjacent floats, as in [`student_t_quantile`].
+pub fn f_upper_quantile(alpha: f64, nu1: f64, nu2: f64) -> f64 {
+    if !(alpha > 0.0 && alpha < 1.0 && nu1 > 0.0 && nu2 > 0.0 && nu1.is_finite() && nu2.is_finite())
+    {
+        return f64::NAN;
+    }
+    let tail = |f: f64| {
+        let d = nu2 + nu1 * f;
+        incomplete_beta(0.5 * nu2, 0.5 * nu1, nu2 / d, nu1 * f / d)
+    };
+    let (mut lo, mut hi) = (0.0f64, 1.0f64);
+    while tail(hi) > alpha {
+        lo = hi;
+        hi *= 2.0;
+        if hi.is_infinite() {
+            return f64::INFINITY;
+        }
+    }
+    loop {
+        let mid = 0.5 * (lo + hi);
+        if mid <= lo || mid >= hi {
+            return mid;
+        }
+        if tail(mid) > alpha {
             lo = mid;
         } else {
             hi = mid;
@@ -137,6 +175,35 @@ mod tests {
     /// 3 decimals, so an exact quantile lies within 0.0005 of each entry (the largest
     /// distance, at ν = 26, is 0.000 47). The old Cornish–Fisher t95 was 0.023 off at
     /// ν = 3 and 3.0 at ν = 1.
+    /// F quantiles against the closed forms F(2, 2): f = (1 − α)/α and, through
+    /// F(1, ν) = t(ν)², Student's t; and against tabled values (NIST/SEMATECH e-Handbook
+    /// 1.3.6.7.3, upper 5 % and 1 % points).
+    #[test]
+    fn f_quantiles() {
+        for alpha in [0.2, 0.05, 1e-3] {
+            let f = f_upper_quantile(alpha, 2.0, 2.0);
+            assert!((f - (1.0 - alpha) / alpha).abs() < 1e-9 * f, "{alpha}: {f}");
+            let t = student_t_quantile(1.0 - alpha / 2.0, 7.0);
+            let f = f_upper_quantile(alpha, 1.0, 7.0);
+            assert!((f - t * t).abs() < 1e-9 * f, "{alpha}: {f} vs {}", t * t);
+        }
+        // (α, ν₁, ν₂, tabled value, half its last digit).
+        for (alpha, nu1, nu2, f, half_digit) in [
+            (0.05, 5.0, 10.0, 3.326, 5e-4),
+            (0.05, 10.0, 20.0, 2.348, 5e-4),
+            (0.01, 3.0, 30.0, 4.510, 5e-4),
+            (0.01, 8.0, 100.0, 2.69, 5e-3),
+        ] {
+            let q = f_upper_quantile(alpha, nu1, nu2);
+            assert!(
+                (q - f).abs() <= half_digit,
+                "F({nu1}, {nu2}) at {alpha}: {q} vs {f}"
+            );
+        }
+        assert!(f_upper_quantile(0.0, 1.0, 1.0).is_nan());
+        assert!(f_upper_quantile(0.5, -1.0, 1.0).is_nan());
+    }
+
     #[test]
     fn student_t_975_matches_the_nist_table() {
         const NIST_T975: [f64; 30] = [

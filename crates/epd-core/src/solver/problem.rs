@@ -324,6 +324,8 @@ pub struct ClusterSandwich {
     pub meat: SMatrix<f64, N_PARAMS, N_PARAMS>,
     /// Each cell's score s_g and its own part H_g of the bread (empty cells left out).
     pub cells: Vec<(SVector<f64, N_PARAMS>, SMatrix<f64, N_PARAMS, N_PARAMS>)>,
+    /// The index in [`Cells`] of each of `cells` (axial bin · sectors + sector).
+    pub cell_ids: Vec<usize>,
     /// Σ rᵢ², the plain least-squares cost.
     pub raw_cost: f64,
     /// Cells holding at least one point (the clusters G).
@@ -407,7 +409,8 @@ impl PipeFit<'_> {
         let mut meat = Mat::zeros();
         let mut raw_cost = 0.0;
         let mut kept = Vec::new();
-        for mut c in per_cell {
+        let mut cell_ids = Vec::new();
+        for (id, mut c) in per_cell.into_iter().enumerate() {
             raw_cost += c.raw_cost;
             c.eq.symmetrize();
             let (mut s, mut h) = (c.eq.jtr, c.eq.jtj);
@@ -424,6 +427,7 @@ impl PipeFit<'_> {
             bread += h;
             meat += s * s.transpose();
             kept.push((s, h));
+            cell_ids.push(id);
         }
         Some(ClusterSandwich {
             bread,
@@ -431,6 +435,7 @@ impl PipeFit<'_> {
             raw_cost,
             clusters: kept.len(),
             cells: kept,
+            cell_ids,
         })
     }
 }
