@@ -1,0 +1,193 @@
+"""`epd estimate FILES --format json` with its defaults on frames of our own making that
+share no code with tof-sim or epd: a numpy ray caster of the pipe written from
+SPEC.md (eq. 3: x_P = Rz(yaw)·Ry(pitch)·Rx(roll)·x_S + [0, δy, δz]; the wall
+y²/(Dmax/2)² + z²/(Dmin/2)² = 1), a pinhole camera of its own (160 × 120, 69° × 51°,
+the sensor frame: X along the optical axis, Y left, Z up), pipe sizes, ovalities and
+poses off the paper's grid, and three range-error models of its own: independent,
+spatially correlated (a 2-pixel Gaussian blur of the noise image, rescaled to σ) and a
+multipath band (every range in 1–2 m read 2.5σ long). Frames are written as binary
+little-endian PLY (float32 x y z), as checks outside the project write them.
+
+What is checked is issue 22's goals on frames we did not make with tof-sim:
+- coverage of the ±1.96σ̂ interval for Dmax and Dmin (independent and correlated noise):
+  over n frames the covered count is binomial; at the nominal 0.95 the observed share has
+  standard error √(0.95·0.05/n) (0.0218 at n = 100), and the test fails below
+  0.95 − 4 SE = 0.863: a true coverage of 0.95 fails with probability < 10⁻⁴, one of
+  0.80 passes with probability < 10⁻³.
+- no frame answered `converged` more than max(5σ̂, 0.5 mm) off, under every model
+  (multipath included): with an honest 1-σ, P(|z| > 5) is below 10⁻⁴ per diameter even
+  for Student's t with 10 degrees of freedom, so one such frame in 100 is a failure.
+"""
+
+import json
+import math
+import subprocess
+
+import numpy as np
+import pytest
+
+FRAMES = 100
+SIGMA_M = 0.02
+W, H = 160, 120
+FOV_DEG = (69.0, 51.0)
+MAX_RANGE_M = 6.0
+
+
+def rot(roll, pitch, yaw):
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def rays():
+    """Unit sensing directions of the pinhole camera in the sensor frame, (H, W, 3)."""
+    fx = (W / 2) / math.tan(math.radians(FOV_DEG[0] / 2))
+    fy = (H / 2) / math.tan(math.radians(FOV_DEG[1] / 2))
+    u = (np.arange(W) + 0.5 - W / 2) / fx
+    v = -(np.arange(H) + 0.5 - H / 2) / fy
+    uu, vv = np.meshgrid(u, v)
+    d = np.stack([np.ones_like(uu), -uu, vv], axis=-1)
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def blur(img, px):
+    """A separable Gaussian blur of standard deviation `px` pixels (edges reflected)."""
+    r = int(math.ceil(3 * px))
+    k = np.exp(-0.5 * (np.arange(-r, r + 1) / px) ** 2)
+    k /= k.sum()
+    pad = np.pad(img, r, mode="reflect")
+    rows = np.apply_along_axis(lambda a: np.convolve(a, k, mode="valid"), 1, pad)
+    return np.apply_along_axis(lambda a: np.convolve(a, k, mode="valid"), 0, rows)
+
+
+def frame(rng, model):
+    """One frame: (points (n, 3) float32 in the sensor frame, Dmax, Dmin in m)."""
+    od = rng.uniform(14.0, 32.0) * 25.4e-3
+    inner = od - 2 * rng.uniform(0.006, 0.015)
+    ovality = rng.uniform(0.01, 0.04)
+    d_max, d_min = inner * (1 + ovality / 2), inner * (1 - ovality / 2)
+    roll = rng.uniform(-math.pi, math.pi)
+    pitch, yaw = np.radians(rng.uniform(-6.0, 6.0, size=2))
+    dy, dz = rng.uniform(-0.05, 0.05, size=2) * inner / 0.5
+    d_s = rays()
+    e = d_s @ rot(roll, pitch, yaw).T  # directions in the PCS
+    a2, b2 = (d_max / 2) ** 2, (d_min / 2) ** 2
+    qa = e[..., 1] ** 2 / a2 + e[..., 2] ** 2 / b2
+    qb = 2 * (dy * e[..., 1] / a2 + dz * e[..., 2] / b2)
+    qc = dy * dy / a2 + dz * dz / b2 - 1.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (-qb + np.sqrt(qb * qb - 4 * qa * qc)) / (2 * qa)
+    noise = rng.normal(0.0, SIGMA_M, size=t.shape)
+    if model == "correlated":
+        noise = blur(noise, 2.0)
+        noise *= SIGMA_M / noise.std()
+    measured = t + noise
+    if model == "multipath":
+        measured = measured + np.where((t >= 1.0) & (t <= 2.0), 2.5 * SIGMA_M, 0.0)
+    keep = np.isfinite(t) & (t <= MAX_RANGE_M)
+    pts = (d_s * measured[..., None])[keep]
+    return pts.astype(np.float32), d_max, d_min
+
+
+def write_ply(path, pts):
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        f"element vertex {len(pts)}\n"
+        "property float x\nproperty float y\nproperty float z\nend_header\n"
+    )
+    with open(path, "wb") as f:
+        f.write(header.encode("ascii"))
+        f.write(np.ascontiguousarray(pts, dtype="<f4").tobytes())
+
+
+def run(epd_bin, tmp_path, model, seed):
+    rng = np.random.default_rng(seed)
+    truth = {}
+    paths = []
+    for k in range(FRAMES):
+        pts, d_max, d_min = frame(rng, model)
+        p = tmp_path / f"{model}_{k:03d}.ply"
+        write_ply(p, pts)
+        truth[str(p)] = (d_max * 1e3, d_min * 1e3)
+        paths.append(str(p))
+    out = subprocess.run(
+        [str(epd_bin), "estimate", *paths, "--format", "json"],
+        capture_output=True,
+        text=True,
+    )
+    # Exit 1: some file was not answered `converged` (named on stderr); 2 or more: usage.
+    assert out.returncode in (0, 1), out.stderr
+    rows = [json.loads(line) for line in out.stdout.splitlines() if line.strip()]
+    assert len(rows) == FRAMES
+    return rows, truth
+
+
+def score(rows, truth):
+    converged, covered, far = 0, [0, 0], []
+    for r in rows:
+        # Not answered: refused, or converged without diameters (the survey saw a bend
+        # or a tee and withheld them).
+        if r["status"] != "converged" or r["d_max_mm"] is None:
+            continue
+        converged += 1
+        for i, key in enumerate(("d_max_mm", "d_min_mm")):
+            err = r[key] - truth[r["file"]][i]
+            s = r["sigma_" + key]
+            covered[i] += abs(err) <= 1.96 * s
+            if abs(err) > max(5 * s, 0.5):
+                far.append((r["file"], key, err, s))
+    return converged, covered, far
+
+
+COVERAGE_FLOOR = 0.95 - 4 * math.sqrt(0.95 * 0.05 / FRAMES)
+
+
+# Goals not yet met on these frames (measured at 2bedbf0, `epd estimate FILES --format
+# json` with the defaults; the numbers per model are in issue 22's note): the tests
+# record it as xfail rather than being loosened.
+NOT_MET_INDEPENDENT = (
+    "issue 22: Dmax/Dmin coverage 0.92/0.86 over 100 frames of this generator, Dmin below "
+    "the floor 0.863 (tof-sim's and a pure-Python generator's frames: 0.95/0.95 over 200)"
+)
+NOT_MET_CORRELATED = (
+    "issue 23: with the defaults the survey withholds the diameters of 96 of 100 "
+    "correlated-noise frames (in_bend/tee_ahead) and 12 are refused; with "
+    "--straight-only coverage is 0.92/0.90 and none is far off"
+)
+NOT_MET_MULTIPATH = (
+    "issue 22: 15 of 100 multipath frames converged more than max(5σ̂, 0.5 mm) off "
+    "(coverage 0.70/0.69); tof-sim's multipath frames: 0 of 60"
+)
+
+
+@pytest.mark.parametrize(
+    "model, seed",
+    [
+        pytest.param("independent", 22, marks=pytest.mark.xfail(reason=NOT_MET_INDEPENDENT)),
+        pytest.param("correlated", 23, marks=pytest.mark.xfail(reason=NOT_MET_CORRELATED)),
+    ],
+)
+def test_coverage_on_frames_of_our_own(epd_bin, tmp_path, model, seed):
+    rows, truth = run(epd_bin, tmp_path, model, seed)
+    converged, covered, far = score(rows, truth)
+    assert converged >= 0.99 * FRAMES - 4 * math.sqrt(FRAMES * 0.01 * 0.99), (
+        f"{model}: {converged} of {FRAMES} good frames converged"
+    )
+    share = [c / converged for c in covered]
+    print(f"{model}: {converged} converged, coverage Dmax {share[0]:.3f} Dmin {share[1]:.3f}")
+    assert min(share) >= COVERAGE_FLOOR, (
+        f"{model}: coverage {share} below {COVERAGE_FLOOR:.3f} over {converged} frames"
+    )
+    assert not far, f"{model}: converged far off: {far}"
+
+
+@pytest.mark.xfail(reason=NOT_MET_MULTIPATH)
+def test_no_multipath_frame_is_answered_far_off(epd_bin, tmp_path):
+    rows, truth = run(epd_bin, tmp_path, "multipath", 24)
+    converged, covered, far = score(rows, truth)
+    print(f"multipath: {converged} converged, covered {covered}")
+    assert not far, f"multipath: {len(far)} converged far off: {far[:5]}"
