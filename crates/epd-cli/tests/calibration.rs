@@ -117,7 +117,15 @@ fn a_table_from_a_known_pipe_removes_the_bias_in_another() {
             .args(extra)
             .output()
             .unwrap();
-        ok(&o);
+        // Without the table (and without the range gate) the camera's systematic error
+        // may also fail the slice form test (`lack_of_fit`, exit 1): these frames are
+        // some 20 mm off. Either way the note is given.
+        assert!(
+            matches!(o.status.code(), Some(0 | 1)),
+            "exit {:?}: {}",
+            o.status.code(),
+            String::from_utf8_lossy(&o.stderr)
+        );
         String::from_utf8_lossy(&o.stderr).into_owned()
     };
     let told = note(&[]);

@@ -174,6 +174,47 @@ pub(crate) fn slice_check(
     })
 }
 
+/// The one-step change of β when the axial bins `off` (of the cells' grid, ids = axial
+/// bin · `sectors` + sector) are left out of the fit together, and its standard deviation
+/// per parameter under independent cells: with S the union of their cells,
+/// Δ = (H − H_S)⁻¹ s_S and V_Δ as V_k of [`slice_check`] with k = S. `None` when `off`
+/// is empty or holds no cell, or the rest does not determine β.
+pub(crate) fn slice_shift(
+    bread: &Mat7,
+    meat: &Mat7,
+    cells: &[(nalgebra::SVector<f64, N_PARAMS>, Mat7)],
+    ids: &[usize],
+    sectors: usize,
+    off: &[usize],
+) -> Option<(nalgebra::SVector<f64, N_PARAMS>, [f64; N_PARAMS])> {
+    let sectors = sectors.max(1);
+    let mut s_s = nalgebra::SVector::<f64, N_PARAMS>::zeros();
+    let (mut h_s, mut b_s) = (Mat7::zeros(), Mat7::zeros());
+    let mut any = false;
+    for ((s, h), id) in cells.iter().zip(ids) {
+        if off.contains(&(id / sectors)) {
+            s_s += s;
+            h_s += h;
+            b_s += s * s.transpose();
+            any = true;
+        }
+    }
+    if !any {
+        return None;
+    }
+    let (h_inv, keep) = determined_inverse(bread);
+    let (a, kept) = determined_inverse(&(bread - h_s));
+    if kept != keep {
+        return None;
+    }
+    let delta = a * s_s;
+    let hh = h_s * h_inv;
+    let var_s = b_s - hh * b_s - b_s * hh.transpose() + hh * meat * hh.transpose();
+    let var_d = a * var_s * a.transpose();
+    let sd = std::array::from_fn(|j| var_d[(j, j)].max(0.0).sqrt());
+    Some((delta, sd))
+}
+
 /// 1-σ of the determined parameters and, when all are determined, the covariance.
 pub(crate) fn sigmas_of(cov: &Mat7, keep: &[bool; N_PARAMS]) -> (Sigmas, Option<Mat7>) {
     let mut sig: Sigmas = [None; N_PARAMS];
