@@ -117,13 +117,34 @@ fn writes_the_tally_and_the_section_table_identically_for_1_and_2_threads() {
         );
         assert_eq!(r[6], "", "a withheld estimate has no diameter");
     }
-    for r in rows.iter().filter(|r| r[0] != "11.9T..12.7T") {
+    // Off the bend every frame is answered, or refused by the slice form test: the
+    // Helios2 model's range errors are shared along the pipe (centimetres without the
+    // depth table, a few mm with it) and may move a frame's diameters beyond 10⁻³ of the
+    // diameter (docs/trust.md, "Errors shared along the pipe"); a refused frame has no
+    // diameter. Most are answered (measured: 1 of 32, an uncalibrated one).
+    let straight: Vec<_> = rows.iter().filter(|r| r[0] != "11.9T..12.7T").collect();
+    let mut refused = 0;
+    for r in &straight {
         assert_eq!(r.len(), PROFILE_COLUMNS.len());
+        if r[5] == "lack_of_fit" {
+            assert_eq!(r[6], "", "a refused estimate has no diameter");
+            refused += 1;
+            continue;
+        }
         assert_eq!(r[5], "converged", "{r:?}");
         // wall = (OD − mean ID)/2 with OD = 20" = 508 mm.
         let (dmean, wall): (f64, f64) = (r[8].parse().unwrap(), r[10].parse().unwrap());
         assert!((wall - (508.0 - dmean) / 2.0).abs() < 1e-9);
     }
+    eprintln!(
+        "{refused} of {} straight-section frames refused",
+        straight.len()
+    );
+    assert!(
+        2 * refused < straight.len(),
+        "{refused} of {} refused",
+        straight.len()
+    );
     let sections = std::fs::read_to_string(a.join("sections.csv")).unwrap();
     let mut lines = sections.lines();
     assert_eq!(lines.next().unwrap(), SECTION_COLUMNS.join(","));
@@ -145,8 +166,11 @@ fn writes_the_tally_and_the_section_table_identically_for_1_and_2_threads() {
     );
     let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
     assert_eq!(rows.len(), 2 * 4 * 2);
+    // Two frames per section, less those refused above.
+    let counted: usize = rows.iter().map(|r| r[3].parse::<usize>().unwrap()).sum();
+    assert_eq!(counted + refused, 2 * rows.len());
     for r in &rows {
-        assert_eq!(r[3], "2");
+        assert!(matches!(r[3], "1" | "2"), "{r:?}");
         let (bias, calibrated): (f64, bool) = (r[7].parse().unwrap(), r[2].parse().unwrap());
         // The model's systematic error is centimetres; the table takes it out.
         if calibrated {
