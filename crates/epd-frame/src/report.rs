@@ -16,6 +16,22 @@ pub struct FileReport {
     pub file_bytes: Option<Vec<u8>>,
     /// The estimate and its context, or what went wrong.
     pub outcome: Result<FileEstimate, String>,
+    /// The bag message the cloud came from (`None` for a file or an array): reported as
+    /// `stamp_ns` and `frame_id`, null for a file.
+    pub message: Option<MessageSource>,
+}
+
+/// Where in a bag a cloud came from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct MessageSource {
+    /// The topic.
+    pub topic: String,
+    /// The message's index among the topic's messages (0 first).
+    pub index: u64,
+    /// `header.stamp` (ns), when the message could be decoded.
+    pub stamp_ns: Option<i64>,
+    /// `header.frame_id`, when the message could be decoded.
+    pub frame_id: Option<String>,
 }
 
 /// A successful estimate of one file.
@@ -56,6 +72,7 @@ pub fn columns() -> Vec<&'static str> {
         file: String::new(),
         file_bytes: None,
         outcome: Err(String::new()),
+        message: None,
     };
     failed.fields().into_iter().map(|(k, _)| k).collect()
 }
@@ -90,6 +107,19 @@ fn is_result(key: &str) -> bool {
 }
 
 impl FileReport {
+    /// The report of the file at `path` (its name's bytes kept when they are not UTF-8).
+    pub fn of_path(path: &std::path::Path, outcome: Result<FileEstimate, String>) -> Self {
+        FileReport {
+            file: path.display().to_string(),
+            file_bytes: path
+                .to_str()
+                .is_none()
+                .then(|| path.as_os_str().as_encoded_bytes().to_vec()),
+            outcome,
+            message: None,
+        }
+    }
+
     /// Why the file gave no result: a read or estimate error, or a fit that did not
     /// converge to something consistent with the points (`implausible`, …).
     pub fn failure(&self) -> Option<String> {
@@ -141,6 +171,17 @@ impl FileReport {
             self.file_bytes
                 .as_deref()
                 .map_or(Field::Null, |b| Field::Text(epd_io::name::hex(b))),
+        ));
+        // A bag message's header; null for a file (the same columns either way).
+        let m = self.message.as_ref();
+        f.push((
+            "stamp_ns",
+            m.and_then(|m| m.stamp_ns).map_or(Field::Null, Field::Int64),
+        ));
+        f.push((
+            "frame_id",
+            m.and_then(|m| m.frame_id.clone())
+                .map_or(Field::Null, Field::Text),
         ));
         f
     }
@@ -235,10 +276,19 @@ impl FileReport {
 
     /// The file's name as shown to people: control characters escaped, bytes that are not
     /// UTF-8 as `\xNN` (`epd_io::name`).
+    /// A bag message is shown as `BAG TOPIC #INDEX`.
     pub fn shown_file(&self) -> String {
-        match &self.file_bytes {
+        let file = match &self.file_bytes {
             Some(b) => epd_io::name::shown_bytes(b),
             None => epd_io::name::escape_controls(&self.file).into_owned(),
+        };
+        match &self.message {
+            None => file,
+            Some(m) => format!(
+                "{file} {} #{}",
+                epd_io::name::escape_controls(&m.topic),
+                m.index
+            ),
         }
     }
 
@@ -402,6 +452,7 @@ mod tests {
         FileReport {
             file: "a".into(),
             file_bytes: None,
+            message: None,
             outcome: Ok(FileEstimate {
                 estimate: est,
                 n_read: 400,

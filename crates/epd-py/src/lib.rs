@@ -213,6 +213,7 @@ fn field_value<'py>(py: Python<'py>, f: &Field) -> PyResult<Bound<'py, PyAny>> {
         Field::Num(v) if v.is_finite() => v.into_pyobject(py)?.into_any(),
         Field::Num(_) | Field::Null => py.None().into_bound(py),
         Field::Int(v) => v.into_pyobject(py)?.into_any(),
+        Field::Int64(v) => v.into_pyobject(py)?.into_any(),
         Field::Text(s) => PyString::new(py, s).into_any(),
         Field::Bool(b) => b.into_pyobject(py)?.to_owned().into_any(),
     })
@@ -323,6 +324,7 @@ fn estimate<'py>(
         input: InputConfig {
             units: parse_units(units)?,
             frame: parse_frame(frame)?,
+            frame_given: true,
             format: None,
         },
     };
@@ -438,6 +440,7 @@ fn estimate_array_dict<'py>(
         file: String::new(),
         file_bytes: None,
         outcome: Ok(outcome),
+        message: None,
     };
     fields_dict(py, &report.keyed_fields(), true)
 }
