@@ -369,7 +369,7 @@ fn points(
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
     /// A CDR writer with XCDR1 alignment, as a DDS middleware writes a message.
@@ -410,12 +410,12 @@ mod tests {
     }
 
     /// A field: name, offset, datatype, count.
-    type F = (&'static str, u32, u8, u32);
+    pub(crate) type F = (&'static str, u32, u8, u32);
 
     /// A PointCloud2 message in CDR (`little`: the CDR byte order; `data_big`: the
     /// points' byte order).
     #[allow(clippy::too_many_arguments)]
-    fn message(
+    pub(crate) fn message(
         little: bool,
         frame: &str,
         (h, w): (u32, u32),
@@ -651,8 +651,9 @@ mod tests {
         // A datatype outside 1–8.
         let odd: Vec<F> = vec![("x", 0, 9, 1), ("y", 4, 7, 1), ("z", 8, 7, 1)];
         assert!(bad(&odd, 2, 3, 12, 36, &data).contains("datatype 9"));
-        // Sizes whose product overflows are refused, not multiplied.
-        assert!(bad(&fields, u32::MAX, u32::MAX, u32::MAX, u32::MAX, &data).contains("need more"));
+        // Sizes whose products come near or beyond usize are refused, not multiplied.
+        assert!(bad(&fields, 1, u32::MAX, u32::MAX, u32::MAX, &data).contains("need more"));
+        assert!(bad(&fields, u32::MAX, u32::MAX, u32::MAX, u32::MAX, &data).contains("overlap"));
         // A field count larger than the message.
         let mut c = W::new(true);
         for v in [0, 0, 1, 0, 1, 1, 1_000_000] {

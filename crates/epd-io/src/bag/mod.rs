@@ -449,3 +449,190 @@ impl Iterator for BagClouds {
         None
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::cdr::tests::{F, message};
+    use super::*;
+    use std::collections::BTreeMap;
+
+    /// A PointCloud2 message of `n` float32 points, the i-th at (k + i, 0.5, -0.5).
+    fn cloud(k: u32, n: u32) -> Vec<u8> {
+        let fields: Vec<F> = vec![("x", 0, 7, 1), ("y", 4, 7, 1), ("z", 8, 7, 1)];
+        let data: Vec<u8> = (0..n)
+            .flat_map(|i| [(k + i) as f32, 0.5, -0.5])
+            .flat_map(f32::to_le_bytes)
+            .collect();
+        message(true, "cam", (1, n), &fields, false, 12, 12 * n, &data)
+    }
+
+    /// An MCAP file (mcap's own writer, chunked or not) of 6 clouds on `/points`
+    /// interleaved with 6 messages on `/other`; its bytes.
+    fn bag(chunked: bool) -> Vec<u8> {
+        let mut out = std::io::Cursor::new(Vec::new());
+        {
+            let opts = mcap::WriteOptions::new()
+                .use_chunks(chunked)
+                .compression(None)
+                .chunk_size(Some(4096));
+            let mut w = opts.create(&mut out).unwrap();
+            let s = w.add_schema(POINT_CLOUD2, "ros2msg", b"").unwrap();
+            let t = w.add_schema("std_msgs/msg/String", "ros2msg", b"").unwrap();
+            let points = w
+                .add_channel(s, "/points", "cdr", &BTreeMap::new())
+                .unwrap();
+            let other = w.add_channel(t, "/other", "cdr", &BTreeMap::new()).unwrap();
+            for k in 0..6u32 {
+                for (ch, data) in [
+                    (other, vec![0, 1, 0, 0, 1, 0, 0, 0, 0]),
+                    (points, cloud(k, 200)),
+                ] {
+                    let h = mcap::records::MessageHeader {
+                        channel_id: ch,
+                        sequence: k,
+                        log_time: u64::from(k),
+                        publish_time: u64::from(k),
+                    };
+                    w.write_to_known_channel(&h, &data).unwrap();
+                }
+            }
+            w.finish().unwrap();
+        }
+        out.into_inner()
+    }
+
+    fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
+        let p = dir.join(name);
+        std::fs::write(&p, bytes).unwrap();
+        p
+    }
+
+    /// The topic's messages in order, the other topic skipped; the topics listed with their
+    /// counts (from the summary, and counted when there is none).
+    #[test]
+    fn messages_of_one_topic_in_order() {
+        let dir = tempfile::tempdir().unwrap();
+        for chunked in [false, true] {
+            let p = write(dir.path(), "a.mcap", &bag(chunked));
+            assert!(is_bag(&p));
+            let t = topics(&p).unwrap();
+            assert_eq!(t.damaged, None);
+            let names: Vec<(&str, u64)> = t
+                .topics
+                .iter()
+                .map(|i| (i.topic.as_str(), i.count))
+                .collect();
+            assert_eq!(names, [("/other", 6), ("/points", 6)]);
+            assert_eq!(t.choose(None).unwrap(), "/points");
+            assert!(
+                t.choose(Some("/other"))
+                    .unwrap_err()
+                    .to_string()
+                    .contains("std_msgs/msg/String")
+            );
+            assert!(
+                t.choose(Some("/nope"))
+                    .unwrap_err()
+                    .to_string()
+                    .contains("no such topic")
+            );
+            let got: Vec<BagMessage> = BagClouds::open(&p, "/points")
+                .unwrap()
+                .map(Result::unwrap)
+                .collect();
+            assert_eq!(got.len(), 6);
+            for (k, m) in got.iter().enumerate() {
+                assert_eq!(m.index, k as u64);
+                let c = m.cloud.as_ref().unwrap();
+                assert_eq!(c.cloud.points[0], [k as f64, 0.5, -0.5]);
+                assert_eq!(c.stamp_ns, -3_000_000_000 + 250_000_000);
+            }
+        }
+    }
+
+    /// A file cut anywhere after the first cloud: the clouds before the cut, then one error
+    /// naming the byte reached, never a panic; the topics counted up to the damage.
+    #[test]
+    fn truncated_bags_keep_what_was_read() {
+        let dir = tempfile::tempdir().unwrap();
+        for chunked in [false, true] {
+            let whole = bag(chunked);
+            let mut last_n = 0;
+            for cut in (40..whole.len() - 1).step_by(97) {
+                let p = write(dir.path(), "cut.mcap", &whole[..cut]);
+                let items: Vec<_> = BagClouds::open(&p, "/points").unwrap().collect();
+                let (ok, err): (Vec<_>, Vec<_>) = items.into_iter().partition(Result::is_ok);
+                // Messages come in order and never fewer as the cut moves on.
+                assert!(ok.len() >= last_n, "cut {cut}");
+                last_n = ok.len();
+                for (k, m) in ok.iter().enumerate() {
+                    assert_eq!(m.as_ref().unwrap().index, k as u64);
+                }
+                let [
+                    Err(BagError::Damaged {
+                        offset,
+                        read,
+                        message,
+                        ..
+                    }),
+                ] = err.as_slice()
+                else {
+                    panic!("cut {cut}: {err:?}");
+                };
+                assert_eq!(*read, ok.len() as u64);
+                assert!(*offset <= cut as u64, "{offset} > {cut}");
+                assert!(
+                    message.contains("truncated") || message.contains("damaged"),
+                    "{message}"
+                );
+                let t = topics(&p).unwrap();
+                assert!(t.damaged.is_some(), "cut {cut}");
+            }
+            assert_eq!(
+                last_n, 6,
+                "chunked {chunked}: every cloud before the summary read"
+            );
+        }
+    }
+
+    /// A rosbag2 folder: the files `metadata.yaml` lists, in its order; another storage or
+    /// whole-file compression refused with what to do.
+    #[test]
+    fn rosbag2_folders() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        write(d, "run_1.mcap", &bag(true));
+        write(d, "run_0.mcap", &bag(false));
+        let yaml = "rosbag2_bagfile_information:\n  version: 9\n  storage_identifier: mcap\n  \
+                    relative_file_paths:\n  - run_1.mcap\n  - 'run_0.mcap'\n  starting_time:\n";
+        write(d, "metadata.yaml", yaml.as_bytes());
+        assert!(is_bag(d));
+        assert_eq!(
+            bag_files(d).unwrap(),
+            [d.join("run_1.mcap"), d.join("run_0.mcap")]
+        );
+        assert_eq!(BagClouds::open(d, "/points").unwrap().count(), 12);
+        assert_eq!(topics(d).unwrap().topics[1].count, 12);
+        write(d, "metadata.yaml", b"x:\n  storage_identifier: sqlite3\n");
+        assert!(
+            bag_files(d)
+                .unwrap_err()
+                .to_string()
+                .contains("only MCAP is read")
+        );
+        write(
+            d,
+            "metadata.yaml",
+            b"x:\n  storage_identifier: mcap\n  compression_mode: FILE\n",
+        );
+        assert!(bag_files(d).unwrap_err().to_string().contains("decompress"));
+        // Not an MCAP file at all.
+        let p = write(d, "junk.mcap", b"ply\nformat ascii 1.0\n");
+        let e = BagClouds::open(&p, "/points")
+            .unwrap()
+            .next()
+            .unwrap()
+            .unwrap_err();
+        assert!(e.to_string().contains("not an MCAP file"), "{e}");
+    }
+}
