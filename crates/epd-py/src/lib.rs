@@ -63,6 +63,20 @@ fn as_real_array<'py>(
 ) -> PyResult<Bound<'py, PyAny>> {
     let py = obj.py();
     let np = py.import("numpy")?;
+    // An Open3D PointCloud (or any object holding its points in `points`) that is no
+    // array itself: its points.
+    let held;
+    let obj = if name == "points"
+        && !obj.is_instance_of::<numpy::PyUntypedArray>()
+        && !obj.hasattr("__array__")?
+        && !obj.hasattr("__array_interface__")?
+        && obj.hasattr("points")?
+    {
+        held = obj.getattr("points")?;
+        &held
+    } else {
+        obj
+    };
     let obj = &unmasked(obj, name)?;
     let arr = np
         .call_method1("asarray", (obj,))
@@ -71,8 +85,14 @@ fn as_real_array<'py>(
     let kind: String = dtype.getattr("kind")?.extract()?;
     if !matches!(kind.as_str(), "f" | "i" | "u") {
         return Err(PyValueError::new_err(format!(
-            "{name}: dtype {} is not a real number type (float or integer)",
-            dtype.str()?
+            "{name}: dtype {} is not a real number type (float or integer){}",
+            dtype.str()?,
+            if kind == "O" {
+                "; an Open3D point cloud or a list of objects? pass numpy.asarray(pcd.points), \
+                 an (N, 3) array of numbers"
+            } else {
+                ""
+            }
         )));
     }
     let shape: Vec<usize> = arr.getattr("shape")?.extract()?;
@@ -251,9 +271,9 @@ fn parse_frame(frame: &str) -> PyResult<InputFrame> {
     match frame {
         "sensor" => Ok(InputFrame::Sensor),
         "optical" => Ok(InputFrame::Optical),
-        "body" => Ok(InputFrame::Body),
+        "body" | "flu" => Ok(InputFrame::Body),
         other => Err(PyValueError::new_err(format!(
-            "frame={other:?}: expected \"sensor\", \"optical\" or \"body\" (ROS REP 103)"
+            "frame={other:?}: expected \"sensor\", \"optical\" or \"body\" (alias \"flu\"; ROS REP 103)"
         ))),
     }
 }
@@ -273,18 +293,42 @@ enum Input<'py> {
 /// Estimate the pipe's diameters and the sensor's pose from one cloud.
 ///
 /// `points` is an (N, 3) array (float64 C-contiguous arrays are read in place; other
-/// real arrays are converted once) or the path of a PLY/PCD/CSV/XYZ file. The other
-/// arguments are those of `epd estimate`: `method` ("ml-epd", "ru-epd", "c-epd"),
-/// `units` ("m", "mm"), `frame` ("sensor", "optical", "body": ROS REP 103), `loss` ("cauchy", "huber",
-/// "none"; `None` is "none"), `loss_scale` (m; `None`: from the residuals),
-/// `min_range`/`max_range` (m), `calibration` (a depth-table JSON file; needs
-/// `intensity`, one per point, or a file with an `intensity` property),
-/// `unweighted`, `nominal_od_in`, `straight_only`. `sigma` gives each point's range standard deviation
-/// (m) for a weighted fit. Returns the keys and values of one JSON object of
-/// `epd estimate --format json` (`file` is `None` for an array). Raises `ValueError`
-/// for bad arguments or a cloud that cannot be fitted and `OSError` for a file that
-/// cannot be read, with the tool's messages. The GIL is released during the fit.
+/// real arrays are converted once), an object with a `points` attribute such as an
+/// Open3D `PointCloud` (read as `numpy.asarray(obj.points)`), or the path of a
+/// PLY/PCD/CSV/XYZ file. The other arguments are those of `epd estimate`: `method`
+/// ("ml-epd", "ru-epd", "c-epd"), `units` ("m", "mm"), `frame` ("sensor": X forward,
+/// Y right, Z up; "optical": X right, Y down, Z forward, as Open3D, PCL and camera SDKs
+/// write; "body" or "flu": X forward, Y left, Z up, a ROS body frame, REP 103), `loss`
+/// ("cauchy", "huber", "none"; `None` is "none"), `loss_scale` (m; `None`: from the
+/// residuals), `min_range`/`max_range` (m), `calibration` (a depth-table JSON file; needs
+/// `intensity`, one per point, or a file with an `intensity` property), `unweighted`,
+/// `nominal_od_in` (inch), `straight_only`. `sigma` gives each point's range standard
+/// deviation (m) for a weighted fit.
+///
+/// Returns a dict, the keys of one JSON object of `epd estimate --format json`:
+/// `file` (`None` for an array), `method`, `status` ("converged", "iteration_limit",
+/// "degenerate", "implausible", "lack_of_fit"), `status_reason`, `iterations`,
+/// `n_points` (points fitted), `n_dropped` (NaN, inf or zero points dropped), the
+/// diameters `d_max_mm`, `d_min_mm` (mm), the pose `roll_deg`, `pitch_deg`, `yaw_deg`
+/// (degrees), `dy_mm`, `dz_mm` (mm: the sensor's offset from the pipe's axis),
+/// `roll_determined`, the 1-σ of each (`sigma_d_max_mm` … `sigma_dz_mm`, same units;
+/// `None` where the data do not determine it), `d_mean_mm`, `sigma_d_mean_mm` (mm),
+/// `ovality_pct`, `sigma_ovality_pct` (% of the mean diameter), `n_read`,
+/// `n_out_of_range`, `n_calibrated`, `weighted`, `rms_residual_mm` (mm), `elapsed_ms`,
+/// `read_ms` (ms), `loss`, `loss_scale_m` (m), `nominal_od_mm`, `wall_thickness_est_mm`
+/// (mm), `geometry` ("straight", "bend_ahead", "tee_ahead", "in_bend"),
+/// `straight_until_m` (m), `bend_radius_mm` (mm), `bend_angle_deg`,
+/// `bend_direction_deg` (degrees), `bend_withheld`, `error`, `stamp_ns`, `frame_id`
+/// (a bag message's header; `None` here). A result that cannot be believed is `None`
+/// with the reason in `error`.
+///
+/// Raises `ValueError` for bad arguments or a cloud that cannot be fitted and `OSError`
+/// for a file that cannot be read, with the tool's messages in Python's terms
+/// (`units="mm"` for `--units mm`). The GIL is released during the fit.
 #[pyfunction]
+#[pyo3(text_signature = "(points, method='ml-epd', units='m', frame='sensor', \
+    loss='cauchy', loss_scale=None, min_range=None, max_range=None, calibration=None, \
+    intensity=None, sigma=None, unweighted=False, nominal_od_in=None, straight_only=False)")]
 #[pyo3(signature = (
     points, method="ml-epd", units="m", frame="sensor", loss=Some("cauchy"),
     loss_scale=None, min_range=None, max_range=None, calibration=None,
@@ -399,7 +443,7 @@ fn estimate_file_dict<'py>(
     .map_err(Stop::into_py_err)?;
     match &report.outcome {
         Ok(_) => fields_dict(py, &report.keyed_fields(), false),
-        Err(msg) => Err(file_error(path, msg.clone())),
+        Err(msg) => Err(file_error(path, python_terms(msg))),
     }
 }
 
@@ -607,10 +651,16 @@ impl Stop<Failure> {
 impl Failure {
     fn into_py_err(self) -> PyErr {
         match self {
-            Failure::Value(m) => PyValueError::new_err(m),
-            Failure::File(p, m) => file_error(&p, m),
+            Failure::Value(m) => PyValueError::new_err(python_terms(&m)),
+            Failure::File(p, m) => file_error(&p, python_terms(&m)),
         }
     }
+}
+
+/// A message of the tool in Python's terms: its flags as `estimate`'s keyword arguments
+/// (`--units mm` → `units="mm"`).
+fn python_terms(message: &str) -> String {
+    message.replace("--units mm", "units=\"mm\"")
 }
 
 /// Whether `obj` is an `os.PathLike` (has `__fspath__`).
