@@ -67,7 +67,10 @@ fn write_bag(path: &Path, clouds: &[(Vec<[f64; 3]>, i32, &str)], extra: &[&str])
         w.add_channel(s, t, "cdr", &none).unwrap();
     }
     for (k, (pts, sec, frame)) in clouds.iter().enumerate() {
-        for (ch, data) in [(imu, vec![0u8, 1, 0, 0]), (cam, cloud_cdr(pts, *sec, frame))] {
+        for (ch, data) in [
+            (imu, vec![0u8, 1, 0, 0]),
+            (cam, cloud_cdr(pts, *sec, frame)),
+        ] {
             let h = mcap::records::MessageHeader {
                 channel_id: ch,
                 sequence: k as u32,
@@ -116,7 +119,11 @@ fn a_bag_gives_the_estimates_of_its_points() {
         .arg(&bag)
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let rows = json_lines(&out.stdout);
     assert_eq!(rows.len(), 3);
     let files: Vec<PathBuf> = frames
@@ -135,7 +142,15 @@ fn a_bag_gives_the_estimates_of_its_points() {
         assert_eq!(r["frame_id"], "cam_optical_frame");
         assert!(w["stamp_ns"].is_null() && w["frame_id"].is_null());
         assert_eq!(r["status"], "converged");
-        for key in ["d_max_mm", "d_min_mm", "roll_deg", "pitch_deg", "yaw_deg", "dy_mm", "dz_mm"] {
+        for key in [
+            "d_max_mm",
+            "d_min_mm",
+            "roll_deg",
+            "pitch_deg",
+            "yaw_deg",
+            "dy_mm",
+            "dz_mm",
+        ] {
             let (a, b) = (r[key].as_f64().unwrap(), w[key].as_f64().unwrap());
             assert!((a - b).abs() <= 1e-6, "{k} {key}: {a} vs {b}");
         }
@@ -144,8 +159,14 @@ fn a_bag_gives_the_estimates_of_its_points() {
     let out = epd().arg("topics").arg(&bag).output().unwrap();
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success());
-    assert!(text.contains("/cam/points  sensor_msgs/msg/PointCloud2         3"), "{text}");
-    assert!(text.contains("/imu         sensor_msgs/msg/Imu                 3"), "{text}");
+    assert!(
+        text.contains("/cam/points  sensor_msgs/msg/PointCloud2         3"),
+        "{text}"
+    );
+    assert!(
+        text.contains("/imu         sensor_msgs/msg/Imu                 3"),
+        "{text}"
+    );
 }
 
 /// Several PointCloud2 topics and no --topic, a --topic of another type, a --topic for
@@ -158,19 +179,31 @@ fn the_topic_is_chosen_or_asked_for() {
     write_bag(&bag, &[(pts.clone(), 1, "base_link")], &["/lidar/points"]);
     let run = |args: &[&str]| {
         let out = epd().args(args).output().unwrap();
-        (out.status.code(), String::from_utf8_lossy(&out.stderr).into_owned())
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
     };
     let b = bag.to_str().unwrap();
     let (code, err) = run(&["estimate", "-q", b]);
     assert_eq!(code, Some(2));
-    assert!(err.contains("2 PointCloud2 topics: /cam/points, /lidar/points; choose one with --topic"), "{err}");
+    assert!(
+        err.contains("2 PointCloud2 topics: /cam/points, /lidar/points; choose one with --topic"),
+        "{err}"
+    );
     let (code, err) = run(&["estimate", "-q", b, "--topic", "/imu"]);
     assert_eq!(code, Some(2));
     assert!(err.contains("sensor_msgs/msg/Imu"), "{err}");
     let (code, _) = run(&["estimate", "-q", b, "--topic", "/cam/points"]);
     assert_eq!(code, Some(0));
     let f = csv(dir.path(), "f.csv", &pts);
-    let (code, err) = run(&["estimate", "-q", f.to_str().unwrap(), "--topic", "/cam/points"]);
+    let (code, err) = run(&[
+        "estimate",
+        "-q",
+        f.to_str().unwrap(),
+        "--topic",
+        "/cam/points",
+    ]);
     assert_eq!(code, Some(2));
     assert!(err.contains("no input is one"), "{err}");
 }

@@ -341,7 +341,8 @@ impl FileEstimate {
              Dmax {:.2} mm {}  Dmin {:.2} mm {}\n  \
              roll {:.2}° {}  pitch {:.3}° {}  yaw {:.3}° {}\n  \
              δy {:.2} mm {}  δz {:.2} mm {}\n  \
-             rms range residual {} mm, estimate {:.1} ms, read {:.1} ms",
+             rms range residual {} mm, estimate {:.1} ms, read {:.1} ms\n  \
+             ± is one standard deviation (1-σ); {}",
             file,
             est.method,
             est.status.name(),
@@ -367,6 +368,7 @@ impl FileEstimate {
                 .map_or("-".into(), |v| format!("{v:.2}")),
             self.elapsed_ms,
             self.read_ms,
+            self.applied(),
         );
         if let Some(od) = self.nominal_od_mm {
             t.push_str(&format!(
@@ -378,6 +380,24 @@ impl FileEstimate {
             t.push_str(&g.text());
         }
         t
+    }
+}
+
+impl FileEstimate {
+    /// What was applied to the points before the fit, in words.
+    fn applied(&self) -> String {
+        match self.n_calibrated {
+            Some(n) => format!(
+                "depth table applied ({n} points corrected{})",
+                if self.weighted {
+                    ", each weighted by the table's 1/σᵢ"
+                } else {
+                    ", unweighted"
+                }
+            ),
+            None if self.weighted => "each point weighted by its given σᵢ".into(),
+            None => "no depth table applied".into(),
+        }
     }
 }
 

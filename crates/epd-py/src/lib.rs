@@ -326,9 +326,11 @@ enum Input<'py> {
 /// for a file that cannot be read, with the tool's messages in Python's terms
 /// (`units="mm"` for `--units mm`). The GIL is released during the fit.
 #[pyfunction]
-#[pyo3(text_signature = "(points, method='ml-epd', units='m', frame='sensor', \
+#[pyo3(
+    text_signature = "(points, method='ml-epd', units='m', frame='sensor', \
     loss='cauchy', loss_scale=None, min_range=None, max_range=None, calibration=None, \
-    intensity=None, sigma=None, unweighted=False, nominal_od_in=None, straight_only=False)")]
+    intensity=None, sigma=None, unweighted=False, nominal_od_in=None, straight_only=False)"
+)]
 #[pyo3(signature = (
     points, method="ml-epd", units="m", frame="sensor", loss=Some("cauchy"),
     loss_scale=None, min_range=None, max_range=None, calibration=None,
