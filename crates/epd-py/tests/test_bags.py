@@ -19,9 +19,9 @@ import pytest
 import epd
 from conftest import run_epd
 
-rosbags = pytest.importorskip("rosbags", reason="pip install rosbags (.ci/python-tests.sh does)")
-from rosbags.rosbag2 import StoragePlugin, Writer  # noqa: E402
-from rosbags.typesys import Stores, get_typestore  # noqa: E402
+# Not skipped without it: `pip install rosbags` (.ci/python-tests.sh does).
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
 
 TS = get_typestore(Stores.ROS2_HUMBLE)
 PointCloud2 = TS.types["sensor_msgs/msg/PointCloud2"]
