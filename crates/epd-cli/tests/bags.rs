@@ -105,9 +105,9 @@ fn csv(dir: &Path, name: &str, pts: &[[f64; 3]]) -> PathBuf {
 /// in order, with its stamp and frame id; `*_optical_frame` read as the optical frame.
 #[test]
 fn a_bag_gives_the_estimates_of_its_points() {
-    let dir = common::temp_dir();
+    let dir = common::temp_dir("bag-estimates");
     let frames: Vec<Vec<[f64; 3]>> = (0..3).map(|k| common::frame(k, 3000).measured).collect();
-    let bag = dir.path().join("run.mcap");
+    let bag = dir.as_path().join("run.mcap");
     let clouds: Vec<(Vec<[f64; 3]>, i32, &str)> = frames
         .iter()
         .enumerate()
@@ -129,7 +129,7 @@ fn a_bag_gives_the_estimates_of_its_points() {
     let files: Vec<PathBuf> = frames
         .iter()
         .enumerate()
-        .map(|(k, p)| csv(dir.path(), &format!("f{k}.csv"), p))
+        .map(|(k, p)| csv(dir.as_path(), &format!("f{k}.csv"), p))
         .collect();
     let out = epd()
         .args(["estimate", "--format", "json", "-q"])
@@ -173,9 +173,9 @@ fn a_bag_gives_the_estimates_of_its_points() {
 /// files only: usage errors (exit 2) naming what to choose.
 #[test]
 fn the_topic_is_chosen_or_asked_for() {
-    let dir = common::temp_dir();
+    let dir = common::temp_dir("bag-topic");
     let pts = common::frame(1, 2000).measured;
-    let bag = dir.path().join("two.mcap");
+    let bag = dir.as_path().join("two.mcap");
     write_bag(&bag, &[(pts.clone(), 1, "base_link")], &["/lidar/points"]);
     let run = |args: &[&str]| {
         let out = epd().args(args).output().unwrap();
@@ -196,7 +196,7 @@ fn the_topic_is_chosen_or_asked_for() {
     assert!(err.contains("sensor_msgs/msg/Imu"), "{err}");
     let (code, _) = run(&["estimate", "-q", b, "--topic", "/cam/points"]);
     assert_eq!(code, Some(0));
-    let f = csv(dir.path(), "f.csv", &pts);
+    let f = csv(dir.as_path(), "f.csv", &pts);
     let (code, err) = run(&[
         "estimate",
         "-q",
@@ -212,11 +212,11 @@ fn the_topic_is_chosen_or_asked_for() {
 /// same cloud in the sensor frame; read as the sensor frame, yaw and δy change sign.
 #[test]
 fn frame_flu_is_the_body_frame() {
-    let dir = common::temp_dir();
+    let dir = common::temp_dir("bag-flu");
     let pts = common::frame(3, 3000).measured;
     let flu: Vec<[f64; 3]> = pts.iter().map(|&[x, y, z]| [x, -y, z]).collect();
-    let sensor = csv(dir.path(), "s.csv", &pts);
-    let body = csv(dir.path(), "b.csv", &flu);
+    let sensor = csv(dir.as_path(), "s.csv", &pts);
+    let body = csv(dir.as_path(), "b.csv", &flu);
     let get = |f: &Path, frame: &str| {
         let out = epd()
             .args(["estimate", "--format", "json", "-q", "--frame", frame])

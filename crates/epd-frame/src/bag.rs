@@ -108,7 +108,6 @@ pub fn damage_report(bag: &Path, e: &BagError) -> FileReport {
 
 #[cfg(test)]
 mod tests {
-    use super::*;
     use crate::{InputConfig, InputFrame, Units};
 
     /// An `_optical_frame` is read as the optical frame unless a frame was given; other

@@ -297,3 +297,49 @@ def test_files_have_null_stamps_and_text_names_the_message(epd_bin, tmp_path):
     assert csv[1].endswith(",,") and csv[2].endswith(f",{STAMP0},x")
     text = run_epd(epd_bin, "estimate", "-q", bag).stdout
     assert text.startswith(f"{bag} {TOPIC} #0: ml-epd converged"), text
+
+
+def test_read_bag_yields_the_messages(epd_bin, tmp_path):
+    """`epd.read_bag(path, topic)` yields `(stamp_ns, points, properties)` per message of
+    the topic, as stored (optical-frame points stay optical), the other topic skipped;
+    `frame_id` is the last message's; a truncated bag raises after the messages before
+    the cut, naming the byte offset."""
+    fr = frames(3, sensor="helios2")
+    msgs = []
+    for k, (pts, props) in enumerate(fr):
+        t = STAMP0 + k * DT
+        opt = to_optical(pts.astype(np.float32).astype(np.float64)).astype(np.float32)
+        msgs.append((TOPIC, PC2, t, cloud_msg(
+            opt, t, "helios_optical_frame",
+            extra={"intensity": (props["intensity"].astype(np.float32), FLOAT32)})))
+        msgs.append(("/other/points", PC2, t + 1, cloud_msg(pts[:100], t, "other")))
+    bag = write_bag(tmp_path / "run", msgs)
+    it = epd.read_bag(bag, TOPIC)
+    assert it.frame_id is None
+    got = list(it)
+    assert [s for s, _, _ in got] == [STAMP0 + k * DT for k in range(3)]
+    assert it.frame_id == "helios_optical_frame"
+    for (s, pts, props), (want, wprops) in zip(got, fr):
+        assert pts.dtype == np.float64 and pts.shape == want.shape
+        w = to_optical(want.astype(np.float32).astype(np.float64)).astype(np.float32)
+        assert np.array_equal(pts, w.astype(np.float64), equal_nan=True)
+        assert list(props) == ["intensity"]
+        assert np.array_equal(props["intensity"],
+                              wprops["intensity"].astype(np.float32).astype(np.float64))
+        # The same estimate as the tool's, given the frame the tool took from frame_id.
+    r = epd.estimate(got[0][1], frame="optical")
+    (row, *_), _ = estimate_lines(epd_bin, bag, "--topic", TOPIC)
+    assert abs(r["d_max_mm"] - row["d_max_mm"]) <= 1e-6
+    with pytest.raises(ValueError, match="PointCloud2 topics: /helios/points, /other/points"):
+        epd.read_bag(bag)
+    with pytest.raises(OSError):
+        epd.read_bag(tmp_path / "missing.mcap")
+    mcap = next(bag.glob("*.mcap"))
+    data = mcap.read_bytes()
+    cut = data.index(b"helios_optical_frame", data.index(b"helios_optical_frame") + 1) + 5000
+    short = tmp_path / "short.mcap"
+    short.write_bytes(data[:cut])
+    it = epd.read_bag(short, TOPIC)
+    assert next(it)[0] == STAMP0
+    with pytest.raises(ValueError, match=f"byte {cut}"):
+        next(it)
