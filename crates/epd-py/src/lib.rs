@@ -757,10 +757,7 @@ impl BagReader {
         slf
     }
 
-    fn __next__<'py>(
-        &mut self,
-        py: Python<'py>,
-    ) -> PyResult<Option<BagItem<'py>>> {
+    fn __next__<'py>(&mut self, py: Python<'py>) -> PyResult<Option<BagItem<'py>>> {
         let Some(next) = self.clouds.next() else {
             return Ok(None);
         };

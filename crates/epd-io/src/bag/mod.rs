@@ -27,8 +27,8 @@ pub const MCAP_MAGIC: &[u8] = b"\x89MCAP0\r\n";
 
 /// The longest MCAP record read (1 GiB): a PointCloud2 of the largest ToF and lidar
 /// clouds (a 1280×960 organised cloud of 32-byte points is 39 MB) is far below it; it
-/// bounds what a damaged record's length can make the reader allocate (also never more
-/// than the file holds).
+/// bounds what a damaged record's length can make the reader allocate. (Not the file's
+/// size: a record inside a compressed chunk may be longer than the whole file.)
 pub const MAX_RECORD_BYTES: u64 = 1 << 30;
 
 /// The size of the read buffer between the file and the MCAP reader.
@@ -256,14 +256,14 @@ type Messages = mcap::io::MessageReader<Counting<BufReader<File>>>;
 /// Open one `.mcap` file for streaming; the counter follows the reader's position.
 fn open_messages(file: &Path) -> Result<(Messages, Arc<AtomicU64>), BagError> {
     let shown = crate::name::shown(file);
-    let (f, len) =
+    let (f, _len) =
         crate::read::open_regular(file).map_err(|e| BagError::Open(format!("{shown}: {e}")))?;
     let count = Arc::new(AtomicU64::new(0));
     let source = Counting {
         inner: BufReader::with_capacity(READ_BUFFER_BYTES, f),
         count: Arc::clone(&count),
     };
-    let limit = usize::try_from(len.min(MAX_RECORD_BYTES)).unwrap_or(usize::MAX);
+    let limit = usize::try_from(MAX_RECORD_BYTES).unwrap_or(usize::MAX);
     let options = mcap::sans_io::LinearReaderOptions::default().with_record_length_limit(limit);
     Ok((
         mcap::io::MessageReader::new_with_options(source, options),
@@ -469,11 +469,16 @@ mod tests {
     /// An MCAP file (mcap's own writer, chunked or not) of 6 clouds on `/points`
     /// interleaved with 6 messages on `/other`; its bytes.
     fn bag(chunked: bool) -> Vec<u8> {
+        bag_compressed(chunked, None)
+    }
+
+    /// [`bag`] with its chunks compressed.
+    fn bag_compressed(chunked: bool, compression: Option<mcap::Compression>) -> Vec<u8> {
         let mut out = std::io::Cursor::new(Vec::new());
         {
             let opts = mcap::WriteOptions::new()
                 .use_chunks(chunked)
-                .compression(None)
+                .compression(compression)
                 .chunk_size(Some(4096));
             let mut w = opts.create(&mut out).unwrap();
             let s = w.add_schema(POINT_CLOUD2, "ros2msg", b"").unwrap();
@@ -547,6 +552,21 @@ mod tests {
                 assert_eq!(c.cloud.points[0], [k as f64, 0.5, -0.5]);
                 assert_eq!(c.stamp_ns, -3_000_000_000 + 250_000_000);
             }
+        }
+    }
+
+    /// Chunks compressed with zstd or lz4 (as `ros2 bag record` may write them), whose
+    /// records can be longer than the whole file: every cloud read.
+    #[test]
+    fn compressed_chunks() {
+        let dir = tempfile::tempdir().unwrap();
+        for c in [mcap::Compression::Zstd, mcap::Compression::Lz4] {
+            let p = write(dir.path(), "z.mcap", &bag_compressed(true, Some(c)));
+            let n = BagClouds::open(&p, "/points")
+                .unwrap()
+                .map(|m| m.unwrap().cloud.unwrap().cloud.points.len())
+                .collect::<Vec<_>>();
+            assert_eq!(n, [200; 6], "{c:?}");
         }
     }
 
