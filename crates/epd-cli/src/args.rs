@@ -27,7 +27,8 @@ pub struct Cli {
 
 #[derive(Subcommand, Debug)]
 pub enum Command {
-    /// Estimate the pipe and the pose from point-cloud files, one result per file.
+    /// Estimate the pipe and the pose from point-cloud files, one result per file (per
+    /// PointCloud2 message for a ROS 2 bag).
     Estimate(EstimateArgs),
     /// Build a depth-calibration table from frames recorded in a pipe of known diameter.
     Calibrate(CalibrateArgs),

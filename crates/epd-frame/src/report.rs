@@ -490,6 +490,43 @@ mod tests {
         }
     }
 
+    /// The text says what ± means and what was applied to the points; a bag message is
+    /// named by its topic and index, and its header fills `stamp_ns` and `frame_id` (null
+    /// for a file).
+    #[test]
+    fn text_says_what_the_uncertainty_is_and_json_has_the_stamp() {
+        let mut r = ok_report();
+        assert!(
+            r.text()
+                .contains("± is one standard deviation (1-σ); no depth table applied")
+        );
+        let get =
+            |r: &FileReport, k: &str| r.fields().into_iter().find(|(n, _)| *n == k).unwrap().1;
+        assert_eq!(get(&r, "stamp_ns"), Field::Null);
+        if let Ok(e) = &mut r.outcome {
+            e.n_calibrated = Some(12);
+            e.weighted = true;
+        }
+        r.message = Some(MessageSource {
+            topic: "/cam".into(),
+            index: 4,
+            stamp_ns: Some(-5),
+            frame_id: Some("cam_optical_frame".into()),
+        });
+        let t = r.text();
+        assert!(t.starts_with("a /cam #4: "), "{t}");
+        assert!(
+            t.contains("depth table applied (12 points corrected, each weighted"),
+            "{t}"
+        );
+        assert_eq!(get(&r, "stamp_ns"), Field::Int64(-5));
+        assert_eq!(get(&r, "frame_id"), Field::Text("cam_optical_frame".into()));
+        assert!(
+            r.json()
+                .ends_with(r#""stamp_ns":-5,"frame_id":"cam_optical_frame"}"#)
+        );
+    }
+
     /// A bend 1 m ahead, as a survey reports it.
     fn bend_ahead() -> GeometryReport {
         GeometryReport {
