@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The Python package's tests on a machine with only Rust and Python ≥ 3.9 + pip: a fresh
-# virtualenv, `pip install ./crates/epd-py pytest numpy` (pip fetches maturin from PyPI,
+# virtualenv, `pip install ./crates/epd-py pytest numpy rosbags` (pip fetches maturin from PyPI,
 # which builds the extension in the release profile), the `epd` binary the tests compare
-# against (release: it reuses the wheel's compiled crates), then pytest.
+# against (release: it reuses the wheel's compiled crates), then pytest. `rosbags` writes
+# the ROS 2 bags of test_bags.py (a bag writer this project did not write).
 #
 #   .ci/python-tests.sh [PYTEST ARGS…]
 #
@@ -16,8 +17,8 @@ target=$(cargo metadata --format-version 1 --no-deps |
 venv=${EPD_PY_VENV:-$target/python-venv}
 echo "== python venv $venv ($("$PYTHON" --version))"
 "$PYTHON" -m venv --clear "$venv"
-echo "== pip install ./crates/epd-py pytest numpy"
-"$venv/bin/python" -m pip install --quiet --disable-pip-version-check ./crates/epd-py pytest numpy
+echo "== pip install ./crates/epd-py pytest numpy rosbags"
+"$venv/bin/python" -m pip install --quiet --disable-pip-version-check ./crates/epd-py pytest numpy rosbags
 echo "== cargo build --release -p epd-cli --bin epd (the tests compare against it)"
 cargo build --release -p epd-cli --bin epd
 export EPD_BIN="$target/release/epd"

@@ -27,12 +27,15 @@ pub struct Cli {
 
 #[derive(Subcommand, Debug)]
 pub enum Command {
-    /// Estimate the pipe and the pose from point-cloud files, one result per file.
+    /// Estimate the pipe and the pose from point-cloud files, one result per file (per
+    /// PointCloud2 message for a ROS 2 bag).
     Estimate(EstimateArgs),
     /// Build a depth-calibration table from frames recorded in a pipe of known diameter.
     Calibrate(CalibrateArgs),
     /// Simulate Helios2-like frames (PLY) with their ground truth (JSON).
     Simulate(SimulateArgs),
+    /// List the topics of ROS 2 bags (MCAP) with their message types and counts.
+    Topics(TopicsArgs),
 }
 
 /// The estimator, by its name in reports.
@@ -95,20 +98,27 @@ pub enum UnitsArg {
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum FrameArg {
     /// X forward (optical axis), Y right, Z up: the paper's frame (not ROS's body frame,
-    /// whose Y points left: use `body`).
+    /// whose Y points left: use `body`/`flu`).
     Sensor,
     /// X right, Y down, Z forward: camera SDKs, PCL, Open3D, ROS `*_optical_frame`.
     Optical,
-    /// X forward, Y left, Z up: a ROS body frame (REP 103: `base_link`, `camera_link`).
-    #[value(alias = "ros-body")]
+    /// X forward, Y left, Z up (FLU): a ROS body frame (REP 103: `base_link`,
+    /// `camera_link`, a lidar's frame); alias `flu`.
+    #[value(aliases = ["flu", "ros-body"])]
     Body,
 }
 
 #[derive(Args, Debug)]
 pub struct EstimateArgs {
-    /// Point-cloud files: PLY, PCD, CSV/XYZ/TXT/PTS; `-` reads standard input.
+    /// Point-cloud files: PLY, PCD, CSV/XYZ/TXT/PTS; `-` reads standard input. A ROS 2 bag
+    /// (an `.mcap` file, or a rosbag2 folder with its `metadata.yaml`) gives one result per
+    /// `sensor_msgs/msg/PointCloud2` message of its topic (see --topic).
     #[arg(required = true, value_name = "FILE")]
     pub files: Vec<PathBuf>,
+    /// The PointCloud2 topic read from each bag (other topics are skipped); without it, a
+    /// bag's only PointCloud2 topic (`epd topics BAG` lists them).
+    #[arg(long, value_name = "T")]
+    pub topic: Option<String>,
     /// The estimator.
     #[arg(long, value_enum, default_value_t = MethodArg::MlEpd)]
     pub method: MethodArg,
@@ -173,9 +183,10 @@ pub struct InputArgs {
     /// Length unit of the files.
     #[arg(long, value_enum, default_value_t = UnitsArg::M)]
     pub units: UnitsArg,
-    /// Coordinate frame of the files.
-    #[arg(long, value_enum, default_value_t = FrameArg::Sensor)]
-    pub frame: FrameArg,
+    /// Coordinate frame of the files [default: sensor; a bag's cloud whose frame_id ends
+    /// in `_optical_frame`: optical].
+    #[arg(long, value_enum, value_name = "FRAME")]
+    pub frame: Option<FrameArg>,
     /// Format of standard input (ply, pcd, csv, xyz, txt, pts, asc); default: from its
     /// first bytes.
     #[arg(long, value_name = "FORMAT")]
@@ -235,6 +246,13 @@ pub struct CalibrateArgs {
     /// Only errors.
     #[arg(short, long)]
     pub quiet: bool,
+}
+
+#[derive(Args, Debug)]
+pub struct TopicsArgs {
+    /// ROS 2 bags: `.mcap` files or rosbag2 folders (with `metadata.yaml`).
+    #[arg(required = true, value_name = "BAG")]
+    pub bags: Vec<PathBuf>,
 }
 
 #[derive(Args, Debug)]
@@ -329,11 +347,12 @@ impl From<&InputArgs> for InputConfig {
                 UnitsArg::M => Units::Metres,
                 UnitsArg::Mm => Units::Millimetres,
             },
-            frame: match a.frame {
+            frame: match a.frame.unwrap_or(FrameArg::Sensor) {
                 FrameArg::Sensor => InputFrame::Sensor,
                 FrameArg::Optical => InputFrame::Optical,
                 FrameArg::Body => InputFrame::Body,
             },
+            frame_given: a.frame.is_some(),
             format: a.input_format,
         }
     }

@@ -1,12 +1,14 @@
 //! `epd estimate`: every file measured by the frame library (`epd_frame::measure_file`),
-//! in parallel, the results written in input order to standard output or a file replaced
-//! whole at the end.
+//! and every PointCloud2 message of a bag's topic (`epd_frame::bag`), a few at a time in
+//! parallel (the next few read while they are measured), the results written in input
+//! order to standard output or a file replaced whole at the end.
 
 use std::io::{BufWriter, ErrorKind, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
+use epd_frame::bag::{BagFrame, BagFrames, damage_report, is_bag, measure_message, topics};
 use epd_frame::report::{FileReport, columns};
 use epd_frame::shard::ShardSpec;
 use epd_frame::{EstimateConfig, EstimateSettings, measure_file};
@@ -155,11 +157,128 @@ fn failures_exit(failed: &[String], total: usize, quiet: bool) -> ExitCode {
     ExitCode::FAILURE
 }
 
+/// One input of a run: a point-cloud file, a bag with the topic read from it (and its
+/// number of messages there), or an input that failed before it could be read.
+enum Input {
+    File(PathBuf),
+    Bag {
+        path: PathBuf,
+        topic: String,
+        messages: u64,
+    },
+    Failed(Box<FileReport>),
+}
+
+/// The inputs, a bag's topic chosen (`--topic`, or its only PointCloud2 topic): a bag whose
+/// topic cannot be chosen is a usage error (nothing is estimated); one that cannot be read
+/// is a failed input.
+fn resolve_inputs(files: Vec<PathBuf>, topic: Option<&str>) -> anyhow::Result<Vec<Input>> {
+    let mut inputs = Vec::with_capacity(files.len());
+    let mut any_bag = false;
+    for path in files {
+        if path.as_os_str() == "-" || !is_bag(&path) {
+            inputs.push(Input::File(path));
+            continue;
+        }
+        any_bag = true;
+        let found = match topics(&path) {
+            Ok(t) => t,
+            Err(e) => {
+                inputs.push(Input::Failed(Box::new(damage_report(&path, &e))));
+                continue;
+            }
+        };
+        let chosen = found
+            .choose(topic)
+            .map_err(|e| usage(format!("{}: {e}", epd_io::name::shown(&path))))?;
+        let messages = found
+            .topics
+            .iter()
+            .find(|t| t.topic == chosen)
+            .map_or(0, |t| t.count);
+        inputs.push(Input::Bag {
+            path,
+            topic: chosen,
+            messages,
+        });
+    }
+    if let Some(t) = topic
+        && !any_bag
+    {
+        return Err(usage(format!(
+            "--topic {t}: applies to ROS 2 bags (an .mcap file or a rosbag2 folder), and no \
+             input is one"
+        )));
+    }
+    Ok(inputs)
+}
+
+/// One thing to measure: a file, a bag's message, or a report already made (an input
+/// that failed, a bag's damage).
+enum Work {
+    File(PathBuf),
+    Message(Box<BagFrame>),
+    Done(Box<FileReport>),
+}
+
+impl Work {
+    fn measure(self, cfg: &EstimateConfig) -> FileReport {
+        match self {
+            Work::File(p) => measure_file(&p, cfg),
+            Work::Message(m) => measure_message(*m, cfg),
+            Work::Done(r) => *r,
+        }
+    }
+}
+
+/// The work of the inputs in order, a bag's messages read one at a time as they are
+/// taken.
+struct Queue<'a> {
+    inputs: std::slice::Iter<'a, Input>,
+    bag: Option<(&'a Path, BagFrames)>,
+}
+
+impl Iterator for Queue<'_> {
+    type Item = Work;
+
+    fn next(&mut self) -> Option<Work> {
+        loop {
+            if let Some((path, frames)) = &mut self.bag {
+                match frames.next() {
+                    Some(Ok(m)) => return Some(Work::Message(Box::new(m))),
+                    Some(Err(e)) => {
+                        let r = damage_report(path, &e);
+                        self.bag = None;
+                        return Some(Work::Done(Box::new(r)));
+                    }
+                    None => self.bag = None,
+                }
+            }
+            match self.inputs.next()? {
+                Input::File(p) => return Some(Work::File(p.clone())),
+                Input::Failed(r) => return Some(Work::Done(r.clone())),
+                Input::Bag { path, topic, .. } => match BagFrames::open(path, topic) {
+                    Ok(frames) => self.bag = Some((path, frames)),
+                    Err(e) => return Some(Work::Done(Box::new(damage_report(path, &e)))),
+                },
+            }
+        }
+    }
+}
+
 pub fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
     let cfg = estimate_config(args)?;
     let files = shard_files(&args.files, args.shard)?;
+    let inputs = resolve_inputs(files, args.topic.as_deref())?;
+    let total: u64 = inputs
+        .iter()
+        .map(|i| match i {
+            Input::Bag { messages, .. } => *messages,
+            _ => 1,
+        })
+        .sum();
     start_threads(args.threads)?;
-    let bar = progress(args.quiet, files.len());
+    let bar = progress(args.quiet, usize::try_from(total).unwrap_or(usize::MAX));
     if let Some(out) = &args.output {
         check_output_path(out, &args.files, "-o")?;
     }
@@ -178,19 +297,32 @@ pub fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
     if args.format == OutputFormat::Csv && args.shard.is_none_or(|s| s.k() == 1) {
         open = write(&mut sink, &epd_io::csv::line(columns()))?;
     }
+    // A few inputs (or bag messages) at a time: memory holds two batches (the one measured
+    // and the next, read meanwhile), whatever the length of a bag.
     let batch = 2 * rayon::current_num_threads().max(1);
-    for chunk in files.chunks(batch) {
-        if !open {
-            break;
-        }
-        let reports: Vec<FileReport> = chunk
-            .par_iter()
-            .map(|p| {
-                let r = measure_file(p, &cfg);
-                bar.inc(1);
-                r
-            })
-            .collect();
+    let mut queue = Queue {
+        inputs: inputs.iter(),
+        bag: None,
+    };
+    let mut next: Vec<Work> = queue.by_ref().take(batch).collect();
+    let mut n_reports = 0usize;
+    while open && !next.is_empty() {
+        let chunk = std::mem::take(&mut next);
+        let (reports, following) = rayon::join(
+            || {
+                chunk
+                    .into_par_iter()
+                    .map(|w| {
+                        let r = w.measure(&cfg);
+                        bar.inc(1);
+                        r
+                    })
+                    .collect::<Vec<FileReport>>()
+            },
+            || queue.by_ref().take(batch).collect::<Vec<Work>>(),
+        );
+        next = following;
+        n_reports += reports.len();
         let mut result = Ok(());
         bar.suspend(|| {
             for r in &reports {
@@ -224,7 +356,7 @@ pub fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
         finish_output(sink)?;
     }
     if uncalibrated > 0 && !args.quiet {
-        stderr_line!("{}", uncalibrated_note(uncalibrated, files.len()));
+        stderr_line!("{}", uncalibrated_note(uncalibrated, n_reports));
     }
-    Ok(failures_exit(&failed, files.len(), args.quiet))
+    Ok(failures_exit(&failed, n_reports, args.quiet))
 }

@@ -3,12 +3,13 @@
 //! ```text
 //! epd estimate FILE… [--method ml-epd|ru-epd|c-epd] [--min-range M] [--max-range M]
 //!                    [--format text|json|csv] [--nominal-od-in X] [--loss cauchy|huber|none]
-//!                    [--loss-scale M] [--units m|mm] [--frame sensor|optical]
-//!                    [--input-format F] [--calibration LUT.json [--unweighted]]
+//!                    [--loss-scale M] [--units m|mm] [--frame sensor|optical|body|flu]
+//!                    [--input-format F] [--calibration LUT.json [--unweighted]] [--topic T]
 //!                    [-o FILE] [--threads N] [--shard K/N] [-q]
 //! epd calibrate FILE… --known-id-mm D [--known-dmin-mm D2] --out LUT.json
 //!               [--min-range M] [--max-range M] [--range-bins N] [--intensity-bins N]
 //!               [--min-count N] [--passes N] [--units m|mm] [--frame sensor|optical] [--threads N] [-q]
+//! epd topics BAG…
 //! epd simulate --out DIR [--frames K] [--seed S] [--sigma M] [--od-in X] [--ovality O]
 //!              [--wall-mm T] [--points N] [--outliers F] [--noise range|isotropic]
 //!              [--ply binary|ascii] [--precision f64|f32]
@@ -32,6 +33,7 @@ mod args;
 mod calibrate;
 mod estimate;
 mod simulate;
+mod topics;
 
 use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
@@ -159,6 +161,7 @@ fn main() -> ExitCode {
         Command::Estimate(a) => estimate::run_estimate(a),
         Command::Calibrate(a) => calibrate::run_calibrate(a),
         Command::Simulate(a) => simulate::run_simulate(a),
+        Command::Topics(a) => topics::run_topics(a),
     };
     match result {
         Ok(code) => code,

@@ -12,6 +12,8 @@ pub enum Field {
     Num(f64),
     /// A whole number.
     Int(u64),
+    /// A whole number that may be negative (a ROS header stamp in ns).
+    Int64(i64),
     /// Text.
     Text(String),
     /// A flag.

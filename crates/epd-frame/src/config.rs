@@ -32,7 +32,7 @@ pub enum InputFrame {
     /// A camera's optical frame (Arena SDK, PCL, Open3D, ROS `*_optical_frame`): X right,
     /// Y down, Z forward.
     Optical,
-    /// A ROS body frame (REP 103: `base_link`, `camera_link`): X forward, Y left, Z up.
+    /// A ROS body frame, FLU (REP 103: `base_link`, `camera_link`): X forward, Y left, Z up.
     /// Read as [`Sensor`](Self::Sensor) it would mirror the pose (roll, yaw and δy change
     /// sign) while the diameters stay right, so nothing in the data could tell.
     Body,
@@ -45,8 +45,27 @@ pub struct InputConfig {
     pub units: Units,
     /// Coordinate frame of the inputs.
     pub frame: InputFrame,
+    /// Whether `frame` was given (`--frame`) rather than the default: when it was not, a
+    /// bag's cloud whose `frame_id` ends in `_optical_frame` is read in the optical frame
+    /// (REP 103), see [`InputConfig::frame_of`].
+    pub frame_given: bool,
     /// Format of standard input (`None`: detected from its first bytes).
     pub format: Option<Format>,
+}
+
+/// The `frame_id` suffix of a camera's optical frame (REP 103: `camera_color_optical_frame`).
+pub const OPTICAL_FRAME_SUFFIX: &str = "_optical_frame";
+
+impl InputConfig {
+    /// The frame of a cloud whose header names `frame_id`: [`InputFrame::Optical`] for a
+    /// `frame_id` ending in `_optical_frame` unless a frame was given, else [`Self::frame`].
+    pub fn frame_of(&self, frame_id: &str) -> InputFrame {
+        if !self.frame_given && frame_id.ends_with(OPTICAL_FRAME_SUFFIX) {
+            InputFrame::Optical
+        } else {
+            self.frame
+        }
+    }
 }
 
 /// The settings of `epd estimate` as given (command-line flags, Python arguments),
@@ -93,6 +112,7 @@ impl Default for EstimateSettings {
             input: InputConfig {
                 units: Units::Metres,
                 frame: InputFrame::Sensor,
+                frame_given: false,
                 format: None,
             },
         }

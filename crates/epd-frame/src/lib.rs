@@ -15,10 +15,13 @@
 //! 5. [`report`]: the report's keys and values ([`report::FileReport::fields`]), as JSON,
 //!    CSV or text.
 //!
+//! A ROS 2 bag's PointCloud2 messages go the same way, one report per message ([`bag`]).
+//!
 //! [`config`] holds the settings as given and checked; [`shard`] the `--shard K/N` split
 //! of a batch. Arrows: epd-core ← epd-io ← epd-frame ← epd-cli, epd-py, bench-harness.
 #![deny(missing_docs)]
 
+pub mod bag;
 pub mod config;
 pub mod input;
 pub mod measure;
@@ -34,7 +37,7 @@ pub mod shard;
 pub mod table;
 
 pub use config::{ConfigError, EstimateConfig, EstimateSettings, InputConfig, InputFrame, Units};
-pub use measure::{FrameInput, measure_file, measure_frame};
+pub use measure::{FrameInput, measure_cloud, measure_file, measure_frame};
 pub use report::{FileEstimate, FileReport};
 pub use scene::{FrameScene, GeometryReport};
 pub use table::CalibrationTable;

@@ -11,6 +11,7 @@ use epd_core::{Method, estimate, estimate_weighted, rms_range_residual};
 
 use crate::config::EstimateConfig;
 use crate::input::{CALIBRATION_NEEDS_INTENSITY, has_intensity, intensity, ranges, read_input};
+use crate::read::PointCloud;
 use crate::report::{FileEstimate, FileReport};
 use crate::scene::FrameScene;
 
@@ -31,37 +32,39 @@ pub struct FrameInput<'a> {
 
 /// Read one file (or standard input for `-`) and measure it ([`measure_frame`]).
 pub fn measure_file(path: &Path, cfg: &EstimateConfig) -> FileReport {
-    let file = path.display().to_string();
     let run = || -> Result<FileEstimate, String> {
         let t0 = Instant::now();
         let cloud = read_input(path, &cfg.input)?;
-        let read_ms = t0.elapsed().as_secs_f64() * 1e3;
-        if cloud.points.is_empty() {
-            return Err("the file holds no points".into());
-        }
-        let i = match &cfg.calibration {
-            None => None,
-            Some(_) => Some(intensity(&cloud, CALIBRATION_NEEDS_INTENSITY)?),
-        };
-        let camera = has_intensity(&cloud);
-        let input = FrameInput {
-            points: Cow::Owned(cloud.points),
-            intensity: i.as_deref(),
-            sigma: None,
-            read_ms,
-        };
-        let mut e = measure_frame(input, cfg)?;
-        e.intensity_without_table = camera && cfg.calibration.is_none();
-        Ok(e)
+        measure_cloud(cloud, t0.elapsed().as_secs_f64() * 1e3, cfg)
     };
-    FileReport {
-        file,
-        file_bytes: path
-            .to_str()
-            .is_none()
-            .then(|| path.as_os_str().as_encoded_bytes().to_vec()),
-        outcome: run(),
+    FileReport::of_path(path, run())
+}
+
+/// Measure a cloud read from a file or a bag (its points in metres in the sensor frame;
+/// `read_ms` the time taken to read it): its `intensity` taken for a depth table, then
+/// [`measure_frame`].
+pub fn measure_cloud(
+    cloud: PointCloud,
+    read_ms: f64,
+    cfg: &EstimateConfig,
+) -> Result<FileEstimate, String> {
+    if cloud.points.is_empty() {
+        return Err("the file holds no points".into());
     }
+    let i = match &cfg.calibration {
+        None => None,
+        Some(_) => Some(intensity(&cloud, CALIBRATION_NEEDS_INTENSITY)?),
+    };
+    let camera = has_intensity(&cloud);
+    let input = FrameInput {
+        points: Cow::Owned(cloud.points),
+        intensity: i.as_deref(),
+        sigma: None,
+        read_ms,
+    };
+    let mut e = measure_frame(input, cfg)?;
+    e.intensity_without_table = camera && cfg.calibration.is_none();
+    Ok(e)
 }
 
 /// Measure one frame, in this order:

@@ -16,6 +16,22 @@ pub struct FileReport {
     pub file_bytes: Option<Vec<u8>>,
     /// The estimate and its context, or what went wrong.
     pub outcome: Result<FileEstimate, String>,
+    /// The bag message the cloud came from (`None` for a file or an array): reported as
+    /// `stamp_ns` and `frame_id`, null for a file.
+    pub message: Option<MessageSource>,
+}
+
+/// Where in a bag a cloud came from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct MessageSource {
+    /// The topic.
+    pub topic: String,
+    /// The message's index among the topic's messages (0 first).
+    pub index: u64,
+    /// `header.stamp` (ns), when the message could be decoded.
+    pub stamp_ns: Option<i64>,
+    /// `header.frame_id`, when the message could be decoded.
+    pub frame_id: Option<String>,
 }
 
 /// A successful estimate of one file.
@@ -56,6 +72,7 @@ pub fn columns() -> Vec<&'static str> {
         file: String::new(),
         file_bytes: None,
         outcome: Err(String::new()),
+        message: None,
     };
     failed.fields().into_iter().map(|(k, _)| k).collect()
 }
@@ -90,6 +107,19 @@ fn is_result(key: &str) -> bool {
 }
 
 impl FileReport {
+    /// The report of the file at `path` (its name's bytes kept when they are not UTF-8).
+    pub fn of_path(path: &std::path::Path, outcome: Result<FileEstimate, String>) -> Self {
+        FileReport {
+            file: path.display().to_string(),
+            file_bytes: path
+                .to_str()
+                .is_none()
+                .then(|| path.as_os_str().as_encoded_bytes().to_vec()),
+            outcome,
+            message: None,
+        }
+    }
+
     /// Why the file gave no result: a read or estimate error, or a fit that did not
     /// converge to something consistent with the points (`implausible`, …).
     pub fn failure(&self) -> Option<String> {
@@ -141,6 +171,17 @@ impl FileReport {
             self.file_bytes
                 .as_deref()
                 .map_or(Field::Null, |b| Field::Text(epd_io::name::hex(b))),
+        ));
+        // A bag message's header; null for a file (the same columns either way).
+        let m = self.message.as_ref();
+        f.push((
+            "stamp_ns",
+            m.and_then(|m| m.stamp_ns).map_or(Field::Null, Field::Int64),
+        ));
+        f.push((
+            "frame_id",
+            m.and_then(|m| m.frame_id.clone())
+                .map_or(Field::Null, Field::Text),
         ));
         f
     }
@@ -235,10 +276,19 @@ impl FileReport {
 
     /// The file's name as shown to people: control characters escaped, bytes that are not
     /// UTF-8 as `\xNN` (`epd_io::name`).
+    /// A bag message is shown as `BAG TOPIC #INDEX`.
     pub fn shown_file(&self) -> String {
-        match &self.file_bytes {
+        let file = match &self.file_bytes {
             Some(b) => epd_io::name::shown_bytes(b),
             None => epd_io::name::escape_controls(&self.file).into_owned(),
+        };
+        match &self.message {
+            None => file,
+            Some(m) => format!(
+                "{file} {} #{}",
+                epd_io::name::escape_controls(&m.topic),
+                m.index
+            ),
         }
     }
 
@@ -291,7 +341,8 @@ impl FileEstimate {
              Dmax {:.2} mm {}  Dmin {:.2} mm {}\n  \
              roll {:.2}° {}  pitch {:.3}° {}  yaw {:.3}° {}\n  \
              δy {:.2} mm {}  δz {:.2} mm {}\n  \
-             rms range residual {} mm, estimate {:.1} ms, read {:.1} ms",
+             rms range residual {} mm, estimate {:.1} ms, read {:.1} ms\n  \
+             ± is one standard deviation (1-σ); {}",
             file,
             est.method,
             est.status.name(),
@@ -317,6 +368,7 @@ impl FileEstimate {
                 .map_or("-".into(), |v| format!("{v:.2}")),
             self.elapsed_ms,
             self.read_ms,
+            self.applied(),
         );
         if let Some(od) = self.nominal_od_mm {
             t.push_str(&format!(
@@ -328,6 +380,24 @@ impl FileEstimate {
             t.push_str(&g.text());
         }
         t
+    }
+}
+
+impl FileEstimate {
+    /// What was applied to the points before the fit, in words.
+    fn applied(&self) -> String {
+        match self.n_calibrated {
+            Some(n) => format!(
+                "depth table applied ({n} points corrected{})",
+                if self.weighted {
+                    ", each weighted by the table's 1/σᵢ"
+                } else {
+                    ", unweighted"
+                }
+            ),
+            None if self.weighted => "each point weighted by its given σᵢ".into(),
+            None => "no depth table applied".into(),
+        }
     }
 }
 
@@ -402,6 +472,7 @@ mod tests {
         FileReport {
             file: "a".into(),
             file_bytes: None,
+            message: None,
             outcome: Ok(FileEstimate {
                 estimate: est,
                 n_read: 400,
@@ -417,6 +488,43 @@ mod tests {
                 intensity_without_table: false,
             }),
         }
+    }
+
+    /// The text says what ± means and what was applied to the points; a bag message is
+    /// named by its topic and index, and its header fills `stamp_ns` and `frame_id` (null
+    /// for a file).
+    #[test]
+    fn text_says_what_the_uncertainty_is_and_json_has_the_stamp() {
+        let mut r = ok_report();
+        assert!(
+            r.text()
+                .contains("± is one standard deviation (1-σ); no depth table applied")
+        );
+        let get =
+            |r: &FileReport, k: &str| r.fields().into_iter().find(|(n, _)| *n == k).unwrap().1;
+        assert_eq!(get(&r, "stamp_ns"), Field::Null);
+        if let Ok(e) = &mut r.outcome {
+            e.n_calibrated = Some(12);
+            e.weighted = true;
+        }
+        r.message = Some(MessageSource {
+            topic: "/cam".into(),
+            index: 4,
+            stamp_ns: Some(-5),
+            frame_id: Some("cam_optical_frame".into()),
+        });
+        let t = r.text();
+        assert!(t.starts_with("a /cam #4: "), "{t}");
+        assert!(
+            t.contains("depth table applied (12 points corrected, each weighted"),
+            "{t}"
+        );
+        assert_eq!(get(&r, "stamp_ns"), Field::Int64(-5));
+        assert_eq!(get(&r, "frame_id"), Field::Text("cam_optical_frame".into()));
+        assert!(
+            r.json()
+                .ends_with(r#""stamp_ns":-5,"frame_id":"cam_optical_frame"}"#)
+        );
     }
 
     /// A bend 1 m ahead, as a survey reports it.

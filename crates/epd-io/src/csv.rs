@@ -83,6 +83,7 @@ pub fn field(f: &Field) -> Cow<'_, str> {
         Field::Num(v) => Cow::Owned(num(*v)),
         Field::Null => Cow::Borrowed(""),
         Field::Int(v) => Cow::Owned(v.to_string()),
+        Field::Int64(v) => Cow::Owned(v.to_string()),
         Field::Bool(b) => Cow::Borrowed(if *b { "true" } else { "false" }),
         Field::Text(s) => text_cell(s),
     }

@@ -33,7 +33,7 @@ pub fn to_string<T: Serialize + ?Sized>(value: &T) -> Result<String, serde_json:
 }
 
 /// Report fields as one JSON object, keys in their order: [`Field::Num`] a number (or
-/// `null` when not finite), [`Field::Int`] an integer, [`Field::Text`] a string,
+/// `null` when not finite), [`Field::Int`] and [`Field::Int64`] an integer, [`Field::Text`] a string,
 /// [`Field::Bool`] a boolean, [`Field::Null`] `null`.
 #[derive(Clone, Copy, Debug)]
 pub struct Fields<'a>(pub &'a [(&'a str, Field)]);
@@ -47,6 +47,7 @@ impl Serialize for Value<'_> {
             Field::Num(v) if v.is_finite() => s.serialize_f64(*v),
             Field::Num(_) | Field::Null => s.serialize_unit(),
             Field::Int(v) => s.serialize_u64(*v),
+            Field::Int64(v) => s.serialize_i64(*v),
             Field::Bool(b) => s.serialize_bool(*b),
             Field::Text(t) => s.serialize_str(t),
         }

@@ -7,6 +7,8 @@
 //! - [`read`]: format detection and the readers' common types ([`PointCloud`],
 //!   [`ReadError`]); the readers themselves in [`ply`], [`pcd`] and [`text`].
 //! - [`ply`]: PLY read and write (ASCII, binary; `intensity`, `segment`, `part`).
+//! - [`bag`]: ROS 2 bags (MCAP): the `sensor_msgs/msg/PointCloud2` messages of a topic,
+//!   streamed and decoded from CDR; the bag's topics.
 //! - [`csv`]: CSV written through the `csv` crate, one quoting rule; numbers as
 //!   shortest round-trip text; a frame's points as `x,y,z`.
 //! - [`json`]: JSON through `serde_json`, numbers as shortest round-trip decimals; a
@@ -26,6 +28,7 @@
 #![deny(missing_docs)]
 
 pub mod atomic;
+pub mod bag;
 pub mod cloud;
 pub mod csv;
 pub mod depth_png;

@@ -98,7 +98,8 @@ impl std::str::FromStr for Format {
 /// UTF-8 byte-order mark), else from the extension of `name`, else delimited text.
 /// A format the readers do not read is an error naming it: by its magic bytes (LAS and
 /// LAZ `LASF`, E57 `ASTM-E57`, legacy and XML VTK, zip, gzip, bzip2, xz, zstd, 7z, NumPy,
-/// ROS bag, HDF5, images, PDF, ASCII STL) or by its extension (`.las .laz .e57 .vtk .vtp
+/// ROS bag, MCAP (a ROS 2 bag: read by `bag`, not here), HDF5, images, PDF, ASCII STL) or by
+/// its extension (`.las .laz .e57 .vtk .vtp
 /// .vtu .obj .stl .off .ply2 .bag .bin .npy .npz .ptx .fls .rcp .rcs .h5 .hdf5 .pcap`
 /// and archives).
 pub fn detect_format(name: Option<&Path>, bytes: &[u8]) -> Result<Format, ReadError> {
@@ -144,6 +145,13 @@ fn by_magic(bytes: &[u8], ext: &str) -> Option<Result<Format, ReadError>> {
             .is_some_and(|r| r.first().is_some_and(|c| *c == b' ' || *c == b'\t'))
     {
         return Some(Ok(Format::Pcd));
+    }
+    if bytes.starts_with(b"\x89MCAP") {
+        return Some(Err(err(
+            "unsupported format",
+            "MCAP (a ROS 2 bag): read it as a bag from its path (`epd estimate BAG.mcap \
+             --topic T`, `epd.read_bag`), not as one point cloud or from standard input",
+        )));
     }
     let head = &bytes[..bytes.len().min(1024)];
     let contains = |needle: &[u8]| head.windows(needle.len()).any(|w| w == needle);
@@ -574,6 +582,8 @@ mod tests {
         let e = detect_format(Some(Path::new("a.LAS")), b"1 2 3\n").unwrap_err();
         assert!(e.to_string().contains("LAS"));
         assert_eq!(detect_format(None, b"1 2 3\n"), Ok(Format::Text));
+        let e = detect_format(None, b"\x89MCAP0\r\n\x01").unwrap_err();
+        assert!(e.to_string().contains("a ROS 2 bag"), "{e}");
     }
 
     #[test]

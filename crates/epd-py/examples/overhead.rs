@@ -36,6 +36,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             file: String::new(),
             file_bytes: None,
             outcome: Ok(e),
+            message: None,
         };
         Ok((report.fields().len(), fit_ms))
     };

@@ -63,6 +63,20 @@ fn as_real_array<'py>(
 ) -> PyResult<Bound<'py, PyAny>> {
     let py = obj.py();
     let np = py.import("numpy")?;
+    // An Open3D PointCloud (or any object holding its points in `points`) that is no
+    // array itself: its points.
+    let held;
+    let obj = if name == "points"
+        && !obj.is_instance_of::<numpy::PyUntypedArray>()
+        && !obj.hasattr("__array__")?
+        && !obj.hasattr("__array_interface__")?
+        && obj.hasattr("points")?
+    {
+        held = obj.getattr("points")?;
+        &held
+    } else {
+        obj
+    };
     let obj = &unmasked(obj, name)?;
     let arr = np
         .call_method1("asarray", (obj,))
@@ -71,8 +85,14 @@ fn as_real_array<'py>(
     let kind: String = dtype.getattr("kind")?.extract()?;
     if !matches!(kind.as_str(), "f" | "i" | "u") {
         return Err(PyValueError::new_err(format!(
-            "{name}: dtype {} is not a real number type (float or integer)",
-            dtype.str()?
+            "{name}: dtype {} is not a real number type (float or integer){}",
+            dtype.str()?,
+            if kind == "O" {
+                "; an Open3D point cloud or a list of objects? pass numpy.asarray(pcd.points), \
+                 an (N, 3) array of numbers"
+            } else {
+                ""
+            }
         )));
     }
     let shape: Vec<usize> = arr.getattr("shape")?.extract()?;
@@ -213,6 +233,7 @@ fn field_value<'py>(py: Python<'py>, f: &Field) -> PyResult<Bound<'py, PyAny>> {
         Field::Num(v) if v.is_finite() => v.into_pyobject(py)?.into_any(),
         Field::Num(_) | Field::Null => py.None().into_bound(py),
         Field::Int(v) => v.into_pyobject(py)?.into_any(),
+        Field::Int64(v) => v.into_pyobject(py)?.into_any(),
         Field::Text(s) => PyString::new(py, s).into_any(),
         Field::Bool(b) => b.into_pyobject(py)?.to_owned().into_any(),
     })
@@ -250,9 +271,9 @@ fn parse_frame(frame: &str) -> PyResult<InputFrame> {
     match frame {
         "sensor" => Ok(InputFrame::Sensor),
         "optical" => Ok(InputFrame::Optical),
-        "body" => Ok(InputFrame::Body),
+        "body" | "flu" => Ok(InputFrame::Body),
         other => Err(PyValueError::new_err(format!(
-            "frame={other:?}: expected \"sensor\", \"optical\" or \"body\" (ROS REP 103)"
+            "frame={other:?}: expected \"sensor\", \"optical\" or \"body\" (alias \"flu\"; ROS REP 103)"
         ))),
     }
 }
@@ -272,18 +293,44 @@ enum Input<'py> {
 /// Estimate the pipe's diameters and the sensor's pose from one cloud.
 ///
 /// `points` is an (N, 3) array (float64 C-contiguous arrays are read in place; other
-/// real arrays are converted once) or the path of a PLY/PCD/CSV/XYZ file. The other
-/// arguments are those of `epd estimate`: `method` ("ml-epd", "ru-epd", "c-epd"),
-/// `units` ("m", "mm"), `frame` ("sensor", "optical", "body": ROS REP 103), `loss` ("cauchy", "huber",
-/// "none"; `None` is "none"), `loss_scale` (m; `None`: from the residuals),
-/// `min_range`/`max_range` (m), `calibration` (a depth-table JSON file; needs
-/// `intensity`, one per point, or a file with an `intensity` property),
-/// `unweighted`, `nominal_od_in`, `straight_only`. `sigma` gives each point's range standard deviation
-/// (m) for a weighted fit. Returns the keys and values of one JSON object of
-/// `epd estimate --format json` (`file` is `None` for an array). Raises `ValueError`
-/// for bad arguments or a cloud that cannot be fitted and `OSError` for a file that
-/// cannot be read, with the tool's messages. The GIL is released during the fit.
+/// real arrays are converted once), an object with a `points` attribute such as an
+/// Open3D `PointCloud` (read as `numpy.asarray(obj.points)`), or the path of a
+/// PLY/PCD/CSV/XYZ file. The other arguments are those of `epd estimate`: `method`
+/// ("ml-epd", "ru-epd", "c-epd"), `units` ("m", "mm"), `frame` ("sensor": X forward,
+/// Y right, Z up; "optical": X right, Y down, Z forward, as Open3D, PCL and camera SDKs
+/// write; "body" or "flu": X forward, Y left, Z up, a ROS body frame, REP 103), `loss`
+/// ("cauchy", "huber", "none"; `None` is "none"), `loss_scale` (m; `None`: from the
+/// residuals), `min_range`/`max_range` (m), `calibration` (a depth-table JSON file; needs
+/// `intensity`, one per point, or a file with an `intensity` property), `unweighted`,
+/// `nominal_od_in` (inch), `straight_only`. `sigma` gives each point's range standard
+/// deviation (m) for a weighted fit.
+///
+/// Returns a dict, the keys of one JSON object of `epd estimate --format json`:
+/// `file` (`None` for an array), `method`, `status` ("converged", "iteration_limit",
+/// "degenerate", "implausible", "lack_of_fit"), `status_reason`, `iterations`,
+/// `n_points` (points fitted), `n_dropped` (NaN, inf or zero points dropped), the
+/// diameters `d_max_mm`, `d_min_mm` (mm), the pose `roll_deg`, `pitch_deg`, `yaw_deg`
+/// (degrees), `dy_mm`, `dz_mm` (mm: the sensor's offset from the pipe's axis),
+/// `roll_determined`, the 1-σ of each (`sigma_d_max_mm` … `sigma_dz_mm`, same units;
+/// `None` where the data do not determine it), `d_mean_mm`, `sigma_d_mean_mm` (mm),
+/// `ovality_pct`, `sigma_ovality_pct` (% of the mean diameter), `n_read`,
+/// `n_out_of_range`, `n_calibrated`, `weighted`, `rms_residual_mm` (mm), `elapsed_ms`,
+/// `read_ms` (ms), `loss`, `loss_scale_m` (m), `nominal_od_mm`, `wall_thickness_est_mm`
+/// (mm), `geometry` ("straight", "bend_ahead", "tee_ahead", "in_bend"),
+/// `straight_until_m` (m), `bend_radius_mm` (mm), `bend_angle_deg`,
+/// `bend_direction_deg` (degrees), `bend_withheld`, `error`, `stamp_ns`, `frame_id`
+/// (a bag message's header; `None` here). A result that cannot be believed is `None`
+/// with the reason in `error`.
+///
+/// Raises `ValueError` for bad arguments or a cloud that cannot be fitted and `OSError`
+/// for a file that cannot be read, with the tool's messages in Python's terms
+/// (`units="mm"` for `--units mm`). The GIL is released during the fit.
 #[pyfunction]
+#[pyo3(
+    text_signature = "(points, method='ml-epd', units='m', frame='sensor', \
+    loss='cauchy', loss_scale=None, min_range=None, max_range=None, calibration=None, \
+    intensity=None, sigma=None, unweighted=False, nominal_od_in=None, straight_only=False)"
+)]
 #[pyo3(signature = (
     points, method="ml-epd", units="m", frame="sensor", loss=Some("cauchy"),
     loss_scale=None, min_range=None, max_range=None, calibration=None,
@@ -323,6 +370,7 @@ fn estimate<'py>(
         input: InputConfig {
             units: parse_units(units)?,
             frame: parse_frame(frame)?,
+            frame_given: true,
             format: None,
         },
     };
@@ -397,7 +445,7 @@ fn estimate_file_dict<'py>(
     .map_err(Stop::into_py_err)?;
     match &report.outcome {
         Ok(_) => fields_dict(py, &report.keyed_fields(), false),
-        Err(msg) => Err(file_error(path, msg.clone())),
+        Err(msg) => Err(file_error(path, python_terms(msg))),
     }
 }
 
@@ -438,6 +486,7 @@ fn estimate_array_dict<'py>(
         file: String::new(),
         file_bytes: None,
         outcome: Ok(outcome),
+        message: None,
     };
     fields_dict(py, &report.keyed_fields(), true)
 }
@@ -604,10 +653,16 @@ impl Stop<Failure> {
 impl Failure {
     fn into_py_err(self) -> PyErr {
         match self {
-            Failure::Value(m) => PyValueError::new_err(m),
-            Failure::File(p, m) => file_error(&p, m),
+            Failure::Value(m) => PyValueError::new_err(python_terms(&m)),
+            Failure::File(p, m) => file_error(&p, python_terms(&m)),
         }
     }
+}
+
+/// A message of the tool in Python's terms: its flags as `estimate`'s keyword arguments
+/// (`--units mm` → `units="mm"`).
+fn python_terms(message: &str) -> String {
+    message.replace("--units mm", "units=\"mm\"")
 }
 
 /// Whether `obj` is an `os.PathLike` (has `__fspath__`).
@@ -650,6 +705,73 @@ fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<(Bound<'py, PyAny>, Bou
         props.set_item(name, PyArray1::from_vec(py, v))?;
     }
     Ok((points_array(py, cloud.points)?, props))
+}
+
+/// The PointCloud2 messages of one topic of a ROS 2 bag (an `.mcap` file or a rosbag2
+/// folder with `metadata.yaml`), read as `epd estimate BAG --topic T` reads them.
+///
+/// Iterating yields `(stamp_ns, points, properties)` per message, in the bag's order:
+/// `stamp_ns` the message's `header.stamp` (int, ns), `points` an (N, 3) float64 array as
+/// stored in the message (not converted: pass `units=`/`frame=` to `estimate`; a
+/// `frame_id` ending in `_optical_frame` means `frame="optical"`), `properties` a dict of
+/// the other fields with count 1 (`intensity`, …) as float64 arrays; the iterator's
+/// `frame_id` is the last message's `header.frame_id`. One message is in
+/// memory at a time. `topic=None` reads the bag's only PointCloud2 topic. Raises
+/// `ValueError` for a topic that cannot be chosen, a message that cannot be decoded, or
+/// a truncated or damaged bag (after the messages before the damage were yielded, naming
+/// its byte offset), and `OSError` for a bag that cannot be opened.
+#[pyfunction]
+#[pyo3(signature = (path, topic=None))]
+fn read_bag(path: PathBuf, topic: Option<&str>) -> PyResult<BagReader> {
+    use epd_frame::bag::{BagClouds, BagError, topics};
+    let fail = |e: BagError| match e {
+        BagError::Open(m) => file_error(&path, m),
+        other => PyValueError::new_err(other.to_string()),
+    };
+    let chosen = topics(&path)
+        .map_err(fail)?
+        .choose(topic)
+        .map_err(|e| PyValueError::new_err(e.to_string().replace("--topic", "topic=")))?;
+    let clouds = BagClouds::open(&path, &chosen).map_err(fail)?;
+    Ok(BagReader {
+        clouds,
+        frame_id: None,
+    })
+}
+
+/// One message as `read_bag` yields it: `(stamp_ns, points, properties)`.
+type BagItem<'py> = (i64, Bound<'py, PyAny>, Bound<'py, PyDict>);
+
+/// The iterator `read_bag` returns: `(stamp_ns, points, properties)` per message.
+#[pyclass(unsendable, module = "epd")]
+struct BagReader {
+    clouds: epd_frame::bag::BagClouds,
+    /// The `frame_id` of the message yielded last (`None` before the first).
+    #[pyo3(get)]
+    frame_id: Option<String>,
+}
+
+#[pymethods]
+impl BagReader {
+    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    fn __next__<'py>(&mut self, py: Python<'py>) -> PyResult<Option<BagItem<'py>>> {
+        let Some(next) = self.clouds.next() else {
+            return Ok(None);
+        };
+        let m = next.map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let c = m
+            .cloud
+            .map_err(|e| PyValueError::new_err(format!("message {}: {e}", m.index)))?;
+        let props = PyDict::new(py);
+        for (name, v) in c.cloud.extra {
+            props.set_item(name, PyArray1::from_vec(py, v))?;
+        }
+        self.frame_id = Some(c.frame_id);
+        Ok(Some((c.stamp_ns, points_array(py, c.cloud.points)?, props)))
+    }
 }
 
 /// Simulate one Helios2-like frame inside a pipe, as `epd simulate` does.
@@ -784,6 +906,8 @@ fn epd(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(estimate, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(read, m)?)?;
+    m.add_function(wrap_pyfunction!(read_bag, m)?)?;
+    m.add_class::<BagReader>()?;
     m.add_function(wrap_pyfunction!(_points_buffer, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

@@ -59,7 +59,44 @@ def test_millimetres_read_as_metres(epd_bin, frames):
     cli = cli_json(epd_bin, frames[0], "--units", "mm")
     with pytest.raises(ValueError) as e:
         epd.estimate(points, units="mm")
-    assert str(e.value) == cli["error"] and "drop --units mm" in str(e.value)
+    # The tool's message, in Python's terms.
+    assert "drop --units mm" in cli["error"]
+    assert str(e.value) == cli["error"].replace("--units mm", 'units="mm"')
+    assert 'drop units="mm"' in str(e.value)
+
+
+def test_open3d_like_objects_and_object_arrays(frames):
+    """An object holding its points in `.points` (an Open3D PointCloud) is read as
+    `np.asarray(obj.points)`; an object array says how to get numbers out of one."""
+    points, _ = epd.read(frames[0])
+
+    class Vector3dVector:  # what open3d.utility.Vector3dVector gives numpy
+        def __init__(self, a):
+            self.a = a
+
+        def __array__(self, dtype=None, copy=None):
+            return self.a
+
+    class PointCloud:  # open3d.geometry.PointCloud: no array protocol of its own
+        def __init__(self, a):
+            self.points = Vector3dVector(a)
+
+    want = epd.estimate(points)
+    got = epd.estimate(PointCloud(points))
+    assert got["d_max_mm"] == want["d_max_mm"] and got["yaw_deg"] == want["yaw_deg"]
+    with pytest.raises(ValueError, match=r"numpy\.asarray\(pcd\.points\)"):
+        epd.estimate(np.array([object()] * 3, dtype=object).reshape(1, 3))
+
+
+def test_signature_shows_the_defaults():
+    """help(epd.estimate) shows the defaults as Python values, not Ellipsis."""
+    import inspect
+
+    sig = inspect.signature(epd.estimate)
+    assert sig.parameters["loss"].default == "cauchy"
+    assert sig.parameters["frame"].default == "sensor"
+    assert "Ellipsis" not in str(sig)
+    assert "d_max_mm" in epd.estimate.__doc__ and "stamp_ns" in epd.estimate.__doc__
 
 
 @pytest.mark.parametrize(
