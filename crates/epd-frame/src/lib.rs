@@ -15,6 +15,9 @@
 //! 5. [`report`]: the report's keys and values ([`report::FileReport::fields`]), as JSON,
 //!    CSV or text.
 //!
+//! With `--max-points N`, [`sampling`] chooses the N points that carry the information
+//! before step 2 (a pilot fit, then the rays of most influence on the mean diameter).
+//!
 //! [`config`] holds the settings as given and checked; [`shard`] the `--shard K/N` split
 //! of a batch. Arrows: epd-core ← epd-io ← epd-frame ← epd-cli, epd-py, bench-harness.
 #![deny(missing_docs)]
@@ -29,6 +32,7 @@ pub mod read {
 }
 pub mod report;
 pub mod rig;
+pub mod sampling;
 pub mod scene;
 pub mod shard;
 pub mod table;
