@@ -124,6 +124,7 @@ pub const RUN_FILES: &[&str] = &[
     "time.png",
     "std_vs_crb.png",
     "coverage.png",
+    "realtime.png",
 ];
 
 /// The files of a pipeline run (a scenario with `[pipeline]`).

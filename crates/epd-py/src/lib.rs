@@ -28,6 +28,7 @@ use std::time::{Duration, Instant};
 use epd_core::Method;
 use epd_core::report::Field;
 use epd_frame::input::sensor_metres;
+use epd_frame::sampling::SamplingMethod;
 use epd_frame::report::{FileEstimate, FileReport};
 use epd_frame::{
     ConfigError, EstimateConfig, EstimateSettings, FrameInput, InputConfig, InputFrame, Units,
@@ -278,7 +279,9 @@ enum Input<'py> {
 /// "none"; `None` is "none"), `loss_scale` (m; `None`: from the residuals),
 /// `min_range`/`max_range` (m), `calibration` (a depth-table JSON file; needs
 /// `intensity`, one per point, or a file with an `intensity` property),
-/// `unweighted`, `nominal_od_in`, `straight_only`. `sigma` gives each point's range standard deviation
+/// `unweighted`, `nominal_od_in`, `straight_only`, `max_points` (fit at most that many
+/// points, at least 1000) and `sampling` ("informed", "stratified", "uniform": how they
+/// are chosen). `sigma` gives each point's range standard deviation
 /// (m) for a weighted fit. Returns the keys and values of one JSON object of
 /// `epd estimate --format json` (`file` is `None` for an array). Raises `ValueError`
 /// for bad arguments or a cloud that cannot be fitted and `OSError` for a file that
@@ -288,6 +291,7 @@ enum Input<'py> {
     points, method="ml-epd", units="m", frame="sensor", loss=Some("cauchy"),
     loss_scale=None, min_range=None, max_range=None, calibration=None,
     intensity=None, sigma=None, unweighted=false, nominal_od_in=None, straight_only=false,
+    max_points=None, sampling="informed",
 ))]
 #[allow(clippy::too_many_arguments)] // the tool's flags, as keyword arguments
 fn estimate<'py>(
@@ -306,7 +310,23 @@ fn estimate<'py>(
     unweighted: bool,
     nominal_od_in: Option<f64>,
     straight_only: bool,
+    max_points: Option<i64>,
+    sampling: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let sampling: SamplingMethod = sampling
+        .parse()
+        .map_err(|e: epd_frame::sampling::SamplingError| PyValueError::new_err(e.to_string()))?;
+    // A negative count is the same usage error as one too small (not an OverflowError).
+    let max_points = max_points
+        .map(|n| {
+            usize::try_from(n).map_err(|_| {
+                PyValueError::new_err(format!(
+                    "max_points={n}: need at least {} points; None uses every point",
+                    epd_frame::sampling::MIN_MAX_POINTS
+                ))
+            })
+        })
+        .transpose()?;
     let method: Method = method
         .parse()
         .map_err(|e: epd_core::EpdError| PyValueError::new_err(e.to_string()))?;
@@ -325,6 +345,8 @@ fn estimate<'py>(
             frame: parse_frame(frame)?,
             format: None,
         },
+        max_points,
+        sampling,
     };
     let input = take_input(points, intensity, sigma, &settings)?;
     match input {
