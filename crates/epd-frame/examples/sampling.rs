@@ -73,6 +73,10 @@ fn main() {
                 let t0 = std::time::Instant::now();
                 let c = choose(&f.measured, &s, Method::MlEpd, &opts).unwrap();
                 let ms = t0.elapsed().as_secs_f64() * 1e3;
+                let meas: Vec<[f64; 3]> = c.indices.iter().map(|&i| f.measured[i]).collect();
+                let t1 = std::time::Instant::now();
+                let e = epd_core::estimate(&meas, Method::MlEpd, &opts).unwrap();
+                let est_ms = t1.elapsed().as_secs_f64() * 1e3;
                 let sub: Vec<[f64; 3]> = c.indices.iter().map(|&i| f.exact[i]).collect();
                 let v = var(&sub, &truth);
                 let r: Vec<f64> = (0..8).map(|i| (v[i] / full[i]).sqrt()).collect();
@@ -81,12 +85,13 @@ fn main() {
                 sum[a * methods.len() + b] += r[0] / frames as f64;
                 worst[a * methods.len() + b] = worst[a * methods.len() + b].max(w);
                 line += &format!(
-                    "| {n} {} {} dm {:.2} w {:.1} ({:.1}ms) ",
+                    "| {n} {} dm {:.2} worst {:.2} (choice {:.1} ms, estimate {:.1} ms, {} iterations) ",
                     &m.name()[..3],
-                    c.method,
                     r[0],
                     w,
-                    ms
+                    ms,
+                    est_ms,
+                    e.iterations
                 );
             }
         }

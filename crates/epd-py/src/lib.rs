@@ -28,8 +28,8 @@ use std::time::{Duration, Instant};
 use epd_core::Method;
 use epd_core::report::Field;
 use epd_frame::input::sensor_metres;
-use epd_frame::sampling::SamplingMethod;
 use epd_frame::report::{FileEstimate, FileReport};
+use epd_frame::sampling::SamplingMethod;
 use epd_frame::{
     ConfigError, EstimateConfig, EstimateSettings, FrameInput, InputConfig, InputFrame, Units,
     measure_file, measure_frame,

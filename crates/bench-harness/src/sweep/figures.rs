@@ -508,7 +508,10 @@ fn realtime_figure(scenario: &Scenario, summary: &[SummaryRow]) -> anyhow::Resul
             dest.push(Series {
                 name: how.name().into(),
                 colour,
-                points: pts.into_iter().map(|(x, y)| (x, y, f64::NAN, f64::NAN)).collect(),
+                points: pts
+                    .into_iter()
+                    .map(|(x, y)| (x, y, f64::NAN, f64::NAN))
+                    .collect(),
                 bars: false,
                 marker_triangle: false,
                 dashed: false,

@@ -110,8 +110,7 @@ fn run_with(
             let est = match &chosen {
                 None => estimate(&frame.measured, m, &opts),
                 Some(c) => {
-                    let pts: Vec<[f64; 3]> =
-                        c.indices.iter().map(|&i| frame.measured[i]).collect();
+                    let pts: Vec<[f64; 3]> = c.indices.iter().map(|&i| frame.measured[i]).collect();
                     n_points = pts.len();
                     estimate(&pts, m, &opts)
                 }
