@@ -300,7 +300,10 @@ fn max_points_fits_the_chosen_points() {
             .unwrap();
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
-        assert!(err.contains("max-points") || err.contains("sampling"), "{args:?}: {err}");
+        assert!(
+            err.contains("max-points") || err.contains("sampling"),
+            "{args:?}: {err}"
+        );
     }
     let o = epd()
         .arg("estimate")
