@@ -129,7 +129,7 @@ pub const CLOCK_BINS: usize = 12;
 pub const REACH_BINS: usize = 8;
 
 /// The default seed of the choice.
-pub const DEFAULT_SEED: u64 = 0x5EED_25;
+pub const DEFAULT_SEED: u64 = 0x005E_ED25;
 
 /// How many points, and how they are chosen.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
