@@ -288,7 +288,7 @@ fn max_points_fits_the_chosen_points() {
     }
     for args in [
         vec!["--max-points", "999"],
-        vec!["--max-points", "-5"],
+        vec!["--max-points=-5"],
         vec!["--sampling", "uniform"],
         vec!["--max-points", "20000", "--sampling", "best"],
     ] {
