@@ -659,9 +659,9 @@ mod tests {
 
     /// The informed choice biases nothing: over 24 frames (σ = 0.03 m, the paper's poses)
     /// the mean error of the mean diameter fitted on its 20 000 points is within three
-    /// of its standard errors (s/√24, s the errors' spread) of zero — a test at the
-    /// 0.3 % level of a bias; a choice by the residuals (the points nearest the wall)
-    /// shifts the diameter by tens of standard errors.
+    /// of its standard errors (s/√24, s the errors' spread) of zero: a test at the
+    /// 0.3 % level under no bias (the frames are seeded, so it gives the same verdict on
+    /// every run).
     #[test]
     fn informed_choice_is_unbiased() {
         let frames = 24;
