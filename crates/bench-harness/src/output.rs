@@ -126,6 +126,9 @@ pub const RUN_FILES: &[&str] = &[
     "coverage.png",
 ];
 
+/// The figure a sweep over `sampling` adds to [`RUN_FILES`] (issue 25's `realtime.png`).
+pub const SAMPLING_FILES: &[&str] = &["realtime.png"];
+
 /// The files of a pipeline run (a scenario with `[pipeline]`).
 pub const PIPELINE_FILES: &[&str] = &[
     "scenario.toml",
@@ -160,6 +163,7 @@ pub const SHARD_FILES: &[&str] = &[MANIFEST_FILE, RECORDS_FILE];
 /// (`.<file>.tmp<PID>`).
 fn is_run_file(name: &str) -> bool {
     RUN_FILES.contains(&name)
+        || SAMPLING_FILES.contains(&name)
         || PIPELINE_FILES.contains(&name)
         || APPROACH_FILES.contains(&name)
         || SHARD_FILES.contains(&name)

@@ -8,6 +8,7 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 use epd_core::Method;
 use epd_frame::read::Format;
 use epd_frame::rig::MAX_TABLE_BINS;
+use epd_frame::sampling::SamplingMethod;
 use epd_frame::shard::ShardSpec;
 use epd_frame::{InputConfig, InputFrame, Units};
 
@@ -175,6 +176,37 @@ pub struct EstimateArgs {
     /// No progress bar and no summary of failures: only the results and the exit code.
     #[arg(short, long)]
     pub quiet: bool,
+    /// Fit at most N points of each frame (at least 1000), chosen by --sampling before
+    /// the scene, the fit, the checks and the 1-σ: a frame then costs what N points cost.
+    /// JSON/CSV keys `n_sampled` (the points fitted) and `sampling` (how they were chosen).
+    #[arg(long, value_name = "N")]
+    pub max_points: Option<usize>,
+    /// How the --max-points points are chosen: `informed` (a pilot fit, then the rays of
+    /// most information on the mean diameter, spread over range and clock angle),
+    /// `stratified` (as many from each range × clock-angle cell) or `uniform`.
+    #[arg(long, value_enum, default_value_t = SamplingArg::Informed, requires = "max_points")]
+    pub sampling: SamplingArg,
+}
+
+/// How `--max-points` points are chosen (`epd_frame::sampling::SamplingMethod`).
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum SamplingArg {
+    /// A pilot fit, then the rays of most information on the mean diameter.
+    Informed,
+    /// As many points from each range × clock-angle cell.
+    Stratified,
+    /// Every point as likely.
+    Uniform,
+}
+
+impl From<SamplingArg> for SamplingMethod {
+    fn from(s: SamplingArg) -> Self {
+        match s {
+            SamplingArg::Informed => SamplingMethod::Informed,
+            SamplingArg::Stratified => SamplingMethod::Stratified,
+            SamplingArg::Uniform => SamplingMethod::Uniform,
+        }
+    }
 }
 
 /// How the files are read.

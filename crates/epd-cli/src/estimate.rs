@@ -36,6 +36,8 @@ fn estimate_config(a: &EstimateArgs) -> anyhow::Result<EstimateConfig> {
         unweighted: a.unweighted,
         geometry: !a.straight_only,
         input: (&a.input).into(),
+        max_points: a.max_points,
+        sampling: a.sampling.into(),
     };
     let cfg = EstimateConfig::new(&settings).map_err(|e| usage(e.to_string()))?;
     if a.files.iter().filter(|f| f.as_os_str() == "-").count() > 1 {

@@ -243,3 +243,74 @@ fn usage_errors_exit_2() {
         assert!(String::from_utf8_lossy(&o.stderr).contains("error"));
     }
 }
+
+/// `--max-points N`: N points fitted (`n_sampled`, `sampling`), the file's count kept in
+/// `n_read`, the diameters within 2 mm of the truth (their 1-σ at N = 20 000, σ = 0.03 m,
+/// is ≈ 0.08 mm: 25 σ of margin); without it `n_sampled` is null. A count below the
+/// least, a negative one, or `--sampling` without `--max-points`: exit 2, the limit named.
+#[test]
+fn max_points_fits_the_chosen_points() {
+    let dir = common::temp_dir("max-points");
+    let o = epd()
+        .args(["simulate", "--frames", "1", "--seed", "4", "--out"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let ply = dir.join("frame_0000.ply");
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("frame_0000.json")).unwrap())
+            .unwrap();
+    for (how, expect) in [
+        (None, None),
+        (Some("informed"), Some("informed")),
+        (Some("uniform"), Some("uniform")),
+    ] {
+        let mut cmd = epd();
+        cmd.arg("estimate").arg(&ply).args(["--format", "json"]);
+        if let Some(h) = how {
+            cmd.args(["--max-points", "20000", "--sampling", h]);
+        }
+        let o = cmd.output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let r = &json_lines(&o.stdout)[0];
+        assert_eq!(r["sampling"].as_str(), expect, "{how:?}");
+        let n_read = r["n_read"].as_u64().unwrap();
+        assert!(n_read > 200_000, "{n_read}");
+        match how {
+            None => assert!(r["n_sampled"].is_null()),
+            Some(_) => assert_eq!(r["n_sampled"].as_u64(), Some(20_000)),
+        }
+        for key in ["d_max_mm", "d_min_mm"] {
+            let (e, t) = (r[key].as_f64().unwrap(), truth[key].as_f64().unwrap());
+            assert!((e - t).abs() < 2.0, "{how:?} {key}: {e} vs {t}");
+        }
+    }
+    for args in [
+        vec!["--max-points", "999"],
+        vec!["--max-points=-5"],
+        vec!["--sampling", "uniform"],
+        vec!["--max-points", "20000", "--sampling", "best"],
+    ] {
+        let o = epd()
+            .arg("estimate")
+            .arg(&ply)
+            .args(&args)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(
+            err.contains("max-points") || err.contains("sampling"),
+            "{args:?}: {err}"
+        );
+    }
+    let o = epd()
+        .arg("estimate")
+        .arg(&ply)
+        .args(["--max-points", "999"])
+        .output()
+        .unwrap();
+    assert!(String::from_utf8_lossy(&o.stderr).contains("at least 1000"));
+    let _ = std::fs::remove_dir_all(&dir);
+}

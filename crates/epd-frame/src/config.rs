@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use epd_core::{EstimateOptions, Loss, LossScale, Method};
 
 use crate::read::Format;
+use crate::sampling::{Sampling, SamplingMethod};
 use crate::table::CalibrationTable;
 
 /// Seed scale of the first robust pass (m of range error) when no loss scale is given;
@@ -93,6 +94,11 @@ pub struct EstimateSettings {
     pub geometry: bool,
     /// How the inputs are read.
     pub input: InputConfig,
+    /// Fit at most this many points of each frame, chosen by `sampling`
+    /// ([`crate::sampling`]); `None`: every point.
+    pub max_points: Option<usize>,
+    /// How the `max_points` points are chosen.
+    pub sampling: SamplingMethod,
 }
 
 impl Default for EstimateSettings {
@@ -115,6 +121,8 @@ impl Default for EstimateSettings {
                 frame_given: false,
                 format: None,
             },
+            max_points: None,
+            sampling: SamplingMethod::default(),
         }
     }
 }
@@ -154,6 +162,8 @@ pub struct EstimateConfig {
     pub weighted: bool,
     /// Whether the geometry ahead is surveyed (see [`EstimateSettings::geometry`]).
     pub geometry: bool,
+    /// The choice of the points fitted, with `--max-points` ([`crate::sampling`]).
+    pub sampling: Option<Sampling>,
 }
 
 impl EstimateConfig {
@@ -210,7 +220,13 @@ impl EstimateConfig {
                 )
             }
         };
+        let sampling = a
+            .max_points
+            .map(|n| Sampling::new(n, a.sampling))
+            .transpose()
+            .map_err(|e| usage(e.to_string()))?;
         Ok(EstimateConfig {
+            sampling,
             method: a.method,
             nominal_od_mm,
             options,

@@ -16,6 +16,8 @@
 //!    CSV or text.
 //!
 //! A ROS 2 bag's PointCloud2 messages go the same way, one report per message ([`bag`]).
+//! With `--max-points N`, [`sampling`] chooses the N points that carry the information
+//! before step 2 (a pilot fit, then the rays of most influence on the mean diameter).
 //!
 //! [`config`] holds the settings as given and checked; [`shard`] the `--shard K/N` split
 //! of a batch. Arrows: epd-core ← epd-io ← epd-frame ← epd-cli, epd-py, bench-harness.
@@ -32,6 +34,7 @@ pub mod read {
 }
 pub mod report;
 pub mod rig;
+pub mod sampling;
 pub mod scene;
 pub mod shard;
 pub mod table;

@@ -68,6 +68,9 @@ pub fn measure_cloud(
 }
 
 /// Measure one frame, in this order:
+/// 0. with `--max-points N` ([`EstimateConfig::sampling`]), the N points that carry the
+///    information ([`crate::sampling::choose`]; the rest, with their intensity and σ, are
+///    left out of every later step, and the time it takes is in `elapsed_ms`);
 /// 1. the depth table's correction, when the configuration has a table
 ///    ([`crate::table::CalibrationTable::correct_points`]; it needs `intensity`), which
 ///    may also give each point its σᵢ;
@@ -87,6 +90,31 @@ pub fn measure_frame(input: FrameInput<'_>, cfg: &EstimateConfig) -> Result<File
         read_ms,
     } = input;
     let n_read = points.len();
+    let t0 = Instant::now();
+    let chosen = cfg
+        .sampling
+        .as_ref()
+        .and_then(|s| crate::sampling::choose(&points, s, cfg.method, &cfg.options));
+    let sampled = chosen.as_ref().map(|c| (c.indices.len(), c.method));
+    let (intensity_kept, sigma_kept);
+    let (intensity, sigma) = match &chosen {
+        None => (intensity, sigma),
+        Some(c) => {
+            // Values of another length than the points are kept whole: the step that uses
+            // them names the mismatch.
+            let pick = |v: &[f64]| -> Vec<f64> {
+                if v.len() != n_read {
+                    return v.to_vec();
+                }
+                c.indices.iter().map(|&i| v[i]).collect()
+            };
+            points = Cow::Owned(c.indices.iter().map(|&i| points[i]).collect());
+            intensity_kept = intensity.map(pick);
+            sigma_kept = sigma.map(pick);
+            (intensity_kept.as_deref(), sigma_kept.as_deref())
+        }
+    };
+    let sampling_ms = t0.elapsed().as_secs_f64() * 1e3;
     if cfg.calibration.is_some() {
         // The table moves the points: a copy of borrowed ones, before the clock starts.
         points = Cow::Owned(points.into_owned());
@@ -125,7 +153,7 @@ pub fn measure_frame(input: FrameInput<'_>, cfg: &EstimateConfig) -> Result<File
     let est = fit_straight(kept, sigmas.as_deref(), scene.as_ref(), cfg).map_err(failed)?;
     epd_core::cancel::checkpoint();
     let mask = scene.as_ref().and_then(|s| s.straight.as_deref());
-    let elapsed_ms = t1.elapsed().as_secs_f64() * 1e3;
+    let elapsed_ms = sampling_ms + t1.elapsed().as_secs_f64() * 1e3;
     Ok(FileEstimate {
         loss: (cfg.loss.clone(), radial_loss_scale_m(&est)),
         rms_residual_mm: straight_rms_mm(kept, mask, &est, cfg),
@@ -138,6 +166,7 @@ pub fn measure_frame(input: FrameInput<'_>, cfg: &EstimateConfig) -> Result<File
         n_calibrated,
         weighted: sigmas.is_some(),
         geometry: scene.map(|s| s.geometry),
+        sampled,
         intensity_without_table: false,
     })
 }

@@ -60,6 +60,9 @@ pub struct FileEstimate {
     pub weighted: bool,
     /// What lies ahead (`None`: not surveyed).
     pub geometry: Option<GeometryReport>,
+    /// With `--max-points`: how many points were chosen and fitted, and how
+    /// ([`crate::sampling`]); `None` when the frame was used whole.
+    pub sampled: Option<(usize, crate::sampling::SamplingMethod)>,
     /// The input carried a per-point intensity (a ToF camera's frame) and no depth table
     /// was given: the camera's systematic range error is in the diameters (not a key of
     /// the report; `epd estimate` notes it on standard error).
@@ -78,7 +81,7 @@ pub fn columns() -> Vec<&'static str> {
 }
 
 /// The fields after the estimate's, without the final `error`.
-const CONTEXT_KEYS: [&str; 17] = [
+const CONTEXT_KEYS: [&str; 19] = [
     "n_read",
     "n_out_of_range",
     "n_calibrated",
@@ -96,6 +99,8 @@ const CONTEXT_KEYS: [&str; 17] = [
     "bend_angle_deg",
     "bend_direction_deg",
     "bend_withheld",
+    "n_sampled",
+    "sampling",
 ];
 
 /// Whether a key's value is a result, withheld (null) unless the estimate converged:
@@ -237,6 +242,15 @@ impl FileReport {
                     "bend_withheld",
                     g.and_then(|g| g.bend_withheld.clone())
                         .map_or(Field::Null, Field::Text),
+                ));
+                f.push((
+                    "n_sampled",
+                    e.sampled.map_or(Field::Null, |(n, _)| Field::Int(n as u64)),
+                ));
+                f.push((
+                    "sampling",
+                    e.sampled
+                        .map_or(Field::Null, |(_, m)| Field::Text(m.name().into())),
                 ));
                 f.push(("error", Field::Null));
             }
@@ -485,6 +499,7 @@ mod tests {
                 loss: ("none".into(), f64::NAN),
                 nominal_od_mm: None,
                 geometry: None,
+                sampled: None,
                 intensity_without_table: false,
             }),
         }

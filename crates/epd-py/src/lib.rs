@@ -29,6 +29,7 @@ use epd_core::Method;
 use epd_core::report::Field;
 use epd_frame::input::sensor_metres;
 use epd_frame::report::{FileEstimate, FileReport};
+use epd_frame::sampling::SamplingMethod;
 use epd_frame::{
     ConfigError, EstimateConfig, EstimateSettings, FrameInput, InputConfig, InputFrame, Units,
     measure_file, measure_frame,
@@ -302,8 +303,10 @@ enum Input<'py> {
 /// ("cauchy", "huber", "none"; `None` is "none"), `loss_scale` (m; `None`: from the
 /// residuals), `min_range`/`max_range` (m), `calibration` (a depth-table JSON file; needs
 /// `intensity`, one per point, or a file with an `intensity` property), `unweighted`,
-/// `nominal_od_in` (inch), `straight_only`. `sigma` gives each point's range standard
-/// deviation (m) for a weighted fit.
+/// `nominal_od_in` (inch), `straight_only`, `max_points` (fit at most that many points,
+/// at least 1000; `None`: every point) and `sampling` ("informed", "stratified",
+/// "uniform": how they are chosen). `sigma` gives each point's range standard deviation
+/// (m) for a weighted fit.
 ///
 /// Returns a dict, the keys of one JSON object of `epd estimate --format json`:
 /// `file` (`None` for an array), `method`, `status` ("converged", "iteration_limit",
@@ -329,12 +332,14 @@ enum Input<'py> {
 #[pyo3(
     text_signature = "(points, method='ml-epd', units='m', frame='sensor', \
     loss='cauchy', loss_scale=None, min_range=None, max_range=None, calibration=None, \
-    intensity=None, sigma=None, unweighted=False, nominal_od_in=None, straight_only=False)"
+    intensity=None, sigma=None, unweighted=False, nominal_od_in=None, straight_only=False, \
+    max_points=None, sampling='informed')"
 )]
 #[pyo3(signature = (
     points, method="ml-epd", units="m", frame="sensor", loss=Some("cauchy"),
     loss_scale=None, min_range=None, max_range=None, calibration=None,
     intensity=None, sigma=None, unweighted=false, nominal_od_in=None, straight_only=false,
+    max_points=None, sampling="informed",
 ))]
 #[allow(clippy::too_many_arguments)] // the tool's flags, as keyword arguments
 fn estimate<'py>(
@@ -353,7 +358,23 @@ fn estimate<'py>(
     unweighted: bool,
     nominal_od_in: Option<f64>,
     straight_only: bool,
+    max_points: Option<i64>,
+    sampling: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let sampling: SamplingMethod = sampling
+        .parse()
+        .map_err(|e: epd_frame::sampling::SamplingError| PyValueError::new_err(e.to_string()))?;
+    // A negative count is the same usage error as one too small (not an OverflowError).
+    let max_points = max_points
+        .map(|n| {
+            usize::try_from(n).map_err(|_| {
+                PyValueError::new_err(format!(
+                    "max_points={n}: need at least {} points; None uses every point",
+                    epd_frame::sampling::MIN_MAX_POINTS
+                ))
+            })
+        })
+        .transpose()?;
     let method: Method = method
         .parse()
         .map_err(|e: epd_core::EpdError| PyValueError::new_err(e.to_string()))?;
@@ -373,6 +394,8 @@ fn estimate<'py>(
             frame_given: true,
             format: None,
         },
+        max_points,
+        sampling,
     };
     let input = take_input(points, intensity, sigma, &settings)?;
     match input {

@@ -6,7 +6,10 @@ use std::collections::HashMap;
 
 use super::scenario::Scenario;
 use super::summary::SummaryRow;
-use crate::plots::{Axis, Figure, Legend, Panel, Png, REFERENCE, Series, colour, render};
+use crate::plots::{
+    Axis, BLUE, Figure, GREEN, Legend, Panel, Png, RED, REFERENCE, Series, colour, render,
+};
+use epd_frame::sampling::SamplingMethod;
 
 /// Numeric x of each swept value (its index when not a number).
 fn xs(values: &[String]) -> Vec<f64> {
@@ -408,17 +411,144 @@ fn coverage_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
 }
 
 /// Every figure of a sweep, in [`crate::output::RUN_FILES`] order: `diameter_error.png`,
-/// `dmean_error.png`, `pose_error.png`, `time.png`, `std_vs_crb.png`, `coverage.png`.
+/// `dmean_error.png`, `pose_error.png`, `time.png`, `std_vs_crb.png`, `coverage.png`,
+/// and `realtime.png` for a sweep over `sampling`.
 pub fn plot_all(scenario: &Scenario, summary: &[SummaryRow]) -> anyhow::Result<Vec<Png>> {
     let sw = Sweep::new(scenario, summary);
-    Ok(vec![
+    let mut pngs = vec![
         diameter_figure(&sw)?,
         dmean_figure(&sw)?,
         pose_figure(&sw)?,
         time_figure(&sw)?,
         crb_figure(&sw)?,
         coverage_figure(&sw)?,
-    ])
+    ];
+    if scenario.sweep_variable == "sampling" {
+        pngs.push(realtime_figure(scenario, summary)?);
+    }
+    Ok(pngs)
+}
+
+/// The points of `realtime.png` of one sampling method `how` (`None`: the full frame):
+/// (N, value) per swept value that samples that way, value = `of(dmean row, time row)`.
+fn realtime_points(
+    scenario: &Scenario,
+    summary: &[SummaryRow],
+    method: &str,
+    how: Option<SamplingMethod>,
+    of: impl Fn(&SummaryRow, &SummaryRow) -> f64,
+) -> Vec<(f64, f64)> {
+    let row = |value: &str, q: &str| {
+        summary
+            .iter()
+            .find(|r| r.sweep_value == value && r.method == method && r.quantity == q)
+    };
+    let mut v: Vec<(f64, f64)> = scenario
+        .sweeps
+        .iter()
+        .filter(|(_, s)| s.sampling.map(|s| s.method) == how)
+        .filter_map(|(value, s)| {
+            let n = s.sampling.map_or(f64::NAN, |s| s.max_points as f64);
+            Some((n, of(row(value, "dmean")?, row(value, "time_ms")?)))
+        })
+        .collect();
+    v.sort_by(|a, b| a.0.total_cmp(&b.0));
+    v
+}
+
+/// `realtime.png` (issue 25), for a sweep over `sampling` with a full-frame value
+/// (`max_points = "all"`): against the points fitted N, per sampling method, (left) the
+/// mean diameter's RMS error over the full frame's RMS error on the same frames (the
+/// full frame's *empirical* spread stands for its Cramér–Rao bound: under independent
+/// range noise the full-frame ML-EPD estimate is efficient, its RMS error within a few
+/// per cent of the bound, `std_vs_crb.png`), 1 dashed; (right) the mean time per frame of
+/// the choice and the estimate, the full frame's dashed. The first method's rows.
+fn realtime_figure(scenario: &Scenario, summary: &[SummaryRow]) -> anyhow::Result<Png> {
+    let method = scenario
+        .sweeps
+        .first()
+        .and_then(|(_, s)| s.methods.first())
+        .map_or("ml-epd", |m| m.name());
+    let full = realtime_points(scenario, summary, method, None, |d, _| d.stats.rmse);
+    let full_time = realtime_points(scenario, summary, method, None, |_, t| t.stats.mean);
+    let full_rmse = full.first().map_or(f64::NAN, |p| p.1);
+    let full_ms = full_time.first().map_or(f64::NAN, |p| p.1);
+    let all: Vec<f64> = scenario
+        .sweeps
+        .iter()
+        .filter_map(|(_, s)| s.sampling.map(|s| s.max_points as f64))
+        .collect();
+    let (lo, hi) = all
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(l, h), &n| (l.min(n), h.max(n)));
+    let line = |y: f64| vec![(lo, y, f64::NAN, f64::NAN), (hi, y, f64::NAN, f64::NAN)];
+    let colours = [RED, BLUE, GREEN];
+    let mut ratio = vec![Series {
+        name: "full frame".into(),
+        colour: REFERENCE,
+        points: line(1.0),
+        bars: false,
+        marker_triangle: false,
+        dashed: true,
+    }];
+    let mut time = vec![Series {
+        name: "full frame".into(),
+        colour: REFERENCE,
+        points: line(full_ms),
+        bars: false,
+        marker_triangle: false,
+        dashed: true,
+    }];
+    for (how, colour) in SamplingMethod::ALL.into_iter().zip(colours) {
+        let r = realtime_points(scenario, summary, method, Some(how), |d, _| {
+            d.stats.rmse / full_rmse
+        });
+        let t = realtime_points(scenario, summary, method, Some(how), |_, t| t.stats.mean);
+        for (dest, pts) in [(&mut ratio, r), (&mut time, t)] {
+            dest.push(Series {
+                name: how.name().into(),
+                colour,
+                points: pts
+                    .into_iter()
+                    .map(|(x, y)| (x, y, f64::NAN, f64::NAN))
+                    .collect(),
+                bars: false,
+                marker_triangle: false,
+                dashed: false,
+            });
+        }
+    }
+    let x_label = "points fitted N".to_string();
+    let fig = Figure {
+        name: "realtime.png".into(),
+        title: format!(
+            "{}: {method} on N chosen points — mean-diameter RMS error over the full frame's \
+             ({:.3} mm), and time per frame",
+            scenario.name, full_rmse
+        ),
+        grid: (1, 2),
+        size: (1440, 574),
+        x_label: &x_label,
+        xa: Axis { log: true },
+        ya: Axis { log: true },
+        legend: Legend::Shared,
+        x_names: &[],
+    };
+    render(
+        fig,
+        &[
+            Panel {
+                title: "RMS error of (Dmax + Dmin)/2 ÷ full frame's".into(),
+                y_label: "ratio".into(),
+                series: &ratio,
+            },
+            Panel {
+                title: "choice + estimate, mean over the trials".into(),
+                y_label: "time per frame (ms)".into(),
+                series: &time,
+            },
+        ],
+    )
 }
 
 #[cfg(test)]

@@ -42,6 +42,8 @@ pub struct Setting {
     pub loss_scale_auto: bool,
     /// The estimator's range gate (m), `range_gate_m`.
     pub range_gate: Option<(f64, f64)>,
+    /// The points fitted of each frame (`sampling`; `None`: all of them).
+    pub sampling: Option<epd_frame::sampling::Sampling>,
 }
 
 impl Setting {
@@ -346,7 +348,26 @@ fn to_setting(f: &File) -> Result<Setting, KeyError> {
         };
         key_err(key, e.to_string())
     })?;
+    let sampling = match &f.sampling {
+        None => None,
+        Some(s) => {
+            let method = s
+                .method
+                .parse()
+                .map_err(|e: epd_frame::sampling::SamplingError| {
+                    key_err("sampling.method", e.to_string())
+                })?;
+            match s.max_points {
+                None => None,
+                Some(n) => Some(
+                    epd_frame::sampling::Sampling::new(n as usize, method)
+                        .map_err(|e| key_err("sampling.max_points", e.to_string()))?,
+                ),
+            }
+        }
+    };
     Ok(Setting {
+        sampling,
         sensor,
         pipe,
         noise,

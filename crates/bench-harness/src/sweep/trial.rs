@@ -94,12 +94,27 @@ fn run_with(
     let crb =
         cramer_rao_bound(&frame.exact, &truth, setting.noise.sigma).unwrap_or([None; N_PARAMS]);
     let opts = estimate_options(setting);
+    let mut n_points = frame.len();
     let methods = setting
         .methods
         .iter()
         .map(|&m| {
             let t0 = Instant::now();
-            let est = estimate(&frame.measured, m, &opts);
+            // With `sampling`, the choice is part of the estimate's time; it is seeded by
+            // the frame's seeds, so every method of a trial fits its own choice
+            // deterministically.
+            let chosen = setting.sampling.and_then(|s| {
+                let s = s.with_seed(sampling_seed(seeds));
+                epd_frame::sampling::choose(&frame.measured, &s, m, &opts)
+            });
+            let est = match &chosen {
+                None => estimate(&frame.measured, m, &opts),
+                Some(c) => {
+                    let pts: Vec<[f64; 3]> = c.indices.iter().map(|&i| frame.measured[i]).collect();
+                    n_points = pts.len();
+                    estimate(&pts, m, &opts)
+                }
+            };
             let time_ms = t0.elapsed().as_secs_f64() * 1e3;
             MethodRecord::of(m, est, &truth, time_ms)
         })
@@ -107,12 +122,18 @@ fn run_with(
     TrialRecord {
         setting: sweep_index,
         trial,
-        n_points: frame.len(),
+        n_points,
         truth: epd_core::canonicalize(&truth),
         crb,
         methods,
         error: None,
     }
+}
+
+/// The seed of a trial's choice of points: its frame's seeds mixed (the sweep index
+/// left out, so that every swept sampling of a trial starts from the same seed).
+fn sampling_seed(s: FrameSeed) -> u64 {
+    s.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ s.trial.wrapping_mul(0xD1B5_4A32_D192_ED03)
 }
 
 /// The estimator's options of a setting: its loss, the loss's scale fixed or from the

@@ -186,7 +186,46 @@ pub(super) struct File {
     pub(super) poses: PosesFile,
     #[serde(default)]
     pub(super) contamination: ContaminationFile,
+    /// `sampling = { max_points = N, method = "informed" }`: fit N chosen points of each
+    /// frame (`epd estimate --max-points N --sampling METHOD`); unset or
+    /// `max_points = "all"`: every point.
+    #[serde(default)]
+    pub(super) sampling: Option<SamplingFile>,
     pub(super) sweep: Option<SweepFile>,
+}
+
+/// `sampling`: how many points of each frame are fitted and how they are chosen
+/// (`epd_frame::sampling`).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct SamplingFile {
+    /// A swept value's name in the results (read from the TOML table by the sweep's
+    /// `value_text`, not from here).
+    #[serde(default)]
+    #[allow(dead_code)]
+    pub(super) label: Option<String>,
+    /// The most points fitted, or `"all"`.
+    #[serde(deserialize_with = "max_points_key")]
+    pub(super) max_points: Option<u64>,
+    /// `informed`, `stratified` or `uniform`.
+    #[serde(default = "default_sampling_method")]
+    pub(super) method: String,
+}
+
+/// `sampling.method`: `epd estimate`'s default.
+fn default_sampling_method() -> String {
+    epd_frame::sampling::SamplingMethod::default().name().into()
+}
+
+/// `sampling.max_points`: `"all"` or a count in [`epd_frame::sampling::MIN_MAX_POINTS`],
+/// [`MAX_POINTS`]].
+fn max_points_key<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<u64>, D::Error> {
+    d.deserialize_any(Bounded {
+        key: "sampling.max_points",
+        lo: epd_frame::sampling::MIN_MAX_POINTS as u64,
+        hi: MAX_POINTS as u64,
+        all: true,
+    })
 }
 
 /// `loss`: least squares, the paper's estimators.

@@ -260,3 +260,41 @@ seen_sector = { start_deg = -90.0, width_deg = 180.0 }
     let v = c.view.expect("a view");
     assert!((v.width_rad - std::f64::consts::PI).abs() < 1e-15);
 }
+
+/// `sampling`: swept by label (`scenarios/realtime.toml`), `"all"` for the full frame; a
+/// count below the least or an unknown method names the key and the limit.
+#[test]
+fn sampling_is_swept_by_label_and_checked() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/realtime.toml");
+    let s = Scenario::load(&path).unwrap();
+    assert_eq!(s.sweep_variable, "sampling");
+    assert_eq!(s.sweeps[0].0, "full frame");
+    assert_eq!(s.sweeps[0].1.sampling, None);
+    let informed = s
+        .sweeps
+        .iter()
+        .find(|(v, _)| v == "informed 20000")
+        .and_then(|(_, set)| set.sampling)
+        .unwrap();
+    assert_eq!(informed.max_points, 20_000);
+    assert_eq!(
+        informed.method,
+        epd_frame::sampling::SamplingMethod::Informed
+    );
+    let base = "name = \"x\"\ntrials = 1\n";
+    for (extra, key, needle) in [
+        (
+            "sampling = { max_points = 10 }",
+            "sampling.max_points",
+            "1000",
+        ),
+        (
+            "sampling = { max_points = 5000, method = \"best\" }",
+            "sampling.method",
+            "informed",
+        ),
+    ] {
+        let e = parse(&format!("{base}{extra}\n")).unwrap_err().to_string();
+        assert!(e.contains(key) && e.contains(needle), "{extra}: {e}");
+    }
+}

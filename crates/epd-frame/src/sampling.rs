@@ -1,0 +1,693 @@
+//! The points of a frame that carry the information (`epd estimate --max-points N`): N
+//! of a frame's points chosen before the scene, the fit, the checks and the 1-σ, so that a
+//! frame costs what N points cost (issue 25, the paper's future work 2).
+//!
+//! Three ways to choose ([`SamplingMethod`]):
+//! - **uniform**: N of the valid points, each as likely as any other;
+//! - **stratified**: the same number from each cell of ray geometry ([`strata`]: clock
+//!   angle around the optical axis × how far the ray travels per metre of radius), so
+//!   the few far rays, which carry much of the information on the diameters, are not
+//!   left out as a uniform sample leaves them;
+//! - **informed** (the default): a pilot fit on a small uniform sample
+//!   ([`PILOT_POINTS`]), then the points whose rays carry the most information on the
+//!   mean diameter at the pilot's β (their influence (gᵢ·M⁻¹c)², gᵢ the gradient of the
+//!   range residual, M = Σ gᵢgᵢᵀ, c the mean diameter's gradient), with a stratified
+//!   floor ([`INFORMED_FLOOR`]) so that every parameter, roll included, stays determined.
+//!
+//! **Why the choice biases nothing.** A subset chosen without looking at the points' own
+//! noise is fitted like any frame with fewer pixels: the estimate stays the maximum
+//! likelihood on those points. The choice here looks at each point's *ray*, not at its
+//! measured range: the range residual is r = ‖p‖ − ρ(d; β), with ρ the model's range
+//! along the ray's direction d = p/‖p‖, so its gradient −∂ρ/∂β depends on d alone (the
+//! pixel), not on where along the ray the noise put the point; the strata are made of
+//! directions too. The residual itself (which carries the noise) is never looked at. Two
+//! weak links remain and are small: the pilot's β is fitted on noisy points (of which at
+//! most [`PILOT_POINTS`] may be chosen again: its error moves every score smoothly, not
+//! one point's), and noise across the ray (isotropic noise, flying pixels) moves d by
+//! σ/range, a fraction of a pixel.
+//!
+//! The choice is deterministic for a seed ([`Sampling::seed`]): the same frame and seed
+//! give the same points, whatever the number of threads.
+
+use std::fmt;
+use std::str::FromStr;
+
+use epd_core::residual::{Geometry, Residual};
+use epd_core::{EstimateOptions, Method, N_PARAMS, estimate};
+use nalgebra::{SMatrix, SVector};
+
+/// How the points are chosen.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum SamplingMethod {
+    /// Every valid point equally likely.
+    Uniform,
+    /// The same number from each cell of ray geometry ([`strata`]).
+    Stratified,
+    /// By their information on the mean diameter at a pilot fit, with a stratified floor.
+    #[default]
+    Informed,
+}
+
+impl SamplingMethod {
+    /// All methods, in the order of the figure.
+    pub const ALL: [SamplingMethod; 3] = [Self::Uniform, Self::Stratified, Self::Informed];
+
+    /// The name on command lines, in scenario files and reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Uniform => "uniform",
+            Self::Stratified => "stratified",
+            Self::Informed => "informed",
+        }
+    }
+}
+
+impl fmt::Display for SamplingMethod {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for SamplingMethod {
+    type Err = SamplingError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| SamplingError::Method(s.to_string()))
+    }
+}
+
+/// Why a sampling setting cannot be used.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum SamplingError {
+    /// Too few points asked for.
+    #[error(
+        "--max-points {0}: need at least {MIN_MAX_POINTS} points (the scene's survey and the \
+         1-σ's {CELLS} wall cells need tens of points each); omit it to use every point"
+    )]
+    TooFew(usize),
+    /// An unknown method name.
+    #[error("sampling method `{0}`: expected one of uniform, stratified, informed")]
+    Method(String),
+}
+
+/// The cells of the cluster-robust 1-σ (`epd_core::estimate`: 12 clock sectors × 8 axial
+/// bins), named in [`SamplingError::TooFew`].
+const CELLS: usize = epd_core::estimate::CLOCK_SECTORS * epd_core::estimate::AXIAL_CELLS;
+
+/// The fewest points `--max-points` may ask for: 1000, about ten per wall cell of the 1-σ
+/// ([`CELLS`] = 96 cells; the cluster jackknife needs a spread within each) and enough
+/// for the scene's survey to find a bend's points among them.
+pub const MIN_MAX_POINTS: usize = 1000;
+
+/// Points of the pilot fit of the informed choice: 2048 uniform points. The pilot only
+/// orients the scores, which depend smoothly on β: with 2048 of a 20" frame's ~306 000
+/// points its 1-σ is √(306 000/2048) ≈ 12 × the full frame's (mean diameter: ≈ 0.4 mm
+/// against 0.032 mm measured at σ = 0.03 m, `results/realtime`), i.e. β within < 0.1 % of
+/// the diameter and a fraction of a degree — a change of the scores far below their
+/// spread between rays (orders of magnitude). It costs a few ms (choice timings of the
+/// `sampling` example), less than the 20 000-point fit.
+pub const PILOT_POINTS: usize = 2048;
+
+/// The share of N the informed choice spreads evenly over the strata before it picks by
+/// influence: 1/4. The mean diameter's influence concentrates on the far rays; the roll
+/// and the offsets need rays all around and near too. With a quarter of N in the
+/// [`CLOCK_BINS`] × [`REACH_BINS`] cells every parameter's bound stays below that of a
+/// uniform sample of N (0.3–0.7 × over six poses; the test
+/// `every_parameter_stays_determined` requires < 1.25 ×), and the mean diameter's is
+/// 1.44 × the full frame's at N = 20 000 (`cargo run --release -p epd-frame --example
+/// sampling`); a floor of 1/10 gave 1.43 ×, so the floor costs the mean diameter little.
+pub const INFORMED_FLOOR: f64 = 0.25;
+
+/// Clock-angle sectors of the strata (around the optical axis): 12 of 30°, as the
+/// 1-σ's cells (`epd_core::estimate::CLOCK_SECTORS`).
+pub const CLOCK_BINS: usize = 12;
+
+/// Bins of a ray's reach ‖p‖/√(y² + z²) (metres along the ray per metre off the axis,
+/// ≈ 1/sin of the angle off the axis) in the strata: 8, equal in log(reach) between the
+/// frame's smallest and largest, so the far rays (the last bins, about 1 % of a frame's
+/// points) get as many points as the near ones.
+pub const REACH_BINS: usize = 8;
+
+/// The default seed of the choice.
+pub const DEFAULT_SEED: u64 = 0x005E_ED25;
+
+/// How many points, and how they are chosen.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Sampling {
+    /// The most points kept.
+    pub max_points: usize,
+    /// How they are chosen.
+    pub method: SamplingMethod,
+    /// The seed of the random choices (the pilot's points, the points within a stratum).
+    pub seed: u64,
+}
+
+impl Sampling {
+    /// At most `max_points` points chosen by `method` (seed [`DEFAULT_SEED`]); at least
+    /// [`MIN_MAX_POINTS`].
+    pub fn new(max_points: usize, method: SamplingMethod) -> Result<Self, SamplingError> {
+        if max_points < MIN_MAX_POINTS {
+            return Err(SamplingError::TooFew(max_points));
+        }
+        Ok(Self {
+            max_points,
+            method,
+            seed: DEFAULT_SEED,
+        })
+    }
+
+    /// The same with another seed.
+    pub fn with_seed(self, seed: u64) -> Self {
+        Self { seed, ..self }
+    }
+}
+
+/// The points chosen from a frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Chosen {
+    /// Their indices in the frame, ascending.
+    pub indices: Vec<usize>,
+    /// The method that chose them: the one asked for, or `stratified` when the informed
+    /// choice's pilot fit failed (a frame the straight model does not fit).
+    pub method: SamplingMethod,
+}
+
+/// Choose the points of `points` (SCS, m) to fit. `None` when every valid point is kept
+/// (no more valid points than `max_points`): then the frame is used whole. Invalid points
+/// (non-finite, at the origin) are never chosen. The informed choice's pilot is fitted
+/// with `method` and `options` (its range gate included).
+pub fn choose(
+    points: &[[f64; 3]],
+    sampling: &Sampling,
+    method: Method,
+    options: &EstimateOptions,
+) -> Option<Chosen> {
+    let valid: Vec<u32> = (0..points.len())
+        .filter(|&i| usable(&points[i]))
+        .map(|i| i as u32)
+        .collect();
+    let n = sampling.max_points;
+    if valid.len() <= n {
+        return None;
+    }
+    let mut rng = SplitMix(sampling.seed);
+    let (mut chosen, used) = match sampling.method {
+        SamplingMethod::Uniform => (uniform(&valid, n, &mut rng), SamplingMethod::Uniform),
+        SamplingMethod::Stratified => (
+            stratified(points, &valid, n, &mut rng),
+            SamplingMethod::Stratified,
+        ),
+        SamplingMethod::Informed => match informed(points, &valid, n, method, options, &mut rng) {
+            Some(c) => (c, SamplingMethod::Informed),
+            None => (
+                stratified(points, &valid, n, &mut rng),
+                SamplingMethod::Stratified,
+            ),
+        },
+    };
+    chosen.sort_unstable();
+    Some(Chosen {
+        indices: chosen.into_iter().map(|i| i as usize).collect(),
+        method: used,
+    })
+}
+
+/// Finite and away from the origin, as `epd_core::cloud::clean` keeps them.
+fn usable(p: &[f64; 3]) -> bool {
+    p.iter().all(|v| v.is_finite()) && p.iter().any(|&v| v != 0.0)
+}
+
+/// A small deterministic generator (SplitMix64, Steele et al. 2014): fast, seedable,
+/// and the same on every platform.
+struct SplitMix(u64);
+
+impl SplitMix {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in 0..n (n > 0), by Lemire's multiply-shift (bias below 2⁻³² for the
+    /// sizes of a frame).
+    fn below(&mut self, n: usize) -> usize {
+        ((u128::from(self.next()) * n as u128) >> 64) as usize
+    }
+}
+
+/// `k` of `pool` (without repetition), by a partial Fisher–Yates shuffle.
+fn uniform(pool: &[u32], k: usize, rng: &mut SplitMix) -> Vec<u32> {
+    let mut v = pool.to_vec();
+    let k = k.min(v.len());
+    for i in 0..k {
+        let j = i + rng.below(v.len() - i);
+        v.swap(i, j);
+    }
+    v.truncate(k);
+    v
+}
+
+/// The stratum of each of the `valid` points (an index below [`CLOCK_BINS`] ×
+/// [`REACH_BINS`]): its ray's clock angle around the optical axis in [`CLOCK_BINS`]
+/// sectors of 30°, and its reach ‖p‖/√(y² + z²) in [`REACH_BINS`] bins equal in
+/// log(reach) between the frame's extremes. Both are functions of the ray's direction
+/// alone. Computed without a transcendental function per point (a frame has 300 000):
+/// the sector by comparing |z| with tan 30°·|y| and tan 60°·|y|, the reach bin by
+/// comparing x²/(y² + z²) = reach² − 1 with the bins' edges.
+pub fn strata(points: &[[f64; 3]], valid: &[u32]) -> Vec<u16> {
+    const TAN_30: f64 = 0.577_350_269_189_625_8;
+    const TAN_60: f64 = 1.732_050_807_568_877_2;
+    let q: Vec<f64> = valid
+        .iter()
+        .map(|&i| {
+            let p = &points[i as usize];
+            let off2 = p[1] * p[1] + p[2] * p[2];
+            // A ray along the axis reaches infinitely far: the last bin.
+            if off2 > 0.0 {
+                p[0] * p[0] / off2
+            } else {
+                f64::INFINITY
+            }
+        })
+        .collect();
+    let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
+    for &v in q.iter().filter(|v| v.is_finite()) {
+        lo = lo.min(v);
+        hi = hi.max(v);
+    }
+    // Edges equal in log(reach), reach = √(1 + q), as values of q.
+    let (llo, lhi) = ((1.0 + lo).ln() / 2.0, (1.0 + hi).ln() / 2.0);
+    let edges: Vec<f64> = (1..REACH_BINS)
+        .map(|b| (2.0 * (llo + (lhi - llo) * b as f64 / REACH_BINS as f64)).exp() - 1.0)
+        .collect();
+    valid
+        .iter()
+        .zip(&q)
+        .map(|(&i, &qi)| {
+            let p = &points[i as usize];
+            let (ay, az) = (p[1].abs(), p[2].abs());
+            // Sector within the quadrant (0: |angle from the ±y axis| < 30°, …).
+            let within = usize::from(az >= TAN_30 * ay) + usize::from(az >= TAN_60 * ay);
+            let sector = match (p[1] >= 0.0, p[2] >= 0.0) {
+                (true, true) => within,
+                (false, true) => 5 - within,
+                (false, false) => 6 + within,
+                (true, false) => 11 - within,
+            };
+            let bin = edges.partition_point(|&e| e <= qi);
+            (sector * REACH_BINS + bin) as u16
+        })
+        .collect()
+}
+
+/// How many of `k` points each stratum of `sizes` gets: the same share for every
+/// stratum, a stratum with fewer points giving all of them and the rest shared among the
+/// others (water-filling); the total is min(k, Σ sizes).
+fn allocate(sizes: &[usize], k: usize) -> Vec<usize> {
+    let mut take = vec![0usize; sizes.len()];
+    let mut left = k.min(sizes.iter().sum());
+    loop {
+        let open: Vec<usize> = (0..sizes.len()).filter(|&s| take[s] < sizes[s]).collect();
+        if left == 0 || open.is_empty() {
+            return take;
+        }
+        let share = (left / open.len()).max(1);
+        for s in open {
+            let add = share.min(sizes[s] - take[s]).min(left);
+            take[s] += add;
+            left -= add;
+        }
+    }
+}
+
+/// Points per block of the stratified and informed choices: 4 consecutive valid points,
+/// which in an organised cloud (row by row, as cameras write them) are neighbouring
+/// pixels of one row (0.1° apart on a Helios2), whose rays carry the same information to
+/// within a per cent. A block is classified and scored by its first point and chosen
+/// whole, so the cost of the choice falls four-fold (a gradient per block, not per
+/// point). For an unorganised cloud a block is four arbitrary points: the choice is then
+/// less informed, but still made of rays, not of noise (see the module doc).
+pub const BLOCK: usize = 4;
+
+/// The first valid point of each block ([`BLOCK`]).
+fn heads(valid: &[u32]) -> Vec<u32> {
+    valid.iter().step_by(BLOCK).copied().collect()
+}
+
+/// The valid points of the chosen blocks (`blocks`: indices of blocks), at most `k`.
+fn expand(valid: &[u32], blocks: &[usize], k: usize) -> Vec<u32> {
+    let mut out: Vec<u32> = blocks
+        .iter()
+        .flat_map(|&b| {
+            valid[b * BLOCK..((b + 1) * BLOCK).min(valid.len())]
+                .iter()
+                .copied()
+        })
+        .collect();
+    out.truncate(k);
+    out
+}
+
+/// The blocks grouped by stratum (of their first point, [`strata`]).
+fn by_stratum(points: &[[f64; 3]], heads: &[u32]) -> Vec<Vec<usize>> {
+    let s = strata(points, heads);
+    let mut groups = vec![Vec::new(); CLOCK_BINS * REACH_BINS];
+    for (b, &k) in s.iter().enumerate() {
+        groups[k as usize].push(b);
+    }
+    groups
+}
+
+/// Blocks for `k` points ([`BLOCK`] each).
+fn blocks_for(k: usize) -> usize {
+    k.div_ceil(BLOCK)
+}
+
+/// `k` points, the same number from each stratum ([`allocate`]), blocks chosen uniformly
+/// within each.
+fn stratified(points: &[[f64; 3]], valid: &[u32], k: usize, rng: &mut SplitMix) -> Vec<u32> {
+    let groups = by_stratum(points, &heads(valid));
+    let sizes: Vec<usize> = groups.iter().map(Vec::len).collect();
+    let take = allocate(&sizes, blocks_for(k));
+    let mut blocks = Vec::with_capacity(blocks_for(k));
+    for (g, t) in groups.into_iter().zip(take) {
+        let mut g = g;
+        shuffle(&mut g, rng);
+        blocks.extend_from_slice(&g[..t]);
+    }
+    expand(valid, &blocks, k)
+}
+
+/// Lanes of the gradient evaluation (SIMD in [`Geometry::residuals_and_gradients`]).
+const LANES: usize = 8;
+
+/// The gradient of the range residual over β of each point (SCS, m) at `geom`.
+fn gradients(geom: &Geometry, pts: &[[f64; 3]]) -> Vec<[f64; N_PARAMS]> {
+    let mut out = Vec::with_capacity(pts.len());
+    let mut chunks = pts.chunks_exact(LANES);
+    for c in &mut chunks {
+        let arr: [[f64; 3]; LANES] = std::array::from_fn(|l| c[l]);
+        let (_, g) = geom.residuals_and_gradients::<LANES>(Residual::Range, &arr);
+        out.extend((0..LANES).map(|l| std::array::from_fn(|k| g[k][l])));
+    }
+    for p in chunks.remainder() {
+        out.push(geom.residual_and_gradient(Residual::Range, p).1);
+    }
+    out
+}
+
+/// The mean diameter's gradient over β: c = (½, ½, 0, …).
+const D_MEAN: [f64; N_PARAMS] = [0.5, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0];
+
+/// The informed choice ([`SamplingMethod::Informed`]), or `None` when the pilot fit does
+/// not converge or leaves the model.
+fn informed(
+    points: &[[f64; 3]],
+    valid: &[u32],
+    k: usize,
+    method: Method,
+    options: &EstimateOptions,
+    rng: &mut SplitMix,
+) -> Option<Vec<u32>> {
+    let pilot_idx = uniform(valid, PILOT_POINTS, rng);
+    let pilot_pts: Vec<[f64; 3]> = pilot_idx.iter().map(|&i| points[i as usize]).collect();
+    let pilot = estimate(&pilot_pts, method, options).ok()?;
+    if !pilot.status.is_converged() {
+        return None;
+    }
+    let geom = Geometry::new(&pilot.params)?;
+    let heads = heads(valid);
+    let pts: Vec<[f64; 3]> = heads.iter().map(|&i| points[i as usize]).collect();
+    let grads = gradients(&geom, &pts);
+    let scores = influence(&grads)?;
+    let blocks = pick(&strata(points, &heads), &scores, blocks_for(k), rng);
+    Some(expand(valid, &blocks, k))
+}
+
+/// The influence (gᵢ·M⁻¹c)² of each row gᵢ of `grads` on the mean diameter, for the
+/// information M = Σ gⱼgⱼᵀ of all of them and c the mean diameter's gradient. The
+/// inverse is the pseudo-inverse on the determined directions (the roll of a round pipe
+/// is not). `None` when M is not finite.
+///
+/// Tried and not kept (`cargo run --release -p epd-frame --example sampling`, 6 frames
+/// of the paper's 20" pipe, σ = 0.03 m, N = 20 000): M of the chosen set instead of the
+/// frame's, in a second or third round (1.45–1.49× the full frame's bound on the mean
+/// diameter, against 1.44×); scoring only a stratified pool of 2N–8N points
+/// (1.46–1.61×).
+fn influence(grads: &[[f64; N_PARAMS]]) -> Option<Vec<f64>> {
+    let mut m = SMatrix::<f64, N_PARAMS, N_PARAMS>::zeros();
+    for g in grads {
+        let g = SVector::<f64, N_PARAMS>::from(*g);
+        m += g * g.transpose();
+    }
+    // Scaled to unit diagonal so the pseudo-inverse's cut is relative per parameter.
+    let d = SVector::<f64, N_PARAMS>::from_fn(|i, _| {
+        let v = m[(i, i)];
+        if v > 0.0 { 1.0 / v.sqrt() } else { 0.0 }
+    });
+    let scaled = SMatrix::<f64, N_PARAMS, N_PARAMS>::from_fn(|i, j| m[(i, j)] * d[i] * d[j]);
+    let inv = scaled.pseudo_inverse(1e-10).ok()?;
+    let c = SVector::<f64, N_PARAMS>::from(D_MEAN).component_mul(&d);
+    let a: [f64; N_PARAMS] = (d.component_mul(&(inv * c))).into();
+    if !a.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    Some(
+        grads
+            .iter()
+            .map(|g| {
+                let s: f64 = g.iter().zip(&a).map(|(g, a)| g * a).sum();
+                s * s
+            })
+            .collect(),
+    )
+}
+
+/// The informed pick of `k` of the rows with strata `st` and `scores`:
+/// [`INFORMED_FLOOR`] of `k` spread over the strata (the highest scores of each stratum's
+/// share), then the rest by the highest scores among the rows left. Ties are broken by a
+/// seeded shuffle, so that equal scores do not favour a part of the image.
+fn pick(st: &[u16], scores: &[f64], k: usize, rng: &mut SplitMix) -> Vec<usize> {
+    let mut groups: Vec<Vec<usize>> = vec![Vec::new(); CLOCK_BINS * REACH_BINS];
+    for (j, &s) in st.iter().enumerate() {
+        groups[s as usize].push(j);
+    }
+    let sizes: Vec<usize> = groups.iter().map(Vec::len).collect();
+    let floor = allocate(&sizes, (INFORMED_FLOOR * k as f64).round() as usize);
+    let mut taken = vec![false; scores.len()];
+    let mut out = Vec::with_capacity(k);
+    let by_score = |x: &usize, y: &usize| scores[*y].total_cmp(&scores[*x]);
+    for (g, t) in groups.iter_mut().zip(floor) {
+        if t == 0 {
+            continue;
+        }
+        shuffle(g, rng);
+        g.select_nth_unstable_by(t - 1, by_score);
+        for &j in &g[..t] {
+            taken[j] = true;
+            out.push(j);
+        }
+    }
+    let mut rest: Vec<usize> = (0..scores.len()).filter(|&j| !taken[j]).collect();
+    let more = k.saturating_sub(out.len()).min(rest.len());
+    if more > 0 {
+        shuffle(&mut rest, rng);
+        rest.select_nth_unstable_by(more - 1, by_score);
+        out.extend_from_slice(&rest[..more]);
+    }
+    out
+}
+
+/// A seeded Fisher–Yates shuffle.
+fn shuffle<T>(v: &mut [T], rng: &mut SplitMix) {
+    for i in (1..v.len()).rev() {
+        let j = rng.below(i + 1);
+        v.swap(i, j);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use epd_core::problem::PipeFit;
+    use epd_core::{Loss, LossScale, Params, errors_against};
+    use tof_sim::{FrameSeed, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, WallModel};
+
+    /// A full 640 × 480 frame of the paper's 20" pipe (2 % ovality), pose `k`.
+    fn frame(k: u64, sigma: f64) -> tof_sim::Frame {
+        let pipe = Pipe {
+            ovality: 0.02,
+            ..Pipe::paper_20in()
+        };
+        let truth = PoseRanges::default().sample(&pipe, 7, k).expect("pose");
+        let scene = Scene::new(&truth, WallModel::Exact, 6.0).expect("scene");
+        let seed = FrameSeed {
+            seed: 7,
+            trial: k,
+            sweep_index: 0,
+        };
+        tof_sim::simulate(
+            &Sensor::helios2(),
+            &scene,
+            &Noise::range(sigma),
+            Subsample::All,
+            seed,
+        )
+        .expect("frame")
+    }
+
+    fn options() -> EstimateOptions {
+        EstimateOptions::default()
+            .with_loss(Loss::from_name("cauchy", 0.05).expect("loss"))
+            .expect("loss")
+            .with_loss_scale(LossScale::Auto)
+    }
+
+    /// (JᵀJ)⁻¹ of the range residual at `truth` over `pts`: the Cramér–Rao covariance
+    /// over σ².
+    fn crb(pts: &[[f64; 3]], truth: &Params) -> SMatrix<f64, N_PARAMS, N_PARAMS> {
+        let eq = PipeFit::new(pts, Residual::Range)
+            .equations_at(truth)
+            .expect("inside");
+        eq.jtj.try_inverse().expect("every parameter determined")
+    }
+
+    /// The chosen set's JᵀJ is as well conditioned as the full frame's, parameter by
+    /// parameter: each parameter's Cramér–Rao bound on the chosen N points is within
+    /// 1.25 × √(frame/N) of the full frame's (√(frame/N) is what a uniform sample of N
+    /// gives; measured ≤ 0.8 × for stratified and informed over six poses, example
+    /// `sampling`), roll included; and the informed choice's bound on the mean diameter
+    /// is within the issue's 1.5 × the full frame's at N = 20 000 (measured 1.42–1.44).
+    #[test]
+    fn every_parameter_stays_determined() {
+        let n = 20_000;
+        for k in 0..2 {
+            let f = frame(k, 0.03);
+            let full = crb(&f.exact, &f.truth);
+            let uniform_ratio = (f.exact.len() as f64 / n as f64).sqrt();
+            let c = SVector::<f64, N_PARAMS>::from(D_MEAN);
+            let d_full = (c.transpose() * full * c)[(0, 0)].sqrt();
+            for how in [SamplingMethod::Stratified, SamplingMethod::Informed] {
+                let s = Sampling::new(n, how).expect("n");
+                let chosen = choose(&f.measured, &s, Method::MlEpd, &options()).expect("fewer");
+                assert_eq!(chosen.method, how);
+                assert_eq!(chosen.indices.len(), n);
+                let pts: Vec<[f64; 3]> = chosen.indices.iter().map(|&i| f.exact[i]).collect();
+                let sub = crb(&pts, &f.truth);
+                for p in 0..N_PARAMS {
+                    let ratio = (sub[(p, p)] / full[(p, p)]).sqrt() / uniform_ratio;
+                    assert!(
+                        ratio < 1.25,
+                        "{how} pose {k}: {} bound {ratio:.2} × a uniform sample's",
+                        epd_core::PARAM_NAMES[p]
+                    );
+                }
+                if how == SamplingMethod::Informed {
+                    let d = (c.transpose() * sub * c)[(0, 0)].sqrt() / d_full;
+                    assert!(d < 1.5, "pose {k}: mean-diameter bound {d:.3} × full");
+                }
+            }
+        }
+    }
+
+    /// The same frame and seed give the same points; another seed other points; the
+    /// indices ascend and are valid pixels only.
+    #[test]
+    fn deterministic_for_a_seed() {
+        let mut f = frame(3, 0.03);
+        // Invalid pixels as a camera writes them: never chosen.
+        for i in (0..f.measured.len()).step_by(7) {
+            f.measured[i] = [0.0; 3];
+        }
+        f.measured[1] = [f64::NAN; 3];
+        for how in SamplingMethod::ALL {
+            let s = Sampling::new(5000, how).expect("n");
+            let a = choose(&f.measured, &s, Method::MlEpd, &options()).expect("fewer");
+            let b = choose(&f.measured, &s, Method::MlEpd, &options()).expect("fewer");
+            assert_eq!(a, b, "{how}");
+            let other = choose(&f.measured, &s.with_seed(99), Method::MlEpd, &options());
+            assert_ne!(Some(&a), other.as_ref(), "{how}");
+            assert!(a.indices.windows(2).all(|w| w[0] < w[1]), "{how}");
+            assert!(
+                a.indices.iter().all(|&i| usable(&f.measured[i])),
+                "{how}: an invalid pixel chosen"
+            );
+        }
+    }
+
+    /// No more valid points than N: the frame is used whole (`None`), whatever the method.
+    #[test]
+    fn few_points_are_kept_whole() {
+        let mut pts: Vec<[f64; 3]> = (0..1500)
+            .map(|i| [1.0 + i as f64 * 1e-3, 0.2, 0.1])
+            .collect();
+        pts.extend([[0.0; 3]; 600]);
+        for how in SamplingMethod::ALL {
+            let s = Sampling::new(1500, how).expect("n");
+            assert_eq!(choose(&pts, &s, Method::MlEpd, &options()), None, "{how}");
+        }
+        let s = Sampling::new(1499, SamplingMethod::Uniform).expect("n");
+        let c = choose(&pts, &s, Method::MlEpd, &options()).expect("one fewer");
+        assert_eq!(c.indices.len(), 1499);
+    }
+
+    /// Too few points asked for, or an unknown method: a message naming the limit.
+    #[test]
+    fn bad_settings_say_what_to_do() {
+        let e = Sampling::new(MIN_MAX_POINTS - 1, SamplingMethod::Informed).unwrap_err();
+        assert_eq!(e, SamplingError::TooFew(MIN_MAX_POINTS - 1));
+        assert!(e.to_string().contains("at least 1000"), "{e}");
+        let e = "best".parse::<SamplingMethod>().unwrap_err();
+        assert!(
+            e.to_string().contains("uniform, stratified, informed"),
+            "{e}"
+        );
+        for m in SamplingMethod::ALL {
+            assert_eq!(m.name().parse::<SamplingMethod>(), Ok(m));
+        }
+    }
+
+    /// Equal shares per stratum, the small strata giving all they have.
+    #[test]
+    fn allocation_fills_the_small_strata_first() {
+        assert_eq!(allocate(&[10, 1, 10, 0], 9), vec![4, 1, 4, 0]);
+        assert_eq!(allocate(&[2, 2], 10), vec![2, 2]);
+        assert_eq!(allocate(&[5, 5, 5], 3), vec![1, 1, 1]);
+    }
+
+    /// The informed choice biases nothing: over 24 frames (σ = 0.03 m, the paper's poses)
+    /// the mean error of the mean diameter fitted on its 20 000 points is within three
+    /// of its standard errors (s/√24, s the errors' spread) of zero: a test at the
+    /// 0.3 % level under no bias (the frames are seeded, so it gives the same verdict on
+    /// every run).
+    #[test]
+    fn informed_choice_is_unbiased() {
+        let frames = 24;
+        let errors: Vec<f64> = (0..frames)
+            .map(|k| {
+                let f = frame(100 + k, 0.03);
+                let s = Sampling::new(20_000, SamplingMethod::Informed).expect("n");
+                let c = choose(&f.measured, &s, Method::MlEpd, &options()).expect("fewer");
+                let pts: Vec<[f64; 3]> = c.indices.iter().map(|&i| f.measured[i]).collect();
+                let e = estimate(&pts, Method::MlEpd, &options()).expect("estimate");
+                assert!(e.status.is_converged(), "frame {k}");
+                errors_against(&e.params, &f.truth).d_mean
+            })
+            .collect();
+        let n = errors.len() as f64;
+        let mean = errors.iter().sum::<f64>() / n;
+        let sd = (errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+        let se = sd / n.sqrt();
+        assert!(
+            mean.abs() <= 3.0 * se,
+            "mean error {:.4} mm, standard error {:.4} mm",
+            mean * 1e3,
+            se * 1e3
+        );
+    }
+}
