@@ -97,6 +97,11 @@ pub struct FormMisfit {
 
 impl std::fmt::Display for FormMisfit {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let side = if self.offset_m > 0.0 {
+            "beyond"
+        } else {
+            "inside"
+        };
         if self.all_around {
             return write!(
                 f,
@@ -107,11 +112,7 @@ impl std::fmt::Display for FormMisfit {
                  a calibration error) or the pipe's size changes",
                 self.x_m,
                 self.offset_m.abs() * 1e3,
-                if self.offset_m > 0.0 {
-                    "beyond"
-                } else {
-                    "inside"
-                },
+                side,
                 self.tolerance_m * 1e3,
                 self.z,
                 self.critical,
@@ -127,11 +128,7 @@ impl std::fmt::Display for FormMisfit {
             self.x_m,
             self.clock_deg,
             self.offset_m.abs() * 1e3,
-            if self.offset_m > 0.0 {
-                "beyond"
-            } else {
-                "inside"
-            },
+            side,
             self.tolerance_m * 1e3,
             self.z,
             self.critical

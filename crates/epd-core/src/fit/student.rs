@@ -27,7 +27,13 @@ pub fn student_t_quantile(p: f64, nu: f64) -> f64 {
     if !(target < 0.5) {
         return 0.0;
     }
-    // Bracket: tail(lo) > target ≥ tail(hi).
+    invert_falling_tail(tail, target)
+}
+
+/// The x ≥ 0 where a tail probability that falls strictly from x = 0 reaches `target`:
+/// an upper bracket doubled from 1 until tail(hi) ≤ target, then bisected to adjacent
+/// floats (infinity when no finite bracket exists).
+fn invert_falling_tail(tail: impl Fn(f64) -> f64, target: f64) -> f64 {
     let (mut lo, mut hi) = (0.0f64, 1.0f64);
     while tail(hi) > target {
         lo = hi;
@@ -65,25 +71,7 @@ pub fn f_upper_quantile(alpha: f64, nu1: f64, nu2: f64) -> f64 {
         let d = nu2 + nu1 * f;
         incomplete_beta(0.5 * nu2, 0.5 * nu1, nu2 / d, nu1 * f / d)
     };
-    let (mut lo, mut hi) = (0.0f64, 1.0f64);
-    while tail(hi) > alpha {
-        lo = hi;
-        hi *= 2.0;
-        if hi.is_infinite() {
-            return f64::INFINITY;
-        }
-    }
-    loop {
-        let mid = 0.5 * (lo + hi);
-        if mid <= lo || mid >= hi {
-            return mid;
-        }
-        if tail(mid) > alpha {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
+    invert_falling_tail(tail, alpha)
 }
 
 /// The regularised incomplete beta function I_x(a, b) for a, b > 0 and x ∈ [0, 1], with

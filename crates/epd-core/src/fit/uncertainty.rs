@@ -142,12 +142,8 @@ pub(crate) fn slice_check(
     let mut expected = [0.0; N_PARAMS];
     let mut expected_sq = [0.0; N_PARAMS];
     for (s, h, b) in slices.values() {
-        let (a, _) = determined_inverse(&(bread - h));
-        let d = a * s;
+        let (d, var_d, _) = leave_out(bread, &h_inv, meat, s, h, b);
         v += d * d.transpose();
-        let hh = h * h_inv;
-        let var_s = b - hh * b - b * hh.transpose() + hh * meat * hh.transpose();
-        let var_d = a * var_s * a.transpose();
         for j in 0..N_PARAMS {
             sum_d2[j] += d[j] * d[j];
             let e = var_d[(j, j)].max(0.0);
@@ -203,16 +199,30 @@ pub(crate) fn slice_shift(
         return None;
     }
     let (h_inv, keep) = determined_inverse(bread);
-    let (a, kept) = determined_inverse(&(bread - h_s));
+    let (delta, var_d, kept) = leave_out(bread, &h_inv, meat, &s_s, &h_s, &b_s);
     if kept != keep {
         return None;
     }
-    let delta = a * s_s;
-    let hh = h_s * h_inv;
-    let var_s = b_s - hh * b_s - b_s * hh.transpose() + hh * meat * hh.transpose();
-    let var_d = a * var_s * a.transpose();
     let sd = std::array::from_fn(|j| var_d[(j, j)].max(0.0).sqrt());
     Some((delta, sd))
+}
+
+/// Leaving a group of cells out (score s, bread H_k, B_k = Σ s_g s_gᵀ over its cells):
+/// the one-step change d = (H − H_k)⁻¹ s of β, its covariance under independent cells
+/// V = (H − H_k)⁻¹ [B_k − H_k H⁻¹ B_k − B_k H⁻¹ H_k + H_k H⁻¹ B H⁻¹ H_k] (H − H_k)⁻¹
+/// (see [`slice_check`]), and which parameters the rest determines.
+fn leave_out(
+    bread: &Mat7,
+    h_inv: &Mat7,
+    meat: &Mat7,
+    s: &nalgebra::SVector<f64, N_PARAMS>,
+    h: &Mat7,
+    b: &Mat7,
+) -> (nalgebra::SVector<f64, N_PARAMS>, Mat7, [bool; N_PARAMS]) {
+    let (a, kept) = determined_inverse(&(bread - h));
+    let hh = h * h_inv;
+    let var_s = b - hh * b - b * hh.transpose() + hh * meat * hh.transpose();
+    (a * s, a * var_s * a.transpose(), kept)
 }
 
 /// 1-σ of the determined parameters and, when all are determined, the covariance.
