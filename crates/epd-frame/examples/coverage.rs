@@ -143,6 +143,7 @@ fn config() -> EstimateConfig {
 /// converged.
 struct Outcome {
     status: String,
+    geometry: &'static str,
     z: Option<[(f64, f64); 3]>,
 }
 
@@ -185,11 +186,13 @@ fn frame_outcome(case: &Case, k: u64, cfg: &EstimateConfig) -> Outcome {
         Err(_) => {
             return Outcome {
                 status: "error".into(),
+                geometry: "none",
                 z: None,
             };
         }
     };
     let withheld = e.geometry.as_ref().and_then(|g| g.withheld()).is_some();
+    let geometry = e.geometry.as_ref().map_or("not surveyed", |g| g.layout);
     let est = &e.estimate;
     let status = if withheld {
         "withheld".to_string()
@@ -200,7 +203,11 @@ fn frame_outcome(case: &Case, k: u64, cfg: &EstimateConfig) -> Outcome {
         if std::env::var_os("EPD_REASONS").is_some() {
             eprintln!("{} frame {k}: {status}: {}", case.name, est.status.reason());
         }
-        return Outcome { status, z: None };
+        return Outcome {
+            status,
+            geometry,
+            z: None,
+        };
     }
     let err = errors_against(&est.params, &truth);
     let (s_max, s_min) = (est.sigma[0], est.sigma[1]);
@@ -215,7 +222,11 @@ fn frame_outcome(case: &Case, k: u64, cfg: &EstimateConfig) -> Outcome {
         }
         _ => None,
     };
-    Outcome { status, z }
+    Outcome {
+        status,
+        geometry,
+        z,
+    }
 }
 
 fn main() {
@@ -224,7 +235,7 @@ fn main() {
     let wanted: Vec<String> = args.collect();
     let cfg = config();
     println!(
-        "{:<20} {:>5} {:>28}  {:>16} {:>16} {:>16}  {:>14}  {:>9}",
+        "{:<20} {:>5} {:>28}  {:>16} {:>16} {:>16}  {:>14}  {:>9}  geometry",
         "model",
         "n",
         "statuses",
@@ -232,7 +243,7 @@ fn main() {
         "cov Dmin (±se)",
         "cov Dmean (±se)",
         "sd z max/min",
-        "far_off"
+        "far_off",
     );
     for case in cases() {
         if !wanted.is_empty() && !wanted.iter().any(|w| w == case.name) {
@@ -256,8 +267,13 @@ fn main() {
             .filter(|z| (0..2).any(|q| z[q].0.abs() > 5.0 && z[q].1 > 0.5))
             .count();
         let st: Vec<String> = statuses.iter().map(|(k, v)| format!("{k}:{v}")).collect();
+        let mut layouts: BTreeMap<&str, usize> = BTreeMap::new();
+        for o in &outcomes {
+            *layouts.entry(o.geometry).or_default() += 1;
+        }
+        let geometry: Vec<String> = layouts.iter().map(|(k, v)| format!("{k}:{v}")).collect();
         println!(
-            "{:<20} {:>5} {:>28}  {:>16} {:>16} {:>16}  {:>6.2}/{:<6.2}  {:>9}",
+            "{:<20} {:>5} {:>28}  {:>16} {:>16} {:>16}  {:>6.2}/{:<6.2}  {:>9}  {}",
             case.name,
             frames,
             st.join(","),
@@ -266,7 +282,8 @@ fn main() {
             cover(2),
             sd(0),
             sd(1),
-            far_off
+            far_off,
+            geometry.join(",")
         );
     }
 }
