@@ -19,7 +19,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let s = survey(&cloud.points, cfg.method, &cfg.options, &o)?;
     let seg = &s.segmentation;
     let first = epd_core::estimate(&cloud.points, cfg.method, &cfg.options)?;
-    let first_profile = epd_core::segment::profile(&cloud.points, &first.params, &o);
+    let first_profile = epd_core::segment::profile(
+        &cloud.points,
+        &first.params,
+        &epd_core::segment::AxisSigma::of(&first),
+        &o,
+    );
     let which = std::env::args().nth(2).unwrap_or_default();
     let shown = if which == "first" {
         &first_profile

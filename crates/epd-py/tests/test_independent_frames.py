@@ -151,11 +151,11 @@ def score(rows, truth):
 COVERAGE_FLOOR = 0.95 - 4 * math.sqrt(0.95 * 0.05 / FRAMES)
 
 
-# Measured with the survey's variance law (issue 23; `epd estimate FILES --format json`
-# with the defaults, 200 frames per model): independent 0.920/0.905 and 0 of 200 misread;
-# correlated 0.919/0.904 and 5 of 200 misread (tee_ahead) — within the ceiling above, but
-# the issue's 1 % is not met (2.5 ± 1.1 %). Goals not met on these frames are recorded as
-# xfail rather than being loosened.
+# Measured with the survey's variance law and the fitted axis's 1-σ (issue 23; `epd
+# estimate FILES --format json` with the defaults, 200 frames per model): independent
+# 0.920/0.905 and 0 of 200 misread; correlated 0.920/0.899 and 0 of 200 misread (0 of 200
+# more with seed 31). Goals not met on these frames are recorded as xfail rather than
+# being loosened.
 NOT_MET_MULTIPATH = (
     "issue 22: 3 of 200 multipath frames converged more than max(5σ̂, 0.5 mm) off "
     "(159 lack_of_fit, 38 converged); 15 of 100 before the tests for errors shared "

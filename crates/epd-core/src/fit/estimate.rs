@@ -255,6 +255,11 @@ pub struct Estimate {
     /// diameters held); σ̂²·(JᵀJ)⁻¹ when there are too few cells. With weights, of the
     /// scaled rᵢ and Jᵢ. `None` for held diameters.
     pub sigma: Sigmas,
+    /// Whether the wall's axial slices differ more than their cells do (Welch's test,
+    /// `WallCells::shared_along_axis`, at `form::SHARED_ERROR_ALPHA`): errors shared along
+    /// the pipe, or a wall that departs from the straight model somewhere along it (the
+    /// survey then also looks from the near section: `segment::segment`).
+    pub shared_along_axis: bool,
     /// Whether the roll is determined: the ovality is significant (Dmax − Dmin above
     /// three of its standard deviations) and the roll's 1-σ is below 45°.
     pub roll_determined: bool,
@@ -613,6 +618,7 @@ fn fit_cloud(
         n_out_of_gate,
         loss,
         sigma,
+        shared_along_axis: shared,
         roll_determined,
         diameter_cov,
     })

@@ -172,6 +172,10 @@ pub struct Slice {
     pub variance_ratio: f64,
     /// The harmonic fit's degrees of freedom: usable sectors − 3.
     pub misfit_dof: usize,
+    /// Covariance of the shift ĉ = (c₁, c₂) (m²: var c₁, cov, var c₂): from the medians'
+    /// independent-point variances, then (`calibrate_tests`) scaled by κ̂ and added the
+    /// straight fit's own uncertainty of where its axis lies at this slice ([`AxisSigma`]).
+    pub shift_cov_m2: [f64; 3],
     /// The variance scale κ̂ applied to this slice's standard errors and `shift_f`
     /// (`calibrate_tests`); 1 before.
     pub variance_scale: f64,
@@ -273,9 +277,14 @@ fn deviation(
     (out.0.is_finite() && out.1.is_finite() && out.2.is_finite()).then_some(out)
 }
 
-/// The departure profile of `points` (SCS, clean) against the straight fit `beta`
-/// (empty when β leaves the model).
-pub fn profile(points: &[[f64; 3]], beta: &Params, o: &SegmentOptions) -> Vec<Slice> {
+/// The departure profile of `points` (SCS, clean) against the straight fit `beta`, whose
+/// axis is uncertain by `axis` (empty when β leaves the model).
+pub fn profile(
+    points: &[[f64; 3]],
+    beta: &Params,
+    axis: &AxisSigma,
+    o: &SegmentOptions,
+) -> Vec<Slice> {
     let Some(geom) = Geometry::new(beta) else {
         return Vec::new();
     };
@@ -320,7 +329,7 @@ pub fn profile(points: &[[f64; 3]], beta: &Params, o: &SegmentOptions) -> Vec<Sl
             )
         })
         .collect();
-    calibrate_tests(&mut slices, ns);
+    calibrate_tests(&mut slices, ns, axis, o.slice_m);
     for (i, s) in slices.iter_mut().enumerate().skip(1) {
         if s.bump_psi.is_finite() {
             let k = ((s.bump_psi / tau * ns as f64) as usize).min(ns - 1);
@@ -376,7 +385,7 @@ const ROBUST_DOF_SHARE: f64 = 0.37 * 2.0 / std::f64::consts::PI;
 /// the fit in units of its scaled standard error is t(ν̂). Each test gets half of
 /// [`SURVEY_FALSE_ALARM`], divided among the n slices tested (and the sectors for the
 /// bump, which takes the largest of them).
-fn calibrate_tests(slices: &mut [Slice], sectors: usize) {
+fn calibrate_tests(slices: &mut [Slice], sectors: usize, axis: &AxisSigma, slice_m: f64) {
     let tested: Vec<(f64, f64)> = slices
         .iter()
         .filter(|s| s.n_sectors >= 6 && s.variance_ratio > 0.0 && s.misfit_dof > 0)
@@ -409,13 +418,20 @@ fn calibrate_tests(slices: &mut [Slice], sectors: usize) {
         - 2.0)
         .max(1.0);
     let (critical_f, critical_t) = critical_values(tested.len(), dof, sectors);
-    for s in slices.iter_mut() {
-        let per_sector = (s.n_points as f64 / s.n_sectors.max(1) as f64).max(1.0);
-        let kappa = (a + b * per_sector.ln()).exp().max(f64::MIN_POSITIVE);
-        let root = kappa.sqrt();
-        s.shift_se_m *= root;
-        s.bump_se_m *= root;
-        s.shift_f /= kappa;
+    let kappas: Vec<f64> = slices
+        .iter()
+        .map(|s| {
+            let per_sector = (s.n_points as f64 / s.n_sectors.max(1) as f64).max(1.0);
+            (a + b * per_sector.ln()).exp().max(f64::MIN_POSITIVE)
+        })
+        .collect();
+    for (s, kappa) in slices.iter_mut().zip(kappas) {
+        let [vy, vz] = axis.lateral_variance(s.start_m + 0.5 * slice_m);
+        let c = s.shift_cov_m2;
+        s.shift_cov_m2 = [kappa * c[0] + vy, kappa * c[1], kappa * c[2] + vz];
+        s.shift_se_m = shift_se(s.shift_m, s.shift_cov_m2);
+        s.shift_f = shift_f(s.shift_m, s.shift_cov_m2);
+        s.bump_se_m *= kappa.sqrt();
         s.variance_scale = kappa;
         s.critical_f = critical_f;
         s.critical_t = critical_t;
@@ -434,6 +450,79 @@ fn median(v: &mut [f64]) -> Option<f64> {
     } else {
         0.5 * (v[mid - 1] + v[mid])
     })
+}
+
+/// F = ĉᵀC⁻¹ĉ/2 for a shift ĉ with covariance C = [c₁₁, c₁₂, c₂₂] (NaN when C is singular).
+fn shift_f(shift: [f64; 2], cov: [f64; 3]) -> f64 {
+    let c = nalgebra::Matrix2::new(cov[0], cov[1], cov[1], cov[2]);
+    c.try_inverse().map_or(f64::NAN, |info| {
+        let v = nalgebra::Vector2::new(shift[0], shift[1]);
+        0.5 * (v.transpose() * info * v)[0]
+    })
+}
+
+/// The standard error of a shift's length: along its direction (the mean of the two
+/// variances when the shift is zero).
+fn shift_se(shift: [f64; 2], cov: [f64; 3]) -> f64 {
+    let len = shift[0].hypot(shift[1]);
+    if len > 0.0 {
+        let (u, v) = (shift[0] / len, shift[1] / len);
+        (u * u * cov[0] + 2.0 * u * v * cov[1] + v * v * cov[2]).sqrt()
+    } else {
+        (0.5 * (cov[0] + cov[2])).sqrt()
+    }
+}
+
+/// The straight fit's 1-σ of where its axis lies (from its reported uncertainty): the
+/// offsets δy, δz (m) and the tilts yaw, pitch (rad) of eq. (3).
+///
+/// A slice's shift is measured against the fitted axis, so the fit's own error at the
+/// slice, δ + x·θ to first order (yaw turns the axis toward ±Y of the PCS, pitch toward
+/// ∓Z), reads as a shift there. Where the fit hardly depends on the slice (the far slices
+/// of a frame, which hold few of its points) the two errors are independent and their
+/// variances add: σ_y²(x) = σ_δy² + x²σ_yaw², σ_z²(x) = σ_δz² + x²σ_pitch² (covariances
+/// between offset and tilt left out). Where the fit is pinned by the slice, this overstates
+/// the shift's variance, which only makes the test more conservative there. Under 2-pixel
+/// correlated noise the reported tilts' 1-σ are 0.1–0.5°, 5–12 mm at 1.4 m: the size of
+/// the far slices' shifts that were read as a tee without this term.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AxisSigma {
+    /// 1-σ of δy (m).
+    pub dy: f64,
+    /// 1-σ of δz (m).
+    pub dz: f64,
+    /// 1-σ of yaw (rad).
+    pub yaw: f64,
+    /// 1-σ of pitch (rad).
+    pub pitch: f64,
+}
+
+impl AxisSigma {
+    /// From an estimate's reported 1-σ (a parameter without one counts as known). A fit
+    /// the form test refused (`lack_of_fit`) has a 1-σ that measures its misfit rather
+    /// than its noise: its axis counts as known, so that the profile shows the misfit.
+    pub fn of(e: &Estimate) -> Self {
+        if matches!(e.status, crate::check::FitStatus::LackOfFit(_)) {
+            return Self::default();
+        }
+        let s = |i: usize| e.sigma[i].filter(|v| v.is_finite()).unwrap_or(0.0);
+        // Params order: d_max, d_min, roll, pitch, yaw, dy, dz.
+        Self {
+            pitch: s(3),
+            yaw: s(4),
+            dy: s(5),
+            dz: s(6),
+        }
+    }
+
+    /// The variances of the axis's lateral position at axial distance x (m²): toward +Y
+    /// and toward +Z of the PCS.
+    pub fn lateral_variance(&self, x: f64) -> [f64; 2] {
+        [
+            self.dy * self.dy + (x * self.yaw).powi(2),
+            self.dz * self.dz + (x * self.pitch).powi(2),
+        ]
+    }
 }
 
 /// The shift's critical F and the bump's critical t for `tested` slices of `sectors`
@@ -481,6 +570,7 @@ fn slice_stats(sectors: &mut [Vec<f64>], start_m: f64, o: &SegmentOptions) -> Sl
         bump_follows_wall: false,
         variance_ratio: f64::NAN,
         misfit_dof: 0,
+        shift_cov_m2: [f64::NAN; 3],
         variance_scale: 1.0,
         shift_f: f64::NAN,
         critical_f: f64::INFINITY,
@@ -503,20 +593,9 @@ fn slice_stats(sectors: &mut [Vec<f64>], start_m: f64, o: &SegmentOptions) -> Sl
     let c = inv * rhs;
     out.widening_m = c[0];
     out.shift_m = [c[1], c[2]];
-    let len = c[1].hypot(c[2]);
-    // Standard error of the shift's length: along its direction (the mean of the two
-    // variances when the shift is zero).
-    out.shift_se_m = if len > 0.0 {
-        let u = Vector3::new(0.0, c[1] / len, c[2] / len);
-        (u.transpose() * inv * u)[0].sqrt()
-    } else {
-        (0.5 * (inv[(1, 1)] + inv[(2, 2)])).sqrt()
-    };
-    let cov = nalgebra::Matrix2::new(inv[(1, 1)], inv[(1, 2)], inv[(2, 1)], inv[(2, 2)]);
-    out.shift_f = cov.try_inverse().map_or(f64::NAN, |info| {
-        let v = nalgebra::Vector2::new(c[1], c[2]);
-        0.5 * (v.transpose() * info * v)[0]
-    });
+    out.shift_cov_m2 = [inv[(1, 1)], inv[(1, 2)], inv[(2, 2)]];
+    out.shift_se_m = shift_se(out.shift_m, out.shift_cov_m2);
+    out.shift_f = shift_f(out.shift_m, out.shift_cov_m2);
     out.misfit_dof = meds.len() - 3;
     let mut ratios: Vec<f64> = Vec::with_capacity(meds.len());
     // The sector furthest outside the harmonic fit, in units of its standard error.
@@ -593,7 +672,7 @@ fn refine(
     let mut end: Option<f64> = None;
     let mut cut: Option<f64> = None;
     let mut rounds = 1;
-    let mut prof = profile(pts, &fit.params, seg);
+    let mut prof = profile(pts, &fit.params, &AxisSigma::of(&fit), seg);
     loop {
         let found = first_departure(&prof, seg).map(|i| locate_end(&prof, i, seg));
         let moved = match (found, end) {
@@ -610,7 +689,7 @@ fn refine(
             fit = estimate(pts, method, options)?;
             cut = None;
             rounds += 1;
-            prof = profile(pts, &fit.params, seg);
+            prof = profile(pts, &fit.params, &AxisSigma::of(&fit), seg);
             continue;
         };
         // Too little straight pipe left to refit: the sensor is in the bend.
@@ -620,7 +699,7 @@ fn refine(
         fit = refit;
         cut = Some(x_end);
         rounds += 1;
-        prof = profile(pts, &fit.params, seg);
+        prof = profile(pts, &fit.params, &AxisSigma::of(&fit), seg);
     }
     Ok(Refined {
         fit,
@@ -701,7 +780,14 @@ pub fn segment(
         mut rounds,
         mut cut,
     } = refine(pts, first, method, options, seg)?;
-    if departs_at_start(&prof, seg) {
+    // A fit on every point whose profile finds no end although its wall differs along
+    // the axis (Welch's test of the estimate, at 10⁻³) or the straight model does not fit
+    // it (its form test): what lies ahead may have biased the fit and, through the misfit,
+    // its 1-σ ([`AxisSigma`]), which then hides it. The near section, fitted alone, has
+    // neither.
+    let refused = first_departure(&prof, seg).is_none()
+        && (fit.shared_along_axis || matches!(fit.status, crate::check::FitStatus::LackOfFit(_)));
+    if refused || departs_at_start(&prof, seg) {
         let (restart, tried) = restart_from_near(pts, method, options, seg);
         rounds += tried;
         if let Some(r) = restart {
@@ -1085,6 +1171,7 @@ mod tests {
             bump_psi: 0.5,
             bump_follows_wall: true,
             variance_ratio: 1.0,
+            shift_cov_m2: [1e-8, 0.0, 1e-8],
             misfit_dof: 9,
             variance_scale: 1.0,
             shift_f: 0.5 * (shift / 1e-4).powi(2),
@@ -1118,7 +1205,7 @@ mod tests {
                 slice_stats(&mut cells, 0.05 * i as f64, &o)
             })
             .collect();
-        calibrate_tests(&mut slices, ns);
+        calibrate_tests(&mut slices, ns, &AxisSigma::default(), 0.05);
         slices
     }
 
