@@ -644,7 +644,7 @@ mod tests {
         let text = table().to_json();
         for (from, to, says) in [
             ("epd-depth-table", "something-else", "`format`"),
-            ("\"version\": 1", "\"version\": 7", "version 7"),
+            ("\"version\": 2", "\"version\": 7", "version 7"),
             ("\"bins\": 3", "\"bins\": 4", "needs 4 values"),
             ("\"bins\": 5", "\"bins\": 6", "offsets"),
         ] {
