@@ -63,20 +63,21 @@ fn frames(od_in: f64, ovality: f64, seed: u64, n: u64) -> anyhow::Result<Vec<Fra
         .collect()
 }
 
+fn as_cal(v: &[Frame]) -> Vec<CalibrationFrame<'_>> {
+    v.iter()
+        .map(|f| CalibrationFrame {
+            points: &f.0,
+            intensity: &f.1,
+        })
+        .collect()
+}
+
 /// Run the experiment into `out` with `per_size` test frames per pipe size.
 pub fn run(out: &Path, per_size: u64) -> anyhow::Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let id = |od: f64| (od * 25.4 - 2.0 * WALL_MM) * 1e-3;
     let rig20 = frames(20.0, 0.0, 7, RIG_FRAMES)?;
     let rig30 = frames(30.0, 0.0, 17, RIG_FRAMES)?;
-    let as_cal = |v: &[Frame]| -> Vec<CalibrationFrame<'_>> {
-        v.iter()
-            .map(|f| CalibrationFrame {
-                points: &f.0,
-                intensity: &f.1,
-            })
-            .collect()
-    };
     let (c20, c30) = (as_cal(&rig20), as_cal(&rig30));
     let settings = RigSettings {
         known_id_mm: id(20.0) * 1e3,
@@ -100,7 +101,10 @@ pub fn run(out: &Path, per_size: u64) -> anyhow::Result<()> {
     };
     let tables = [
         ("20\" rig", calibrate_rig_sizes(&[r20], &settings)?.table),
-        ("20\" + 30\" rigs", calibrate_rig_sizes(&[r20, r30], &settings)?.table),
+        (
+            "20\" + 30\" rigs",
+            calibrate_rig_sizes(&[r20, r30], &settings)?.table,
+        ),
     ];
     let mut rows = String::from(
         "rigs,size_in,frame,status,err_d_mean_mm,err_d_max_mm,err_d_min_mm,sigma_d_max_mm,\
@@ -139,7 +143,11 @@ pub fn run(out: &Path, per_size: u64) -> anyhow::Result<()> {
                 let out_frac = e.calibration_outside.unwrap_or(f64::NAN);
                 outside += out_frac;
                 if !est.status.is_converged() {
-                    writeln!(rows, "{name},{od},{j},{},,,,,,false,{out_frac}", est.status.name())?;
+                    writeln!(
+                        rows,
+                        "{name},{od},{j},{},,,,,,false,{out_frac}",
+                        est.status.name()
+                    )?;
                     continue;
                 }
                 let (ea, eb) = (est.params.d_max - truth.0, est.params.d_min - truth.1);
@@ -161,8 +169,7 @@ pub fn run(out: &Path, per_size: u64) -> anyhow::Result<()> {
             }
             let n = errs.len();
             let mean = errs.iter().sum::<f64>() / n.max(1) as f64;
-            let sd = (errs.iter().map(|e| (e - mean).powi(2)).sum::<f64>()
-                / (n.max(2) - 1) as f64)
+            let sd = (errs.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (n.max(2) - 1) as f64)
                 .sqrt();
             let ms = sig.iter().sum::<f64>() / n.max(1) as f64;
             writeln!(

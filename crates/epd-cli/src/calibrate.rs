@@ -4,8 +4,8 @@ use std::path::Path;
 use std::process::ExitCode;
 
 use anyhow::Context;
-use epd_core::calibration::{CalibrationFrame, CalibrationSettings, RigFrames};
 use epd_core::calibration::Support;
+use epd_core::calibration::{CalibrationFrame, CalibrationSettings, RigFrames};
 use epd_frame::InputConfig;
 use epd_frame::input::{intensity, read_input};
 use epd_frame::read::PointCloud;
@@ -141,7 +141,11 @@ fn print_table_summary(out: &Path, cal: &CalibrationTable) {
         .map(|((a, _), n)| format!("{:.1} mm × {n}", a * 1e3))
         .collect();
     let incidence = cal.incidence.as_ref().map_or(String::new(), |i| {
-        let observed = i.support.iter().filter(|s| **s == Support::Observed).count();
+        let observed = i
+            .support
+            .iter()
+            .filter(|s| **s == Support::Observed)
+            .count();
         let bridged = i.support.iter().filter(|s| **s == Support::Bridged).count();
         format!(
             "; × {} incidence bins: {observed} observed, {bridged} bridged",

@@ -239,7 +239,11 @@ impl FileReport {
                         f.iter_mut().find(|(k, _)| *k == "status_reason")
                 {
                     let note = notes.join("; ");
-                    *r = if r.is_empty() { note } else { format!("{r}; {note}") };
+                    *r = if r.is_empty() {
+                        note
+                    } else {
+                        format!("{r}; {note}")
+                    };
                 }
                 let p = e.estimate.params;
                 f.push(("n_read", Field::Int(e.n_read as u64)));

@@ -275,7 +275,10 @@ mod tests {
         for (text, says) in [
             ("", "not a rigs file"),
             ("[[rig]]\nfiles = [\"a.ply\"]\n", "known_id_mm"),
-            ("[[rig]]\nknown_id_mm = -3\nfiles = [\"a\"]\n", "rig 1: known_id_mm = -3"),
+            (
+                "[[rig]]\nknown_id_mm = -3\nfiles = [\"a\"]\n",
+                "rig 1: known_id_mm = -3",
+            ),
             (
                 "[[rig]]\nknown_id_mm = 400\nfiles = [\"a\"]\n[[rig]]\nknown_id_mm = 500\nfiles = []\n",
                 "rig 2: files = []",
@@ -284,7 +287,10 @@ mod tests {
                 "[[rig]]\nknown_id_mm = 400\nknown_dmin_mm = 500\nfiles = [\"a\"]\n",
                 "at most known_id_mm",
             ),
-            ("[[rig]]\nknown_id_mm = 400\nfiles = [\"a\"]\ncolour = 1\n", "colour"),
+            (
+                "[[rig]]\nknown_id_mm = 400\nfiles = [\"a\"]\ncolour = 1\n",
+                "colour",
+            ),
             ("rig = []\n", "0 rigs"),
         ] {
             let e = parse_rigs(text, base).unwrap_err().to_string();

@@ -333,13 +333,18 @@ fn read_incidence(h: &IncidenceHeader<'_>, plain: &DepthTable) -> Result<Inciden
             hi: h.log_cos_incidence.hi,
             n: nc,
         },
-        offset_m: outside_nan(mm(Rows::new("incidence.offset_mm", nr, per).read(h.offset_mm)?)),
-        spread_m: outside_nan(mm(Rows::new("incidence.spread_mm", nr, per).read(h.spread_mm)?)),
+        offset_m: outside_nan(mm(
+            Rows::new("incidence.offset_mm", nr, per).read(h.offset_mm)?
+        )),
+        spread_m: outside_nan(mm(
+            Rows::new("incidence.spread_mm", nr, per).read(h.spread_mm)?
+        )),
         se_m: outside_nan(mm(Rows::new("incidence.se_mm", nr, per).read(h.se_mm)?)),
         count: Rows::new("incidence.count", nr, per).read(h.count)?,
         support,
     };
-    t.validate().map_err(|e| format!("depth table: incidence table: {e}"))?;
+    t.validate()
+        .map_err(|e| format!("depth table: incidence table: {e}"))?;
     Ok(t)
 }
 
@@ -465,7 +470,13 @@ impl CalibrationTable {
                     let vals: Vec<f64> = v
                         .iter()
                         .zip(&t.support)
-                        .map(|(x, s)| if *s == Support::Outside { 0.0 } else { x * scale })
+                        .map(|(x, s)| {
+                            if *s == Support::Outside {
+                                0.0
+                            } else {
+                                x * scale
+                            }
+                        })
                         .collect();
                     rows(&vals, per)
                 };
@@ -475,10 +486,7 @@ impl CalibrationTable {
                     spread_mm: inside(&t.spread_m, 1e3),
                     se_mm: inside(&t.se_m, 1e3),
                     count: rows(&t.count, per),
-                    support: rows(
-                        &t.support.iter().map(|s| *s as u8).collect::<Vec<_>>(),
-                        per,
-                    ),
+                    support: rows(&t.support.iter().map(|s| *s as u8).collect::<Vec<_>>(), per),
                 }
             }),
         };

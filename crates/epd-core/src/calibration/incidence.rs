@@ -188,11 +188,7 @@ impl IncidenceTable {
         bins.range.validate("range")?;
         bins.log_intensity.validate("log-intensity")?;
         bins.log_cos_incidence.validate("log-cos-incidence")?;
-        let (nr, ni, nc) = (
-            bins.range.n,
-            bins.log_intensity.n,
-            bins.log_cos_incidence.n,
-        );
+        let (nr, ni, nc) = (bins.range.n, bins.log_intensity.n, bins.log_cos_incidence.n);
         let cells = nr
             .checked_mul(ni)
             .and_then(|c| c.checked_mul(nc))
@@ -262,11 +258,7 @@ impl IncidenceTable {
     /// Fill each range row's empty bins inside the bounding box of its observed bins
     /// (module doc).
     fn bridge(&mut self) {
-        let (nr, ni, nc) = (
-            self.range.n,
-            self.log_intensity.n,
-            self.log_cos_incidence.n,
-        );
+        let (nr, ni, nc) = (self.range.n, self.log_intensity.n, self.log_cos_incidence.n);
         for i in 0..nr {
             let seen: Vec<(usize, usize)> = (0..ni)
                 .flat_map(|j| (0..nc).map(move |l| (j, l)))
@@ -381,7 +373,9 @@ impl IncidenceTable {
     /// or bridged; the value is trilinear between bin centres (constant beyond the outer
     /// centres), each corner outside the support replaced by the holding bin's value.
     pub fn lookup(&self, r: f64, li: f64, lc: f64) -> Option<Lookup> {
-        if !(self.range.holds(r) && self.log_intensity.holds(li) && self.log_cos_incidence.holds(lc))
+        if !(self.range.holds(r)
+            && self.log_intensity.holds(li)
+            && self.log_cos_incidence.holds(lc))
         {
             return None;
         }

@@ -258,7 +258,8 @@ pub fn calibrate_rigs(
                         est.status.reason()
                     )));
                 }
-                let obs = offsets_with_incidence(f.points, f.intensity, &est.params, settings.gate)?;
+                let obs =
+                    offsets_with_incidence(f.points, f.intensity, &est.params, settings.gate)?;
                 Ok((est, obs))
             })
             .collect();

@@ -405,7 +405,8 @@ fn two_rigs(radii: &[f64]) -> Vec<IncidenceObservation> {
 fn the_incidence_table_corrects_inside_its_support_only() {
     let one = two_rigs(&[0.242]);
     let both = two_rigs(&[0.242, 0.369]);
-    let bins = |o: &[IncidenceObservation]| IncidenceBins::spanning(o, (10, 8, 8), (0.5, 2.0), 5).unwrap();
+    let bins =
+        |o: &[IncidenceObservation]| IncidenceBins::spanning(o, (10, 8, 8), (0.5, 2.0), 5).unwrap();
     let t1 = IncidenceTable::build(&one, &bins(&one)).unwrap();
     let t2 = IncidenceTable::build(&both, &bins(&both)).unwrap();
     t1.validate().unwrap();
@@ -476,7 +477,10 @@ fn a_shared_range_error_propagates_as_a_refit_moves_the_diameters() {
             shifted.params.d_min - base.params.d_min,
         ][k];
         let lin = cov[k][k].sqrt();
-        assert!(fd.abs() > 1e-4, "a shared range error moves the diameters: {fd}");
+        assert!(
+            fd.abs() > 1e-4,
+            "a shared range error moves the diameters: {fd}"
+        );
         assert!(
             (lin - fd.abs()).abs() < 0.1 * fd.abs(),
             "diameter {k}: propagated {lin} vs refit {fd}"

@@ -262,7 +262,10 @@ impl Geometry {
         let u = dot(&self.r_y, p);
         let v = dot(&self.r_z, p);
         let t = self.wall_root(u, v)?;
-        let (ny, nz) = (self.alpha * (self.y0 + t * u), self.gamma * (self.z0 + t * v));
+        let (ny, nz) = (
+            self.alpha * (self.y0 + t * u),
+            self.gamma * (self.z0 + t * v),
+        );
         let nn = (ny * ny + nz * nz).sqrt();
         let c = (u * ny + v * nz).abs() / (range * nn);
         (c.is_finite() && range > 0.0).then_some(c.min(1.0))
