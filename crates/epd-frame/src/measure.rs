@@ -238,13 +238,16 @@ pub const INCIDENCE_TOLERANCE_M: f64 = 1e-5;
 /// so its diameters rest on less than half of what the camera saw.
 pub const MOSTLY_OUTSIDE: f64 = 0.5;
 
+/// A point's shared range error: its bin and the bin mean's standard error (m).
+type Shift = Option<(u32, f64)>;
+
 /// What the incidence table's correction leaves to the 1-σ: per point the bin whose
 /// mean corrected it (its standard error shared by every point of the bin).
 #[derive(Clone, Debug)]
 struct SharedErrors {
     /// Per point: (bin, the bin mean's standard error in m); `None` for a point the
     /// table did not correct.
-    shift: Vec<Option<(u32, f64)>>,
+    shift: Vec<Shift>,
     /// Groups: the table's bins.
     n_groups: usize,
     /// Of the valid points with an intensity, the fraction outside the support.
@@ -394,7 +397,7 @@ fn add_table_uncertainty(
     };
     let geom = epd_core::residual::Geometry::new(&est.params);
     let gate = cfg.options.range_gate();
-    let (p, sh): (Vec<[f64; 3]>, Vec<Option<(u32, f64)>>) = points
+    let (p, sh): (Vec<[f64; 3]>, Vec<Shift>) = points
         .iter()
         .zip(&s.shift)
         .enumerate()
