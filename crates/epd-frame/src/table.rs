@@ -46,9 +46,9 @@ pub const VERSION: u32 = 2;
 /// The largest table file read (bytes): what `epd calibrate` writes for the largest
 /// table it makes ([`MAX_TABLE_BINS`] bins, one range bin each, every value of the
 /// longest form serde_json writes: 24 characters, indented by 6 and followed by `,\n`,
-/// 3 values a bin; 3 rows of 12 bytes of brackets each), plus 4 KiB for the rest: about
-/// 138 MB. Anything larger is not a table `epd calibrate` could have written.
-/// The incidence table of version 2 may hold as many bins again, 5 values each.
+/// 3 values a bin; 3 rows of 12 bytes of brackets each) and its version-2 incidence table
+/// of as many bins again (5 values a bin, 5 rows of brackets), plus 4 KiB for the rest:
+/// about 369 MB. Anything larger is not a table `epd calibrate` could have written.
 pub const MAX_TABLE_FILE_BYTES: u64 =
     4096 + (MAX_TABLE_BINS as u64) * (BYTES_PER_VALUE * 8 + BYTES_PER_ROW * 8);
 
