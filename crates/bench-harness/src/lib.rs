@@ -7,6 +7,7 @@
 #![deny(missing_docs)]
 
 pub mod approach;
+pub mod calibration_transfer;
 mod defaults;
 pub mod experiment;
 pub mod output;

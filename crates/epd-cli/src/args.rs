@@ -229,14 +229,24 @@ pub struct InputArgs {
 pub struct CalibrateArgs {
     /// Frames recorded in a pipe of known diameter (PLY, PCD, CSV… with a per-point
     /// `intensity`).
-    #[arg(required = true, value_name = "FILE")]
+    #[arg(required_unless_present = "rigs", value_name = "FILE")]
     pub files: Vec<PathBuf>,
     /// The known inner diameter (mm); the major one when --known-dmin-mm is given.
-    #[arg(long, value_name = "D", allow_negative_numbers = true)]
-    pub known_id_mm: f64,
+    #[arg(
+        long,
+        value_name = "D",
+        allow_negative_numbers = true,
+        required_unless_present = "rigs"
+    )]
+    pub known_id_mm: Option<f64>,
     /// The known minor inner diameter (mm) of an oval pipe.
     #[arg(long, value_name = "D2", allow_negative_numbers = true)]
     pub known_dmin_mm: Option<f64>,
+    /// Rigs of several pipe sizes: a TOML file of `[[rig]]` tables, each with
+    /// `known_id_mm = D` (and optionally `known_dmin_mm`) and `files = ["…", …]` (paths
+    /// relative to the TOML file), in place of FILE… and --known-id-mm.
+    #[arg(long, value_name = "RIGS.toml", conflicts_with_all = ["files", "known_id_mm", "known_dmin_mm"])]
+    pub rigs: Option<PathBuf>,
     /// Where the table is written (JSON, atomically).
     #[arg(long, value_name = "LUT.json")]
     pub out: PathBuf,
@@ -262,6 +272,10 @@ pub struct CalibrateArgs {
     /// Intensity bins of the table (even in log-intensity).
     #[arg(long, value_name = "N", default_value_t = 12, value_parser = table_bins)]
     pub intensity_bins: usize,
+    /// Incidence bins of the table (even in ln cos θ of the angle between the ray and the
+    /// fitted wall's normal); 0: a range × intensity table alone (version-1 behaviour).
+    #[arg(long, value_name = "N", default_value_t = 16)]
+    pub incidence_bins: usize,
     /// A bin with fewer points (at least 5) is empty and takes the nearest filled bin's
     /// values.
     #[arg(long, value_name = "N", default_value_t = 30)]

@@ -76,6 +76,7 @@ fn bench(c: &mut Criterion) {
         bins: (30, 12),
         min_count: 30,
         passes: 3,
+        incidence_bins: 0,
     };
     let table = calibrate(&views, &settings, &options).expect("table").table;
     // One inspection frame as the camera's PLY.

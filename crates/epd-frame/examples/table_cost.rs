@@ -105,6 +105,7 @@ fn main() {
         bins: (30, 12),
         min_count: 30,
         passes: 3,
+        incidence_bins: 0,
     };
     let real = calibrate(&views, &settings, &options).expect("table").table;
     let pipe = Pipe {
@@ -138,6 +139,9 @@ fn main() {
             known: (rig.d_max(), rig.d_min()),
             frames: 3,
             n_observations: 1,
+            incidence: None,
+            rigs: Vec::new(),
+            spans: None,
         };
         let path = dir.path().join("table.json");
         let text = file.to_json();

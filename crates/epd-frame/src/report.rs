@@ -67,6 +67,14 @@ pub struct FileEstimate {
     /// was given: the camera's systematic range error is in the diameters (not a key of
     /// the report; `epd estimate` notes it on standard error).
     pub intensity_without_table: bool,
+    /// With a depth table: the fraction of the frame's valid points outside the table's
+    /// support (`calibration_outside`): uncorrected by an incidence table, corrected by
+    /// an edge or neighbour bin's guess by a version-1 table. `None` without a table.
+    pub calibration_outside: Option<f64>,
+    /// With an incidence table: the rigs' smallest and largest diameters (mm) when the
+    /// frame's mean diameter lies outside them (`crate::measure::RIG_SIZE_MARGIN`); said
+    /// in `status_reason`.
+    pub size_outside_rigs: Option<(f64, f64)>,
 }
 
 /// The CSV columns, in order: the keys of [`FileReport::fields`].
@@ -81,7 +89,7 @@ pub fn columns() -> Vec<&'static str> {
 }
 
 /// The fields after the estimate's, without the final `error`.
-const CONTEXT_KEYS: [&str; 19] = [
+const CONTEXT_KEYS: [&str; 20] = [
     "n_read",
     "n_out_of_range",
     "n_calibrated",
@@ -101,6 +109,7 @@ const CONTEXT_KEYS: [&str; 19] = [
     "bend_withheld",
     "n_sampled",
     "sampling",
+    "calibration_outside",
 ];
 
 /// Whether a key's value is a result, withheld (null) unless the estimate converged:
@@ -204,6 +213,38 @@ impl FileReport {
         match &self.outcome {
             Ok(e) => {
                 f.extend(estimate_fields(&e.estimate));
+                let mut notes = Vec::new();
+                if let Some(out) = e.calibration_outside
+                    && out > crate::measure::MOSTLY_OUTSIDE
+                {
+                    notes.push(format!(
+                        "{:.0} % of the points lie outside the depth table's support (more than \
+                         {:.0} %): they are left out of the fit",
+                        out * 100.0,
+                        crate::measure::MOSTLY_OUTSIDE * 100.0
+                    ));
+                }
+                if let Some((lo, hi)) = e.size_outside_rigs {
+                    notes.push(format!(
+                        "the mean diameter {:.1} mm lies outside the depth table's rig sizes \
+                         ({lo:.1} to {hi:.1} mm, ± {:.0} %): the correction is not known to \
+                         transfer, and its whole effect on the diameters is in their 1-σ; \
+                         calibrate with a rig of this size",
+                        e.estimate.d_mean() * 1e3,
+                        crate::measure::RIG_SIZE_MARGIN * 100.0
+                    ));
+                }
+                if !notes.is_empty()
+                    && let Some((_, Field::Text(r))) =
+                        f.iter_mut().find(|(k, _)| *k == "status_reason")
+                {
+                    let note = notes.join("; ");
+                    *r = if r.is_empty() {
+                        note
+                    } else {
+                        format!("{r}; {note}")
+                    };
+                }
                 let p = e.estimate.params;
                 f.push(("n_read", Field::Int(e.n_read as u64)));
                 f.push(("n_out_of_range", Field::Int(e.n_out_of_range as u64)));
@@ -251,6 +292,10 @@ impl FileReport {
                     "sampling",
                     e.sampled
                         .map_or(Field::Null, |(_, m)| Field::Text(m.name().into())),
+                ));
+                f.push((
+                    "calibration_outside",
+                    e.calibration_outside.map_or(Field::Null, num),
                 ));
                 f.push(("error", Field::Null));
             }
@@ -501,6 +546,8 @@ mod tests {
                 geometry: None,
                 sampled: None,
                 intensity_without_table: false,
+                calibration_outside: None,
+                size_outside_rigs: None,
             }),
         }
     }

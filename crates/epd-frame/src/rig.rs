@@ -2,7 +2,7 @@
 //! (`epd calibrate`): the settings as given and checked ([`RigSettings::check`]), and the
 //! table with each frame's fitted pose ([`calibrate_rig`]).
 
-use epd_core::calibration::{CalibrationFrame, CalibrationSettings, calibrate};
+use epd_core::calibration::{CalibrationFrame, CalibrationSettings, RigFrames, calibrate_rigs};
 use epd_core::{EpdError, Estimate, EstimateOptions, Loss, LossScale};
 
 use crate::config::{ConfigError, DEFAULT_LOSS_SCALE_M};
@@ -32,6 +32,8 @@ pub struct RigSettings {
     pub range_bins: usize,
     /// Intensity bins of the table (even in log-intensity).
     pub intensity_bins: usize,
+    /// Incidence bins of the table (even in ln cos θ); 0: no incidence axis.
+    pub incidence_bins: usize,
     /// A bin with fewer points is empty and takes the nearest filled bin's values.
     pub min_count: usize,
     /// Passes of the alternating refinement of the poses and the table.
@@ -65,15 +67,18 @@ impl RigSettings {
                 self.min_range, self.max_range
             ));
         }
-        let bins = self.range_bins.checked_mul(self.intensity_bins);
+        let bins = self
+            .range_bins
+            .checked_mul(self.intensity_bins)
+            .and_then(|b| b.checked_mul(self.incidence_bins.max(1)));
         if self.range_bins == 0
             || self.intensity_bins == 0
             || bins.is_none_or(|b| b > MAX_TABLE_BINS)
         {
             return usage(format!(
-                "--range-bins {} × --intensity-bins {}: need at least 1 each, at most \
-                 {MAX_TABLE_BINS} (2²⁰) bins",
-                self.range_bins, self.intensity_bins
+                "--range-bins {} × --intensity-bins {} × --incidence-bins {}: need at least 1 \
+                 range and intensity bin, at most {MAX_TABLE_BINS} (2²⁰) bins",
+                self.range_bins, self.intensity_bins, self.incidence_bins
             ));
         }
         if self.min_count < MIN_BIN_COUNT {
@@ -87,6 +92,7 @@ impl RigSettings {
             known: (d_max, d_min),
             gate: (self.min_range, self.max_range),
             bins: (self.range_bins, self.intensity_bins),
+            incidence_bins: self.incidence_bins,
             min_count: self.min_count,
             passes: self.passes as usize,
         })
@@ -109,18 +115,186 @@ pub fn calibrate_rig(
     frames: &[CalibrationFrame<'_>],
     settings: &CalibrationSettings,
 ) -> Result<RigTable, EpdError> {
+    calibrate_rig_sizes(
+        &[RigFrames {
+            known: settings.known,
+            frames,
+        }],
+        settings,
+    )
+}
+
+/// The depth table of rigs of several sizes ([`epd_core::calibration::calibrate_rigs`]):
+/// each rig's frames fitted with its own known diameters, one table from all of them.
+/// `settings.known` is ignored; the table's `known` is the first rig's.
+pub fn calibrate_rig_sizes(
+    rigs: &[RigFrames<'_>],
+    settings: &CalibrationSettings,
+) -> Result<RigTable, EpdError> {
     let options = EstimateOptions::default()
         .with_loss(Loss::from_name("cauchy", DEFAULT_LOSS_SCALE_M)?)?
         .with_loss_scale(LossScale::Auto);
-    let cal = calibrate(frames, settings, &options)?;
+    let cal = calibrate_rigs(rigs, settings, &options)?;
     let used = cal.fits.iter().filter(|f| f.is_ok()).count();
+    let mut at = 0;
+    let mut rig_list = Vec::with_capacity(rigs.len());
+    for r in rigs {
+        let n = cal.fits[at..at + r.frames.len()]
+            .iter()
+            .filter(|f| f.is_ok())
+            .count();
+        at += r.frames.len();
+        rig_list.push((r.known, n));
+    }
+    let known = rigs.first().map_or(settings.known, |r| r.known);
     Ok(RigTable {
         table: CalibrationTable {
             table: cal.table,
-            known: settings.known,
+            known,
             frames: used,
             n_observations: cal.n_observations as u64,
+            incidence: cal.incidence,
+            rigs: rig_list,
+            spans: Some(cal.spans),
         },
         fits: cal.fits,
     })
+}
+
+/// The most rigs a RIGS.toml may list: every rig's frames are held in memory together,
+/// and 64 pipe sizes are more than a pipe schedule has between 2" and 48".
+pub const MAX_RIGS: usize = 64;
+
+/// One rig of a RIGS.toml as given.
+#[derive(Clone, Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RigEntry {
+    known_id_mm: f64,
+    #[serde(default)]
+    known_dmin_mm: Option<f64>,
+    files: Vec<std::path::PathBuf>,
+}
+
+/// A RIGS.toml as given.
+#[derive(Clone, Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RigsFile {
+    rig: Vec<RigEntry>,
+}
+
+/// One rig of a RIGS.toml, checked: its known (Dmax, Dmin) (m) and its frame files
+/// (resolved against the TOML file's folder).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RigSpec {
+    /// Known (Dmax, Dmin) (m).
+    pub known: (f64, f64),
+    /// The frame files.
+    pub files: Vec<std::path::PathBuf>,
+}
+
+/// Parse a RIGS.toml's text: `[[rig]]` tables with `known_id_mm` (mm, > 0), optionally
+/// `known_dmin_mm` (0 < Dmin ≤ Dmax), and `files` (at least one; relative paths taken
+/// from `base`, the TOML file's folder); 1 to [`MAX_RIGS`] rigs. The error names the
+/// rig (1 first), the key and what it must be.
+pub fn parse_rigs(text: &str, base: &std::path::Path) -> Result<Vec<RigSpec>, ConfigError> {
+    let bad = |m: String| ConfigError::Setting(m);
+    let f: RigsFile = toml::from_str(text).map_err(|e| {
+        bad(format!(
+            "not a rigs file: {e}; expected [[rig]] tables with known_id_mm = D and files = \
+             [\"frame.ply\", …]"
+        ))
+    })?;
+    if f.rig.is_empty() || f.rig.len() > MAX_RIGS {
+        return Err(bad(format!(
+            "{} rigs: list 1 to {MAX_RIGS} [[rig]] tables",
+            f.rig.len()
+        )));
+    }
+    f.rig
+        .into_iter()
+        .enumerate()
+        .map(|(k, r)| {
+            let n = k + 1;
+            let d_max = r.known_id_mm;
+            let d_min = r.known_dmin_mm.unwrap_or(d_max);
+            if !(d_max.is_finite() && d_max > 0.0) {
+                return Err(bad(format!(
+                    "rig {n}: known_id_mm = {d_max}: expected the pipe's inner diameter in mm \
+                     (> 0)"
+                )));
+            }
+            if !(d_min > 0.0 && d_min <= d_max) {
+                return Err(bad(format!(
+                    "rig {n}: known_dmin_mm = {d_min}: expected the minor inner diameter in \
+                     mm, > 0 and at most known_id_mm = {d_max}"
+                )));
+            }
+            if r.files.is_empty() {
+                return Err(bad(format!("rig {n}: files = []: list at least one frame")));
+            }
+            Ok(RigSpec {
+                known: (d_max * 1e-3, d_min * 1e-3),
+                files: r
+                    .files
+                    .into_iter()
+                    .map(|p| if p.is_absolute() { p } else { base.join(p) })
+                    .collect(),
+            })
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rigs_files_are_read_relative_to_the_toml() {
+        let r = parse_rigs(
+            "[[rig]]\nknown_id_mm = 484\nfiles = [\"a.ply\", \"/x/b.ply\"]\n\
+             [[rig]]\nknown_id_mm = 730\nknown_dmin_mm = 720\nfiles = [\"c/d.ply\"]\n",
+            std::path::Path::new("/rigs"),
+        )
+        .unwrap();
+        assert_eq!(r.len(), 2);
+        assert_eq!(r[0].known, (0.484, 0.484));
+        assert_eq!(
+            r[0].files,
+            vec![
+                std::path::PathBuf::from("/rigs/a.ply"),
+                std::path::PathBuf::from("/x/b.ply")
+            ]
+        );
+        assert_eq!(r[1].known, (0.73, 0.72));
+        assert_eq!(r[1].files, vec![std::path::PathBuf::from("/rigs/c/d.ply")]);
+    }
+
+    #[test]
+    fn bad_rigs_files_name_what_is_wrong() {
+        let base = std::path::Path::new(".");
+        for (text, says) in [
+            ("", "not a rigs file"),
+            ("[[rig]]\nfiles = [\"a.ply\"]\n", "known_id_mm"),
+            (
+                "[[rig]]\nknown_id_mm = -3\nfiles = [\"a\"]\n",
+                "rig 1: known_id_mm = -3",
+            ),
+            (
+                "[[rig]]\nknown_id_mm = 400\nfiles = [\"a\"]\n[[rig]]\nknown_id_mm = 500\nfiles = []\n",
+                "rig 2: files = []",
+            ),
+            (
+                "[[rig]]\nknown_id_mm = 400\nknown_dmin_mm = 500\nfiles = [\"a\"]\n",
+                "at most known_id_mm",
+            ),
+            (
+                "[[rig]]\nknown_id_mm = 400\nfiles = [\"a\"]\ncolour = 1\n",
+                "colour",
+            ),
+            ("rig = []\n", "0 rigs"),
+        ] {
+            let e = parse_rigs(text, base).unwrap_err().to_string();
+            assert!(e.contains(says), "{text:?}: {e}");
+        }
+    }
 }

@@ -10,11 +10,28 @@
 //!   "offset_mm": [[…12 values…], …30 rows…], "spread_mm": [[…]], "count": [[…]] }
 //! ```
 //! Rows are range bins, columns intensity bins (natural log of the camera's intensity).
+//!
+//! Version 2 (`epd calibrate` writes it; version 1 is still read, and works as before)
+//! adds what the table observed and the incidence axis:
+//!
+//! ```json
+//! { …version 1's keys, "version": 2,
+//!   "rigs": [ { "known_d_max_mm": 484.0, "known_d_min_mm": 484.0, "frames": 6 }, … ],
+//!   "support": { "range_m": [0.5, 2.0], "intensity": [9.1, 980.0],
+//!                "cos_incidence": [0.11, 0.52] },
+//!   "incidence": { "log_cos_incidence": { "lo": -2.2, "hi": -0.6, "bins": 16 },
+//!                  "offset_mm": [[…]], "spread_mm": [[…]], "se_mm": [[…]],
+//!                  "count": [[…]], "support": [[…]] } }
+//! ```
+//! The incidence table's rows are range bins, each of intensity bins × incidence bins
+//! values (incidence fastest); `support` is 0 outside (values written as 0, read as
+//! none), 1 observed, 2 bridged (`epd_core::calibration::IncidenceTable`). `se_mm` is
+//! each bin mean's standard error, shared by every point the bin corrects.
 
 use std::path::Path;
 
 use epd_core::DepthTable;
-use epd_core::calibration::{Axis, MAX_TABLE_BINS};
+use epd_core::calibration::{Axis, IncidenceTable, MAX_TABLE_BINS, Support};
 use serde::{Deserialize, Serialize};
 use serde_json::value::RawValue;
 
@@ -22,16 +39,18 @@ use crate::input::CALIBRATION_NEEDS_INTENSITY;
 
 /// The `format` value of a table file.
 pub const FORMAT: &str = "epd-depth-table";
-/// The `version` this reader understands.
-pub const VERSION: u32 = 1;
+/// The `version` written: 2 (the rigs, the support and the incidence table); this reader
+/// also reads version 1.
+pub const VERSION: u32 = 2;
 
 /// The largest table file read (bytes): what `epd calibrate` writes for the largest
 /// table it makes ([`MAX_TABLE_BINS`] bins, one range bin each, every value of the
 /// longest form serde_json writes: 24 characters, indented by 6 and followed by `,\n`,
-/// 3 values a bin; 3 rows of 12 bytes of brackets each), plus 4 KiB for the rest: about
-/// 138 MB. Anything larger is not a table `epd calibrate` could have written.
+/// 3 values a bin; 3 rows of 12 bytes of brackets each) and its version-2 incidence table
+/// of as many bins again (5 values a bin, 5 rows of brackets), plus 4 KiB for the rest:
+/// about 369 MB. Anything larger is not a table `epd calibrate` could have written.
 pub const MAX_TABLE_FILE_BYTES: u64 =
-    4096 + (MAX_TABLE_BINS as u64) * (BYTES_PER_VALUE * 3 + BYTES_PER_ROW * 3);
+    4096 + (MAX_TABLE_BINS as u64) * (BYTES_PER_VALUE * 8 + BYTES_PER_ROW * 8);
 
 /// Bytes of one value in a written table at most (see [`MAX_TABLE_FILE_BYTES`]).
 const BYTES_PER_VALUE: u64 = 6 + 24 + 2;
@@ -45,6 +64,51 @@ struct AxisFile {
     lo: f64,
     hi: f64,
     bins: usize,
+}
+
+/// One rig as written.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RigFile {
+    known_d_max_mm: f64,
+    known_d_min_mm: f64,
+    frames: usize,
+}
+
+/// The spans observed, as written.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SpansFile {
+    range_m: [f64; 2],
+    intensity: [f64; 2],
+    cos_incidence: [f64; 2],
+}
+
+/// The incidence table as written.
+#[derive(Clone, Debug, Serialize)]
+struct IncidenceFile {
+    log_cos_incidence: AxisFile,
+    offset_mm: Vec<Vec<f64>>,
+    spread_mm: Vec<Vec<f64>>,
+    se_mm: Vec<Vec<f64>>,
+    count: Vec<Vec<u64>>,
+    support: Vec<Vec<u8>>,
+}
+
+/// The incidence table as read (values left as JSON text until the axes are checked).
+#[derive(Debug, Deserialize)]
+struct IncidenceHeader<'a> {
+    log_cos_incidence: AxisFile,
+    #[serde(borrow)]
+    offset_mm: &'a RawValue,
+    #[serde(borrow)]
+    spread_mm: &'a RawValue,
+    #[serde(borrow)]
+    se_mm: &'a RawValue,
+    #[serde(borrow)]
+    count: &'a RawValue,
+    #[serde(borrow)]
+    support: &'a RawValue,
 }
 
 /// The file's contents, as written.
@@ -62,6 +126,11 @@ struct TableFile {
     offset_mm: Vec<Vec<f64>>,
     spread_mm: Vec<Vec<f64>>,
     count: Vec<Vec<u64>>,
+    rigs: Vec<RigFile>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    support: Option<SpansFile>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    incidence: Option<IncidenceFile>,
 }
 
 /// The file's contents as read: the bins' values are left as JSON text until the axes
@@ -84,6 +153,12 @@ struct TableHeader<'a> {
     spread_mm: &'a RawValue,
     #[serde(borrow)]
     count: &'a RawValue,
+    #[serde(default)]
+    rigs: Option<Vec<RigFile>>,
+    #[serde(default)]
+    support: Option<SpansFile>,
+    #[serde(default, borrow)]
+    incidence: Option<IncidenceHeader<'a>>,
 }
 
 /// A JSON array of at most `rows` arrays of exactly `cols` values each, read into one
@@ -207,6 +282,70 @@ pub struct CalibrationTable {
     pub frames: usize,
     /// Point observations behind it.
     pub n_observations: u64,
+    /// The range × intensity × incidence table (version 2), used in place of `table`
+    /// to correct a frame when present.
+    pub incidence: Option<IncidenceTable>,
+    /// Each rig's known (Dmax, Dmin) (m) and frames used (version 1: the one rig of
+    /// `known`).
+    pub rigs: Vec<((f64, f64), usize)>,
+    /// The spans the rigs' observations covered: model range (m), intensity, cos θ,
+    /// each (min, max); `None` for a version-1 table.
+    pub spans: Option<[(f64, f64); 3]>,
+}
+
+/// The incidence table of a version-2 file, its axes (range and intensity the same as
+/// the plain table's) checked before its values are read.
+fn read_incidence(h: &IncidenceHeader<'_>, plain: &DepthTable) -> Result<IncidenceTable, String> {
+    let nr = plain.range.n;
+    let nc = h.log_cos_incidence.bins;
+    let per = plain
+        .log_intensity
+        .n
+        .checked_mul(nc)
+        .filter(|&p| nc > 0 && p.checked_mul(nr).is_some_and(|c| c <= MAX_TABLE_BINS))
+        .ok_or_else(|| {
+            format!(
+                "depth table: incidence table of {nr} × {} × {nc} bins: need at least 1 \
+                 incidence bin and at most {MAX_TABLE_BINS} (2²⁰) bins in all",
+                plain.log_intensity.n
+            )
+        })?;
+    let mm = |v: Vec<f64>| v.into_iter().map(|x| x * 1e-3).collect::<Vec<_>>();
+    let support: Vec<Support> = Rows::<u8>::new("incidence.support", nr, per)
+        .read(h.support)?
+        .into_iter()
+        .map(|c| {
+            Support::from_code(c)
+                .ok_or_else(|| format!("depth table: incidence support {c}: expected 0, 1 or 2"))
+        })
+        .collect::<Result<_, _>>()?;
+    let outside_nan = |v: Vec<f64>| -> Vec<f64> {
+        v.into_iter()
+            .zip(&support)
+            .map(|(x, s)| if *s == Support::Outside { f64::NAN } else { x })
+            .collect()
+    };
+    let t = IncidenceTable {
+        range: plain.range,
+        log_intensity: plain.log_intensity,
+        log_cos_incidence: Axis {
+            lo: h.log_cos_incidence.lo,
+            hi: h.log_cos_incidence.hi,
+            n: nc,
+        },
+        offset_m: outside_nan(mm(
+            Rows::new("incidence.offset_mm", nr, per).read(h.offset_mm)?
+        )),
+        spread_m: outside_nan(mm(
+            Rows::new("incidence.spread_mm", nr, per).read(h.spread_mm)?
+        )),
+        se_m: outside_nan(mm(Rows::new("incidence.se_mm", nr, per).read(h.se_mm)?)),
+        count: Rows::new("incidence.count", nr, per).read(h.count)?,
+        support,
+    };
+    t.validate()
+        .map_err(|e| format!("depth table: incidence table: {e}"))?;
+    Ok(t)
 }
 
 fn rows<T: Copy>(v: &[T], n: usize) -> Vec<Vec<T>> {
@@ -248,6 +387,24 @@ impl CalibrationTable {
             .correct_with_sigmas(points, i)
             .map_err(|e| e.to_string())?;
         Ok((moved, Some(s)))
+    }
+
+    /// The incidence table's correction in place ([`IncidenceTable::correct`]): `cos` the
+    /// cos θ of each point's ray at the fitted wall. Refused as [`Self::correct_points`]
+    /// for a frame of another camera.
+    pub fn correct_with_incidence(
+        &self,
+        table: &IncidenceTable,
+        points: &mut [[f64; 3]],
+        intensity: &[f64],
+        cos: &[f64],
+    ) -> Result<epd_core::calibration::Correction, String> {
+        if points.len() == intensity.len() {
+            self.check_axes(points, intensity)?;
+        }
+        table
+            .correct(points, intensity, cos)
+            .map_err(|e| e.to_string())
     }
 
     /// An error when the frame has valid points but none of them lies within the
@@ -293,6 +450,45 @@ impl CalibrationTable {
             offset_mm: mm(&self.table.offset_m),
             spread_mm: mm(&self.table.spread_m),
             count: rows(&self.table.count, ni),
+            rigs: self
+                .rigs
+                .iter()
+                .map(|&((a, b), frames)| RigFile {
+                    known_d_max_mm: a * 1e3,
+                    known_d_min_mm: b * 1e3,
+                    frames,
+                })
+                .collect(),
+            support: self.spans.map(|s| SpansFile {
+                range_m: [s[0].0, s[0].1],
+                intensity: [s[1].0, s[1].1],
+                cos_incidence: [s[2].0, s[2].1],
+            }),
+            incidence: self.incidence.as_ref().map(|t| {
+                let per = t.log_intensity.n * t.log_cos_incidence.n;
+                let inside = |v: &[f64], scale: f64| {
+                    let vals: Vec<f64> = v
+                        .iter()
+                        .zip(&t.support)
+                        .map(|(x, s)| {
+                            if *s == Support::Outside {
+                                0.0
+                            } else {
+                                x * scale
+                            }
+                        })
+                        .collect();
+                    rows(&vals, per)
+                };
+                IncidenceFile {
+                    log_cos_incidence: axis(&t.log_cos_incidence),
+                    offset_mm: inside(&t.offset_m, 1e3),
+                    spread_mm: inside(&t.spread_m, 1e3),
+                    se_mm: inside(&t.se_m, 1e3),
+                    count: rows(&t.count, per),
+                    support: rows(&t.support.iter().map(|s| *s as u8).collect::<Vec<_>>(), per),
+                }
+            }),
         };
         // Serialising plain numbers and strings cannot fail; non-finite values would be
         // written as null and refused on reading.
@@ -312,9 +508,10 @@ impl CalibrationTable {
                 f.format.chars().take(64).collect::<String>()
             ));
         }
-        if f.version != VERSION {
+        if f.version != 1 && f.version != VERSION {
             return Err(format!(
-                "depth table version {} is not supported (this epd reads version {VERSION})",
+                "depth table version {} is not supported (this epd reads versions 1 and \
+                 {VERSION})",
                 f.version
             ));
         }
@@ -346,11 +543,42 @@ impl CalibrationTable {
                 f.known_d_max_mm, f.known_d_min_mm
             ));
         }
+        let known = (f.known_d_max_mm * 1e-3, f.known_d_min_mm * 1e-3);
+        let rigs = match &f.rigs {
+            None => vec![(known, f.frames)],
+            Some(r) => {
+                let mut v = Vec::with_capacity(r.len().min(1024));
+                for g in r {
+                    let (a, b) = (g.known_d_max_mm, g.known_d_min_mm);
+                    if !(ok(a) && ok(b) && b <= a) {
+                        return Err(format!(
+                            "depth table: a rig's known diameters {a} / {b} mm: need 0 < Dmin \
+                             ≤ Dmax"
+                        ));
+                    }
+                    v.push(((a * 1e-3, b * 1e-3), g.frames));
+                }
+                v
+            }
+        };
+        let incidence = match &f.incidence {
+            None => None,
+            Some(h) => Some(read_incidence(h, &table)?),
+        };
         Ok(Self {
             table,
-            known: (f.known_d_max_mm * 1e-3, f.known_d_min_mm * 1e-3),
+            known,
             frames: f.frames,
             n_observations: f.n_observations,
+            incidence,
+            rigs,
+            spans: f.support.map(|s| {
+                [
+                    (s.range_m[0], s.range_m[1]),
+                    (s.intensity[0], s.intensity[1]),
+                    (s.cos_incidence[0], s.cos_incidence[1]),
+                ]
+            }),
         })
     }
 
@@ -402,6 +630,9 @@ mod tests {
             known: (0.5842, 0.5842),
             frames: 3,
             n_observations: 4000,
+            incidence: None,
+            rigs: Vec::new(),
+            spans: None,
         }
     }
 
@@ -421,7 +652,7 @@ mod tests {
         let text = table().to_json();
         for (from, to, says) in [
             ("epd-depth-table", "something-else", "`format`"),
-            ("\"version\": 1", "\"version\": 7", "version 7"),
+            ("\"version\": 2", "\"version\": 7", "version 7"),
             ("\"bins\": 3", "\"bins\": 4", "needs 4 values"),
             ("\"bins\": 5", "\"bins\": 6", "offsets"),
         ] {
@@ -526,6 +757,9 @@ mod tests {
                 known: (0.5, 0.5),
                 frames: usize::MAX,
                 n_observations: u64::MAX,
+                incidence: None,
+                rigs: Vec::new(),
+                spans: None,
             };
             let text = t.to_json();
             assert!(text.contains("-1.2345678901234567e-298"));

@@ -53,6 +53,9 @@ fn seeds() -> Vec<String> {
         known: (0.5842, 0.5842),
         frames: 20,
         n_observations: 2_400_000,
+        incidence: None,
+        rigs: Vec::new(),
+        spans: None,
     };
     let small = |nr: &str, ni: &str, rows: usize, cols: usize| {
         let row = |v: &str| format!("[{}]", vec![v; cols].join(","));

@@ -187,5 +187,8 @@ pub(super) fn table_file(t: &DepthTable, n_obs: usize, s: &PipelineScenario) -> 
         known: (s.rig.d_max(), s.rig.d_min()),
         frames: s.rig_frames,
         n_observations: n_obs as u64,
+        incidence: None,
+        rigs: Vec::new(),
+        spans: None,
     }
 }

@@ -131,6 +131,7 @@ pub(super) fn calibrate(s: &PipelineScenario) -> anyhow::Result<(DepthTable, usi
         bins: s.table_bins,
         min_count: MIN_BIN_COUNT,
         passes: s.calibration_passes,
+        incidence_bins: 0,
     };
     let cal = epd_core::calibration::calibrate(&views, &settings, &options(s.range_gate)?)?;
     if let Some(e) = cal.fits.iter().find_map(|f| f.as_ref().err()) {

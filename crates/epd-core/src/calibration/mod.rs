@@ -19,13 +19,20 @@
 //! conditional mean along with the systematic error. A new frame has no model: its
 //! correction solves ρ + T(ρ, I) = r for the wall range ρ of each measured range r.
 
+mod incidence;
+mod propagate;
 mod rig;
 mod table;
 #[cfg(test)]
 mod tests;
 
+pub use incidence::{
+    Correction, IncidenceBins, IncidenceObservation, IncidenceTable, Lookup, Support,
+};
+pub use propagate::shared_error_cov;
 pub use rig::{
-    Calibration, CalibrationFrame, CalibrationSettings, Observation, calibrate, offsets,
+    Calibration, CalibrationFrame, CalibrationSettings, Observation, RigFrames, calibrate,
+    calibrate_rigs, incidences, offsets, offsets_with_incidence,
 };
 pub use table::{
     Axis, DepthTable, MAX_INVERSE_CELLS, MAX_INVERSE_COLUMNS, MAX_OFFSET_M, MAX_TABLE_BINS,

@@ -4,6 +4,7 @@
 
 use rayon::prelude::*;
 
+use super::incidence::{IncidenceBins, IncidenceObservation, IncidenceTable};
 use super::table::{DepthTable, TableBins, norm, usable};
 use crate::error::EpdError;
 use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
@@ -56,6 +57,64 @@ pub fn offsets(
         .collect())
 }
 
+/// The observations of one calibration frame with the incidence at each wall point
+/// ([`Geometry::cos_incidence`] at `beta`): as [`offsets`], leaving out the points whose
+/// ray meets the wall along the model axis.
+pub fn offsets_with_incidence(
+    points: &[[f64; 3]],
+    intensity: &[f64],
+    beta: &Params,
+    gate: (f64, f64),
+) -> Result<Vec<IncidenceObservation>, EpdError> {
+    if points.len() != intensity.len() {
+        return Err(EpdError::InvalidOption(format!(
+            "{} points but {} intensities: one intensity per point is needed",
+            points.len(),
+            intensity.len()
+        )));
+    }
+    let geom = Geometry::new(beta).ok_or_else(|| {
+        EpdError::InvalidOption("the fitted β puts the sensor outside the pipe".into())
+    })?;
+    Ok(points
+        .iter()
+        .zip(intensity)
+        .filter(|(p, i)| usable(p) && i.is_finite() && **i > 0.0)
+        .filter_map(|(p, &i)| {
+            let r = norm(p);
+            let model = geom.line_parameter(p) * r;
+            let c = geom.cos_incidence(p)?;
+            ((gate.0..=gate.1).contains(&model) && model.is_finite() && c > 0.0).then_some(
+                IncidenceObservation {
+                    obs: Observation {
+                        model_range_m: model,
+                        intensity: i,
+                        offset_m: r - model,
+                    },
+                    cos_incidence: c,
+                },
+            )
+        })
+        .collect())
+}
+
+/// The cos θ of each measured point's ray at the wall of `beta` (NaN where none).
+pub fn incidences(points: &[[f64; 3]], beta: &Params) -> Vec<f64> {
+    let Some(geom) = Geometry::new(beta) else {
+        return vec![f64::NAN; points.len()];
+    };
+    points
+        .par_iter()
+        .map(|p| {
+            if usable(p) {
+                geom.cos_incidence(p).unwrap_or(f64::NAN)
+            } else {
+                f64::NAN
+            }
+        })
+        .collect()
+}
+
 /// One calibration frame: measured points (SCS, m; invalid pixels as zeros) and their
 /// intensities.
 #[derive(Clone, Copy, Debug)]
@@ -66,15 +125,28 @@ pub struct CalibrationFrame<'a> {
     pub intensity: &'a [f64],
 }
 
+/// The frames of one rig: a pipe of known diameters.
+#[derive(Clone, Copy, Debug)]
+pub struct RigFrames<'a> {
+    /// The known (Dmax, Dmin) of the rig's pipe (m).
+    pub known: (f64, f64),
+    /// Its frames.
+    pub frames: &'a [CalibrationFrame<'a>],
+}
+
 /// How a table is made from calibration frames.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CalibrationSettings {
-    /// The known (Dmax, Dmin) of the calibration pipe (m).
+    /// The known (Dmax, Dmin) of the calibration pipe (m) ([`calibrate`]; each rig's own
+    /// for [`calibrate_rigs`]).
     pub known: (f64, f64),
     /// Range gate on the model range (m): the points used.
     pub gate: (f64, f64),
     /// Range × intensity bins.
     pub bins: (usize, usize),
+    /// Bins of the ln cos θ axis of the [`IncidenceTable`]; 0: no incidence table (the
+    /// range × intensity table alone, as before it).
+    pub incidence_bins: usize,
     /// Least observations of a filled bin.
     pub min_count: usize,
     /// Passes of the alternating refinement (≥ 1; see [`calibrate`]).
@@ -84,16 +156,38 @@ pub struct CalibrationSettings {
 /// A depth table with the frames' fitted poses.
 #[derive(Clone, Debug)]
 pub struct Calibration {
-    /// The table.
+    /// The range × intensity table.
     pub table: DepthTable,
-    /// Per frame: its fit with the diameters held, or why it failed (the frame is then
-    /// left out).
+    /// The range × intensity × incidence table, when asked for.
+    pub incidence: Option<IncidenceTable>,
+    /// Per frame (the rigs' frames in order): its fit with the diameters held, or why
+    /// it failed (the frame is then left out).
     pub fits: Vec<Result<Estimate, EpdError>>,
     /// Observations behind the table.
     pub n_observations: usize,
+    /// The spans the observations covered: model range (m), intensity, cos θ, each
+    /// (min, max).
+    pub spans: [(f64, f64); 3],
 }
 
-/// The depth table of frames recorded in a pipe of known diameter.
+/// The depth table of frames recorded in a pipe of known diameter: [`calibrate_rigs`]
+/// with one rig of diameters `settings.known`.
+pub fn calibrate(
+    frames: &[CalibrationFrame<'_>],
+    settings: &CalibrationSettings,
+    options: &EstimateOptions,
+) -> Result<Calibration, EpdError> {
+    calibrate_rigs(
+        &[RigFrames {
+            known: settings.known,
+            frames,
+        }],
+        settings,
+        options,
+    )
+}
+
+/// The depth table of frames recorded in pipes of known diameters (one or more rigs).
 ///
 /// The systematic error and the pose are found together: a frame's pose, fitted with
 /// the diameters held, absorbs the part of the error that looks like a pose change (a
@@ -101,39 +195,57 @@ pub struct Calibration {
 /// inherits the pose's error. So the fit alternates, like the joint least squares of
 /// one table and one pose per frame: pass 1 fits each frame's pose on its measured
 /// points and builds the table from their offsets (measured − model range); each
-/// further pass fits the poses again on the points corrected by the current table and
-/// rebuilds the table from the raw points' offsets to the new poses. The table's
-/// bins span the observations of the first pass (range clipped to the gate).
-/// Frames whose fit does not converge are left out; fails when none is left.
-pub fn calibrate(
-    frames: &[CalibrationFrame<'_>],
+/// further pass fits the poses again on the points corrected by the current table (the
+/// incidence table where there is one, its incidences from the frame's previous pose)
+/// and rebuilds the table from the raw points' offsets to the new poses. The table's
+/// bins span the observations of the first pass (range clipped to the gate). Frames
+/// whose fit does not converge are left out; fails when none is left.
+pub fn calibrate_rigs(
+    rigs: &[RigFrames<'_>],
     settings: &CalibrationSettings,
     options: &EstimateOptions,
 ) -> Result<Calibration, EpdError> {
-    let (d_max, d_min) = settings.known;
     let (lo, hi) = settings.gate;
-    let options = options
-        .with_fixed_diameters(d_max, d_min)?
-        .with_range_gate(lo, hi)?;
+    let mut jobs: Vec<(CalibrationFrame<'_>, EstimateOptions)> = Vec::new();
+    for rig in rigs {
+        let (d_max, d_min) = rig.known;
+        let o = options
+            .with_fixed_diameters(d_max, d_min)?
+            .with_range_gate(lo, hi)?;
+        jobs.extend(rig.frames.iter().map(|f| (*f, o)));
+    }
     let mut table: Option<DepthTable> = None;
+    let mut inc_table: Option<IncidenceTable> = None;
     let mut bins: Option<TableBins> = None;
+    let mut inc_bins: Option<IncidenceBins> = None;
+    let mut poses: Vec<Option<Params>> = vec![None; jobs.len()];
     let mut last = None;
+    let mut spans = [(f64::NAN, f64::NAN); 3];
     for _ in 0..settings.passes.max(1) {
-        let per_frame: Vec<Result<(Estimate, Vec<Observation>), EpdError>> = frames
+        type PerFrame = Result<(Estimate, Vec<IncidenceObservation>), EpdError>;
+        let per_frame: Vec<PerFrame> = jobs
             .par_iter()
+            .zip(poses.par_iter())
             .with_max_len(1)
-            .map(|f| {
+            .map(|((f, options), pose)| {
                 let corrected;
-                let pts = match &table {
-                    None => f.points,
-                    Some(t) => {
+                let pts = match (&table, &inc_table, pose) {
+                    (None, _, _) => f.points,
+                    (Some(_), Some(it), Some(pose)) => {
+                        let mut c = f.points.to_vec();
+                        let cos = incidences(f.points, pose);
+                        it.correct(&mut c, f.intensity, &cos)?;
+                        corrected = c;
+                        &corrected
+                    }
+                    (Some(t), _, _) => {
                         let mut c = f.points.to_vec();
                         t.correct(&mut c, f.intensity)?;
                         corrected = c;
                         &corrected
                     }
                 };
-                let est = estimate(pts, Method::MlEpd, &options)?;
+                let est = estimate(pts, Method::MlEpd, options)?;
                 // A rig's raw frames carry the camera's systematic error — what the table
                 // is made to measure — so the form test may well find regions off the
                 // known pipe (`lack_of_fit`): the pose is still the one to measure from.
@@ -146,15 +258,20 @@ pub fn calibrate(
                         est.status.reason()
                     )));
                 }
-                let obs = offsets(f.points, f.intensity, &est.params, settings.gate)?;
+                let obs =
+                    offsets_with_incidence(f.points, f.intensity, &est.params, settings.gate)?;
                 Ok((est, obs))
             })
             .collect();
-        let obs: Vec<Observation> = per_frame
+        for (pose, r) in poses.iter_mut().zip(&per_frame) {
+            *pose = r.as_ref().ok().map(|(e, _)| e.params);
+        }
+        let iobs: Vec<IncidenceObservation> = per_frame
             .iter()
             .filter_map(|r| r.as_ref().ok())
             .flat_map(|(_, o)| o.iter().copied())
             .collect();
+        let obs: Vec<Observation> = iobs.iter().map(|o| o.obs).collect();
         if obs.is_empty() {
             let why = per_frame
                 .iter()
@@ -179,6 +296,34 @@ pub fn calibrate(
             }
         };
         table = Some(DepthTable::build(&obs, &b)?);
+        if settings.incidence_bins > 0 {
+            let ib = match inc_bins {
+                Some(ib) => ib,
+                None => {
+                    let ib = IncidenceBins::spanning(
+                        &iobs,
+                        (settings.bins.0, settings.bins.1, settings.incidence_bins),
+                        settings.gate,
+                        settings.min_count,
+                    )?;
+                    inc_bins = Some(ib);
+                    ib
+                }
+            };
+            inc_table = Some(IncidenceTable::build(&iobs, &ib)?);
+        }
+        let fold = |f: &dyn Fn(&IncidenceObservation) -> f64| {
+            iobs.iter()
+                .map(f)
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+                    (a.min(v), b.max(v))
+                })
+        };
+        spans = [
+            fold(&|o| o.obs.model_range_m),
+            fold(&|o| o.obs.intensity),
+            fold(&|o| o.cos_incidence),
+        ];
         last = Some((per_frame, obs.len()));
     }
     let (Some(table), Some((per_frame, n_observations))) = (table, last) else {
@@ -186,7 +331,9 @@ pub fn calibrate(
     };
     Ok(Calibration {
         table,
+        incidence: inc_table,
         fits: per_frame.into_iter().map(|r| r.map(|(e, _)| e)).collect(),
         n_observations,
+        spans,
     })
 }

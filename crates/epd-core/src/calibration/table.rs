@@ -20,7 +20,7 @@ pub struct Axis {
 }
 
 impl Axis {
-    fn validate(&self, name: &str) -> Result<(), EpdError> {
+    pub(super) fn validate(&self, name: &str) -> Result<(), EpdError> {
         if !(self.lo.is_finite() && self.hi.is_finite() && self.hi > self.lo && self.n >= 1) {
             return Err(EpdError::InvalidOption(format!(
                 "{name} axis [{}, {}] with {} bins: need finite lo < hi and at least one bin",
@@ -46,7 +46,7 @@ impl Axis {
     }
 
     /// Whether x lies on the axis, [lo, hi].
-    fn holds(&self, x: f64) -> bool {
+    pub(super) fn holds(&self, x: f64) -> bool {
         (self.lo..=self.hi).contains(&x)
     }
 
@@ -55,7 +55,7 @@ impl Axis {
     }
 
     /// The bin holding x (clamped to the axis).
-    fn bin(&self, x: f64) -> usize {
+    pub(super) fn bin(&self, x: f64) -> usize {
         let k = ((x - self.lo) / self.width()).floor();
         if k.is_nan() || k < 0.0 {
             0
@@ -66,7 +66,7 @@ impl Axis {
 
     /// The two bins whose centres bracket x and the weight of the second: linear
     /// interpolation between centres, constant beyond the outer centres.
-    fn bracket(&self, x: f64) -> (usize, usize, f64) {
+    pub(super) fn bracket(&self, x: f64) -> (usize, usize, f64) {
         let f = (x - self.lo) / self.width() - 0.5;
         let last = (self.n - 1) as f64;
         if f.is_nan() || f <= 0.0 {

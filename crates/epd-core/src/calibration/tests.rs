@@ -371,3 +371,119 @@ fn points_within_the_axes_are_counted() {
     assert_eq!(t.within_axes(&pts, &i), (3, 1));
     assert_eq!(t.within_axes(&pts[1..], &i[1..]), (2, 0));
 }
+
+/// Observations of two "rig sizes" along their own curves cos θ = R/r (I ∝ cos θ/r²),
+/// an error linear in (r, ln I, ln cos θ).
+fn two_rigs(radii: &[f64]) -> Vec<IncidenceObservation> {
+    let f = |r: f64, li: f64, lc: f64| 0.004 * r - 0.002 * li + 0.01 * lc;
+    let mut obs = vec![];
+    for &rad in radii {
+        for a in 0..3000 {
+            let r = 0.5 + 1.5 * (a as f64 + 0.5) / 3000.0;
+            for spread in [-0.02, 0.0, 0.02] {
+                let c = (rad / r) * (1.0 + spread);
+                let i = 500.0 * c / (r * r);
+                obs.push(IncidenceObservation {
+                    obs: Observation {
+                        model_range_m: r,
+                        intensity: i,
+                        // A tiny deterministic jitter gives every bin a spread.
+                        offset_m: f(r, i.ln(), c.ln()) + 1e-5 * ((a % 7) as f64 - 3.0),
+                    },
+                    cos_incidence: c,
+                });
+            }
+        }
+    }
+    obs
+}
+
+/// The support: points on a rig's curve are observed, points between two rigs' curves
+/// are bridged (corrected), points beyond every rig's curve are outside (not corrected,
+/// counted, left out as NaN).
+#[test]
+fn the_incidence_table_corrects_inside_its_support_only() {
+    let one = two_rigs(&[0.242]);
+    let both = two_rigs(&[0.242, 0.369]);
+    let bins =
+        |o: &[IncidenceObservation]| IncidenceBins::spanning(o, (10, 8, 8), (0.5, 2.0), 5).unwrap();
+    let t1 = IncidenceTable::build(&one, &bins(&one)).unwrap();
+    let t2 = IncidenceTable::build(&both, &bins(&both)).unwrap();
+    t1.validate().unwrap();
+    t2.validate().unwrap();
+    assert!(t2.support.contains(&Support::Bridged));
+    // A 24" wall point (R = 0.293 m) at 1.2 m: between the two rigs, outside the one.
+    let (r, c): (f64, f64) = (1.2, 0.293 / 1.2);
+    let i = 500.0 * c / (r * r);
+    assert!(t2.covers(r, i, c));
+    assert!(!t1.covers(r, i, c));
+    // On the one rig's own curve: covered, and the value is the error to a few bins'
+    // curvature of the mean (the error is linear).
+    let (r0, c0): (f64, f64) = (1.2, 0.242 / 1.2);
+    let i0 = 500.0 * c0 / (r0 * r0);
+    let truth = 0.004 * r0 - 0.002 * i0.ln() + 0.01 * c0.ln();
+    let got = t1.lookup(r0, i0.ln(), c0.ln()).unwrap().offset_m;
+    assert!((got - truth).abs() < 5e-4, "{got} vs {truth}");
+    // Correction: moved inside, NaN and counted outside.
+    let mut pts = vec![[r0, 0.0, 0.0], [r, 0.0, 0.0], [0.0; 3]];
+    let corr = t1.correct(&mut pts, &[i0, i, 1.0], &[c0, c, 0.5]).unwrap();
+    assert_eq!((corr.moved, corr.outside), (1, 1));
+    assert!(pts[1][0].is_nan() && corr.bin[1].is_none() && corr.bin[0].is_some());
+    assert!((pts[0][0] - (r0 - got)).abs() < 1e-4, "{:?}", pts[0]);
+    assert_eq!(pts[2], [0.0; 3]);
+}
+
+/// The propagated covariance of a range error shared by every point matches the change
+/// of the refitted diameters when the points are moved by it (finite difference).
+#[test]
+fn a_shared_range_error_propagates_as_a_refit_moves_the_diameters() {
+    use crate::estimate::{EstimateOptions, Method, estimate};
+    // A round 20" pipe, sensor off the axis: wall points over a cone of rays.
+    let (rad, dy, dz) = (0.242, 0.03, -0.02);
+    let mut pts = vec![];
+    for a in 0..120 {
+        for b in 0..60 {
+            let phi = std::f64::consts::TAU * a as f64 / 120.0;
+            let tilt = 0.15 + 1.0 * b as f64 / 60.0;
+            let d = [1.0, tilt * phi.cos(), tilt * phi.sin()];
+            let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            let (uy, uz) = (d[1] / n, d[2] / n);
+            let qa = uy * uy + uz * uz;
+            let qb = dy * uy + dz * uz;
+            let qc = dy * dy + dz * dz - rad * rad;
+            let t = (-qb + (qb * qb - qa * qc).sqrt()) / qa;
+            // The wall point relative to the sensor: the point in the SCS.
+            pts.push([d[0] / n * t, uy * t, uz * t]);
+        }
+    }
+    let opts = EstimateOptions::default();
+    let fit = |p: &[[f64; 3]]| estimate(p, Method::MlEpd, &opts).unwrap();
+    let base = fit(&pts);
+    let delta = 0.001;
+    let moved: Vec<[f64; 3]> = pts
+        .iter()
+        .map(|p| {
+            let r = norm(p);
+            let f = (r + delta) / r;
+            [p[0] * f, p[1] * f, p[2] * f]
+        })
+        .collect();
+    let shifted = fit(&moved);
+    let shift = vec![Some((0u32, delta)); pts.len()];
+    let cov = shared_error_cov(&pts, &shift, 1, &base.params).unwrap();
+    for k in 0..2 {
+        let fd = [
+            shifted.params.d_max - base.params.d_max,
+            shifted.params.d_min - base.params.d_min,
+        ][k];
+        let lin = cov[k][k].sqrt();
+        assert!(
+            fd.abs() > 1e-4,
+            "a shared range error moves the diameters: {fd}"
+        );
+        assert!(
+            (lin - fd.abs()).abs() < 0.1 * fd.abs(),
+            "diameter {k}: propagated {lin} vs refit {fd}"
+        );
+    }
+}

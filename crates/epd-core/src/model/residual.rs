@@ -253,6 +253,24 @@ impl Geometry {
         1.0 - self.residual(Residual::ErrorBased, p) / rho
     }
 
+    /// The cosine of the incidence angle where the sensing line of a measured point `p`
+    /// (SCS) meets the model wall: |d·n| with d the unit ray and n the wall's unit normal
+    /// there, (0, αY, γZ)/‖·‖ in the PCS. `None` for a line along the model axis or an
+    /// invalid point.
+    pub fn cos_incidence(&self, p: &[f64; 3]) -> Option<f64> {
+        let range = dot(p, p).sqrt();
+        let u = dot(&self.r_y, p);
+        let v = dot(&self.r_z, p);
+        let t = self.wall_root(u, v)?;
+        let (ny, nz) = (
+            self.alpha * (self.y0 + t * u),
+            self.gamma * (self.z0 + t * v),
+        );
+        let nn = (ny * ny + nz * nz).sqrt();
+        let c = (u * ny + v * nz).abs() / (range * nn);
+        (c.is_finite() && range > 0.0).then_some(c.min(1.0))
+    }
+
     /// The positive root t of eq. (22) for the unnormalised direction (u, v) (see the
     /// module doc), cancellation-free; `None` for a line along the model axis (A = 0),
     /// which never meets the wall.

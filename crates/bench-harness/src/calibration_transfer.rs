@@ -1,0 +1,219 @@
+//! The paper's §4.2 experiment with rigs of one and two sizes (issue 24): depth tables
+//! from a 20" rig and from 20" + 30" rigs (`epd calibrate`'s defaults: 30 × 12 × 16
+//! bins over range × intensity × incidence, three passes), applied to frames of 16" to
+//! 30" pipes under tof-sim's Helios2 model; per size and table the calibrated
+//! mean-diameter error, the reported 1-σ, whether it covers, and the share of points
+//! outside the table's support. `cargo run --release -p bench-harness --example
+//! calibration_transfer -- OUT_DIR [FRAMES_PER_SIZE]` writes `frames.csv`,
+//! `summary.csv` and `calibration_transfer.png` to OUT_DIR.
+
+use std::borrow::Cow;
+use std::fmt::Write as _;
+use std::path::Path;
+
+use anyhow::Context;
+use epd_core::calibration::{CalibrationFrame, RigFrames};
+use epd_frame::rig::{RigSettings, calibrate_rig_sizes};
+use epd_frame::{EstimateConfig, EstimateSettings, FrameInput, measure_frame};
+use tof_sim::settings::{PoseOverride, SimulateSettings, Simulator};
+
+use crate::plots::{Axis, Figure, Legend, Panel, Series, render};
+
+/// The pipe sizes measured (nominal OD, inch).
+pub const SIZES_IN: [f64; 8] = [16.0, 18.0, 20.0, 22.0, 24.0, 26.0, 28.0, 30.0];
+
+/// Wall thickness of every pipe (mm), as `epd simulate`'s default.
+const WALL_MM: f64 = 12.0;
+
+/// Frames per rig.
+const RIG_FRAMES: u64 = 6;
+
+fn simulator(od_in: f64, ovality: f64, seed: u64) -> anyhow::Result<Simulator> {
+    Simulator::new(&SimulateSettings {
+        seed,
+        sigma: 0.03,
+        od_in,
+        ovality,
+        wall_mm: WALL_MM,
+        points: None,
+        outliers: 0.0,
+        noise: tof_sim::NoiseModel::Range,
+        helios2: true,
+        pose: PoseOverride::default(),
+    })
+    .map_err(|e| anyhow::anyhow!("{e}"))
+}
+
+/// One frame's points and intensities, and its true (Dmax, Dmin) (m).
+type Frame = (Vec<[f64; 3]>, Vec<f64>, (f64, f64));
+
+fn frames(od_in: f64, ovality: f64, seed: u64, n: u64) -> anyhow::Result<Vec<Frame>> {
+    let sim = simulator(od_in, ovality, seed)?;
+    let mut f = tof_sim::Frame::empty();
+    (0..n)
+        .map(|k| {
+            sim.frame(k, &mut f).map_err(|e| anyhow::anyhow!("{e}"))?;
+            let t = epd_core::canonicalize(&f.truth);
+            Ok((
+                f.measured.clone(),
+                f.intensity.iter().map(|&v| f64::from(v)).collect(),
+                (t.d_max, t.d_min),
+            ))
+        })
+        .collect()
+}
+
+fn as_cal(v: &[Frame]) -> Vec<CalibrationFrame<'_>> {
+    v.iter()
+        .map(|f| CalibrationFrame {
+            points: &f.0,
+            intensity: &f.1,
+        })
+        .collect()
+}
+
+/// Run the experiment into `out` with `per_size` test frames per pipe size.
+pub fn run(out: &Path, per_size: u64) -> anyhow::Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let id = |od: f64| (od * 25.4 - 2.0 * WALL_MM) * 1e-3;
+    let rig20 = frames(20.0, 0.0, 7, RIG_FRAMES)?;
+    let rig30 = frames(30.0, 0.0, 17, RIG_FRAMES)?;
+    let (c20, c30) = (as_cal(&rig20), as_cal(&rig30));
+    let settings = RigSettings {
+        known_id_mm: id(20.0) * 1e3,
+        known_dmin_mm: None,
+        min_range: 0.5,
+        max_range: 2.0,
+        range_bins: 30,
+        intensity_bins: 12,
+        incidence_bins: 16,
+        min_count: 30,
+        passes: 3,
+    }
+    .check()?;
+    let r20 = RigFrames {
+        known: (id(20.0), id(20.0)),
+        frames: &c20,
+    };
+    let r30 = RigFrames {
+        known: (id(30.0), id(30.0)),
+        frames: &c30,
+    };
+    let tables = [
+        ("20\" rig", calibrate_rig_sizes(&[r20], &settings)?.table),
+        (
+            "20\" + 30\" rigs",
+            calibrate_rig_sizes(&[r20, r30], &settings)?.table,
+        ),
+    ];
+    let mut rows = String::from(
+        "rigs,size_in,frame,status,err_d_mean_mm,err_d_max_mm,err_d_min_mm,sigma_d_max_mm,\
+         sigma_d_min_mm,covered,calibration_outside\n",
+    );
+    let mut summary = String::from(
+        "rigs,size_in,frames,with_result,mean_err_d_mean_mm,sd_err_d_mean_mm,\
+         mean_sigma_d_mean_mm,covered,mean_calibration_outside\n",
+    );
+    let mut series: Vec<Series> = Vec::new();
+    for (k, (name, table)) in tables.iter().enumerate() {
+        let mut cfg = EstimateConfig::new(&EstimateSettings {
+            geometry: false,
+            ..EstimateSettings::default()
+        })?;
+        cfg.calibration = Some(table.clone());
+        let mut points = Vec::new();
+        for (s, &od) in SIZES_IN.iter().enumerate() {
+            let test = frames(od, 0.02, 100 + s as u64, per_size)?;
+            let (mut errs, mut sig, mut covered, mut outside) = (vec![], vec![], 0, 0.0);
+            for (j, (p, i, truth)) in test.iter().enumerate() {
+                let r = measure_frame(
+                    FrameInput {
+                        points: Cow::Borrowed(p),
+                        intensity: Some(i),
+                        sigma: None,
+                        read_ms: 0.0,
+                    },
+                    &cfg,
+                );
+                let Ok(e) = r else {
+                    writeln!(rows, "{name},{od},{j},error,,,,,,false,")?;
+                    continue;
+                };
+                let est = &e.estimate;
+                let out_frac = e.calibration_outside.unwrap_or(f64::NAN);
+                outside += out_frac;
+                if !est.status.is_converged() {
+                    writeln!(
+                        rows,
+                        "{name},{od},{j},{},,,,,,false,{out_frac}",
+                        est.status.name()
+                    )?;
+                    continue;
+                }
+                let (ea, eb) = (est.params.d_max - truth.0, est.params.d_min - truth.1);
+                let (sa, sb) = (est.sigma[0].unwrap_or(0.0), est.sigma[1].unwrap_or(0.0));
+                let cov = ea.abs() <= sa && eb.abs() <= sb;
+                covered += usize::from(cov);
+                let em = 0.5 * (ea + eb);
+                errs.push(em * 1e3);
+                sig.push(est.sigma_d_mean().unwrap_or(f64::NAN) * 1e3);
+                writeln!(
+                    rows,
+                    "{name},{od},{j},converged,{:.4},{:.4},{:.4},{:.4},{:.4},{cov},{out_frac:.4}",
+                    em * 1e3,
+                    ea * 1e3,
+                    eb * 1e3,
+                    sa * 1e3,
+                    sb * 1e3
+                )?;
+            }
+            let n = errs.len();
+            let mean = errs.iter().sum::<f64>() / n.max(1) as f64;
+            let sd = (errs.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (n.max(2) - 1) as f64)
+                .sqrt();
+            let ms = sig.iter().sum::<f64>() / n.max(1) as f64;
+            writeln!(
+                summary,
+                "{name},{od},{per_size},{n},{mean:.4},{sd:.4},{ms:.4},{covered},{:.4}",
+                outside / per_size as f64
+            )?;
+            if n > 0 {
+                points.push((od + 0.15 * (k as f64 - 0.5), mean, mean - ms, mean + ms));
+            }
+        }
+        series.push(Series {
+            name: name.to_string(),
+            colour: if k == 0 {
+                plotters::style::RGBColor(200, 60, 40)
+            } else {
+                plotters::style::RGBColor(40, 90, 200)
+            },
+            points,
+            bars: true,
+            marker_triangle: k == 1,
+            dashed: false,
+        });
+    }
+    std::fs::write(out.join("frames.csv"), rows)?;
+    std::fs::write(out.join("summary.csv"), summary)?;
+    let png = render(
+        Figure {
+            name: "calibration_transfer.png".into(),
+            title: "Calibrated mean-diameter error against pipe size (tof-sim Helios2)".into(),
+            grid: (1, 1),
+            size: (900, 560),
+            x_label: "pipe nominal OD (inch)",
+            xa: Axis { log: false },
+            ya: Axis { log: false },
+            legend: Legend::PerPanel,
+            x_names: &[],
+        },
+        &[Panel {
+            title: "mean over frames, bars: mean reported 1-σ of the mean diameter".into(),
+            y_label: "Dmean error (mm)".into(),
+            series: &series,
+        }],
+    )?;
+    std::fs::write(out.join(&png.name), png.bytes)?;
+    Ok(())
+}
