@@ -58,8 +58,9 @@ fn pending() -> MutexGuard<'static, Vec<PathBuf>> {
 /// Remove every temporary file being written, and keep any from being renamed into place
 /// afterwards: for a signal handler (run on an ordinary thread, e.g. by `signal-hook`'s
 /// iterator) just before the process ends. A write that was renamed before is complete;
-/// the others are removed. Blocks further renames for the rest of the process's life.
-/// Returns how many files were removed.
+/// the others are removed. Blocks further renames, and new temporary files, for the rest
+/// of the process's life: a thread that then starts, commits or drops an output waits
+/// until the process ends. Returns how many files were removed.
 pub fn remove_pending_temporaries() -> usize {
     let guard = pending();
     let removed = guard
@@ -175,8 +176,13 @@ struct Temporary {
 
 impl Drop for Temporary {
     fn drop(&mut self) {
-        // The NamedTempFile, if still there, removes the file itself.
-        pending().retain(|p| *p != self.path);
+        // Removed (the NamedTempFile, if still there, removes its file) and unregistered
+        // under the list's lock: a signal handler's removal either comes first and removes
+        // the file, or comes after and finds it gone. Unregistered first and removed after,
+        // a signal in between left the file behind.
+        let mut list = pending();
+        drop(self.file.take());
+        list.retain(|p| *p != self.path);
     }
 }
 
@@ -213,14 +219,22 @@ impl Output {
             // A results file for the user, not a secret: rw-r--r-- (umask applies).
             builder.permissions(std::fs::Permissions::from_mode(0o644));
         }
-        let file = builder.tempfile_in(dir)?;
-        // Registered before anything is written, and locked so that no other process
-        // takes it for stale (on a file system without locks a cleaner cannot lock it
-        // either: it stays).
+        // Created and registered under the list's lock, so that a signal handler's
+        // removal ([`remove_pending_temporaries`]) comes before the file exists or finds
+        // it registered (created outside the lock, a signal between the creation and the
+        // registration left the file behind); on an error it is removed, unregistered.
+        let (file, handle) = {
+            let mut list = pending();
+            let file = builder.tempfile_in(dir)?;
+            let handle = file.reopen()?;
+            list.push(file.path().to_path_buf());
+            (file, handle)
+        };
+        // Locked so that no other process takes it for stale (on a file system without
+        // locks a cleaner cannot lock it either: it stays).
         let tmp_path = file.path().to_path_buf();
-        pending().push(tmp_path.clone());
         let _ = file.as_file().try_lock();
-        let writer = BufWriter::new(file.reopen()?);
+        let writer = BufWriter::new(handle);
         Ok(Output {
             writer,
             temporary: Some(Temporary {
@@ -250,6 +264,14 @@ impl Output {
     /// files, so a signal handler's removal either comes first or finds nothing), fsync
     /// the folder. Written through: flushed only.
     pub fn commit(self) -> std::io::Result<()> {
+        self.commit_with(sync_dir)
+    }
+
+    /// [`Output::commit`] with the folder's fsync given (a test records or fails it).
+    fn commit_with(
+        self,
+        sync_folder: impl FnOnce(&Path) -> std::io::Result<()>,
+    ) -> std::io::Result<()> {
         let Output {
             writer,
             mut temporary,
@@ -267,7 +289,7 @@ impl Output {
             }
             list.retain(|p| *p != t.path);
         }
-        sync_dir(parent_of(&t.target))
+        sync_folder(parent_of(&t.target))
     }
 }
 
@@ -418,6 +440,37 @@ mod tests {
             std::io::ErrorKind::AlreadyExists
         );
         assert_eq!(std::fs::read(&path).unwrap(), b"x\n");
+    }
+
+    /// The folder is fsynced after the rename (the renamed file is in place when it is),
+    /// once, and a failed fsync is the commit's error; a folder that cannot be opened is
+    /// an error of `sync_dir`.
+    #[test]
+    fn the_folder_is_synced_after_the_rename_and_its_error_returned() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("out.json");
+        let mut out = Output::create(&target, ".epd-output-").unwrap();
+        out.write_all(b"new\n").unwrap();
+        let mut synced = Vec::new();
+        out.commit_with(|d| {
+            synced.push((d.to_path_buf(), std::fs::read(&target).ok()));
+            sync_dir(d)
+        })
+        .unwrap();
+        assert_eq!(
+            synced,
+            [(dir.path().to_path_buf(), Some(b"new\n".to_vec()))]
+        );
+        // The fsync's error is the commit's (the file is in place: the rename is done).
+        let mut out = Output::create(&target, ".epd-output-").unwrap();
+        out.write_all(b"newer\n").unwrap();
+        let e = out
+            .commit_with(|_| Err(std::io::Error::other("fsync: input/output error")))
+            .unwrap_err();
+        assert!(e.to_string().contains("fsync"), "{e}");
+        assert_eq!(std::fs::read(&target).unwrap(), b"newer\n");
+        assert!(sync_dir(&dir.path().join("missing")).is_err());
+        sync_dir(dir.path()).unwrap();
     }
 
     /// A character device, and a link to one, is written through: never replaced.

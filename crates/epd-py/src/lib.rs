@@ -605,9 +605,11 @@ fn run_interruptible<R: Send, E: Send>(
     })
 }
 
-/// Working memory of an estimate beyond its input, per point (bytes): the survey's and
-/// the solver's per-point arrays. Measured: 37.1 bytes (peak RSS of `epd.estimate` on 10⁷
-/// simulated points, 642 MB, less the 240 MB input and the interpreter's 31 MB, over 10⁷);
+/// Working memory of an estimate beyond its input, per point (bytes): the geometry
+/// survey's per-point arrays (the fit itself adds none: the input is read in place).
+/// Measured: 37.1 bytes (peak RSS of `epd.estimate` on 10⁷ simulated points, 642 MB,
+/// less the 240 MB input and the interpreter's 31 MB, over 10⁷); 34.3 bytes after the
+/// solver's passes were made cancellable (610 MB; with `straight_only=True`, 0.7 bytes);
 /// reserved with a third more. tests/test_resources.py checks the measurement stays below.
 pub const WORKING_BYTES_PER_POINT: usize = 48;
 

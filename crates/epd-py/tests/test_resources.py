@@ -35,17 +35,17 @@ def big(n):
 """
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="issue 27: in one CI run (2026-12-02) the SIGINT sent 1 s into a 3.6 s call was not "
-    "raised at all ('finished'); cause not found, see the issue's note",
-)
 def test_ctrl_c_stops_a_long_call_within_half_a_second():
-    # 4·10⁶ points take several seconds; SIGINT 1 s into the call.
+    # 4·10⁶ points take several seconds; SIGINT 1 s into the call. The child handles
+    # SIGINT as an interactive Python does (KeyboardInterrupt): a child inherits an
+    # ignored SIGINT when the tests run as a background job of a non-interactive shell,
+    # and Python then installs no handler — the one CI run where the SIGINT "was never
+    # raised" (issue 27).
     code, out, err = run_child(
         MAKE_BIG
         + """
 import os, signal, threading, time
+signal.signal(signal.SIGINT, signal.default_int_handler)
 a = big(4_000_000)
 sent = []
 def fire():
@@ -133,6 +133,36 @@ print((after - before) * 1024 / len(a))
     assert code == 0, err
     per_point = float(out)
     assert per_point <= WORKING_BYTES_PER_POINT, f"{per_point:.1f} bytes per point"
+
+
+def test_an_estimate_without_the_survey_holds_the_input_once():
+    # Issue 27's goal, memory at most 1.2× the input: without the geometry survey
+    # (straight_only=True) the array is read in place and the fit adds no per-point copy.
+    # 4·10⁶ points (96 MB), filled in place (no temporary larger than the array before the
+    # call); the peak RSS of the call beyond the peak before it, over the input's bytes.
+    # (With the survey it is 1.4× more: epd_core::scene's per-point profile; the bound
+    # above.)
+    code, out, err = run_child(
+        """
+import gc, resource
+import numpy as np, epd
+pts, _ = epd.simulate(points=None, seed=3)
+a = np.empty((4_000_000, 3))
+for k in range(0, len(a), len(pts)):
+    m = min(len(pts), len(a) - k)
+    a[k:k + m] = pts[:m]
+del pts
+gc.collect()
+before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+r = epd.estimate(a, straight_only=True)
+after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(r["status"], (after - before) * 1024 / a.nbytes)
+"""
+    )
+    assert code == 0, err
+    status, extra = out.split()
+    assert status == "converged", out
+    assert float(extra) <= 0.2, f"peak {1 + float(extra):.2f}× the input"
 
 
 @pytest.fixture(scope="module")

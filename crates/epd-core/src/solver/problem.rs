@@ -81,14 +81,22 @@ impl<'a> PipeFit<'a> {
         let geom = Geometry::new(beta)?;
         let kind = self.residual;
         let loss = self.loss;
-        let accumulate =
-            |(chunk, s): (&[[f64; 3]], &[f64])| accumulate_chunk(&geom, kind, loss, chunk, s).eq;
+        // A stop request skips the remaining chunks; the checkpoint after the pass
+        // unwinds before the partial sums are used (`crate::cancel::Watch`).
+        let watch = crate::cancel::watch();
+        let accumulate = |(chunk, s): (&[[f64; 3]], &[f64])| {
+            if watch.stopped() {
+                return NormalEquations::zero();
+            }
+            accumulate_chunk(&geom, kind, loss, chunk, s).eq
+        };
         let mut total = if self.points.len() <= CHUNK {
             accumulate((self.points, self.scales.unwrap_or(&[])))
         } else {
             let work: Vec<_> = self.chunks().collect();
             let parts: Vec<NormalEquations<N_PARAMS>> =
                 work.into_par_iter().map(accumulate).collect();
+            crate::cancel::checkpoint();
             let mut t = NormalEquations::zero();
             for p in &parts {
                 t.merge(p);
@@ -125,12 +133,16 @@ impl PipeFit<'_> {
     pub fn sandwich_at(&self, beta: &Params) -> Option<Sandwich> {
         let geom = Geometry::new(beta)?;
         let (kind, loss) = (self.residual, self.loss);
+        let watch = crate::cancel::watch();
         let one = |(chunk, scales): (&[[f64; 3]], &[f64])| {
             let mut sw = Sandwich {
                 bread: SMatrix::zeros(),
                 meat: SMatrix::zeros(),
                 raw_cost: 0.0,
             };
+            if watch.stopped() {
+                return sw;
+            }
             for (i, p) in chunk.iter().enumerate() {
                 let (r, g) = geom.residual_and_gradient(kind, p);
                 let s = scales.get(i).copied().unwrap_or(1.0);
@@ -146,6 +158,7 @@ impl PipeFit<'_> {
         };
         let work: Vec<_> = self.chunks().collect();
         let parts: Vec<Sandwich> = work.into_par_iter().map(one).collect();
+        crate::cancel::checkpoint();
         let mut total = Sandwich {
             bread: SMatrix::zeros(),
             meat: SMatrix::zeros(),
@@ -350,6 +363,7 @@ impl PipeFit<'_> {
         let (kind, loss) = (self.residual, self.loss);
         let n = self.points.len();
         let scales = self.scales;
+        let watch = crate::cancel::watch();
         // One part of the points, block by block into its own per-cell sums.
         let part = |range: std::ops::Range<usize>| -> Vec<Sums> {
             let mut sums = vec![Sums::zero(); g];
@@ -358,6 +372,9 @@ impl PipeFit<'_> {
             let mut sorted_scales = vec![0.0; scales.map_or(0, |_| CLUSTER_BLOCK)];
             let mut start = vec![0usize; g + 1];
             for from in range.clone().step_by(CLUSTER_BLOCK) {
+                if watch.stopped() {
+                    break;
+                }
                 let block = from..(from + CLUSTER_BLOCK).min(range.end);
                 let points = &self.points[block.clone()];
                 let len = points.len();
@@ -399,6 +416,7 @@ impl PipeFit<'_> {
             .into_par_iter()
             .map(|k| part(k * size..((k + 1) * size).min(n)))
             .collect();
+        crate::cancel::checkpoint();
         let mut per_cell = vec![Sums::zero(); g];
         for p in &parts {
             for (t, v) in per_cell.iter_mut().zip(p) {
