@@ -23,7 +23,8 @@ pub struct FrameRow {
     pub segmented: bool,
     /// The survey's verdict (`straight` for the plain fit).
     pub geometry: &'static str,
-    /// Mean-diameter error (mm); NaN when withheld (in_bend) or failed.
+    /// Mean-diameter error (mm); NaN when withheld (in_bend), failed, or (by the survey)
+    /// not `converged`, as `epd estimate` gives no result for such a frame.
     pub dmean_err_mm: f64,
     /// The reported end of the straight section (m), NaN when none.
     pub straight_until_m: f64,
@@ -109,7 +110,7 @@ pub(super) fn frame_rows(
         frame: k,
         segmented: true,
         geometry: seg.layout.name(),
-        dmean_err_mm: if seg.straight_withheld {
+        dmean_err_mm: if seg.straight_withheld || !seg.straight.status.is_converged() {
             nan
         } else {
             err(&seg.straight.params)
