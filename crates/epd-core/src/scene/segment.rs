@@ -787,10 +787,14 @@ pub fn segment(
     // neither.
     let refused = first_departure(&prof, seg).is_none()
         && (fit.shared_along_axis || matches!(fit.status, crate::check::FitStatus::LackOfFit(_)));
-    if refused || departs_at_start(&prof, seg) {
+    let at_start = departs_at_start(&prof, seg);
+    if refused || at_start {
         let (restart, tried) = restart_from_near(pts, method, options, seg);
         rounds += tried;
-        if let Some(r) = restart {
+        // Taken when it finds what the all-points fit hid (an end ahead); a straight pipe
+        // keeps its fit on every point.
+        if let Some(r) = restart.filter(|r| at_start || first_departure(&r.profile, seg).is_some())
+        {
             (fit, prof, cut) = (r.fit, r.profile, r.cut);
         }
     }
