@@ -31,30 +31,7 @@ pub fn offsets(
     beta: &Params,
     gate: (f64, f64),
 ) -> Result<Vec<Observation>, EpdError> {
-    if points.len() != intensity.len() {
-        return Err(EpdError::InvalidOption(format!(
-            "{} points but {} intensities: one intensity per point is needed",
-            points.len(),
-            intensity.len()
-        )));
-    }
-    let geom = Geometry::new(beta).ok_or_else(|| {
-        EpdError::InvalidOption("the fitted β puts the sensor outside the pipe".into())
-    })?;
-    Ok(points
-        .iter()
-        .zip(intensity)
-        .filter(|(p, i)| usable(p) && i.is_finite() && **i > 0.0)
-        .filter_map(|(p, &i)| {
-            let r = norm(p);
-            let model = geom.line_parameter(p) * r;
-            ((gate.0..=gate.1).contains(&model) && model.is_finite()).then_some(Observation {
-                model_range_m: model,
-                intensity: i,
-                offset_m: r - model,
-            })
-        })
-        .collect())
+    observe(points, intensity, beta, gate, |_, _, obs| Some(obs))
 }
 
 /// The observations of one calibration frame with the incidence at each wall point
@@ -66,6 +43,25 @@ pub fn offsets_with_incidence(
     beta: &Params,
     gate: (f64, f64),
 ) -> Result<Vec<IncidenceObservation>, EpdError> {
+    observe(points, intensity, beta, gate, |geom, p, obs| {
+        let c = geom.cos_incidence(p)?;
+        (c > 0.0).then_some(IncidenceObservation {
+            obs,
+            cos_incidence: c,
+        })
+    })
+}
+
+/// The usable points of a frame (finite, non-zero, a finite positive intensity, a model
+/// range at `beta` within `gate`) as [`Observation`]s, each passed to `keep` with the
+/// wall's geometry and its point.
+fn observe<T>(
+    points: &[[f64; 3]],
+    intensity: &[f64],
+    beta: &Params,
+    gate: (f64, f64),
+    keep: impl Fn(&Geometry, &[f64; 3], Observation) -> Option<T>,
+) -> Result<Vec<T>, EpdError> {
     if points.len() != intensity.len() {
         return Err(EpdError::InvalidOption(format!(
             "{} points but {} intensities: one intensity per point is needed",
@@ -83,17 +79,14 @@ pub fn offsets_with_incidence(
         .filter_map(|(p, &i)| {
             let r = norm(p);
             let model = geom.line_parameter(p) * r;
-            let c = geom.cos_incidence(p)?;
-            ((gate.0..=gate.1).contains(&model) && model.is_finite() && c > 0.0).then_some(
-                IncidenceObservation {
-                    obs: Observation {
-                        model_range_m: model,
-                        intensity: i,
-                        offset_m: r - model,
-                    },
-                    cos_incidence: c,
-                },
-            )
+            let obs = Observation {
+                model_range_m: model,
+                intensity: i,
+                offset_m: r - model,
+            };
+            ((gate.0..=gate.1).contains(&model) && model.is_finite())
+                .then(|| keep(&geom, p, obs))
+                .flatten()
         })
         .collect())
 }

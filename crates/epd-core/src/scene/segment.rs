@@ -386,12 +386,13 @@ const ROBUST_DOF_SHARE: f64 = 0.37 * 2.0 / std::f64::consts::PI;
 /// [`SURVEY_FALSE_ALARM`], divided among the n slices tested (and the sectors for the
 /// bump, which takes the largest of them).
 fn calibrate_tests(slices: &mut [Slice], sectors: usize, axis: &AxisSigma, slice_m: f64) {
-    let tested: Vec<(f64, f64)> = slices
+    // (ln n̄, ln r, ν) of each tested slice.
+    let tested: Vec<(f64, f64, f64)> = slices
         .iter()
         .filter(|s| s.n_sectors >= 6 && s.variance_ratio > 0.0 && s.misfit_dof > 0)
         .map(|s| {
             let per_sector = s.n_points as f64 / s.n_sectors as f64;
-            (per_sector.ln(), s.variance_ratio.ln())
+            (per_sector.ln(), s.variance_ratio.ln(), s.misfit_dof as f64)
         })
         .collect();
     if tested.is_empty() {
@@ -407,16 +408,9 @@ fn calibrate_tests(slices: &mut [Slice], sectors: usize, axis: &AxisSigma, slice
         }
     }
     let b = median(&mut slopes).unwrap_or(0.0).clamp(0.0, 1.0);
-    let mut intercepts: Vec<f64> = tested.iter().map(|&(x, y)| y - b * x).collect();
+    let mut intercepts: Vec<f64> = tested.iter().map(|&(x, y, _)| y - b * x).collect();
     let a = median(&mut intercepts).unwrap_or(0.0);
-    let dof = (ROBUST_DOF_SHARE
-        * slices
-            .iter()
-            .filter(|s| s.n_sectors >= 6 && s.variance_ratio > 0.0)
-            .map(|s| s.misfit_dof as f64)
-            .sum::<f64>()
-        - 2.0)
-        .max(1.0);
+    let dof = (ROBUST_DOF_SHARE * tested.iter().map(|t| t.2).sum::<f64>() - 2.0).max(1.0);
     let (critical_f, critical_t) = critical_values(tested.len(), dof, sectors);
     let kappas: Vec<f64> = slices
         .iter()
