@@ -11,7 +11,8 @@ use crate::check::{Diagnostics, FitStatus, Implausible, MIN_UNCERTAINTY_DOF, ass
 use crate::cloud::{CleanWeighted, check_ranges, clean, clean_weighted};
 use crate::error::EpdError;
 use crate::fit::form::{
-    DIAMETER_SHIFT_FRACTION, FORM_AXIAL_CELLS, FormMisfit, WallCells, normal_upper_quantile,
+    DIAMETER_SHIFT_FRACTION, FORM_AXIAL_CELLS, FORM_POINTS, FormMisfit, WallCells,
+    normal_upper_quantile,
 };
 use crate::init::initial_guess;
 use crate::lm::{LmOptions, LmReport, NormalEquations, minimize};
@@ -21,8 +22,8 @@ use crate::problem::{Cells, PipeFit, wall_point_pcs};
 use crate::residual::{Geometry, Residual};
 use crate::symmetry::{canonical_form, canonicalize};
 use crate::uncertainty::{
-    Mat7, SliceCheck, covariance, jackknife_covariance, roll_is_determined, slice_check,
-    slice_shift,
+    Mat7, SharedOffset, SliceCheck, covariance, jackknife_covariance, roll_is_determined,
+    shared_offset_cov, slice_check, slice_offset_scores, slice_shift,
 };
 
 /// An estimator of the paper (C-EPD, RU-EPD) or ours (ML-EPD).
@@ -561,16 +562,34 @@ fn fit_cloud(
     let kind = method.residual();
     let fit = problem(cloud, kind, loss, fixed);
     let (canonical, eq) = canonical_equations(&Params::from_array(x.into()), &rep, &fit, options);
-    let wall = WallCells::gather(
-        cloud.points,
-        cloud.scales,
-        &canonical,
-        &wall_cells(cloud.points, &canonical, FORM_AXIAL_CELLS),
-    );
+    let form_cells = wall_cells(cloud.points, &canonical, FORM_AXIAL_CELLS);
+    let wall = WallCells::gather(cloud.points, cloud.scales, &canonical, &form_cells);
     let shared = wall
         .as_ref()
         .and_then(WallCells::shared_along_axis)
         .unwrap_or(false);
+    // With an error shared along the pipe, its variance between slices and what each
+    // slice's offset does to β (see `uncertainty`).
+    let shared_offset = if shared {
+        wall.as_ref().and_then(|w| {
+            let scores = slice_offset_scores(
+                cloud.points,
+                cloud.scales,
+                kind,
+                loss,
+                fixed,
+                &canonical,
+                &form_cells,
+                FORM_POINTS,
+            )?;
+            Some(SharedOffset {
+                means: w.slice_means(),
+                scores,
+            })
+        })
+    } else {
+        None
+    };
     // Slices of the wall off the fitted pipe all around (in the form test's 16 axial
     // bins), as bins of the covariance's 8 (each covariance bin is two form bins: both
     // grids' edges are the same quantiles of the same points).
@@ -585,7 +604,15 @@ fn fit_cloud(
     off.sort_unstable();
     off.dedup();
     let (sigma, diameter_cov, roll_determined, raw_cost, shift) = uncertainty(
-        cloud, kind, loss, fixed, &canonical, &eq, options, shared, &off,
+        cloud,
+        kind,
+        loss,
+        fixed,
+        &canonical,
+        &eq,
+        options,
+        shared_offset.as_ref(),
+        &off,
     );
     let (diagnostics, implausible) = match assess(stage_pts.points, &canonical) {
         Ok(d) => (Some(d), d.verdict(&canonical)),
@@ -635,8 +662,10 @@ fn fit_cloud(
 /// fallback when the sandwich cannot be formed. When the wall's slices along the axis
 /// differ more than their cells do (`shared_along_axis`,
 /// [`WallCells::shared_along_axis`]), the errors are shared by each slice's cells and
-/// the cells are not independent: each parameter whose slice jackknife is larger by the
-/// F test of [`slice_check`] takes that 1-σ ([`take_shared_errors`]).
+/// the cells are not independent: the covariance of the slices' shared offsets is added
+/// ([`add_shared_offsets`]; `shared_offset` is `Some` exactly then), and each parameter
+/// whose slice jackknife is larger still by the F test of [`slice_check`] takes that
+/// 1-σ ([`take_shared_errors`]).
 #[allow(clippy::too_many_arguments)]
 fn uncertainty(
     cloud: View<'_>,
@@ -646,12 +675,12 @@ fn uncertainty(
     canonical: &Params,
     eq: &NormalEquations<N_PARAMS>,
     options: &EstimateOptions,
-    shared_along_axis: bool,
+    shared_offset: Option<&SharedOffset>,
     off: &[usize],
 ) -> FitUncertainty {
     let n_free = fixed.iter().filter(|&&f| !f).count();
     let residual_dof = cloud.len().saturating_sub(n_free).max(1);
-    let (mut sigma, mut cov, raw_cost, dof, slices, shift) =
+    let (mut sigma, mut cov, raw_cost, dof, slices, shift, bread) =
         match cluster_sandwich_uncertainty(cloud, kind, loss, fixed, canonical, n_free, off) {
             Some(c) => (
                 c.sigma,
@@ -660,10 +689,11 @@ fn uncertainty(
                 (c.clusters - 1).min(residual_dof),
                 c.slices,
                 c.shift,
+                c.bread,
             ),
             None => {
                 let (s, c) = covariance(eq, eq.cost / residual_dof as f64);
-                (s, c, eq.cost, residual_dof, None, None)
+                (s, c, eq.cost, residual_dof, None, None, eq.jtj)
             }
         };
     let k = small_sample_factor(dof);
@@ -673,7 +703,10 @@ fn uncertainty(
     if let Some(c) = cov.as_mut() {
         *c *= k * k;
     }
-    if let Some(check) = slices.filter(|_| shared_along_axis) {
+    if let Some(so) = shared_offset {
+        add_shared_offsets(&mut sigma, cov.as_mut(), &bread, so);
+    }
+    if let Some(check) = slices.filter(|_| shared_offset.is_some()) {
         take_shared_errors(&mut sigma, cov.as_mut(), &check);
     }
     let roll_determined = roll_is_determined(
@@ -972,6 +1005,7 @@ fn cluster_sandwich_uncertainty(
         cov,
         raw_cost: sw.raw_cost,
         clusters: sw.clusters,
+        bread: sw.bread,
         slices,
         shift,
     })
@@ -987,6 +1021,8 @@ struct ClusterUncertainty {
     raw_cost: f64,
     /// Cells holding points (G).
     clusters: usize,
+    /// The sandwich's bread H.
+    bread: Mat7,
     /// The jackknife over slices along the axis and its test ([`slice_check`]).
     slices: Option<SliceCheck>,
     /// The change of β without the slices found off the wall ([`slice_shift`]).
@@ -1015,6 +1051,32 @@ fn take_shared_errors(sigma: &mut Sigmas, mut cov: Option<&mut Mat7>, check: &Sl
                 c[(j, i)] *= r;
             }
         }
+    }
+}
+
+/// Adds the covariance of a range error shared by each slice of the wall
+/// ([`shared_offset_cov`], times the small-sample factor² of its degrees of freedom) to
+/// the cells' covariance. The cells' jackknife sees a slice's shared error only as a part
+/// of each cell's own, as if the S cells of a slice erred independently, which for a
+/// parameter that every cell of a slice moves the same way (the mean diameter under a
+/// range offset all around) understates its variance up to S-fold. Unlike the slice
+/// jackknife of [`take_shared_errors`], the offsets' covariance is pooled over all
+/// slices, so its degrees of freedom do not collapse when a few slices (the far wall)
+/// carry most of the information on a parameter.
+fn add_shared_offsets(sigma: &mut Sigmas, cov: Option<&mut Mat7>, bread: &Mat7, so: &SharedOffset) {
+    let Some((v, dof)) = shared_offset_cov(bread, &so.scores, &so.means) else {
+        return;
+    };
+    let t = crate::fit::student::student_t_quantile(0.975, dof.max(1.0));
+    let f = if t.is_finite() { t / Z_975 } else { 1.0 };
+    let v = v * (f * f);
+    for (j, s) in sigma.iter_mut().enumerate() {
+        if let Some(s) = s.as_mut() {
+            *s = (*s * *s + v[(j, j)].max(0.0)).sqrt();
+        }
+    }
+    if let Some(c) = cov {
+        *c += v;
     }
 }
 

@@ -188,6 +188,17 @@ pub struct CellMedian {
     pub clock_deg: f64,
 }
 
+/// One slice of the wall along the axis ([`WallCells::slice_means`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SliceMean {
+    /// Its axial bin.
+    pub bin: usize,
+    /// ȳ_k, the mean of its cells' medians (m).
+    pub mean: f64,
+    /// s_k²/n_k, the variance of ȳ_k from its cells' spread (m²).
+    pub var_mean: f64,
+}
+
 /// The wall's cells as the form test sees them: each tested cell's median and scatter,
 /// and the frame's noise scale.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -389,6 +400,27 @@ impl WallCells {
     pub fn shared_along_axis(&self) -> Option<bool> {
         let (f, nu1, nu2) = self.welch_f()?;
         Some(f > f_upper_quantile(SHARED_ERROR_ALPHA, nu1, nu2))
+    }
+
+    /// The slices of the wall along the axis as the tests see them: per tested slice (an
+    /// axial bin with n_k ≥ 2 tested cells, in axial order) its bin, the mean ȳ_k of its
+    /// cells' medians and that mean's variance s_k²/n_k from their spread (m and m², in
+    /// the units of the medians). `uncertainty::shared_offset_cov` carries the error they
+    /// share into the 1-σ.
+    pub fn slice_means(&self) -> Vec<SliceMean> {
+        self.slices()
+            .iter()
+            .map(|s| {
+                let n = s.len() as f64;
+                let mean = s.iter().map(|c| c.median).sum::<f64>() / n;
+                let var = s.iter().map(|c| (c.median - mean).powi(2)).sum::<f64>() / (n - 1.0);
+                SliceMean {
+                    bin: s[0].id / self.sectors,
+                    mean,
+                    var_mean: var / n,
+                }
+            })
+            .collect()
     }
 
     /// Welch's F of [`shared_along_axis`](Self::shared_along_axis) and its degrees of
