@@ -175,6 +175,16 @@ fn frame_outcome(case: &Case, k: u64, cfg: &EstimateConfig) -> Outcome {
         },
     )
     .expect("a frame");
+    if let Some(dir) = std::env::var_os("EPD_DUMP_DIR") {
+        use std::io::Write;
+        let path = std::path::Path::new(&dir).join(format!("{}_{k:03}.xyz", case.name));
+        let mut f = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+        for p in frame.measured.iter() {
+            writeln!(f, "{} {} {}", p[0], p[1], p[2]).unwrap();
+        }
+        let t = std::path::Path::new(&dir).join(format!("{}_{k:03}.truth", case.name));
+        std::fs::write(t, format!("{} {}\n", truth.d_max * 1e3, truth.d_min * 1e3)).unwrap();
+    }
     let input = FrameInput {
         points: Cow::Borrowed(&frame.measured),
         intensity: None,

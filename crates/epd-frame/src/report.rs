@@ -89,7 +89,7 @@ pub fn columns() -> Vec<&'static str> {
 }
 
 /// The fields after the estimate's, without the final `error`.
-const CONTEXT_KEYS: [&str; 20] = [
+const CONTEXT_KEYS: [&str; 23] = [
     "n_read",
     "n_out_of_range",
     "n_calibrated",
@@ -107,6 +107,9 @@ const CONTEXT_KEYS: [&str; 20] = [
     "bend_angle_deg",
     "bend_direction_deg",
     "bend_withheld",
+    "dent_at_m",
+    "dent_clock_deg",
+    "dent_depth_mm",
     "n_sampled",
     "sampling",
     "calibration_outside",
@@ -284,6 +287,10 @@ impl FileReport {
                     g.and_then(|g| g.bend_withheld.clone())
                         .map_or(Field::Null, Field::Text),
                 ));
+                let dent = g.and_then(|g| g.dent);
+                f.push(("dent_at_m", opt(dent.map(|d| d.at_m))));
+                f.push(("dent_clock_deg", opt(dent.map(|d| d.clock_deg))));
+                f.push(("dent_depth_mm", opt(dent.map(|d| d.depth_mm))));
                 f.push((
                     "n_sampled",
                     e.sampled.map_or(Field::Null, |(n, _)| Field::Int(n as u64)),
@@ -464,11 +471,18 @@ impl GeometryReport {
     /// The text report's geometry lines (each begins with a newline).
     fn text(&self) -> String {
         let mut t = format!("\n  geometry: {}", self.layout);
-        if let Some(x) = self.straight_until_m {
-            t.push_str(&format!(
+        match (self.straight_until_m, self.dent) {
+            (Some(x), Some(d)) => t.push_str(&format!(
+                " — a dent, debris or an obstacle {:.0} mm inside the wall at {:.0}° \
+                 (clock angle from the sensor: 0 up, 90 right), deepest {:.3} m ahead; \
+                 the estimate uses the points before it, up to {x:.3} m",
+                d.depth_mm, d.clock_deg, d.at_m
+            )),
+            (Some(x), None) => t.push_str(&format!(
                 " — the straight section ends {x:.3} m ahead; the estimate uses \
                  its points only"
-            ));
+            )),
+            _ => {}
         }
         if let (Some(r), Some(a), Some(c)) = (
             self.bend_radius_mm,
@@ -599,7 +613,51 @@ mod tests {
             bend_direction_deg: Some(90.0),
             straight_withheld: false,
             bend_withheld: None,
+            dent: None,
         }
+    }
+
+    /// A dent on a straight pipe: its three keys carry where, at which clock angle and how
+    /// deep, and the text says the estimate stops before it.
+    #[test]
+    fn a_dent_is_reported_with_where_and_how_deep() {
+        let mut r = ok_report();
+        if let Ok(e) = &mut r.outcome {
+            e.geometry = Some(GeometryReport {
+                layout: "straight",
+                straight_until_m: Some(0.7),
+                dent: Some(crate::scene::DentReport {
+                    at_m: 1.05,
+                    clock_deg: 180.0,
+                    depth_mm: 21.5,
+                }),
+                ..bend_ahead()
+            });
+        }
+        let f = r.fields();
+        let get = |k: &str| f.iter().find(|(n, _)| *n == k).unwrap().1.clone();
+        assert_eq!(get("geometry"), Field::Text("straight".into()));
+        for (key, value) in [
+            ("dent_at_m", 1.05),
+            ("dent_clock_deg", 180.0),
+            ("dent_depth_mm", 21.5),
+        ] {
+            assert!(
+                matches!(get(key), Field::Num(v) if v == value),
+                "{key}: {:?}",
+                get(key)
+            );
+        }
+        let text = r.text();
+        assert!(text.contains("22 mm inside the wall at 180°"), "{text}");
+        assert!(text.contains("up to 0.700 m"), "{text}");
+        // Without a dent the keys are null.
+        let plain = ok_report().fields();
+        assert!(
+            plain
+                .iter()
+                .any(|(k, v)| *k == "dent_depth_mm" && *v == Field::Null)
+        );
     }
 
     /// A successful report and a failed one have the same columns, in the same order.

@@ -82,6 +82,22 @@ pub struct GeometryReport {
     /// Why the bend's radius, angle and direction are not reported although a bend was
     /// fitted ([`GeometryReport::check_bend_against_table`]).
     pub bend_withheld: Option<String>,
+    /// A dent, debris or an obstacle on the wall of a straight pipe
+    /// (`epd_core::segment::Dent`): where it is deepest (m along the axis), its clock
+    /// angle seen from the sensor (deg: 0 up, 90 right) and its depth (mm). The straight
+    /// estimate then uses the points before it (`straight_until_m` is where it starts).
+    pub dent: Option<DentReport>,
+}
+
+/// A dent in a report (keys `dent_at_m`, `dent_clock_deg`, `dent_depth_mm`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DentReport {
+    /// Axial distance from the sensor to where it is deepest (m).
+    pub at_m: f64,
+    /// Clock angle seen from the sensor (deg: 0 up, 90 right).
+    pub clock_deg: f64,
+    /// Depth (mm): the deepest sector median inside the fitted wall.
+    pub depth_mm: f64,
 }
 
 /// The least fraction of a bend's points that must lie where the depth table observed
@@ -133,6 +149,11 @@ impl GeometryReport {
                 .map(|b| epd_core::segment::clock_angle_deg(&beta, b.geometry.direction)),
             straight_withheld: seg.straight_withheld,
             bend_withheld: None,
+            dent: s.dent.map(|d| DentReport {
+                at_m: d.at_m,
+                clock_deg: d.clock_deg,
+                depth_mm: d.depth_m * 1e3,
+            }),
         }
     }
 

@@ -321,7 +321,9 @@ enum Input<'py> {
 /// `read_ms` (ms), `loss`, `loss_scale_m` (m), `nominal_od_mm`, `wall_thickness_est_mm`
 /// (mm), `geometry` ("straight", "bend_ahead", "tee_ahead", "in_bend"),
 /// `straight_until_m` (m), `bend_radius_mm` (mm), `bend_angle_deg`,
-/// `bend_direction_deg` (degrees), `bend_withheld`, `n_sampled` and `sampling` (with
+/// `bend_direction_deg` (degrees), `bend_withheld`, `dent_at_m` (m), `dent_clock_deg`
+/// (degrees), `dent_depth_mm` (mm; a dent, debris or an obstacle on a straight pipe's
+/// wall), `n_sampled` and `sampling` (with
 /// `max_points`), `calibration_outside` (the fraction of the points outside an incidence
 /// table's support, with `calibration`), `error`, `stamp_ns`, `frame_id` (a bag
 /// message's header; `None` here). A result that cannot be believed is `None` with the

@@ -481,3 +481,98 @@ fn bad_options_are_refused() {
     let err = survey(&[[1.0, 0.0, 0.0]; 10], Method::MlEpd, &options(), &o).unwrap_err();
     assert!(err.to_string().contains("slice_m"), "{err}");
 }
+
+/// A dent on a straight pipe (tof-sim's Gaussian dent, 25 mm deep at 1.0 m ahead, axial
+/// and circumferential extent σ 0.15 m, at clock angle φ_d, σ = 0.02 m): the wall comes
+/// inward on one side and back, which is neither a tee (whose opening lies outside the
+/// wall) nor a bend. Every frame reads `straight` with the dent: where it is deepest within
+/// one axial σ of its centre; its clock angle within half a sector (15°) of φ_d; its depth
+/// a sector's median, so at most the depth (plus 4 of the sector median's standard
+/// errors, 0.6 mm at this noise) and, the dent being wider than a sector (a 30° sector is
+/// 0.13 m of wall), at least half of it. The straight estimate, on the points before the
+/// dent, lies within max(5σ̂, 0.5 mm) of the truth (issue 22's bound).
+#[test]
+fn a_dent_is_neither_a_tee_nor_a_bend() {
+    use tof_sim::contamination::{Contamination, Dent};
+    use tof_sim::{WallModel, simulate_with};
+    let (depth, x_d, phi_d) = (0.025, 1.0, 2.0);
+    let pipe = Pipe {
+        ovality: 0.02,
+        ..Pipe::paper_20in()
+    };
+    let dents: Vec<_> = (0..6u64)
+        .into_par_iter()
+        .map(|k| {
+            let truth = PoseRanges::default().sample(&pipe, 11, k).unwrap();
+            let scene = Scene::new(&truth, WallModel::Exact, 6.0)
+                .and_then(|s| {
+                    s.with_contamination(Contamination {
+                        dent: Some(Dent {
+                            x_m: x_d,
+                            clock_rad: phi_d,
+                            depth_m: depth,
+                            axial_sigma_m: 0.15,
+                            circumferential_sigma_m: 0.15,
+                        }),
+                        ..Contamination::default()
+                    })
+                })
+                .unwrap();
+            let seed = FrameSeed {
+                seed: 11,
+                trial: k,
+                sweep_index: 0,
+            };
+            let f = simulate_with(
+                &Sensor::helios2(),
+                &scene,
+                &Noise::range(0.02),
+                &Default::default(),
+                Subsample::All,
+                seed,
+            )
+            .unwrap();
+            let s = survey(
+                &f.measured,
+                Method::MlEpd,
+                &options(),
+                &SegmentOptions::default(),
+            )
+            .unwrap();
+            (s, truth)
+        })
+        .collect();
+    for (k, (s, truth)) in dents.iter().enumerate() {
+        assert_eq!(s.segmentation.layout, Layout::Straight, "frame {k}");
+        let d = s.dent.unwrap_or_else(|| panic!("frame {k}: no dent"));
+        assert!(
+            (d.at_m - x_d).abs() <= 0.15,
+            "frame {k}: deepest at {}",
+            d.at_m
+        );
+        let want = clock_angle_deg(truth, FRAC_PI_2 - phi_d);
+        let off = (d.clock_deg - want + 180.0).rem_euclid(360.0) - 180.0;
+        assert!(
+            off.abs() <= 15.0,
+            "frame {k}: clock {} vs {want}",
+            d.clock_deg
+        );
+        assert!(
+            d.depth_m <= depth + 4.0 * 0.6e-3 && d.depth_m >= 0.5 * depth,
+            "frame {k}: depth {}",
+            d.depth_m
+        );
+        assert!(s.segmentation.straight_until.is_some_and(|x| x < d.at_m));
+        let est = &s.segmentation.straight;
+        for (got, want, sigma) in [
+            (est.params.d_max, truth.d_max, est.sigma[0]),
+            (est.params.d_min, truth.d_min, est.sigma[1]),
+        ] {
+            let bound = (5.0 * sigma.unwrap_or(f64::INFINITY)).max(0.5e-3);
+            assert!(
+                (got - want).abs() <= bound,
+                "frame {k}: {got} vs {want} ± {bound}"
+            );
+        }
+    }
+}

@@ -1008,6 +1008,78 @@ fn classify(run: &[Slice], o: &SegmentOptions) -> Layout {
     }
 }
 
+/// The least inward mean deviation, as a fraction of the shift, of a slice that
+/// departs inward. A slice's sector medians m_k are fitted by c₀ + c₁cos ψ + c₂sin ψ:
+/// one sector of S (equal weights) deviating by h alone gives c₀ = h/S and a shift of
+/// length 2|h|/S, so c₀/|shift| = +½ for a sector lying outside the wall (a branch
+/// opening), −½ for one lying inside it (a dent, debris, an obstacle); a tube shifted
+/// toward a bend's centre of curvature moves one side out and the opposite in, c₀ ≈ 0.
+/// The boundaries lie halfway, at ±¼.
+pub const INWARD_SHARE: f64 = 0.25;
+
+/// Whether a departing `run` (starting at a departing slice) runs inward — most of its
+/// first departing slices (by shift or bump; the first 8, as [`classify`] looks) have
+/// c₀ < −[`INWARD_SHARE`]·|shift| — and if so the dent it shows, its clock angle taken
+/// about the straight fit `beta`. A slice whose one sector lies far inside the wall also
+/// departs by *bumps*: the harmonic fit, pulled toward that sector, leaves the sectors
+/// beside it outside.
+fn inward(run: &[Slice], beta: &Params, o: &SegmentOptions) -> Option<Dent> {
+    let departing: Vec<&Slice> = run.iter().take(8).filter(|s| s.departs(o)).collect();
+    let judged = departing
+        .iter()
+        .filter(|s| s.widening_m.is_finite() && s.shift().is_finite())
+        .count();
+    let inward = departing
+        .iter()
+        .filter(|s| s.widening_m < -INWARD_SHARE * s.shift())
+        .count();
+    if judged == 0 || 2 * inward <= judged {
+        return None;
+    }
+    let deepest = run
+        .iter()
+        .take_while(|s| s.departs(o))
+        .filter(|s| s.opposite_m.is_finite())
+        .min_by(|a, b| a.opposite_m.total_cmp(&b.opposite_m))?;
+    // The shift points away from an inward sector: the dent lies opposite it.
+    let toward = deepest.direction() + std::f64::consts::PI;
+    Some(Dent {
+        from_m: run[0].start_m,
+        at_m: deepest.start_m + 0.5 * o.slice_m,
+        clock_deg: clock_angle_deg(beta, toward),
+        depth_m: -deepest.opposite_m,
+    })
+}
+
+/// The level at which a slice before an inward departure's first departing slice is
+/// taken as part of it ([`inward_start`]): 1 % per slice. Each such slice is tested on
+/// its own (the departure is already found at the survey's false-alarm rate), and a
+/// false alarm only moves the straight section's end one slice nearer.
+pub const DENT_EDGE_ALPHA: f64 = 0.01;
+
+/// Where an inward departure starts, from its first departing slice `i`: back over the
+/// slices before it while their shift points the same way (within 45°) and is
+/// significant at [`DENT_EDGE_ALPHA`] on its own: F > −ln α, the upper α quantile of
+/// F(2, ∞) = χ²₂/2 (whose tail is e^{−f}); F(2, ν)'s is larger for finite ν, so this
+/// errs toward leaving a dent's gentle flank out of the straight section. A dent's
+/// flank deepens gradually (tof-sim's is a Gaussian), and the slices where it is still
+/// shallower than the departure test can see would bias the straight section.
+fn inward_start(profile: &[Slice], i: usize) -> f64 {
+    let critical = -DENT_EDGE_ALPHA.ln();
+    let dir = profile[i].direction();
+    let mut j = i;
+    while j > 0 {
+        let p = &profile[j - 1];
+        let turn = (p.direction() - dir + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+            - std::f64::consts::PI;
+        if !(p.n_sectors >= 6 && p.shift_f > critical && turn.abs() < std::f64::consts::FRAC_PI_4) {
+            break;
+        }
+        j -= 1;
+    }
+    profile[j].start_m
+}
+
 /// A frame's geometry: its segmentation and, for a bend, the bend's fit.
 #[derive(Clone, Debug)]
 pub struct Survey {
@@ -1017,6 +1089,27 @@ pub struct Survey {
     pub segmentation: Segmentation,
     /// The bend's fit, for [`Layout::BendAhead`].
     pub bend: Option<crate::bend::BendFit>,
+    /// A local inward departure that the wall comes back from — a dent, debris or an
+    /// obstacle on the wall ([`inward`]); the layout is then [`Layout::Straight`] and the
+    /// straight section's estimate uses the points before it.
+    pub dent: Option<Dent>,
+}
+
+/// A local inward departure of the wall from the straight pipe, which the wall comes
+/// back from within the view: a dent, debris or an obstacle lying on the wall.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Dent {
+    /// Where it starts: the near edge of its first departing slice (PCS x, m); the
+    /// straight section's estimate uses the points before it.
+    pub from_m: f64,
+    /// Where it is deepest: the centre of the slice whose sector opposite the shift
+    /// lies furthest inside the wall (PCS x, m).
+    pub at_m: f64,
+    /// Its clock angle as the sensor sees it ([`clock_angle_deg`]; deg, 0 up, 90 right).
+    pub clock_deg: f64,
+    /// Its depth: the largest inward median deviation of one sector (m). A sector is
+    /// 360°/`sectors` wide, so a dent narrower than a sector reads shallower than it is.
+    pub depth_m: f64,
 }
 
 /// [`segment`], then a torus fitted to what lies beyond a departure
@@ -1041,15 +1134,42 @@ pub fn survey(
         return Ok(Survey {
             segmentation: s,
             bend: None,
+            dent: None,
         });
     };
     // An opening is at most the branch's diameter long, and a branch is no wider than
     // the main pipe: the wall must be back within a diameter and the resuming slices.
     let straight = s.straight.params;
     let within = straight.d_max + RESUMED_SLICES as f64 * seg.slice_m;
-    if first_departure(&s.profile, seg).is_some_and(|i| resumes(&s.profile[i..], seg, within)) {
+    if let Some(i) = first_departure(&s.profile, seg)
+        && resumes(&s.profile[i..], seg, within)
+    {
         // The wall comes back onto the straight pipe beyond the departure: the main run
-        // goes on past an opening.
+        // goes on past an opening — or past a dent, debris or an obstacle when the
+        // departure runs inward.
+        if let Some(mut dent) = inward(&s.profile[i..], &straight, seg) {
+            dent.from_m = inward_start(&s.profile, i);
+            // The straight section ends where the dent's flank begins.
+            if s.straight_until.is_some_and(|end| dent.from_m < end)
+                && let Some(fit) = refit_before(
+                    &clean(points).points,
+                    &straight,
+                    dent.from_m,
+                    method,
+                    options,
+                    seg,
+                )
+            {
+                s.straight = fit;
+            }
+            s.layout = Layout::Straight;
+            s.straight_until = Some(dent.from_m);
+            return Ok(Survey {
+                segmentation: s,
+                bend: None,
+                dent: Some(dent),
+            });
+        }
         return Ok(tee(s, seg));
     }
     let beta = s.straight.params;
@@ -1076,6 +1196,7 @@ pub fn survey(
     Ok(Survey {
         segmentation: s,
         bend: accepted,
+        dent: None,
     })
 }
 
@@ -1090,6 +1211,7 @@ fn tee(mut s: Segmentation, seg: &SegmentOptions) -> Survey {
     Survey {
         segmentation: s,
         bend: None,
+        dent: None,
     }
 }
 
