@@ -10,7 +10,8 @@
 //! `epd_frame::measure_frame` with `epd estimate`'s defaults. Prints one line per model:
 //! the statuses, the coverage of the ±1.96σ̂ interval for Dmax, Dmin and the mean diameter
 //! over the converged frames (with its binomial standard error), the spread of err/σ̂, and
-//! how many converged frames are more than max(5σ̂, 0.5 mm) off.
+//! how many converged frames are more than max(5σ̂, 0.5 mm) off. With `EPD_DUMP_DIR=DIR`
+//! every frame is also written there (see `dump`).
 
 use std::borrow::Cow;
 use std::collections::BTreeMap;
@@ -139,6 +140,31 @@ fn config() -> EstimateConfig {
     EstimateConfig::new(&settings).expect("the defaults are valid")
 }
 
+/// Writes a frame's points as `NAME_KKK.xyz` (x y z per line, sensor frame, m) and its
+/// true diameters as `NAME_KKK.truth` ("Dmax Dmin" in mm) into `dir`, for
+/// `EPD_DUMP_DIR=DIR`: the frames can then be given to `epd estimate` or the
+/// `survey_profile` example.
+fn dump(
+    dir: &std::path::Path,
+    name: &str,
+    k: u64,
+    points: &[[f64; 3]],
+    truth: &Params,
+) -> std::io::Result<()> {
+    use std::io::Write;
+    let mut f = std::io::BufWriter::new(std::fs::File::create(
+        dir.join(format!("{name}_{k:03}.xyz")),
+    )?);
+    for p in points {
+        writeln!(f, "{} {} {}", p[0], p[1], p[2])?;
+    }
+    f.flush()?;
+    std::fs::write(
+        dir.join(format!("{name}_{k:03}.truth")),
+        format!("{} {}\n", truth.d_max * 1e3, truth.d_min * 1e3),
+    )
+}
+
 /// What one frame gave: status, and (err/σ̂, |err| in mm) for Dmax, Dmin, Dmean when
 /// converged.
 struct Outcome {
@@ -175,15 +201,19 @@ fn frame_outcome(case: &Case, k: u64, cfg: &EstimateConfig) -> Outcome {
         },
     )
     .expect("a frame");
-    if let Some(dir) = std::env::var_os("EPD_DUMP_DIR") {
-        use std::io::Write;
-        let path = std::path::Path::new(&dir).join(format!("{}_{k:03}.xyz", case.name));
-        let mut f = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
-        for p in frame.measured.iter() {
-            writeln!(f, "{} {} {}", p[0], p[1], p[2]).unwrap();
-        }
-        let t = std::path::Path::new(&dir).join(format!("{}_{k:03}.truth", case.name));
-        std::fs::write(t, format!("{} {}\n", truth.d_max * 1e3, truth.d_min * 1e3)).unwrap();
+    if let Some(dir) = std::env::var_os("EPD_DUMP_DIR")
+        && let Err(e) = dump(
+            std::path::Path::new(&dir),
+            case.name,
+            k,
+            &frame.measured,
+            &truth,
+        )
+    {
+        eprintln!(
+            "coverage: cannot write frame {k} of {} to {dir:?}: {e}",
+            case.name
+        );
     }
     let input = FrameInput {
         points: Cow::Borrowed(&frame.measured),
