@@ -1,7 +1,8 @@
 //! What lies ahead of the sensor: the survey of a frame near a bend or a tee
-//! (`segment`), the torus of a bend with its exact ray cast (`torus`) and the bend's fit
+//! (`segment`, on the departure profile of `profile`), the torus of a bend with its exact ray cast (`torus`) and the bend's fit
 //! (`bend`).
 
 pub mod bend;
+pub mod profile;
 pub mod segment;
 pub mod torus;

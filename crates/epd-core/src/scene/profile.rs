@@ -1,0 +1,469 @@
+//! The departure profile: how the points of a frame depart from a straight fit, slice
+//! by slice along its axis, and the tests that say when a slice departs at the survey's
+//! false-alarm rate ([`SURVEY_FALSE_ALARM`]). [`crate::segment`] reads it to find where
+//! the straight pipe ends and what lies beyond.
+
+use nalgebra::{Matrix3, Vector3};
+
+use crate::estimate::Estimate;
+use crate::params::Params;
+use crate::residual::Geometry;
+use crate::segment::SegmentOptions;
+
+/// One slice of the departure profile (PCS of the straight fit).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Slice {
+    /// Axial coordinate of the slice's near edge (m).
+    pub start_m: f64,
+    /// Points in the slice.
+    pub n_points: usize,
+    /// Sectors with enough points.
+    pub n_sectors: usize,
+    /// Mean radial deviation c₀ (m).
+    pub widening_m: f64,
+    /// Lateral shift (c₁, c₂) (m), toward +Y and +Z of the PCS.
+    pub shift_m: [f64; 2],
+    /// Standard error of the shift's length (m).
+    pub shift_se_m: f64,
+    /// Median deviation of the sector opposite the shift (m), NaN without points.
+    pub opposite_m: f64,
+    /// The largest outward excess of one sector's median over the slice's harmonic fit
+    /// c₀ + c₁cos ψ + c₂sin ψ (m), NaN without a fit: a branch opening lets the rays
+    /// that cross it run on to the branch's far wall, so its one or two sectors lie far
+    /// outside the wall while the rest of the slice stays on it, a local bump that the
+    /// first harmonic, weighted by the sectors' precisions, hardly follows.
+    pub bump_m: f64,
+    /// Standard error of `bump_m` (the sector median's and the fit's there) (m).
+    pub bump_se_m: f64,
+    /// Polar angle ψ of the bump's sector centre, from +Y toward +Z (rad).
+    pub bump_psi: f64,
+    /// Whether the bump's sector had a usable median in the slice before: the wall was
+    /// in view on that side before the bump. When it was not, an opening may begin
+    /// where the view does not reach, and the points before the bump may hold some of
+    /// it.
+    pub bump_follows_wall: bool,
+    /// How much more the sectors' medians scatter about the harmonic fit than their
+    /// variances for independent points say: med_k[e_k²/(v_k(1 − h_k))]/med(χ²₁), with e_k
+    /// = m_k − c₀ − c₁cos ψ_k − c₂sin ψ_k, v_k = (π/2)σ_k²/n_k and h_k sector k's leverage
+    /// in the fit; ≈ 1 for independent points. A median, so that the one or two sectors of
+    /// a branch opening do not inflate it. NaN without a fit.
+    pub variance_ratio: f64,
+    /// The harmonic fit's degrees of freedom: usable sectors − 3.
+    pub misfit_dof: usize,
+    /// Covariance of the shift ĉ = (c₁, c₂) (m²: var c₁, cov, var c₂): from the medians'
+    /// independent-point variances, then (`calibrate_tests`) scaled by κ̂ and added the
+    /// straight fit's own uncertainty of where its axis lies at this slice ([`AxisSigma`]).
+    pub shift_cov_m2: [f64; 3],
+    /// The variance scale κ̂ applied to this slice's standard errors and `shift_f`
+    /// (`calibrate_tests`); 1 before.
+    pub variance_scale: f64,
+    /// The shift's test statistic, F = ĉᵀ Cov(ĉ)⁻¹ ĉ / 2 for ĉ = (c₁, c₂), with Cov(ĉ) scaled
+    /// by the profile's variance scale κ̂ (`calibrate_tests`): F(2, ν) distributed for a straight pipe
+    /// (NaN without a fit).
+    pub shift_f: f64,
+    /// The profile's critical values, copied in every slice: `shift_f` beyond
+    /// `critical_f`, or `bump_m / bump_se_m` beyond `critical_t`, is a departure at the
+    /// survey's false-alarm rate ([`SURVEY_FALSE_ALARM`]).
+    pub critical_f: f64,
+    /// See `critical_f`.
+    pub critical_t: f64,
+}
+
+impl Slice {
+    /// The shift's length (m).
+    pub fn shift(&self) -> f64 {
+        self.shift_m[0].hypot(self.shift_m[1])
+    }
+
+    /// The shift's direction in the cross-section: the angle from +Y toward +Z (rad).
+    pub fn direction(&self) -> f64 {
+        self.shift_m[1].atan2(self.shift_m[0])
+    }
+
+    /// Whether the shift is significant under `o`.
+    pub fn shifts(&self, o: &SegmentOptions) -> bool {
+        let s = self.shift();
+        self.n_sectors >= 6 && s > o.min_shift_m && self.shift_f > self.critical_f
+    }
+
+    /// Whether one sector's outward bump is significant under `o` (same thresholds as
+    /// the shift).
+    pub fn bumps(&self, o: &SegmentOptions) -> bool {
+        let b = self.bump_m;
+        self.n_sectors >= 6 && b > o.min_shift_m && b > self.critical_t * self.bump_se_m
+    }
+
+    /// Whether the slice departs from the straight pipe: a significant shift or bump.
+    pub fn departs(&self, o: &SegmentOptions) -> bool {
+        self.shifts(o) || self.bumps(o)
+    }
+}
+
+/// Where a measured point's ray meets the wall of `beta` and how far the point lies off
+/// it, normal to the wall: (x, d, ψ) with x the axial coordinate and ψ the polar angle
+/// (from +Y toward +Z) of the *model* wall point t·x̂ (t the line parameter of eq. 21,
+/// the ray's crossing of the wall), and d = (1 − t)·‖x̂‖·|n·u| the range error along the
+/// ray (ML-EPD's residual) times the cosine of the incidence (n the wall's normal, u the
+/// ray). Binning by the model point rather than the measured one keeps the range noise
+/// out of the binning: a measured point moves along its ray, toward the sensor when its
+/// noise is negative, and near the edge of the view the first slices would collect the
+/// short ones.
+pub(crate) fn deviation(
+    geom: &Geometry,
+    m: &Matrix3<f64>,
+    beta: &Params,
+    p: &[f64; 3],
+) -> Option<(f64, f64, f64)> {
+    let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+    let u = m * Vector3::new(p[0] / r, p[1] / r, p[2] / r);
+    let t = geom.line_parameter(p);
+    let q = m * Vector3::new(t * p[0], t * p[1], t * p[2]);
+    let (qx, qy, qz) = (q.x, q.y + beta.dy, q.z + beta.dz);
+    let (a, b) = (0.5 * beta.d_max, 0.5 * beta.d_min);
+    let n = Vector3::new(0.0, qy / (a * a), qz / (b * b)).normalize();
+    let d = (1.0 - t) * r * n.dot(&u).abs();
+    let out = (qx, d, qz.atan2(qy));
+    (out.0.is_finite() && out.1.is_finite() && out.2.is_finite()).then_some(out)
+}
+
+/// The departure profile of `points` (SCS, clean) against the straight fit `beta`, whose
+/// axis is uncertain by `axis` (empty when β leaves the model).
+pub fn profile(
+    points: &[[f64; 3]],
+    beta: &Params,
+    axis: &AxisSigma,
+    o: &SegmentOptions,
+) -> Vec<Slice> {
+    let Some(geom) = Geometry::new(beta) else {
+        return Vec::new();
+    };
+    let m = *beta.rotation().matrix();
+    let pcs: Vec<(f64, f64, f64)> = points
+        .iter()
+        .filter_map(|p| {
+            crate::cancel::tick();
+            deviation(&geom, &m, beta, p)
+        })
+        .collect();
+    let Some(x_max) = pcs.iter().map(|v| v.0).reduce(f64::max) else {
+        return Vec::new();
+    };
+    let x_min = pcs
+        .iter()
+        .map(|v| v.0)
+        .fold(f64::INFINITY, f64::min)
+        .max(0.0);
+    if !(x_max > x_min) {
+        return Vec::new();
+    }
+    let n_slices = (((x_max - x_min) / o.slice_m).ceil() as usize).clamp(1, 100_000);
+    let ns = o.sectors;
+    let mut cells: Vec<Vec<f64>> = vec![Vec::new(); n_slices * ns];
+    let tau = std::f64::consts::TAU;
+    for &(x, d, psi) in &pcs {
+        crate::cancel::tick();
+        if x < x_min {
+            continue;
+        }
+        let i = (((x - x_min) / o.slice_m) as usize).min(n_slices - 1);
+        let k = ((psi.rem_euclid(tau) / tau * ns as f64) as usize).min(ns - 1);
+        cells[i * ns + k].push(d);
+    }
+    let mut slices: Vec<Slice> = (0..n_slices)
+        .map(|i| {
+            slice_stats(
+                &mut cells[i * ns..(i + 1) * ns],
+                x_min + i as f64 * o.slice_m,
+                o,
+            )
+        })
+        .collect();
+    calibrate_tests(&mut slices, ns, axis, o.slice_m);
+    for (i, s) in slices.iter_mut().enumerate().skip(1) {
+        if s.bump_psi.is_finite() {
+            let k = ((s.bump_psi / tau * ns as f64) as usize).min(ns - 1);
+            s.bump_follows_wall = cells[(i - 1) * ns + k].len() >= o.min_points;
+        }
+    }
+    slices
+}
+
+/// One slice's statistics from its sectors' deviations.
+/// The survey's false-alarm rate: the probability that a straight pipe's frame has a
+/// departing slice (a shift or a bump), split equally between the two tests and, by
+/// Bonferroni, over the slices and sectors tested, so that it holds whatever the
+/// dependence between slices (adjacent slices share the correlated part of the noise).
+/// 10⁻³ per frame keeps the issue's ≤ 1 % of straight frames read as a bend or a tee
+/// with a margin of 10 for what the Gaussian model of the medians does not capture.
+pub const SURVEY_FALSE_ALARM: f64 = 1e-3;
+
+/// The median of χ² with one degree of freedom, (Φ⁻¹(0.75))² (Abramowitz & Stegun
+/// 26.2): the scale of [`Slice::variance_ratio`].
+pub(crate) const CHI2_1_MEDIAN: f64 = 0.454_936_423_119_572_8;
+
+/// Share of the residual degrees of freedom that the pooled variance law keeps: the
+/// median of squared normal residuals as a scale estimate has an asymptotic efficiency
+/// of 0.37 (the MAD's), the median-based line through the slices' ratios 2/π more:
+/// 0.37·2/π ≈ 0.236.
+pub(crate) const ROBUST_DOF_SHARE: f64 = 0.37 * 2.0 / std::f64::consts::PI;
+
+/// Scale the medians' variances by what the sectors' scatter about their harmonic fits
+/// shows, and set the critical values of the shift and bump tests.
+///
+/// **Why.** v_k = (π/2)σ_k²/n_k holds for independent points; a camera's range errors are
+/// correlated between neighbouring pixels (on-camera filtering, flying-pixel smoothing:
+/// issue 22 measured err/σ̂ spreads of 5–7 under a 2-pixel correlation), which makes a
+/// sector's median as uncertain as that of n_k/DEFF points. The sectors of one slice lie
+/// 30° apart on the wall, far further than any such correlation, so their residuals about
+/// the harmonic fit are independent with variances κ·v_k(1 − h_k), and each slice's
+/// [`Slice::variance_ratio`] estimates κ there.
+///
+/// **The law of κ.** The design effect of a cluster grows with the points it holds until
+/// it spans many correlation areas: κ = 1 for independent points, ∝ n̄ when a sector lies
+/// within one correlated patch (n̄ = points per sector). Measured in one frame of 2-pixel
+/// correlated noise: ratios of about 60 in the near slices (≈ 150 points per sector), 3 in
+/// the far ones (≈ 20). So κ_i = exp(a)·n̄_i^b, the line log r_i = a + b·log n̄_i fitted
+/// by Theil–Sen (the median of pairwise slopes, clamped to b ∈ [0, 1], then the median
+/// intercept): robust to the departing slices (a bend's distorted cross-section, a tee's
+/// bumps) while fewer than about 29 % of the slices depart, and for a frame mostly in a
+/// bend its shifts are many times any noise.
+///
+/// **Critical values.** With Cov(ĉ) scaled by κ̂_i, the shift's F = ĉᵀCov⁻¹ĉ/2 is F(2, ν̂)
+/// distributed for a straight pipe, ν̂ = [`ROBUST_DOF_SHARE`]·Σν_i − 2 (the residual
+/// degrees of freedom of the tested slices, less the law's two); one sector's excess over
+/// the fit in units of its scaled standard error is t(ν̂). Each test gets half of
+/// [`SURVEY_FALSE_ALARM`], divided among the n slices tested (and the sectors for the
+/// bump, which takes the largest of them).
+pub(crate) fn calibrate_tests(
+    slices: &mut [Slice],
+    sectors: usize,
+    axis: &AxisSigma,
+    slice_m: f64,
+) {
+    // (ln n̄, ln r, ν) of each tested slice.
+    let tested: Vec<(f64, f64, f64)> = slices
+        .iter()
+        .filter(|s| s.n_sectors >= 6 && s.variance_ratio > 0.0 && s.misfit_dof > 0)
+        .map(|s| {
+            let per_sector = s.n_points as f64 / s.n_sectors as f64;
+            (per_sector.ln(), s.variance_ratio.ln(), s.misfit_dof as f64)
+        })
+        .collect();
+    if tested.is_empty() {
+        return;
+    }
+    let mut slopes: Vec<f64> = Vec::new();
+    for (i, a) in tested.iter().enumerate() {
+        for b in &tested[i + 1..] {
+            let dx = b.0 - a.0;
+            if dx.abs() > 1e-9 {
+                slopes.push((b.1 - a.1) / dx);
+            }
+        }
+    }
+    let b = median(&mut slopes).unwrap_or(0.0).clamp(0.0, 1.0);
+    let mut intercepts: Vec<f64> = tested.iter().map(|&(x, y, _)| y - b * x).collect();
+    let a = median(&mut intercepts).unwrap_or(0.0);
+    let dof = (ROBUST_DOF_SHARE * tested.iter().map(|t| t.2).sum::<f64>() - 2.0).max(1.0);
+    let (critical_f, critical_t) = critical_values(tested.len(), dof, sectors);
+    let kappas: Vec<f64> = slices
+        .iter()
+        .map(|s| {
+            let per_sector = (s.n_points as f64 / s.n_sectors.max(1) as f64).max(1.0);
+            (a + b * per_sector.ln()).exp().max(f64::MIN_POSITIVE)
+        })
+        .collect();
+    for (s, kappa) in slices.iter_mut().zip(kappas) {
+        let [vy, vz] = axis.lateral_variance(s.start_m + 0.5 * slice_m);
+        let c = s.shift_cov_m2;
+        s.shift_cov_m2 = [kappa * c[0] + vy, kappa * c[1], kappa * c[2] + vz];
+        s.shift_se_m = shift_se(s.shift_m, s.shift_cov_m2);
+        s.shift_f = shift_f(s.shift_m, s.shift_cov_m2);
+        s.bump_se_m *= kappa.sqrt();
+        s.variance_scale = kappa;
+        s.critical_f = critical_f;
+        s.critical_t = critical_t;
+    }
+}
+
+/// The median of `v` (reordered), `None` when empty.
+pub(crate) fn median(v: &mut [f64]) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let mid = v.len() / 2;
+    Some(if v.len() % 2 == 1 {
+        v[mid]
+    } else {
+        0.5 * (v[mid - 1] + v[mid])
+    })
+}
+
+/// F = ĉᵀC⁻¹ĉ/2 for a shift ĉ with covariance C = [c₁₁, c₁₂, c₂₂] (NaN when C is singular).
+pub(crate) fn shift_f(shift: [f64; 2], cov: [f64; 3]) -> f64 {
+    let c = nalgebra::Matrix2::new(cov[0], cov[1], cov[1], cov[2]);
+    c.try_inverse().map_or(f64::NAN, |info| {
+        let v = nalgebra::Vector2::new(shift[0], shift[1]);
+        0.5 * (v.transpose() * info * v)[0]
+    })
+}
+
+/// The standard error of a shift's length: along its direction (the mean of the two
+/// variances when the shift is zero).
+pub(crate) fn shift_se(shift: [f64; 2], cov: [f64; 3]) -> f64 {
+    let len = shift[0].hypot(shift[1]);
+    if len > 0.0 {
+        let (u, v) = (shift[0] / len, shift[1] / len);
+        (u * u * cov[0] + 2.0 * u * v * cov[1] + v * v * cov[2]).sqrt()
+    } else {
+        (0.5 * (cov[0] + cov[2])).sqrt()
+    }
+}
+
+/// The straight fit's 1-σ of where its axis lies (from its reported uncertainty): the
+/// offsets δy, δz (m) and the tilts yaw, pitch (rad) of eq. (3).
+///
+/// A slice's shift is measured against the fitted axis, so the fit's own error at the
+/// slice, δ + x·θ to first order (yaw turns the axis toward ±Y of the PCS, pitch toward
+/// ∓Z), reads as a shift there. Where the fit hardly depends on the slice (the far slices
+/// of a frame, which hold few of its points) the two errors are independent and their
+/// variances add: σ_y²(x) = σ_δy² + x²σ_yaw², σ_z²(x) = σ_δz² + x²σ_pitch² (covariances
+/// between offset and tilt left out). Where the fit is pinned by the slice, this overstates
+/// the shift's variance, which only makes the test more conservative there. Under 2-pixel
+/// correlated noise the reported tilts' 1-σ are 0.1–0.5°, 5–12 mm at 1.4 m: the size of
+/// the far slices' shifts that were read as a tee without this term.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AxisSigma {
+    /// 1-σ of δy (m).
+    pub dy: f64,
+    /// 1-σ of δz (m).
+    pub dz: f64,
+    /// 1-σ of yaw (rad).
+    pub yaw: f64,
+    /// 1-σ of pitch (rad).
+    pub pitch: f64,
+}
+
+impl AxisSigma {
+    /// From an estimate's reported 1-σ (a parameter without one counts as known). A fit
+    /// the form test refused (`lack_of_fit`) has a 1-σ that measures its misfit rather
+    /// than its noise: its axis counts as known, so that the profile shows the misfit.
+    pub fn of(e: &Estimate) -> Self {
+        if matches!(e.status, crate::check::FitStatus::LackOfFit(_)) {
+            return Self::default();
+        }
+        let s = |i: usize| e.sigma[i].filter(|v| v.is_finite()).unwrap_or(0.0);
+        // Params order: d_max, d_min, roll, pitch, yaw, dy, dz.
+        Self {
+            pitch: s(3),
+            yaw: s(4),
+            dy: s(5),
+            dz: s(6),
+        }
+    }
+
+    /// The variances of the axis's lateral position at axial distance x (m²): toward +Y
+    /// and toward +Z of the PCS.
+    pub fn lateral_variance(&self, x: f64) -> [f64; 2] {
+        [
+            self.dy * self.dy + (x * self.yaw).powi(2),
+            self.dz * self.dz + (x * self.pitch).powi(2),
+        ]
+    }
+}
+
+/// The shift's critical F and the bump's critical t for `tested` slices of `sectors`
+/// sectors, the variance scale estimated with `dof` degrees of freedom
+/// ([`calibrate_tests`]).
+pub(crate) fn critical_values(tested: usize, dof: f64, sectors: usize) -> (f64, f64) {
+    let alpha = 0.5 * SURVEY_FALSE_ALARM / tested.max(1) as f64;
+    (
+        crate::fit::student::f_upper_quantile(alpha, 2.0, dof),
+        crate::fit::student::student_t_quantile(1.0 - alpha / sectors as f64, dof),
+    )
+}
+
+pub(crate) fn slice_stats(sectors: &mut [Vec<f64>], start_m: f64, o: &SegmentOptions) -> Slice {
+    let ns = sectors.len();
+    let tau = std::f64::consts::TAU;
+    let n_points = sectors.iter().map(Vec::len).sum();
+    // (ψ, median, variance of the median) per usable sector.
+    let mut meds: Vec<(f64, f64, f64)> = Vec::new();
+    let mut by_sector = vec![f64::NAN; ns];
+    for (k, v) in sectors.iter_mut().enumerate() {
+        if v.len() < o.min_points {
+            continue;
+        }
+        let n = v.len() as f64;
+        let (m, s) = crate::loss::median_and_mad_sigma(v);
+        // Var(median) ≈ (π/2)·σ²/n, floored so that a noise-free slice is not infinitely
+        // certain.
+        let var = (std::f64::consts::FRAC_PI_2 * s * s / n).max(1e-12);
+        let psi = (k as f64 + 0.5) / ns as f64 * tau;
+        meds.push((psi, m, var));
+        by_sector[k] = m;
+    }
+    let mut out = Slice {
+        start_m,
+        n_points,
+        n_sectors: meds.len(),
+        widening_m: f64::NAN,
+        shift_m: [f64::NAN; 2],
+        shift_se_m: f64::NAN,
+        opposite_m: f64::NAN,
+        bump_m: f64::NAN,
+        bump_se_m: f64::NAN,
+        bump_psi: f64::NAN,
+        bump_follows_wall: false,
+        variance_ratio: f64::NAN,
+        misfit_dof: 0,
+        shift_cov_m2: [f64::NAN; 3],
+        variance_scale: 1.0,
+        shift_f: f64::NAN,
+        critical_f: f64::INFINITY,
+        critical_t: f64::INFINITY,
+    };
+    if meds.len() < 3 {
+        return out;
+    }
+    // Weighted least squares m_k ≈ c₀ + c₁cos ψ + c₂sin ψ.
+    let mut a = nalgebra::Matrix3::<f64>::zeros();
+    let mut rhs = Vector3::<f64>::zeros();
+    for &(psi, m, var) in &meds {
+        let row = Vector3::new(1.0, psi.cos(), psi.sin());
+        a += row * row.transpose() / var;
+        rhs += row * m / var;
+    }
+    let Some(inv) = a.try_inverse() else {
+        return out;
+    };
+    let c = inv * rhs;
+    out.widening_m = c[0];
+    out.shift_m = [c[1], c[2]];
+    out.shift_cov_m2 = [inv[(1, 1)], inv[(1, 2)], inv[(2, 2)]];
+    out.shift_se_m = shift_se(out.shift_m, out.shift_cov_m2);
+    out.shift_f = shift_f(out.shift_m, out.shift_cov_m2);
+    out.misfit_dof = meds.len() - 3;
+    let mut ratios: Vec<f64> = Vec::with_capacity(meds.len());
+    // The sector furthest outside the harmonic fit, in units of its standard error.
+    let mut best = f64::NEG_INFINITY;
+    for &(psi, m, var) in &meds {
+        let row = Vector3::new(1.0, psi.cos(), psi.sin());
+        let excess = m - row.dot(&c);
+        let leverage = (row.transpose() * inv * row)[0] / var;
+        ratios.push(excess * excess / (var * (1.0 - leverage).max(f64::EPSILON)));
+        let se = (var + (row.transpose() * inv * row)[0].max(0.0)).sqrt();
+        if excess / se > best {
+            best = excess / se;
+            (out.bump_m, out.bump_se_m, out.bump_psi) = (excess, se, psi);
+        }
+    }
+    if out.misfit_dof > 0 {
+        out.variance_ratio = median(&mut ratios).unwrap_or(f64::NAN) / CHI2_1_MEDIAN;
+    }
+    let dir = c[2].atan2(c[1]);
+    let opp = ((dir + std::f64::consts::PI).rem_euclid(tau) / tau * ns as f64) as usize % ns;
+    out.opposite_m = by_sector[opp];
+    out
+}
