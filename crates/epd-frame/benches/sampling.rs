@@ -95,15 +95,15 @@ fn bench(c: &mut Criterion) {
         let file = epd_io::records::RecordFile::open(&path)
             .expect("open")
             .expect("records");
-        let mut all = file.points(&(0..file.len() as u32).collect::<Vec<_>>()).expect("read");
+        let mut all = file
+            .points(&(0..file.len() as u32).collect::<Vec<_>>())
+            .expect("read");
         epd_frame::input::to_sensor_metres(&mut all, cfg.input.units, cfg.input.frame)
             .expect("units");
         let c = epd_frame::sampling::choose(&all, &s, cfg.method, &cfg.options).expect("chosen");
         (c, file.len() as u32)
     };
-    let heads: Vec<u32> = (0..n_records)
-        .step_by(epd_frame::sampling::BLOCK)
-        .collect();
+    let heads: Vec<u32> = (0..n_records).step_by(epd_frame::sampling::BLOCK).collect();
     let idx: Vec<u32> = chosen.indices.iter().map(|&i| i as u32).collect();
     g.bench_function("read_records_max_points_20000_informed", |b| {
         b.iter(|| {

@@ -255,7 +255,10 @@ pub fn choose_from<R: Records + ?Sized>(
     }
     let mut rng = SplitMix(sampling.seed);
     let (chosen, used) = match sampling.method {
-        SamplingMethod::Uniform => (uniform_records(records, k, &mut rng)?, SamplingMethod::Uniform),
+        SamplingMethod::Uniform => (
+            uniform_records(records, k, &mut rng)?,
+            SamplingMethod::Uniform,
+        ),
         how => {
             let heads = Heads::read(records)?;
             let pilot = if how == SamplingMethod::Informed {
@@ -427,11 +430,7 @@ impl Heads {
         let n = records.len();
         let idx: Vec<u32> = (0..n).step_by(BLOCK).map(|i| i as u32).collect();
         let pts = records.points(&idx)?;
-        let (first, pts) = idx
-            .into_iter()
-            .zip(pts)
-            .filter(|(_, p)| usable(p))
-            .unzip();
+        let (first, pts) = idx.into_iter().zip(pts).filter(|(_, p)| usable(p)).unzip();
         Ok(Self { n, first, pts })
     }
 

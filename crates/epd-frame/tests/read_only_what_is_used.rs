@@ -105,9 +105,12 @@ fn a_small_file_is_read_whole() {
             .is_none()
     );
     let with = measure_file(&path, &cfg).outcome.expect("with");
-    let without = measure_file(&path, &EstimateConfig::new(&EstimateSettings::default()).expect("cfg"))
-        .outcome
-        .expect("without");
+    let without = measure_file(
+        &path,
+        &EstimateConfig::new(&EstimateSettings::default()).expect("cfg"),
+    )
+    .outcome
+    .expect("without");
     assert_eq!(with.sampled, None);
     assert_eq!(with.estimate.params, without.estimate.params);
 }

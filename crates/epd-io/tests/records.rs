@@ -12,21 +12,41 @@ type Prop = (&'static str, &'static str, fn(f64, bool) -> Vec<u8>);
 
 fn f32b(v: f64, little: bool) -> Vec<u8> {
     let v = v as f32;
-    if little { v.to_le_bytes() } else { v.to_be_bytes() }.to_vec()
+    if little {
+        v.to_le_bytes()
+    } else {
+        v.to_be_bytes()
+    }
+    .to_vec()
 }
 fn f64b(v: f64, little: bool) -> Vec<u8> {
-    if little { v.to_le_bytes() } else { v.to_be_bytes() }.to_vec()
+    if little {
+        v.to_le_bytes()
+    } else {
+        v.to_be_bytes()
+    }
+    .to_vec()
 }
 fn u8b(v: f64, _little: bool) -> Vec<u8> {
     vec![v as u8]
 }
 fn u32b(v: f64, little: bool) -> Vec<u8> {
     let v = v as u32;
-    if little { v.to_le_bytes() } else { v.to_be_bytes() }.to_vec()
+    if little {
+        v.to_le_bytes()
+    } else {
+        v.to_be_bytes()
+    }
+    .to_vec()
 }
 fn i16b(v: f64, little: bool) -> Vec<u8> {
     let v = v as i16;
-    if little { v.to_le_bytes() } else { v.to_be_bytes() }.to_vec()
+    if little {
+        v.to_le_bytes()
+    } else {
+        v.to_be_bytes()
+    }
+    .to_vec()
 }
 
 /// The value of property `p` of point `i`: distinct per point and property, with some
@@ -122,7 +142,11 @@ fn index_sets(n: usize) -> Vec<Vec<u32>> {
 #[test]
 fn ply_records_are_those_of_the_full_read() {
     let d = Dir::new();
-    let xyz_f32: [Prop; 3] = [("float", "x", f32b), ("float", "y", f32b), ("float", "z", f32b)];
+    let xyz_f32: [Prop; 3] = [
+        ("float", "x", f32b),
+        ("float", "y", f32b),
+        ("float", "z", f32b),
+    ];
     let camera: [Prop; 5] = [
         ("float", "x", f32b),
         ("float", "y", f32b),
@@ -194,7 +218,10 @@ fn other_files_are_read_whole() {
         ("face.ply", &face_first[..]),
         ("a.pcd", &pcd_ascii[..]),
         ("a.csv", &b"x,y,z\n1,2,3\n"[..]),
-        ("bad.ply", &b"ply\nformat binary_little_endian 1.0\nend_header\n"[..]),
+        (
+            "bad.ply",
+            &b"ply\nformat binary_little_endian 1.0\nend_header\n"[..],
+        ),
     ] {
         let p = d.file(name, bytes);
         assert!(RecordFile::open(&p).expect("open").is_none(), "{name}");
@@ -207,11 +234,18 @@ fn other_files_are_read_whole() {
 #[test]
 fn a_truncated_file_is_an_error() {
     let d = Dir::new();
-    let props: [Prop; 3] = [("float", "x", f32b), ("float", "y", f32b), ("float", "z", f32b)];
+    let props: [Prop; 3] = [
+        ("float", "x", f32b),
+        ("float", "y", f32b),
+        ("float", "z", f32b),
+    ];
     let whole = ply(1000, &props, true);
     let cut = d.file("cut.ply", &whole[..whole.len() - 5]);
     let e = RecordFile::open(&cut).expect_err("too short");
-    assert!(e.contains("1000 records of 12 bytes") && e.contains("truncated"), "{e}");
+    assert!(
+        e.contains("1000 records of 12 bytes") && e.contains("truncated"),
+        "{e}"
+    );
     assert!(read_path(&cut).expect_err("full").contains("truncated"));
 
     let path = d.file("shrinks.ply", &whole);
@@ -222,20 +256,33 @@ fn a_truncated_file_is_an_error() {
     assert!(e.contains("truncated") && e.contains("shrank"), "{e}");
 
     // Indices out of order or beyond the records: an error, not a panic.
-    let rec = RecordFile::open(&d.file("ok.ply", &whole)).expect("open").expect("records");
+    let rec = RecordFile::open(&d.file("ok.ply", &whole))
+        .expect("open")
+        .expect("records");
     assert!(rec.points(&[5, 5]).expect_err("repeat").contains("ascend"));
     assert!(rec.cloud(&[3, 1]).expect_err("order").contains("ascend"));
-    assert!(rec.points(&[1000]).expect_err("beyond").contains("1000 records"));
+    assert!(
+        rec.points(&[1000])
+            .expect_err("beyond")
+            .contains("1000 records")
+    );
 }
 
 /// A header longer than the first piece read (comments of 20 KiB): still found.
 #[test]
 fn a_long_header_is_read_in_pieces() {
     let d = Dir::new();
-    let props: [Prop; 3] = [("float", "x", f32b), ("float", "y", f32b), ("float", "z", f32b)];
+    let props: [Prop; 3] = [
+        ("float", "x", f32b),
+        ("float", "y", f32b),
+        ("float", "z", f32b),
+    ];
     let body = ply(300, &props, true);
     let comments = "comment a long header line of forty bytes\n".repeat(500);
-    let at = body.windows(8).position(|w| w == b"element ").expect("element line");
+    let at = body
+        .windows(8)
+        .position(|w| w == b"element ")
+        .expect("element line");
     let bytes = [&body[..at], comments.as_bytes(), &body[at..]].concat();
     let path = d.file("long.ply", &bytes);
     check_against_full(&path, &[0, 7, 299]);
