@@ -28,6 +28,14 @@
 //!
 //! The choice is deterministic for a seed ([`Sampling::seed`]): the same frame and seed
 //! give the same points, whatever the number of threads.
+//!
+//! **Reading only what is used.** The choice reads a frame's points by index
+//! ([`Records`]; [`choose_from`]): the stratified and informed choices look only at the
+//! first point of each block of [`BLOCK`] consecutive points, then read the blocks they
+//! choose; the uniform choice reads the points it draws. From a binary PLY or PCD
+//! (`epd_io::records`) the rest of the file is never decoded
+//! (`crate::measure::measure_records`); from memory ([`choose`]) the same points are
+//! chosen.
 
 use std::fmt;
 use std::str::FromStr;
