@@ -473,7 +473,7 @@ fn fill<R: Records + ?Sized>(
         for &b in blocks {
             for i in heads.block(b) {
                 if let Ok(at) = idx.binary_search(&i)
-                    && usable(&pts[at])
+                    && pts.get(at).is_some_and(usable)
                 {
                     out.push(i);
                 }
