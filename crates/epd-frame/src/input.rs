@@ -28,6 +28,13 @@ pub fn to_sensor_metres(
     units: Units,
     frame: InputFrame,
 ) -> Result<(), String> {
+    convert_to_sensor_metres(points, units, frame);
+    check_units(points, units)
+}
+
+/// The conversion of [`to_sensor_metres`] without its check of the unit (for points
+/// read a few at a time, whose first ones were checked).
+pub fn convert_to_sensor_metres(points: &mut [[f64; 3]], units: Units, frame: InputFrame) {
     let k = match units {
         Units::Metres => 1.0,
         Units::Millimetres => 1e-3,
@@ -43,7 +50,6 @@ pub fn to_sensor_metres(
             InputFrame::Body => [k * x, -k * y, k * z],
         };
     }
-    check_units(points, units)
 }
 
 /// [`to_sensor_metres`] of borrowed points: borrowed back unchanged (no copy) when they

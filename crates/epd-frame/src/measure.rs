@@ -10,7 +10,10 @@ use std::time::Instant;
 use epd_core::{Method, estimate, estimate_weighted, rms_range_residual};
 
 use crate::config::EstimateConfig;
-use crate::input::{CALIBRATION_NEEDS_INTENSITY, has_intensity, intensity, ranges, read_input};
+use crate::input::{
+    CALIBRATION_NEEDS_INTENSITY, convert_to_sensor_metres, has_intensity, intensity, ranges,
+    read_input, to_sensor_metres,
+};
 use crate::read::PointCloud;
 use crate::report::{FileEstimate, FileReport};
 use crate::scene::FrameScene;
@@ -31,13 +34,114 @@ pub struct FrameInput<'a> {
 }
 
 /// Read one file (or standard input for `-`) and measure it ([`measure_frame`]).
+///
+/// With `--max-points N` ([`EstimateConfig::sampling`]), a binary PLY or PCD of more
+/// than N fixed-size records is not decoded whole: the choice reads the points it looks
+/// at, then the chosen records are read with every property ([`measure_records`]), so
+/// that `read_ms` falls with N. The estimate is the one of the whole file read and
+/// sampled ([`crate::sampling::choose_from`] makes the same choice from either).
 pub fn measure_file(path: &Path, cfg: &EstimateConfig) -> FileReport {
     let run = || -> Result<FileEstimate, String> {
+        if let Some(s) = &cfg.sampling
+            && path.as_os_str() != "-"
+            && let Some(e) = measure_records(path, s, cfg)?
+        {
+            return Ok(e);
+        }
         let t0 = Instant::now();
         let cloud = read_input(path, &cfg.input)?;
         measure_cloud(cloud, t0.elapsed().as_secs_f64() * 1e3, cfg)
     };
     FileReport::of_path(path, run())
+}
+
+/// A file's fixed-size records as the choice reads them: converted to metres in the
+/// sensor frame, the unit checked on the first points read, the time spent reading
+/// summed.
+struct FileRecords<'a> {
+    file: &'a epd_io::records::RecordFile,
+    input: crate::config::InputConfig,
+    checked: bool,
+    read: std::time::Duration,
+}
+
+impl crate::sampling::Records for FileRecords<'_> {
+    fn len(&self) -> usize {
+        self.file.len()
+    }
+
+    fn points(&mut self, indices: &[u32]) -> Result<Vec<[f64; 3]>, String> {
+        let t = Instant::now();
+        let mut p = self.file.points(indices)?;
+        if self.checked {
+            convert_to_sensor_metres(&mut p, self.input.units, self.input.frame);
+        } else {
+            to_sensor_metres(&mut p, self.input.units, self.input.frame)?;
+            self.checked = true;
+        }
+        self.read += t.elapsed();
+        Ok(p)
+    }
+}
+
+/// [`measure_file`] of a file of fixed-size records (`epd_io::records`) with
+/// `--max-points`: the choice reads the points it looks at, the chosen records are read
+/// whole (their intensity, pixel and other properties with them), then
+/// [`measure_frame`] on them. `read_ms` is the time spent opening and reading, the
+/// choice's other work is in `elapsed_ms`. `Ok(None)` when the file is not one of fixed
+/// size records or holds no more than `max_points` (valid) points: then it is read whole.
+pub fn measure_records(
+    path: &Path,
+    sampling: &crate::sampling::Sampling,
+    cfg: &EstimateConfig,
+) -> Result<Option<FileEstimate>, String> {
+    let t0 = Instant::now();
+    let Some(file) = epd_io::records::RecordFile::open(path)? else {
+        return Ok(None);
+    };
+    if file.len() <= sampling.max_points {
+        return Ok(None);
+    }
+    let opened = t0.elapsed();
+    let t1 = Instant::now();
+    let mut src = FileRecords {
+        file: &file,
+        input: cfg.input,
+        checked: false,
+        read: std::time::Duration::ZERO,
+    };
+    let Some(chosen) = crate::sampling::choose_from(&mut src, sampling, cfg.method, &cfg.options)?
+    else {
+        return Ok(None);
+    };
+    let choice = t1.elapsed().saturating_sub(src.read);
+    let t2 = Instant::now();
+    let idx: Vec<u32> = chosen.indices.iter().map(|&i| i as u32).collect();
+    let mut cloud = file.cloud(&idx)?;
+    convert_to_sensor_metres(&mut cloud.points, cfg.input.units, cfg.input.frame);
+    let read_ms = (opened + src.read + t2.elapsed()).as_secs_f64() * 1e3;
+    let sampled = Presampled {
+        n_read: file.len(),
+        n: cloud.points.len(),
+        method: chosen.method,
+        ms: choice.as_secs_f64() * 1e3,
+    };
+    measure_cloud_as(cloud, read_ms, cfg, Some(sampled)).map(Some)
+}
+
+/// Points already chosen by [`crate::sampling`] before they were read
+/// ([`measure_records`]): of how many, how many, how, and the time the choice took (ms, besides
+/// reading).
+#[derive(Clone, Copy, Debug)]
+struct Presampled {
+    /// Points in the file.
+    n_read: usize,
+    /// Points chosen.
+    n: usize,
+    /// How they were chosen.
+    method: crate::sampling::SamplingMethod,
+    /// The choice's time besides reading (ms).
+    ms: f64,
 }
 
 /// Measure a cloud read from a file or a bag (its points in metres in the sensor frame;
@@ -47,6 +151,16 @@ pub fn measure_cloud(
     cloud: PointCloud,
     read_ms: f64,
     cfg: &EstimateConfig,
+) -> Result<FileEstimate, String> {
+    measure_cloud_as(cloud, read_ms, cfg, None)
+}
+
+/// [`measure_cloud`] of points already chosen (`pre`) or not.
+fn measure_cloud_as(
+    cloud: PointCloud,
+    read_ms: f64,
+    cfg: &EstimateConfig,
+    pre: Option<Presampled>,
 ) -> Result<FileEstimate, String> {
     if cloud.points.is_empty() {
         return Err("the file holds no points".into());
@@ -62,7 +176,7 @@ pub fn measure_cloud(
         sigma: None,
         read_ms,
     };
-    let mut e = measure_frame(input, cfg)?;
+    let mut e = measure_frame_as(input, cfg, pre)?;
     e.intensity_without_table = camera && cfg.calibration.is_none();
     Ok(e)
 }
@@ -83,19 +197,34 @@ pub fn measure_cloud(
 ///
 /// The error is a message for the user (the number of points read appended).
 pub fn measure_frame(input: FrameInput<'_>, cfg: &EstimateConfig) -> Result<FileEstimate, String> {
+    measure_frame_as(input, cfg, None)
+}
+
+/// [`measure_frame`] of points already chosen (`pre`: step 0 done) or not.
+fn measure_frame_as(
+    input: FrameInput<'_>,
+    cfg: &EstimateConfig,
+    pre: Option<Presampled>,
+) -> Result<FileEstimate, String> {
     let FrameInput {
         mut points,
         intensity,
         sigma,
         read_ms,
     } = input;
-    let n_read = points.len();
+    let n_read = pre.map_or(points.len(), |p| p.n_read);
     let t0 = Instant::now();
-    let chosen = cfg
-        .sampling
-        .as_ref()
-        .and_then(|s| crate::sampling::choose(&points, s, cfg.method, &cfg.options));
-    let sampled = chosen.as_ref().map(|c| (c.indices.len(), c.method));
+    let chosen = match pre {
+        Some(_) => None,
+        None => cfg
+            .sampling
+            .as_ref()
+            .and_then(|s| crate::sampling::choose(&points, s, cfg.method, &cfg.options)),
+    };
+    let sampled = match pre {
+        Some(p) => Some((p.n, p.method)),
+        None => chosen.as_ref().map(|c| (c.indices.len(), c.method)),
+    };
     let (intensity_kept, sigma_kept);
     let (intensity, sigma) = match &chosen {
         None => (intensity, sigma),
@@ -114,7 +243,7 @@ pub fn measure_frame(input: FrameInput<'_>, cfg: &EstimateConfig) -> Result<File
             (intensity_kept.as_deref(), sigma_kept.as_deref())
         }
     };
-    let sampling_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let sampling_ms = t0.elapsed().as_secs_f64() * 1e3 + pre.map_or(0.0, |p| p.ms);
     if cfg.calibration.is_some() {
         // The table moves the points: a copy of borrowed ones, before the clock starts.
         points = Cow::Owned(points.into_owned());

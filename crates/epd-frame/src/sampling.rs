@@ -28,6 +28,14 @@
 //!
 //! The choice is deterministic for a seed ([`Sampling::seed`]): the same frame and seed
 //! give the same points, whatever the number of threads.
+//!
+//! **Reading only what is used.** The choice reads a frame's points by index
+//! ([`Records`]; [`choose_from`]): the stratified and informed choices look only at the
+//! first point of each block of [`BLOCK`] consecutive points, then read the blocks they
+//! choose; the uniform choice reads the points it draws. From a binary PLY or PCD
+//! (`epd_io::records`) the rest of the file is never decoded
+//! (`crate::measure::measure_records`); from memory ([`choose`]) the same points are
+//! chosen.
 
 use std::fmt;
 use std::str::FromStr;
@@ -102,14 +110,19 @@ const CELLS: usize = epd_core::estimate::CLOCK_SECTORS * epd_core::estimate::AXI
 /// for the scene's survey to find a bend's points among them.
 pub const MIN_MAX_POINTS: usize = 1000;
 
-/// Points of the pilot fit of the informed choice: 2048 uniform points. The pilot only
-/// orients the scores, which depend smoothly on β: with 2048 of a 20" frame's ~306 000
-/// points its 1-σ is √(306 000/2048) ≈ 12 × the full frame's (mean diameter: ≈ 0.4 mm
-/// against 0.032 mm measured at σ = 0.03 m, `results/realtime`), i.e. β within < 0.1 % of
-/// the diameter and a fraction of a degree — a change of the scores far below their
-/// spread between rays (orders of magnitude). It costs a few ms (choice timings of the
-/// `sampling` example), less than the 20 000-point fit.
-pub const PILOT_POINTS: usize = 2048;
+/// Points of the pilot fit of the informed choice: 1024 uniform points (of the blocks'
+/// first points, themselves one point in [`BLOCK`]). The pilot only orients the scores,
+/// which depend smoothly on β: with 1024 of a 20" frame's ~306 000 points its 1-σ is
+/// √(306 000/1024) ≈ 17 × the full frame's (mean diameter: ≈ 0.55 mm against 0.032 mm
+/// measured at σ = 0.03 m, `results/realtime`), i.e. β within ~0.1 % of the diameter
+/// and a fraction of a degree — a change of the scores far below their spread between
+/// rays (orders of magnitude). Measured (`cargo run --release -p epd-frame --example
+/// sampling informed`, 6 frames, N = 20 000, blocks of 8): the informed choice's
+/// mean-diameter bound is 1.438 × the full frame's with a pilot of 2048, 1024 or 512
+/// points (1.439 × with 512); the pilot's fit costs ≈ 2.1 ms with 2048 points and
+/// ≈ 1.4 ms with 1024 on one core (its checks and 1-σ included); 1024 keeps a margin
+/// of points for the fit's checks (96 wall cells of the 1-σ, ~10 points each).
+pub const PILOT_POINTS: usize = 1024;
 
 /// The share of N the informed choice spreads evenly over the strata before it picks by
 /// influence: 1/4. The mean diameter's influence concentrates on the far rays; the roll
@@ -178,41 +191,106 @@ pub struct Chosen {
 /// Choose the points of `points` (SCS, m) to fit. `None` when every valid point is kept
 /// (no more valid points than `max_points`): then the frame is used whole. Invalid points
 /// (non-finite, at the origin) are never chosen. The informed choice's pilot is fitted
-/// with `method` and `options` (its range gate included).
+/// with `method` and `options` (its range gate included). The same choice as
+/// [`choose_from`] of the same points read from a file.
 pub fn choose(
     points: &[[f64; 3]],
     sampling: &Sampling,
     method: Method,
     options: &EstimateOptions,
 ) -> Option<Chosen> {
-    let valid: Vec<u32> = (0..points.len())
-        .filter(|&i| usable(&points[i]))
-        .map(|i| i as u32)
-        .collect();
-    let n = sampling.max_points;
-    if valid.len() <= n {
+    if points.iter().filter(|p| usable(p)).count() <= sampling.max_points {
         return None;
     }
+    // Reading from memory cannot fail.
+    choose_from(&mut InMemory(points), sampling, method, options)
+        .ok()
+        .flatten()
+}
+
+/// A frame's points by index, as the choice reads them: the whole frame in memory
+/// ([`InMemory`]), or the fixed-size records of a file read on demand, so that a file's
+/// points the choice leaves out are never decoded (`epd_io::records`).
+pub trait Records {
+    /// Number of points, valid or not.
+    fn len(&self) -> usize;
+    /// Whether there are none.
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// The points (SCS, m) of `indices` (strictly ascending, each below
+    /// [`len`](Self::len)), in that order.
+    fn points(&mut self, indices: &[u32]) -> Result<Vec<[f64; 3]>, String>;
+}
+
+/// A frame's points held in memory.
+#[derive(Clone, Copy, Debug)]
+pub struct InMemory<'a>(pub &'a [[f64; 3]]);
+
+impl Records for InMemory<'_> {
+    fn len(&self) -> usize {
+        self.0.len()
+    }
+
+    fn points(&mut self, indices: &[u32]) -> Result<Vec<[f64; 3]>, String> {
+        indices
+            .iter()
+            .map(|&i| {
+                self.0
+                    .get(i as usize)
+                    .copied()
+                    .ok_or_else(|| format!("point {i} asked for of {}", self.0.len()))
+            })
+            .collect()
+    }
+}
+
+/// [`choose`] from points read by index ([`Records`]): only the points the choice looks
+/// at are read — for the stratified and informed choices the first point of every block
+/// of [`BLOCK`] (its ray classifies and scores the block), then the chosen blocks; for
+/// the uniform choice the chosen points alone. `Ok(None)` when there are no more points
+/// than `max_points`, or too few valid ones to choose `max_points` of: then the frame is
+/// used whole. The error is a read's.
+pub fn choose_from<R: Records + ?Sized>(
+    records: &mut R,
+    sampling: &Sampling,
+    method: Method,
+    options: &EstimateOptions,
+) -> Result<Option<Chosen>, String> {
+    let k = sampling.max_points;
+    if records.len() <= k {
+        return Ok(None);
+    }
     let mut rng = SplitMix(sampling.seed);
-    let (mut chosen, used) = match sampling.method {
-        SamplingMethod::Uniform => (uniform(&valid, n, &mut rng), SamplingMethod::Uniform),
-        SamplingMethod::Stratified => (
-            stratified(points, &valid, n, &mut rng),
-            SamplingMethod::Stratified,
+    let (chosen, used) = match sampling.method {
+        SamplingMethod::Uniform => (
+            uniform_records(records, k, &mut rng)?,
+            SamplingMethod::Uniform,
         ),
-        SamplingMethod::Informed => match informed(points, &valid, n, method, options, &mut rng) {
-            Some(c) => (c, SamplingMethod::Informed),
-            None => (
-                stratified(points, &valid, n, &mut rng),
-                SamplingMethod::Stratified,
-            ),
-        },
+        how => {
+            let heads = Heads::read(records)?;
+            let pilot = if how == SamplingMethod::Informed {
+                informed(&heads, k, method, options, &mut rng)
+            } else {
+                None
+            };
+            match pilot {
+                Some(order) => (fill(records, &heads, order, k)?, SamplingMethod::Informed),
+                None => (
+                    fill(records, &heads, stratified(&heads, k, &mut rng), k)?,
+                    SamplingMethod::Stratified,
+                ),
+            }
+        }
+    };
+    let Some(mut chosen) = chosen else {
+        return Ok(None);
     };
     chosen.sort_unstable();
-    Some(Chosen {
+    Ok(Some(Chosen {
         indices: chosen.into_iter().map(|i| i as usize).collect(),
         method: used,
-    })
+    }))
 }
 
 /// Finite and away from the origin, as `epd_core::cloud::clean` keeps them.
@@ -325,37 +403,137 @@ fn allocate(sizes: &[usize], k: usize) -> Vec<usize> {
     }
 }
 
-/// Points per block of the stratified and informed choices: 4 consecutive valid points,
+/// Points per block of the stratified and informed choices: 8 consecutive points,
 /// which in an organised cloud (row by row, as cameras write them) are neighbouring
-/// pixels of one row (0.1° apart on a Helios2), whose rays carry the same information to
-/// within a per cent. A block is classified and scored by its first point and chosen
-/// whole, so the cost of the choice falls four-fold (a gradient per block, not per
-/// point). For an unorganised cloud a block is four arbitrary points: the choice is then
-/// less informed, but still made of rays, not of noise (see the module doc).
-pub const BLOCK: usize = 4;
+/// pixels of one row (0.8° on a Helios2, whose 640 columns span 69°), whose rays carry
+/// nearly the same information. A block is classified and scored by its first point
+/// and chosen whole, so the choice reads, scores and sorts one point in 8 (a frame's
+/// ~38 000 blocks, not its ~306 000 points) before it reads the chosen blocks. For an
+/// unorganised cloud a block is 8 arbitrary points: the choice is then less informed,
+/// but still made of rays, not of noise (see the module doc). Measured (`cargo run
+/// --release -p epd-frame --example sampling informed`, 6 frames, N = 20 000): the
+/// informed choice's mean-diameter bound is 1.436 × the full frame's with blocks of 4,
+/// 1.438 × with 8, 1.451 × with 16, 1.497 × with 32 (a block of 32 pixels reaches past
+/// the few far rays that carry the information); scoring costs in proportion to the
+/// blocks (≈ 1.5 ms for 8, 3–6 ms for 4 on one core).
+pub const BLOCK: usize = 8;
 
-/// The first valid point of each block ([`BLOCK`]).
-fn heads(valid: &[u32]) -> Vec<u32> {
-    valid.iter().step_by(BLOCK).copied().collect()
+/// Blocks for `k` points ([`BLOCK`] each).
+fn blocks_for(k: usize) -> usize {
+    k.div_ceil(BLOCK)
 }
 
-/// The valid points of the chosen blocks (`blocks`: indices of blocks), at most `k`.
-fn expand(valid: &[u32], blocks: &[usize], k: usize) -> Vec<u32> {
-    let mut out: Vec<u32> = blocks
-        .iter()
-        .flat_map(|&b| {
-            valid[b * BLOCK..((b + 1) * BLOCK).min(valid.len())]
-                .iter()
-                .copied()
-        })
-        .collect();
+/// The first point of every block ([`BLOCK`]) that is valid: its index and the point.
+struct Heads {
+    /// Points read.
+    n: usize,
+    /// Index of each valid first point.
+    first: Vec<u32>,
+    /// The points.
+    pts: Vec<[f64; 3]>,
+}
+
+impl Heads {
+    fn read<R: Records + ?Sized>(records: &mut R) -> Result<Self, String> {
+        let n = records.len();
+        let idx: Vec<u32> = (0..n).step_by(BLOCK).map(|i| i as u32).collect();
+        let pts = records.points(&idx)?;
+        let (first, pts) = idx.into_iter().zip(pts).filter(|(_, p)| usable(p)).unzip();
+        Ok(Self { n, first, pts })
+    }
+
+    /// The points of block `b`.
+    fn block(&self, b: usize) -> std::ops::Range<u32> {
+        let h = self.first[b];
+        h..(h as usize + BLOCK).min(self.n) as u32
+    }
+}
+
+/// The blocks in the order a choice takes them: `first` (enough for `k` points when all
+/// are valid), then, while invalid points leave it short, those of `rest` in order.
+struct Order<'a> {
+    first: Vec<usize>,
+    rest: Box<dyn FnOnce() -> Vec<usize> + 'a>,
+}
+
+/// `k` valid points of the blocks of `order`, taken in its order (a block's invalid
+/// points left out, the last block's extra points dropped), or `None` when its blocks
+/// hold fewer than `k` valid points.
+fn fill<R: Records + ?Sized>(
+    records: &mut R,
+    heads: &Heads,
+    order: Order<'_>,
+    k: usize,
+) -> Result<Option<Vec<u32>>, String> {
+    let mut out: Vec<u32> = Vec::with_capacity(k + BLOCK);
+    let mut take = |blocks: &[usize], out: &mut Vec<u32>| -> Result<(), String> {
+        let mut idx: Vec<u32> = blocks.iter().flat_map(|&b| heads.block(b)).collect();
+        idx.sort_unstable();
+        let pts = records.points(&idx)?;
+        for &b in blocks {
+            for i in heads.block(b) {
+                if let Ok(at) = idx.binary_search(&i)
+                    && pts.get(at).is_some_and(usable)
+                {
+                    out.push(i);
+                }
+            }
+        }
+        Ok(())
+    };
+    take(&order.first, &mut out)?;
+    if out.len() < k {
+        let rest = (order.rest)();
+        let mut at = 0;
+        while out.len() < k && at < rest.len() {
+            let upto = (at + blocks_for(k - out.len())).min(rest.len());
+            take(&rest[at..upto], &mut out)?;
+            at = upto;
+        }
+    }
+    if out.len() < k {
+        return Ok(None);
+    }
     out.truncate(k);
-    out
+    Ok(Some(out))
+}
+
+/// `k` valid points, each as likely as any other: drawn without repetition (a partial
+/// Fisher–Yates shuffle of all indices), read, the invalid ones left out and as many
+/// more drawn, until `k` or none left (`None`).
+fn uniform_records<R: Records + ?Sized>(
+    records: &mut R,
+    k: usize,
+    rng: &mut SplitMix,
+) -> Result<Option<Vec<u32>>, String> {
+    let n = records.len();
+    let mut pool: Vec<u32> = (0..n as u32).collect();
+    let mut drawn = 0;
+    let mut out = Vec::with_capacity(k);
+    while out.len() < k && drawn < n {
+        let want = (k - out.len()).min(n - drawn);
+        for i in drawn..drawn + want {
+            let j = i + rng.below(n - i);
+            pool.swap(i, j);
+        }
+        let mut idx = pool[drawn..drawn + want].to_vec();
+        idx.sort_unstable();
+        drawn += want;
+        let pts = records.points(&idx)?;
+        out.extend(
+            idx.iter()
+                .zip(&pts)
+                .filter(|(_, p)| usable(p))
+                .map(|(&i, _)| i),
+        );
+    }
+    Ok((out.len() >= k).then_some(out))
 }
 
 /// The blocks grouped by stratum (of their first point, [`strata`]).
-fn by_stratum(points: &[[f64; 3]], heads: &[u32]) -> Vec<Vec<usize>> {
-    let s = strata(points, heads);
+fn by_stratum(heads: &Heads) -> Vec<Vec<usize>> {
+    let all: Vec<u32> = (0..heads.pts.len() as u32).collect();
+    let s = strata(&heads.pts, &all);
     let mut groups = vec![Vec::new(); CLOCK_BINS * REACH_BINS];
     for (b, &k) in s.iter().enumerate() {
         groups[k as usize].push(b);
@@ -363,24 +541,31 @@ fn by_stratum(points: &[[f64; 3]], heads: &[u32]) -> Vec<Vec<usize>> {
     groups
 }
 
-/// Blocks for `k` points ([`BLOCK`] each).
-fn blocks_for(k: usize) -> usize {
-    k.div_ceil(BLOCK)
-}
-
-/// `k` points, the same number from each stratum ([`allocate`]), blocks chosen uniformly
-/// within each.
-fn stratified(points: &[[f64; 3]], valid: &[u32], k: usize, rng: &mut SplitMix) -> Vec<u32> {
-    let groups = by_stratum(points, &heads(valid));
+/// The same number of blocks from each stratum ([`allocate`]), chosen uniformly within
+/// each; then the others, one from each stratum in turn.
+fn stratified<'a>(heads: &Heads, k: usize, rng: &mut SplitMix) -> Order<'a> {
+    let mut groups = by_stratum(heads);
     let sizes: Vec<usize> = groups.iter().map(Vec::len).collect();
     let take = allocate(&sizes, blocks_for(k));
-    let mut blocks = Vec::with_capacity(blocks_for(k));
-    for (g, t) in groups.into_iter().zip(take) {
-        let mut g = g;
-        shuffle(&mut g, rng);
-        blocks.extend_from_slice(&g[..t]);
+    let mut first = Vec::with_capacity(blocks_for(k));
+    let mut left = Vec::with_capacity(groups.len());
+    for (g, t) in groups.iter_mut().zip(take) {
+        shuffle(g, rng);
+        first.extend_from_slice(&g[..t]);
+        left.push(g.split_off(t));
     }
-    expand(valid, &blocks, k)
+    Order {
+        first,
+        rest: Box::new(move || round_robin(left)),
+    }
+}
+
+/// The items of `groups`, one from each group in turn.
+fn round_robin(groups: Vec<Vec<usize>>) -> Vec<usize> {
+    let longest = groups.iter().map(Vec::len).max().unwrap_or(0);
+    (0..longest)
+        .flat_map(|i| groups.iter().filter_map(move |g| g.get(i).copied()))
+        .collect()
 }
 
 /// Lanes of the gradient evaluation (SIMD in [`Geometry::residuals_and_gradients`]).
@@ -404,29 +589,41 @@ fn gradients(geom: &Geometry, pts: &[[f64; 3]]) -> Vec<[f64; N_PARAMS]> {
 /// The mean diameter's gradient over β: c = (½, ½, 0, …).
 const D_MEAN: [f64; N_PARAMS] = [0.5, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0];
 
-/// The informed choice ([`SamplingMethod::Informed`]), or `None` when the pilot fit does
-/// not converge or leaves the model.
-fn informed(
-    points: &[[f64; 3]],
-    valid: &[u32],
+/// The informed choice ([`SamplingMethod::Informed`]) of the blocks, or `None` when the
+/// pilot fit does not converge or leaves the model.
+fn informed<'a>(
+    heads: &'a Heads,
     k: usize,
     method: Method,
     options: &EstimateOptions,
     rng: &mut SplitMix,
-) -> Option<Vec<u32>> {
-    let pilot_idx = uniform(valid, PILOT_POINTS, rng);
-    let pilot_pts: Vec<[f64; 3]> = pilot_idx.iter().map(|&i| points[i as usize]).collect();
+) -> Option<Order<'a>> {
+    let all: Vec<u32> = (0..heads.pts.len() as u32).collect();
+    let pilot_idx = uniform(&all, PILOT_POINTS, rng);
+    let pilot_pts: Vec<[f64; 3]> = pilot_idx.iter().map(|&i| heads.pts[i as usize]).collect();
     let pilot = estimate(&pilot_pts, method, options).ok()?;
     if !pilot.status.is_converged() {
         return None;
     }
     let geom = Geometry::new(&pilot.params)?;
-    let heads = heads(valid);
-    let pts: Vec<[f64; 3]> = heads.iter().map(|&i| points[i as usize]).collect();
-    let grads = gradients(&geom, &pts);
+    let grads = gradients(&geom, &heads.pts);
     let scores = influence(&grads)?;
-    let blocks = pick(&strata(points, &heads), &scores, blocks_for(k), rng);
-    Some(expand(valid, &blocks, k))
+    let all_strata = strata(&heads.pts, &all);
+    let first = pick(&all_strata, &scores, blocks_for(k), rng);
+    let chosen = first.clone();
+    let rest = move || {
+        let mut taken = vec![false; scores.len()];
+        for &b in &chosen {
+            taken[b] = true;
+        }
+        let mut rest: Vec<usize> = (0..scores.len()).filter(|&b| !taken[b]).collect();
+        rest.sort_by(|x, y| scores[*y].total_cmp(&scores[*x]));
+        rest
+    };
+    Some(Order {
+        first,
+        rest: Box::new(rest),
+    })
 }
 
 /// The influence (gᵢ·M⁻¹c)² of each row gᵢ of `grads` on the mean diameter, for the

@@ -6,6 +6,8 @@
 //!   simulator.
 //! - [`read`]: format detection and the readers' common types ([`PointCloud`],
 //!   [`ReadError`]); the readers themselves in [`ply`], [`pcd`] and [`text`].
+//! - [`records`]: the fixed-size records of a binary PLY or PCD read by index, not the
+//!   whole file decoded (`--max-points`).
 //! - [`ply`]: PLY read and write (ASCII, binary; `intensity`, `segment`, `part`).
 //! - [`bag`]: ROS 2 bags (MCAP): the `sensor_msgs/msg/PointCloud2` messages of a topic,
 //!   streamed and decoded from CDR; the bag's topics.
@@ -39,6 +41,7 @@ pub mod name;
 pub mod pcd;
 pub mod ply;
 pub mod read;
+pub mod records;
 pub mod text;
 
 pub use read::{Format, MAX_INPUT_BYTES, PointCloud, ReadError, read_bytes, read_from, read_path};

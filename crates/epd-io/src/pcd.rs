@@ -422,6 +422,31 @@ fn read_ascii(body: &[u8], l: &Layout, cloud: &mut PointCloud) -> Result<(), Rea
     Ok(())
 }
 
+/// The record layout of a PCD with `DATA binary` from its header lines (`None` for any
+/// other PCD): [`crate::records::RecordFile`].
+pub(crate) fn record_layout(lines: &[String]) -> Option<crate::records::RecordLayout> {
+    let h = parse_header(lines).ok()?;
+    if h.data != "binary" {
+        return None;
+    }
+    let l = Layout::new(&h).ok()?;
+    let offsets = offsets(l.fields.iter().map(|f| f.bytes));
+    let at = |k: usize| (l.fields[k].ty, offsets[k]);
+    Some(crate::records::RecordLayout {
+        format: F,
+        what: "the header".into(),
+        count: l.n as u64,
+        record: l.record,
+        little: true,
+        xyz: l.xyz.map(at),
+        extra: l
+            .extra
+            .iter()
+            .map(|&k| (l.fields[k].name.clone(), l.fields[k].ty, offsets[k]))
+            .collect(),
+    })
+}
+
 /// `DATA binary`: `n` little-endian records of `record` bytes, point-major.
 fn read_binary(body: &[u8], l: &Layout, cloud: &mut PointCloud) -> Result<(), ReadError> {
     let bytes =

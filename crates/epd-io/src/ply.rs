@@ -569,6 +569,22 @@ impl VertexLayout {
     }
 }
 
+/// The record layout of a binary PLY whose `vertex` element comes first with scalar
+/// properties only, from its header lines (`None` for any other PLY):
+/// [`crate::records::RecordFile`].
+pub(crate) fn record_layout(lines: &[String]) -> Option<crate::records::RecordLayout> {
+    let l = Header::parse(lines).ok()?.fast_layout()?;
+    Some(crate::records::RecordLayout {
+        format: F,
+        what: format!("element `{}`", l.name),
+        count: l.count,
+        record: l.record,
+        little: l.little,
+        xyz: l.xyz,
+        extra: l.extra,
+    })
+}
+
 /// What [`read_stream`] did.
 pub(crate) enum Stream {
     /// The vertices, decoded as they streamed in.
