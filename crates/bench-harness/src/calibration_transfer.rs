@@ -192,6 +192,8 @@ pub fn run(out: &Path, per_size: u64) -> anyhow::Result<()> {
             bars: true,
             marker_triangle: k == 1,
             dashed: false,
+            band: false,
+            markers_only: false,
         });
     }
     std::fs::write(out.join("frames.csv"), rows)?;
