@@ -69,7 +69,7 @@ pub fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
 /// `--out` names a folder, or nothing yet (it is created): a usage error (exit 2) naming
 /// what is there instead — a file, or a symbolic link to something missing (which
 /// `create_dir_all` reports as "File exists").
-fn check_out_folder(out: &std::path::Path) -> anyhow::Result<()> {
+pub(crate) fn check_out_folder(out: &std::path::Path) -> anyhow::Result<()> {
     let Ok(link) = std::fs::symlink_metadata(out) else {
         return Ok(());
     };

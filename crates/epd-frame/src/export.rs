@@ -8,7 +8,7 @@
 //! (eq. 5 in the pipe frame of eq. 3) over the axial stretch of the straight section's
 //! points, and a bend ahead's torus (`epd_core::bend::BendGeometry`) over the angle seen.
 
-use std::f64::consts::{PI, TAU};
+use std::f64::consts::TAU;
 use std::io::Write;
 use std::path::Path;
 
@@ -18,7 +18,7 @@ use epd_core::residual::{Geometry, Residual};
 use nalgebra::{Point3, Vector3};
 
 use crate::config::{EstimateConfig, InputFrame, Units};
-use crate::input::{read_input, to_sensor_metres};
+use crate::input::read_input;
 use crate::measure::measure_cloud;
 use crate::report::{FileEstimate, FileReport};
 
@@ -41,8 +41,10 @@ pub const AXIAL_QUANTILES: (f64, f64) = (0.005, 0.995);
 /// The measured points of one frame with the fit: what `--export-fit` and `epd view` draw.
 #[derive(Clone, Debug)]
 pub struct FittedFrame {
-    /// The report of the frame (as `epd estimate` gives it).
-    pub report: FileReport,
+    /// The fitted parameters.
+    pub params: Params,
+    /// The bend ahead, as in [`FileEstimate::bend_fit`].
+    pub bend: Option<(Params, BendGeometry, f64)>,
     /// The valid points (finite, not at the origin), in metres in the sensor frame.
     pub points: Vec<[f64; 3]>,
     /// Each point's residual (mm), NaN where its ray never meets the wall.
@@ -180,12 +182,15 @@ fn quantile(v: &mut [f64], q: f64) -> Option<f64> {
     v.get(i).copied()
 }
 
-/// Read `path`, measure it as `epd estimate` does, and put the fit where it can be seen:
-/// the points' residuals, their unrolled places and the wall's mesh. The error says why
-/// there is no fit to show (the report's failure).
-pub fn fit_file(path: &Path, cfg: &EstimateConfig) -> Result<FittedFrame, String> {
+/// Read `path`, measure it as `epd estimate` does (its report), and put the fit where it
+/// can be seen: the points' residuals, their unrolled places and the wall's mesh. The
+/// error says why there is no fit to show (the report's failure).
+pub fn fit_file(path: &Path, cfg: &EstimateConfig) -> (FileReport, Result<FittedFrame, String>) {
     let t0 = std::time::Instant::now();
-    let cloud = read_input(path, &cfg.input)?;
+    let cloud = match read_input(path, &cfg.input) {
+        Ok(c) => c,
+        Err(e) => return (FileReport::of_path(path, Err(e.clone())), Err(e)),
+    };
     let points: Vec<[f64; 3]> = cloud
         .points
         .iter()
@@ -194,6 +199,12 @@ pub fn fit_file(path: &Path, cfg: &EstimateConfig) -> Result<FittedFrame, String
         .collect();
     let outcome = measure_cloud(cloud, t0.elapsed().as_secs_f64() * 1e3, cfg);
     let report = FileReport::of_path(path, outcome);
+    let fitted = fit_of(&report, points);
+    (report, fitted)
+}
+
+/// [`fit_file`]'s picture of a measured frame's `points` (m, sensor frame).
+fn fit_of(report: &FileReport, points: Vec<[f64; 3]>) -> Result<FittedFrame, String> {
     if let Some(why) = report.failure() {
         return Err(format!("no fit to show: {why}"));
     }
@@ -226,7 +237,8 @@ pub fn fit_file(path: &Path, cfg: &EstimateConfig) -> Result<FittedFrame, String
         mesh.append(torus_mesh(straight, bend, *angle));
     }
     Ok(FittedFrame {
-        report,
+        params: p,
+        bend: e.bend_fit,
         points,
         residual_mm,
         unrolled,
@@ -235,7 +247,7 @@ pub fn fit_file(path: &Path, cfg: &EstimateConfig) -> Result<FittedFrame, String
 }
 
 /// A point in metres in the sensor frame back in the file's unit and frame (the inverse of
-/// [`to_sensor_metres`]), so the export lies over the file's own points in a viewer.
+/// [`crate::input::to_sensor_metres`]), so the export lies over the file's own points in a viewer.
 pub fn to_file_frame(q: [f64; 3], units: Units, frame: InputFrame) -> [f64; 3] {
     let k = match units {
         Units::Metres => 1.0,
@@ -265,8 +277,8 @@ pub fn write_fit_ply<W: Write>(
     let n_vertices = n_points + f.mesh.vertices.len();
     let mut head = String::from("ply\nformat binary_little_endian 1.0\n");
     head.push_str("comment epd --export-fit: measured points (mesh 0) with their range residual to the fitted wall (residual_mm, positive beyond the wall), and the fitted wall (mesh 1)\n");
-    if let Ok(e) = &f.report.outcome {
-        let p = e.estimate.params;
+    {
+        let p = f.params;
         head.push_str(&format!(
             "comment epd d_max_mm {} d_min_mm {} roll_deg {} pitch_deg {} yaw_deg {} dy_mm {} dz_mm {} (the sensor frame, eq. 3)\n",
             p.d_max * 1e3,
@@ -277,7 +289,7 @@ pub fn write_fit_ply<W: Write>(
             p.dy * 1e3,
             p.dz * 1e3
         ));
-        if let Some((_, b, angle)) = &e.bend_fit {
+        if let Some((_, b, angle)) = &f.bend {
             head.push_str(&format!(
                 "comment epd bend radius_mm {} tube_radius_mm {} angle_seen_deg {}\n",
                 b.radius * 1e3,
@@ -327,6 +339,8 @@ pub fn write_fit_ply<W: Write>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::input::to_sensor_metres;
+    use std::f64::consts::PI;
 
     fn pose() -> Params {
         Params {

@@ -673,6 +673,123 @@ impl Series {
     }
 }
 
+/// A diverging colour for `v` in [−1, 1]: blue (−1) through white (0) to red (+1).
+pub fn diverging(v: f64) -> RGBColor {
+    let v = if v.is_finite() { v.clamp(-1.0, 1.0) } else { 0.0 };
+    let mix = |a: RGBColor, t: f64| {
+        let f = |c: u8| (255.0 + (f64::from(c) - 255.0) * t).round() as u8;
+        RGBColor(f(a.0), f(a.1), f(a.2))
+    };
+    if v < 0.0 { mix(BLUE, -v) } else { mix(RED, v) }
+}
+
+/// A map of values at (x, y) points: each point a dot coloured by its value on
+/// [`diverging`] from −`limit` (blue) to +`limit` (red), with a colour bar labelled
+/// `value_label`; axes `x_label`, `y_label` over `y_range`.
+pub struct ValueMap<'a> {
+    /// The PNG's file name.
+    pub name: String,
+    /// The title.
+    pub title: String,
+    /// The points: (x, y, value).
+    pub points: &'a [(f64, f64, f64)],
+    /// The colour scale's limit (the value's unit).
+    pub limit: f64,
+    /// The x axis's description.
+    pub x_label: &'a str,
+    /// The y axis's description.
+    pub y_label: &'a str,
+    /// The y axis's range.
+    pub y_range: (f64, f64),
+    /// The colour bar's description.
+    pub value_label: &'a str,
+}
+
+/// Draw a [`ValueMap`] as a PNG (1400 × 800 px).
+pub fn value_map(m: &ValueMap<'_>) -> Result<Png, WriteError> {
+    register_font()?;
+    let size = (1400u32, 800u32);
+    let e = draw_error(m.name.clone());
+    let (mut x0, mut x1) = m
+        .points
+        .iter()
+        .filter(|p| p.0.is_finite())
+        .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
+    if !(x1 > x0) {
+        (x0, x1) = (0.0, 1.0);
+    }
+    let limit = if m.limit > 0.0 && m.limit.is_finite() {
+        m.limit
+    } else {
+        1.0
+    };
+    let mut buf = vec![0u8; (size.0 * size.1 * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
+        root.fill(&WHITE).map_err(|x| e(x.to_string()))?;
+        let root = root
+            .titled(&m.title, (FONT, 22))
+            .map_err(|x| e(x.to_string()))?;
+        let (main, bar) = root.split_horizontally(size.0 - 150);
+        let mut chart = ChartBuilder::on(&main)
+            .margin(12)
+            .x_label_area_size(45)
+            .y_label_area_size(70)
+            .build_cartesian_2d(x0..x1, m.y_range.0..m.y_range.1)
+            .map_err(|x| e(x.to_string()))?;
+        chart
+            .configure_mesh()
+            .x_desc(m.x_label)
+            .y_desc(m.y_label)
+            .label_style((FONT, 14))
+            .axis_desc_style((FONT, 16))
+            .x_label_formatter(&|v| linear_label(*v))
+            .y_label_formatter(&|v| linear_label(*v))
+            .disable_mesh()
+            .draw()
+            .map_err(|x| e(x.to_string()))?;
+        chart
+            .draw_series(
+                m.points
+                    .iter()
+                    .filter(|p| p.0.is_finite() && p.1.is_finite() && p.2.is_finite())
+                    .map(|&(x, y, v)| Circle::new((x, y), 1, diverging(v / limit).filled())),
+            )
+            .map_err(|x| e(x.to_string()))?;
+        let mut scale = ChartBuilder::on(&bar)
+            .margin(20)
+            .margin_top(40)
+            .set_label_area_size(LabelAreaPosition::Right, 60)
+            .build_cartesian_2d(0.0..1.0, -limit..limit)
+            .map_err(|x| e(x.to_string()))?;
+        scale
+            .configure_mesh()
+            .disable_mesh()
+            .disable_x_axis()
+            .y_desc(m.value_label)
+            .label_style((FONT, 14))
+            .axis_desc_style((FONT, 16))
+            .y_label_formatter(&|v| linear_label(*v))
+            .draw()
+            .map_err(|x| e(x.to_string()))?;
+        let steps = 200;
+        scale
+            .draw_series((0..steps).map(|k| {
+                let a = -limit + 2.0 * limit * k as f64 / steps as f64;
+                let b = a + 2.0 * limit / steps as f64;
+                Rectangle::new([(0.0, a), (1.0, b)], diverging(0.5 * (a + b) / limit).filled())
+            }))
+            .map_err(|x| e(x.to_string()))?;
+        root.present().map_err(|x| e(x.to_string()))?;
+    }
+    let mut bytes = Vec::new();
+    crate::depth_png::encode_rgb(&mut bytes, &buf, size)?;
+    Ok(Png {
+        name: m.name.clone(),
+        bytes,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
