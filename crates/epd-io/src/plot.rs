@@ -748,6 +748,11 @@ pub fn value_map(m: &ValueMap<'_>) -> Result<Png, WriteError> {
             .disable_mesh()
             .draw()
             .map_err(|x| e(x.to_string()))?;
+        // A dark ground, so that the white of a zero residual shows.
+        chart
+            .plotting_area()
+            .fill(&RGBColor(64, 64, 64))
+            .map_err(|x| e(x.to_string()))?;
         chart
             .draw_series(
                 m.points
