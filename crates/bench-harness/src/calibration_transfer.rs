@@ -40,6 +40,7 @@ fn simulator(od_in: f64, ovality: f64, seed: u64) -> anyhow::Result<Simulator> {
         noise: tof_sim::NoiseModel::Range,
         helios2: true,
         pose: PoseOverride::default(),
+        feature: None,
     })
     .map_err(|e| anyhow::anyhow!("{e}"))
 }

@@ -808,7 +808,11 @@ impl BagReader {
 /// index: frame_KKKK of `epd simulate --seed S` is `trial=K`), `points` (a uniform
 /// subsample of that many points), `outliers` (fraction), `noise` ("range",
 /// "isotropic"), `sensor` ("plain", "helios2"); `roll_deg`, `pitch_deg`, `yaw_deg`,
-/// `dy_mm`, `dz_mm` replace the drawn pose parameters. Returns `(points, truth)`: the
+/// `dy_mm`, `dz_mm` replace the drawn pose parameters; `bend_at` (m) puts a 90°
+/// long-radius elbow (radius 1.5 × the inner diameter) that far ahead of the sensor along
+/// the pipe, `tee_at` (m) a tee's branch opening (0.6 × the inner diameter), as
+/// `epd simulate --bend-at M` / `--tee-at M` (then truth also has `geometry` and
+/// `straight_until_m`). Returns `(points, truth)`: the
 /// measured points (an (N, 3) float64 array, m, sensor frame) and the ground truth with
 /// the keys and values of the JSON file `epd simulate` writes; with
 /// `return_properties=True`, `(points, truth, properties)` where properties holds `u`,
@@ -817,7 +821,7 @@ impl BagReader {
 #[pyo3(signature = (
     od_in=20.0, wall_mm=12.0, ovality=0.02, sigma=0.03, seed=1, trial=0, points=None,
     outliers=0.0, noise="range", sensor="plain", roll_deg=None, pitch_deg=None,
-    yaw_deg=None, dy_mm=None, dz_mm=None, return_properties=false,
+    yaw_deg=None, dy_mm=None, dz_mm=None, return_properties=false, bend_at=None, tee_at=None,
 ))]
 #[allow(clippy::too_many_arguments)] // the tool's flags, as keyword arguments
 fn simulate<'py>(
@@ -838,8 +842,20 @@ fn simulate<'py>(
     dy_mm: Option<f64>,
     dz_mm: Option<f64>,
     return_properties: bool,
+    bend_at: Option<f64>,
+    tee_at: Option<f64>,
 ) -> PyResult<Bound<'py, PyAny>> {
     let noise = parse_noise(noise)?;
+    let feature = match (bend_at, tee_at) {
+        (Some(_), Some(_)) => {
+            return Err(PyValueError::new_err(
+                "bend_at and tee_at given together: a frame has one feature ahead; give one",
+            ));
+        }
+        (Some(m), None) => Some(tof_sim::settings::Feature::BendAt(m)),
+        (None, Some(m)) => Some(tof_sim::settings::Feature::TeeAt(m)),
+        (None, None) => None,
+    };
     let helios2 = parse_sensor(sensor)?;
     let points = match points {
         None => None,
@@ -866,6 +882,7 @@ fn simulate<'py>(
             dy: m(dy_mm),
             dz: m(dz_mm),
         },
+        feature,
     };
     let (frame, truth) = run_interruptible(py, || -> Result<_, SimulateError> {
         let sim = Simulator::new(&settings)?;
