@@ -814,7 +814,10 @@ impl BagReader {
 /// `epd simulate --bend-at M` / `--tee-at M` (then truth also has `geometry` and
 /// `straight_until_m`). Returns `(points, truth)`: the
 /// measured points (an (N, 3) float64 array, m, sensor frame) and the ground truth with
-/// the keys and values of the JSON file `epd simulate` writes; with
+/// the keys and values of the JSON file `epd simulate` writes: `d_max_mm`, `d_min_mm`
+/// (mm), `roll_deg`, `pitch_deg`, `yaw_deg` (degrees), `dy_mm`, `dz_mm` (mm), `n_points`,
+/// `seed`, `trial`, `sigma_m` (m), `outlier_fraction`, `sensor`, and with a feature
+/// `geometry` and `straight_until_m` (m); with
 /// `return_properties=True`, `(points, truth, properties)` where properties holds `u`,
 /// `v` and (Helios2) `intensity` as in the PLY file.
 #[pyfunction]
