@@ -415,7 +415,12 @@ pub struct SimulateArgs {
     /// A 90° long-radius elbow (radius 1.5 × the inner diameter) starting M metres ahead
     /// of the sensor along the pipe; the truth JSON then has `geometry` (`bend_ahead`)
     /// and `straight_until_m`.
-    #[arg(long, value_name = "M", allow_negative_numbers = true, conflicts_with = "tee_at")]
+    #[arg(
+        long,
+        value_name = "M",
+        allow_negative_numbers = true,
+        conflicts_with = "tee_at"
+    )]
     pub bend_at: Option<f64>,
     /// A tee whose branch (0.6 × the inner diameter) opens M metres ahead of the sensor
     /// along the pipe; the truth JSON then has `geometry` (`tee_ahead`) and

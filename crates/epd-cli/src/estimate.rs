@@ -179,7 +179,10 @@ pub(crate) enum Input {
 /// The inputs, a bag's topic chosen (`--topic`, or its only PointCloud2 topic): a bag whose
 /// topic cannot be chosen is a usage error (nothing is estimated); one that cannot be read
 /// is a failed input.
-pub(crate) fn resolve_inputs(files: Vec<PathBuf>, topic: Option<&str>) -> anyhow::Result<Vec<Input>> {
+pub(crate) fn resolve_inputs(
+    files: Vec<PathBuf>,
+    topic: Option<&str>,
+) -> anyhow::Result<Vec<Input>> {
     let mut inputs = Vec::with_capacity(files.len());
     let mut any_bag = false;
     for path in files {

@@ -144,8 +144,7 @@ fn row(frame: u64, r: &FileReport, t0: Option<i64>, x_of: &Abscissa) -> (Vec<Fie
     let failure = r.failure();
     let note = r.outcome.as_ref().is_ok_and(|e| {
         e.size_outside_rigs.is_some()
-            || e
-                .calibration_outside
+            || e.calibration_outside
                 .is_some_and(|o| o > epd_frame::measure::MOSTLY_OUTSIDE)
     });
     let flagged = failure.is_some() || note;
@@ -210,7 +209,9 @@ impl Iterator for Frames<'_> {
         loop {
             if let Some((path, first, frames)) = &mut self.bag {
                 match frames.next() {
-                    Some(Ok(m)) => return Some((*first + m.message.index, Work::Message(Box::new(m)))),
+                    Some(Ok(m)) => {
+                        return Some((*first + m.message.index, Work::Message(Box::new(m))));
+                    }
                     Some(Err(e)) => {
                         let r = damage_report(path, &e);
                         let at = *first;
@@ -239,7 +240,9 @@ impl Iterator for Frames<'_> {
                     }
                     match BagFrames::open(path, topic) {
                         Ok(f) => self.bag = Some((path, first, f.only(lo..hi))),
-                        Err(e) => return Some((first, Work::Done(Box::new(damage_report(path, &e))))),
+                        Err(e) => {
+                            return Some((first, Work::Done(Box::new(damage_report(path, &e)))));
+                        }
                     }
                 }
                 other => {
@@ -294,7 +297,8 @@ pub fn run_profile(a: &ProfileArgs) -> anyhow::Result<ExitCode> {
         let mut positions = Vec::new();
         for i in &inputs {
             if let Input::Bag { path, .. } = i {
-                let track = odometry(path, t).map_err(|e| usage(format!("--odometry-topic: {e}")))?;
+                let track =
+                    odometry(path, t).map_err(|e| usage(format!("--odometry-topic: {e}")))?;
                 if let Some(d) = &track.damaged {
                     stderr_line!("warning: odometry: {d}");
                 }
@@ -429,11 +433,7 @@ pub fn run_profile(a: &ProfileArgs) -> anyhow::Result<ExitCode> {
 
 /// `profile.png`: the mean diameter and the ovality with their 1-σ band, flagged frames
 /// marked, and the geometry ahead, against `x_label`.
-fn plot_profile(
-    rows: &[Row],
-    x_label: &str,
-    name: &str,
-) -> anyhow::Result<epd_io::plot::Png> {
+fn plot_profile(rows: &[Row], x_label: &str, name: &str) -> anyhow::Result<epd_io::plot::Png> {
     let mut sorted: Vec<&Row> = rows.iter().filter(|r| r.x.is_finite()).collect();
     sorted.sort_by(|a, b| a.x.total_cmp(&b.x));
     let band = |v: fn(&Row) -> Option<(f64, f64)>| -> Vec<Point> {

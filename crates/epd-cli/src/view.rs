@@ -24,7 +24,9 @@ pub fn run_view(a: &ViewArgs) -> anyhow::Result<ExitCode> {
     if let Some(l) = a.limit_mm
         && !(l.is_finite() && l > 0.0)
     {
-        return Err(usage(format!("--limit-mm {l}: expected a length in mm above 0")));
+        return Err(usage(format!(
+            "--limit-mm {l}: expected a length in mm above 0"
+        )));
     }
     if a.file.as_os_str() == "-" || epd_frame::bag::is_bag(&a.file) {
         return Err(usage(

@@ -14,8 +14,8 @@ use std::time::Instant;
 
 pub use epd_io::bag::{
     BagClouds, BagError, BagMessage, MCAP_MAGIC, ODOMETRY, OdometryPosition, OdometryTrack,
-    POINT_CLOUD2, PointCloud2, TopicInfo, Topics, bag_files, decode_odometry,
-    decode_point_cloud2, is_bag, odometry, topics,
+    POINT_CLOUD2, PointCloud2, TopicInfo, Topics, bag_files, decode_odometry, decode_point_cloud2,
+    is_bag, odometry, topics,
 };
 
 use crate::config::EstimateConfig;

@@ -72,8 +72,12 @@ impl Mesh {
     fn append(&mut self, other: Mesh) {
         let base = self.vertices.len() as u32;
         self.vertices.extend(other.vertices);
-        self.faces
-            .extend(other.faces.iter().map(|f| [f[0] + base, f[1] + base, f[2] + base]));
+        self.faces.extend(
+            other
+                .faces
+                .iter()
+                .map(|f| [f[0] + base, f[1] + base, f[2] + base]),
+        );
         self.part.extend(other.part);
     }
 

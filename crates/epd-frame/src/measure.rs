@@ -197,7 +197,11 @@ pub fn measure_frame(input: FrameInput<'_>, cfg: &EstimateConfig) -> Result<File
     let elapsed_ms = sampling_ms + t1.elapsed().as_secs_f64() * 1e3;
     let bend_fit = scene.as_ref().and_then(|s| {
         let b = s.survey.bend.as_ref()?;
-        Some((s.survey.segmentation.straight.params, b.geometry, b.angle_seen))
+        Some((
+            s.survey.segmentation.straight.params,
+            b.geometry,
+            b.angle_seen,
+        ))
     });
     Ok(FileEstimate {
         loss: (cfg.loss.clone(), radial_loss_scale_m(&est)),

@@ -583,7 +583,8 @@ pub fn render(fig: Figure<'_>, panels: &[Panel<'_>]) -> Result<Png, WriteError> 
     let mut buf = vec![0u8; (size.0 * size.1 * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| draw_error(name.clone())(e.to_string()))?;
+        root.fill(&WHITE)
+            .map_err(|e| draw_error(name.clone())(e.to_string()))?;
         let mut root = root
             .titled(&title, (FONT, 22))
             .map_err(|e| draw_error(name.clone())(e.to_string()))?;
@@ -596,7 +597,8 @@ pub fn render(fig: Figure<'_>, panels: &[Panel<'_>]) -> Result<Png, WriteError> 
         for (a, p) in areas.iter().zip(panels) {
             draw_panel(a, p, (x_label, x_names), (xa, ya), legend)?;
         }
-        root.present().map_err(|e| draw_error(name.clone())(e.to_string()))?;
+        root.present()
+            .map_err(|e| draw_error(name.clone())(e.to_string()))?;
     }
     let mut bytes = Vec::new();
     {
@@ -675,7 +677,11 @@ impl Series {
 
 /// A diverging colour for `v` in [−1, 1]: blue (−1) through white (0) to red (+1).
 pub fn diverging(v: f64) -> RGBColor {
-    let v = if v.is_finite() { v.clamp(-1.0, 1.0) } else { 0.0 };
+    let v = if v.is_finite() {
+        v.clamp(-1.0, 1.0)
+    } else {
+        0.0
+    };
     let mix = |a: RGBColor, t: f64| {
         let f = |c: u8| (255.0 + (f64::from(c) - 255.0) * t).round() as u8;
         RGBColor(f(a.0), f(a.1), f(a.2))
@@ -782,7 +788,10 @@ pub fn value_map(m: &ValueMap<'_>) -> Result<Png, WriteError> {
             .draw_series((0..steps).map(|k| {
                 let a = -limit + 2.0 * limit * k as f64 / steps as f64;
                 let b = a + 2.0 * limit / steps as f64;
-                Rectangle::new([(0.0, a), (1.0, b)], diverging(0.5 * (a + b) / limit).filled())
+                Rectangle::new(
+                    [(0.0, a), (1.0, b)],
+                    diverging(0.5 * (a + b) / limit).filled(),
+                )
             }))
             .map_err(|x| e(x.to_string()))?;
         root.present().map_err(|x| e(x.to_string()))?;

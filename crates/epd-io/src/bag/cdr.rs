@@ -181,7 +181,8 @@ impl<'a> Cdr<'a> {
             Some(_) => bytes,
             None => &[],
         };
-        String::from_utf8(text.to_vec()).map_err(|_| err(self.format, format!("{what} is not UTF-8 text")))
+        String::from_utf8(text.to_vec())
+            .map_err(|_| err(self.format, format!("{what} is not UTF-8 text")))
     }
 }
 
@@ -749,6 +750,37 @@ pub(super) mod tests {
                 });
             }
             let _ = decode_point_cloud2(&b);
+        }
+    }
+
+    /// An Odometry message in CDR, little- and big-endian: its stamp and position read, the
+    /// position aligned to 8 after the two strings; a truncated one is an error naming
+    /// the field and the type.
+    #[test]
+    fn odometry_position() {
+        for little in [true, false] {
+            let mut w = W::new(little);
+            w.u32(12);
+            w.u32(500);
+            w.string("odom");
+            w.string("base_link");
+            w.align(8);
+            for v in [1.5f64, -2.25, 0.125] {
+                let b = if little {
+                    v.to_le_bytes()
+                } else {
+                    v.to_be_bytes()
+                };
+                w.out.extend_from_slice(&b);
+            }
+            // Orientation and the rest: not read.
+            w.out.extend_from_slice(&[0u8; 64]);
+            let o = decode_odometry(&w.out).unwrap();
+            assert_eq!(o.stamp_ns, 12_000_000_500);
+            assert_eq!(o.position, [1.5, -2.25, 0.125]);
+            let cut = &w.out[..w.out.len() - 64 - 4];
+            let e = decode_odometry(cut).unwrap_err().to_string();
+            assert!(e.contains("Odometry") && e.contains("position.z"), "{e}");
         }
     }
 }

@@ -480,11 +480,15 @@ impl Iterator for BagClouds {
     type Item = Result<BagMessage, BagError>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        Some(self.messages.next()?.map(|(index, log_time_ns, data)| BagMessage {
-            index,
-            log_time_ns,
-            cloud: decode_point_cloud2(&data),
-        }))
+        Some(
+            self.messages
+                .next()?
+                .map(|(index, log_time_ns, data)| BagMessage {
+                    index,
+                    log_time_ns,
+                    cloud: decode_point_cloud2(&data),
+                }),
+        )
     }
 }
 
@@ -638,6 +642,30 @@ mod tests {
                 assert_eq!(c.stamp_ns, -3_000_000_000 + 250_000_000);
             }
         }
+    }
+
+    /// `only(2..4)` yields messages 2 and 3 with their indices; the others are not decoded,
+    /// and an empty range yields nothing.
+    #[test]
+    fn only_a_range_of_messages() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "a.mcap", &bag(true));
+        let got: Vec<u64> = BagClouds::open(&p, "/points")
+            .unwrap()
+            .only(2..4)
+            .map(|m| m.unwrap().index)
+            .collect();
+        assert_eq!(got, [2, 3]);
+        let first = BagClouds::open(&p, "/points").unwrap().only(5..9).next();
+        let c = first.unwrap().unwrap().cloud.unwrap();
+        assert_eq!(c.cloud.points[0], [5.0, 0.5, -0.5]);
+        assert_eq!(
+            BagClouds::open(&p, "/points").unwrap().only(3..3).count(),
+            0
+        );
+        // Not an odometry topic: refused with its type.
+        let e = odometry(&p, "/points").unwrap_err().to_string();
+        assert!(e.contains(ODOMETRY) && e.contains(POINT_CLOUD2), "{e}");
     }
 
     /// Chunks compressed with zstd or lz4 (as `ros2 bag record` may write them), whose
