@@ -200,6 +200,8 @@ struct Frames<'a> {
     next_frame: u64,
     keep: std::ops::Range<u64>,
     bag: Option<(&'a Path, u64, BagFrames)>,
+    /// The frame number after the last message of the current bag.
+    after: u64,
 }
 
 impl Iterator for Frames<'_> {
@@ -207,16 +209,19 @@ impl Iterator for Frames<'_> {
 
     fn next(&mut self) -> Option<(u64, Work)> {
         loop {
-            if let Some((path, first, frames)) = &mut self.bag {
+            if let Some((path, at, frames)) = &mut self.bag {
                 match frames.next() {
                     Some(Ok(m)) => {
-                        return Some((*first + m.message.index, Work::Message(Box::new(m))));
+                        let k = *at + m.message.index;
+                        self.after = k + 1;
+                        return Some((k, Work::Message(Box::new(m))));
                     }
                     Some(Err(e)) => {
+                        // The damage is the row after the last message read.
+                        let k = self.after;
                         let r = damage_report(path, &e);
-                        let at = *first;
                         self.bag = None;
-                        return Some((at, Work::Done(Box::new(r))));
+                        return Some((k, Work::Done(Box::new(r))));
                     }
                     None => self.bag = None,
                 }
@@ -234,10 +239,17 @@ impl Iterator for Frames<'_> {
                 } => {
                     self.next_frame += messages;
                     let lo = self.keep.start.saturating_sub(first);
-                    let hi = self.keep.end.saturating_sub(first).min(*messages);
+                    // A bag's last messages beyond its count (a damaged bag) belong to the run's
+                    // end: read them when the block runs to the end.
+                    let hi = if self.keep.end == u64::MAX {
+                        u64::MAX
+                    } else {
+                        self.keep.end.saturating_sub(first).min(*messages)
+                    };
                     if lo >= hi {
                         continue;
                     }
+                    self.after = first + lo;
                     match BagFrames::open(path, topic) {
                         Ok(f) => self.bag = Some((path, first, f.only(lo..hi))),
                         Err(e) => {
@@ -334,12 +346,16 @@ pub fn run_profile(a: &ProfileArgs) -> anyhow::Result<ExitCode> {
             _ => 1,
         })
         .sum();
+    // The last shard (or an unsharded run) reads to the end of the last bag, past the
+    // count of its messages (a damaged bag's count stops at the damage, which is then
+    // reported as its last row).
     let keep = match a.shard {
-        Some(s) => {
+        Some(s) if s.k() < s.n() => {
             let b = s.block(usize::try_from(total).unwrap_or(usize::MAX));
             b.start as u64..b.end as u64
         }
-        None => 0..total,
+        Some(s) => s.block(usize::try_from(total).unwrap_or(usize::MAX)).start as u64..u64::MAX,
+        None => 0..u64::MAX,
     };
     let t0 = if all_bags { first_stamp(&inputs) } else { None };
     start_threads(a.threads)?;
@@ -358,13 +374,14 @@ pub fn run_profile(a: &ProfileArgs) -> anyhow::Result<ExitCode> {
     if a.shard.is_none_or(|s| s.k() == 1) {
         write(&mut csv, &epd_io::csv::line(PROFILE_COLUMNS))?;
     }
-    let bar = progress(a.quiet, (keep.end - keep.start) as usize);
+    let bar = progress(a.quiet, (keep.end.min(total) - keep.start) as usize);
     let batch = 2 * rayon::current_num_threads().max(1);
     let mut frames = Frames {
         inputs: inputs.iter(),
         next_frame: 0,
         keep: keep.clone(),
         bag: None,
+        after: 0,
     };
     let mut rows = Vec::new();
     let mut failed = 0usize;

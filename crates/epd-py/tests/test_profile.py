@@ -293,3 +293,21 @@ def test_view_draws_a_png(epd_bin, tmp_path):
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     p = run_epd(epd_bin, "view", xyz, "--out", out, "--limit-mm", "0", check=False)
     assert p.returncode == 2
+
+
+def test_profile_of_a_truncated_bag_keeps_what_was_read(epd_bin, run_bag, tmp_path):
+    """A recording cut short: a row per message before the damage, then a row with status
+    `error` naming the byte offset; exit 1."""
+    mcap = next(run_bag.glob("*.mcap"))
+    cut = tmp_path / "cut.mcap"
+    raw = mcap.read_bytes()
+    cut.write_bytes(raw[: int(len(raw) * 0.6)])
+    out = tmp_path / "cut"
+    p = run_epd(epd_bin, "profile", cut, "--topic", TOPIC, "--out", out, "-q", check=False)
+    assert p.returncode == 1
+    rows = read_csv(out / "profile.csv")
+    assert 1 <= len(rows) < N_MESSAGES
+    assert [int(r["frame"]) for r in rows] == list(range(len(rows)))
+    assert all(r["status"] == "converged" for r in rows[:-1])
+    assert rows[-1]["status"] == "error" and "byte" in rows[-1]["reason"], rows[-1]
+    assert rows[-1]["flagged"] == "true"
