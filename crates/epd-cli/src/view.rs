@@ -19,6 +19,11 @@ pub const DEFAULT_LIMIT_RMS: f64 = 3.0;
 /// picture's pixels, enough to cover a Helios2 frame (640 × 480) whole.
 pub const MAX_DRAWN: usize = 400_000;
 
+/// The quantiles of the points' places along the axis that bound the picture: 0.5 % and
+/// 99 %, so that the few rays that graze the fitted wall's extension far away (past a bend,
+/// through the pipe's open end) do not squeeze the wall the camera saw into a sliver.
+pub const DRAWN_QUANTILES: (f64, f64) = (0.005, 0.99);
+
 pub fn run_view(a: &ViewArgs) -> anyhow::Result<ExitCode> {
     let cfg = fit_config(&a.fit)?;
     if let Some(l) = a.limit_mm
@@ -44,11 +49,30 @@ pub fn run_view(a: &ViewArgs) -> anyhow::Result<ExitCode> {
         .unwrap_or(1.0);
     let limit = a.limit_mm.unwrap_or(DEFAULT_LIMIT_RMS * rms);
     let stride = f.points.len().div_ceil(MAX_DRAWN).max(1);
+    // Along the axis: the stretch where most points meet the wall (past a bend, the
+    // straight wall's extension is met by grazing rays tens of metres on).
+    let mut along: Vec<f64> = f
+        .unrolled
+        .iter()
+        .map(|u| u.0)
+        .filter(|x| x.is_finite())
+        .collect();
+    along.sort_by(f64::total_cmp);
+    let at = |q: f64| {
+        along
+            .get(((along.len().max(1) - 1) as f64 * q).round() as usize)
+            .copied()
+    };
+    let (x0, x1) = (
+        at(DRAWN_QUANTILES.0).unwrap_or(f64::NEG_INFINITY),
+        at(DRAWN_QUANTILES.1).unwrap_or(f64::INFINITY),
+    );
     let points: Vec<(f64, f64, f64)> = f
         .unrolled
         .iter()
         .zip(&f.residual_mm)
         .step_by(stride)
+        .filter(|(u, _)| (x0..=x1).contains(&u.0))
         .map(|(u, r)| (u.0, u.1, *r))
         .collect();
     let p = f.params;
