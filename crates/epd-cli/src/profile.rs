@@ -505,36 +505,41 @@ fn plot_profile(rows: &[Row], x_label: &str, name: &str) -> anyhow::Result<epd_i
                 .collect(),
         ),
     ];
+    let mut panels = vec![
+        Panel {
+            title: "mean inner diameter (band: 1-σ)".into(),
+            y_label: "mm".into(),
+            series: &d_mean,
+        },
+        Panel {
+            title: "ovality (Dmax − Dmin)/D, D the mean diameter (band: 1-σ)".into(),
+            y_label: "%".into(),
+            series: &ovality,
+        },
+    ];
+    // The geometry panel only when a frame has something ahead or no result.
+    if geometry.iter().any(|s| !s.points.is_empty()) {
+        panels.push(Panel {
+            title: "geometry ahead: where the straight section ends; frames without a result"
+                .into(),
+            y_label: "m ahead".into(),
+            series: &geometry,
+        });
+    }
+    let n = panels.len();
     Ok(render(
         Figure {
             name: "profile.png".into(),
             title: format!("{name}: profile of the run ({} frames)", rows.len()),
-            grid: (3, 1),
-            size: (1440, 1400),
+            grid: (n, 1),
+            size: (1440, 460 * n as u32 + 20),
             x_label,
             xa: Axis { log: false },
             ya: Axis { log: false },
             legend: Legend::PerPanel,
             x_names: &[],
         },
-        &[
-            Panel {
-                title: "mean inner diameter (band: 1-σ)".into(),
-                y_label: "mm".into(),
-                series: &d_mean,
-            },
-            Panel {
-                title: "ovality (Dmax − Dmin)/D, D the mean diameter (band: 1-σ)".into(),
-                y_label: "%".into(),
-                series: &ovality,
-            },
-            Panel {
-                title: "geometry ahead: where the straight section ends; frames without a result"
-                    .into(),
-                y_label: "m ahead".into(),
-                series: &geometry,
-            },
-        ],
+        &panels,
     )?)
 }
 
