@@ -934,15 +934,20 @@ fn parse_sensor(sensor: &str) -> PyResult<bool> {
 /// The frame's per-point properties as the PLY file has them: `u`, `v` and, when the
 /// model gives one, `intensity`.
 fn frame_properties<'py>(py: Python<'py>, frame: &tof_sim::Frame) -> PyResult<Bound<'py, PyDict>> {
+    use epd_io::cloud::Values;
     let props = PyDict::new(py);
     let col = |i: usize| frame.pixels.iter().map(|p| f64::from(p[i])).collect();
     props.set_item("u", PyArray1::from_vec(py, col(0)))?;
     props.set_item("v", PyArray1::from_vec(py, col(1)))?;
-    if frame.intensity.len() == frame.measured.len()
-        && frame.intensity.iter().any(|i| i.is_finite())
-    {
-        let i: Vec<f64> = frame.intensity.iter().map(|&v| f64::from(v)).collect();
-        props.set_item("intensity", PyArray1::from_vec(py, i))?;
+    // The PLY's other properties: `intensity` (Helios2), `segment` and `part` (a frame with
+    // a bend or a tee ahead), as `epd.read` reads them from the file.
+    for p in frame.cloud().properties {
+        let v: Vec<f64> = match &p.values {
+            Values::F32(v) => v.iter().map(|&x| f64::from(x)).collect(),
+            Values::U16(v) => v.iter().map(|&x| f64::from(x)).collect(),
+            Values::U8(v) => v.iter().map(|&x| f64::from(x)).collect(),
+        };
+        props.set_item(p.name.as_str(), PyArray1::from_vec(py, v))?;
     }
     Ok(props)
 }
