@@ -311,3 +311,17 @@ def test_profile_of_a_truncated_bag_keeps_what_was_read(epd_bin, run_bag, tmp_pa
     assert all(r["status"] == "converged" for r in rows[:-1])
     assert rows[-1]["status"] == "error" and "byte" in rows[-1]["reason"], rows[-1]
     assert rows[-1]["flagged"] == "true"
+
+
+def test_profile_values_are_those_of_estimate(epd_bin, run_bag, tmp_path):
+    """Each row's values are `epd estimate`'s for the same message (one measurement)."""
+    out = tmp_path / "p"
+    run_epd(epd_bin, "profile", run_bag, "--out", out, "-q")
+    rows = read_csv(out / "profile.csv")
+    p = run_epd(epd_bin, "estimate", run_bag, "--format", "json", "-q")
+    est = [json.loads(l) for l in p.stdout.splitlines()]
+    assert len(est) == len(rows)
+    for r, e in zip(rows, est):
+        assert int(r["stamp_ns"]) == e["stamp_ns"]
+        for k in ("d_mean_mm", "sigma_d_mean_mm", "ovality_pct", "d_max_mm", "d_min_mm"):
+            assert float(r[k]) == e[k], k
