@@ -40,6 +40,7 @@ fn simulator(od_in: f64, ovality: f64, seed: u64) -> anyhow::Result<Simulator> {
         noise: tof_sim::NoiseModel::Range,
         helios2: true,
         pose: PoseOverride::default(),
+        feature: None,
     })
     .map_err(|e| anyhow::anyhow!("{e}"))
 }
@@ -192,6 +193,8 @@ pub fn run(out: &Path, per_size: u64) -> anyhow::Result<()> {
             bars: true,
             marker_triangle: k == 1,
             dashed: false,
+            band: false,
+            markers_only: false,
         });
     }
     std::fs::write(out.join("frames.csv"), rows)?;

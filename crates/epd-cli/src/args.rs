@@ -37,6 +37,12 @@ pub enum Command {
     Simulate(SimulateArgs),
     /// List the topics of ROS 2 bags (MCAP) with their message types and counts.
     Topics(TopicsArgs),
+    /// A profile of a run: per frame the mean diameter, ovality, geometry and status with
+    /// their 1-σ, against time or distance (profile.csv, profile.png).
+    Profile(ProfileArgs),
+    /// One frame's points coloured by their residual over the fitted wall, unrolled
+    /// (distance along the pipe × clock angle), as a PNG.
+    View(ViewArgs),
 }
 
 /// The estimator, by its name in reports.
@@ -120,6 +126,41 @@ pub struct EstimateArgs {
     /// bag's only PointCloud2 topic (`epd topics BAG` lists them).
     #[arg(long, value_name = "T")]
     pub topic: Option<String>,
+    #[command(flatten)]
+    pub fit: FitArgs,
+    /// How results are written.
+    #[arg(long, value_enum, default_value_t = OutputFormat::Text)]
+    pub format: OutputFormat,
+    /// Write the results to FILE (atomically) instead of standard output.
+    #[arg(short = 'o', long, value_name = "FILE")]
+    pub output: Option<PathBuf>,
+    /// Worker threads (default: all cores).
+    #[arg(long, value_name = "N")]
+    pub threads: Option<NonZeroUsize>,
+    /// Process only the K-th of N parts of the files (1 ≤ K ≤ N), e.g. one task of a
+    /// job array: the files are sorted by the bytes of their paths (as `LC_ALL=C ls`)
+    /// and cut into N contiguous blocks whose sizes differ by at most one; shard K
+    /// takes the K-th block (possibly none). Concatenating the outputs of shards 1, 2,
+    /// …, N in that order gives the output of one run over the sorted list, timings
+    /// (elapsed_ms, read_ms) aside; with --format csv only shard 1 writes the header
+    /// line. Standard input (`-`) cannot be sharded.
+    #[arg(long, value_name = "K/N")]
+    pub shard: Option<ShardSpec>,
+    /// No progress bar and no summary of failures: only the results and the exit code.
+    #[arg(short, long)]
+    pub quiet: bool,
+    /// Also write the fit where a viewer shows it: the points with their residual to the
+    /// fitted wall (`residual_mm`, the range error along the ray, positive beyond the
+    /// wall) and the fitted wall as a triangle mesh (elliptic cylinder over the straight
+    /// section, a torus over a bend ahead), one binary PLY in the file's unit and frame
+    /// (Open3D, CloudCompare, MeshLab, plyfile). One input file only.
+    #[arg(long, value_name = "OUT.ply")]
+    pub export_fit: Option<PathBuf>,
+}
+
+/// How each frame is fitted: the flags `epd estimate`, `epd profile` and `epd view` share.
+#[derive(Args, Debug)]
+pub struct FitArgs {
     /// The estimator.
     #[arg(long, value_enum, default_value_t = MethodArg::MlEpd)]
     pub method: MethodArg,
@@ -129,9 +170,6 @@ pub struct EstimateArgs {
     /// Keep the points whose ray meets the fitted wall at most this far (m).
     #[arg(long, value_name = "M", allow_negative_numbers = true)]
     pub max_range: Option<f64>,
-    /// How results are written.
-    #[arg(long, value_enum, default_value_t = OutputFormat::Text)]
-    pub format: OutputFormat,
     /// Nominal outer diameter (inch): the wall thickness is estimated from it.
     #[arg(long, value_name = "X", allow_negative_numbers = true)]
     pub nominal_od_in: Option<f64>,
@@ -158,24 +196,6 @@ pub struct EstimateArgs {
     /// the straight section's points only, and a sensor already in a bend gets no result.
     #[arg(long)]
     pub straight_only: bool,
-    /// Write the results to FILE (atomically) instead of standard output.
-    #[arg(short = 'o', long, value_name = "FILE")]
-    pub output: Option<PathBuf>,
-    /// Worker threads (default: all cores).
-    #[arg(long, value_name = "N")]
-    pub threads: Option<NonZeroUsize>,
-    /// Process only the K-th of N parts of the files (1 ≤ K ≤ N), e.g. one task of a
-    /// job array: the files are sorted by the bytes of their paths (as `LC_ALL=C ls`)
-    /// and cut into N contiguous blocks whose sizes differ by at most one; shard K
-    /// takes the K-th block (possibly none). Concatenating the outputs of shards 1, 2,
-    /// …, N in that order gives the output of one run over the sorted list, timings
-    /// (elapsed_ms, read_ms) aside; with --format csv only shard 1 writes the header
-    /// line. Standard input (`-`) cannot be sharded.
-    #[arg(long, value_name = "K/N")]
-    pub shard: Option<ShardSpec>,
-    /// No progress bar and no summary of failures: only the results and the exit code.
-    #[arg(short, long)]
-    pub quiet: bool,
     /// Fit at most N points of each frame (at least 1000), chosen by --sampling before
     /// the scene, the fit, the checks and the 1-σ: a frame then costs what N points cost.
     /// JSON/CSV keys `n_sampled` (the points fitted) and `sampling` (how they were chosen).
@@ -295,6 +315,59 @@ pub struct CalibrateArgs {
 }
 
 #[derive(Args, Debug)]
+pub struct ProfileArgs {
+    /// A ROS 2 bag (an `.mcap` file or a rosbag2 folder), or point-cloud files in the
+    /// order of the run (PLY, PCD, CSV…); several bags are read one after the other.
+    #[arg(required = true, value_name = "FILE")]
+    pub files: Vec<PathBuf>,
+    /// The PointCloud2 topic of the bags (without it, a bag's only PointCloud2 topic).
+    #[arg(long, value_name = "T")]
+    pub topic: Option<String>,
+    /// Folder for profile.csv and profile.png (created if missing).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// A `nav_msgs/msg/Odometry` topic of the bag: the profile is drawn against the
+    /// distance travelled (the path length of its positions, interpolated at each
+    /// cloud's stamp).
+    #[arg(long, value_name = "TOPIC", conflicts_with = "speed")]
+    pub odometry_topic: Option<String>,
+    /// A constant speed (m/s): the profile is drawn against the distance speed × the time
+    /// since the topic's first message.
+    #[arg(long, value_name = "M_PER_S", allow_negative_numbers = true)]
+    pub speed: Option<f64>,
+    #[command(flatten)]
+    pub fit: FitArgs,
+    /// Process only the K-th of N contiguous blocks of the run's frames (a bag's
+    /// messages, then the files in the order given; 1 ≤ K ≤ N): profile.csv of shard 1
+    /// has the header line, those of shards 2…N not, so that concatenating them in order
+    /// gives the whole run's table; each shard draws its own profile.png.
+    #[arg(long, value_name = "K/N")]
+    pub shard: Option<ShardSpec>,
+    /// Worker threads (default: all cores).
+    #[arg(long, value_name = "N")]
+    pub threads: Option<NonZeroUsize>,
+    /// No progress bar, no summary.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+#[derive(Args, Debug)]
+pub struct ViewArgs {
+    /// One point-cloud file (PLY, PCD, CSV…).
+    #[arg(value_name = "FILE")]
+    pub file: PathBuf,
+    /// Where the picture is written (PNG).
+    #[arg(long, value_name = "frame.png")]
+    pub out: PathBuf,
+    /// The colour scale's limit (mm): residuals from −L to +L; default: 3 × the frame's
+    /// RMS residual.
+    #[arg(long, value_name = "L")]
+    pub limit_mm: Option<f64>,
+    #[command(flatten)]
+    pub fit: FitArgs,
+}
+
+#[derive(Args, Debug)]
 pub struct TopicsArgs {
     /// ROS 2 bags: `.mcap` files or rosbag2 folders (with `metadata.yaml`).
     #[arg(required = true, value_name = "BAG")]
@@ -339,6 +412,21 @@ pub struct SimulateArgs {
     /// --sigma and --noise do not apply).
     #[arg(long, value_enum, default_value_t = SensorArg::Plain)]
     pub sensor: SensorArg,
+    /// A 90° long-radius elbow (radius 1.5 × the inner diameter) starting M metres ahead
+    /// of the sensor along the pipe; the truth JSON then has `geometry` (`bend_ahead`)
+    /// and `straight_until_m`.
+    #[arg(
+        long,
+        value_name = "M",
+        allow_negative_numbers = true,
+        conflicts_with = "tee_at"
+    )]
+    pub bend_at: Option<f64>,
+    /// A tee whose branch (0.6 × the inner diameter) opens M metres ahead of the sensor
+    /// along the pipe; the truth JSON then has `geometry` (`tee_ahead`) and
+    /// `straight_until_m`.
+    #[arg(long, value_name = "M", allow_negative_numbers = true)]
+    pub tee_at: Option<f64>,
     /// PLY encoding.
     #[arg(long, value_enum, default_value_t = PlyArg::Binary)]
     pub ply: PlyArg,

@@ -14,12 +14,13 @@ use epd_frame::shard::ShardSpec;
 use epd_frame::{EstimateConfig, EstimateSettings, measure_file};
 use rayon::prelude::*;
 
-use crate::args::{EstimateArgs, LossArg, OutputFormat};
+use crate::args::{EstimateArgs, FitArgs, LossArg, OutputFormat};
 use epd_io::stderr_line;
 
 use crate::{check_output_path, progress, start_threads, usage};
 
-fn estimate_config(a: &EstimateArgs) -> anyhow::Result<EstimateConfig> {
+/// The frame library's settings of the fit flags (a usage error names a wrong value).
+pub(crate) fn fit_config(a: &FitArgs) -> anyhow::Result<EstimateConfig> {
     let loss_name = match a.loss {
         LossArg::Cauchy => "cauchy",
         LossArg::Huber => "huber",
@@ -39,7 +40,11 @@ fn estimate_config(a: &EstimateArgs) -> anyhow::Result<EstimateConfig> {
         max_points: a.max_points,
         sampling: a.sampling.into(),
     };
-    let cfg = EstimateConfig::new(&settings).map_err(|e| usage(e.to_string()))?;
+    EstimateConfig::new(&settings).map_err(|e| usage(e.to_string()))
+}
+
+fn estimate_config(a: &EstimateArgs) -> anyhow::Result<EstimateConfig> {
+    let cfg = fit_config(&a.fit)?;
     if a.files.iter().filter(|f| f.as_os_str() == "-").count() > 1 {
         return Err(usage("standard input (`-`) may be given only once"));
     }
@@ -49,13 +54,13 @@ fn estimate_config(a: &EstimateArgs) -> anyhow::Result<EstimateConfig> {
 /// Where results go: standard output, or FILE: a temporary file in its folder that
 /// replaces it when the run ends, or FILE itself when it is a device or a pipe
 /// (`epd_io::atomic::Output`).
-enum Sink {
+pub(crate) enum Sink {
     Stdout(BufWriter<std::io::StdoutLock<'static>>),
     File(epd_io::atomic::Output, PathBuf),
 }
 
 impl Sink {
-    fn open(output: Option<&Path>) -> anyhow::Result<Self> {
+    pub(crate) fn open(output: Option<&Path>) -> anyhow::Result<Self> {
         let Some(path) = output else {
             return Ok(Sink::Stdout(BufWriter::new(std::io::stdout().lock())));
         };
@@ -72,7 +77,7 @@ impl Sink {
         }
     }
 
-    fn line(&mut self, text: &str) -> std::io::Result<()> {
+    pub(crate) fn line(&mut self, text: &str) -> std::io::Result<()> {
         let w: &mut dyn Write = match self {
             Sink::Stdout(w) => w,
             Sink::File(w, _) => w,
@@ -120,7 +125,7 @@ fn shard_files(files: &[PathBuf], shard: Option<ShardSpec>) -> anyhow::Result<Ve
 }
 
 /// Flush the output; a reader that went away before the last flush is not an error of ours.
-fn finish_output(sink: Sink) -> anyhow::Result<()> {
+pub(crate) fn finish_output(sink: Sink) -> anyhow::Result<()> {
     let Err(e) = sink.finish() else {
         return Ok(());
     };
@@ -161,7 +166,7 @@ fn failures_exit(failed: &[String], total: usize, quiet: bool) -> ExitCode {
 
 /// One input of a run: a point-cloud file, a bag with the topic read from it (and its
 /// number of messages there), or an input that failed before it could be read.
-enum Input {
+pub(crate) enum Input {
     File(PathBuf),
     Bag {
         path: PathBuf,
@@ -174,7 +179,10 @@ enum Input {
 /// The inputs, a bag's topic chosen (`--topic`, or its only PointCloud2 topic): a bag whose
 /// topic cannot be chosen is a usage error (nothing is estimated); one that cannot be read
 /// is a failed input.
-fn resolve_inputs(files: Vec<PathBuf>, topic: Option<&str>) -> anyhow::Result<Vec<Input>> {
+pub(crate) fn resolve_inputs(
+    files: Vec<PathBuf>,
+    topic: Option<&str>,
+) -> anyhow::Result<Vec<Input>> {
     let mut inputs = Vec::with_capacity(files.len());
     let mut any_bag = false;
     for path in files {
@@ -217,14 +225,14 @@ fn resolve_inputs(files: Vec<PathBuf>, topic: Option<&str>) -> anyhow::Result<Ve
 
 /// One thing to measure: a file, a bag's message, or a report already made (an input
 /// that failed, a bag's damage).
-enum Work {
+pub(crate) enum Work {
     File(PathBuf),
     Message(Box<BagFrame>),
     Done(Box<FileReport>),
 }
 
 impl Work {
-    fn measure(self, cfg: &EstimateConfig) -> FileReport {
+    pub(crate) fn measure(self, cfg: &EstimateConfig) -> FileReport {
         match self {
             Work::File(p) => measure_file(&p, cfg),
             Work::Message(m) => measure_message(*m, cfg),
@@ -268,8 +276,61 @@ impl Iterator for Queue<'_> {
     }
 }
 
+/// `--export-fit OUT.ply`: the one input measured, its report written as usual, and its
+/// fit written to OUT.ply (`epd_frame::export`).
+fn run_export(args: &EstimateArgs, out: &Path, cfg: &EstimateConfig) -> anyhow::Result<ExitCode> {
+    let [file] = args.files.as_slice() else {
+        return Err(usage(format!(
+            "--export-fit: one input file at a time ({} given)",
+            args.files.len()
+        )));
+    };
+    if file.as_os_str() == "-" || is_bag(file) {
+        return Err(usage(
+            "--export-fit: the input must be a point-cloud file (PLY, PCD, CSV…), not standard              input or a bag",
+        ));
+    }
+    check_output_path(out, &args.files, "--export-fit")?;
+    if let Some(o) = &args.output {
+        check_output_path(o, &args.files, "-o")?;
+    }
+    start_threads(args.threads)?;
+    let (report, fitted) = epd_frame::export::fit_file(file, cfg);
+    let mut sink = Sink::open(args.output.as_deref())?;
+    let text = match args.format {
+        OutputFormat::Json => report.json(),
+        OutputFormat::Csv => format!("{}\n{}", epd_io::csv::line(columns()), report.csv()),
+        OutputFormat::Text => report.text(),
+    };
+    if let Err(e) = sink.line(&text)
+        && !closed_pipe(&e)
+    {
+        return Err(e).with_context(|| format!("cannot write to {}", sink.name()));
+    }
+    finish_output(sink)?;
+    let fitted = fitted.map_err(|e| anyhow::anyhow!("--export-fit: {e}"))?;
+    let mut bytes = Vec::new();
+    epd_frame::export::write_fit_ply(&mut bytes, &fitted, cfg.input.units, cfg.input.frame)
+        .context("--export-fit")?;
+    epd_io::atomic::write_bytes_atomic(out, &bytes)
+        .with_context(|| format!("cannot write {}", epd_io::name::shown(out)))?;
+    if !args.quiet {
+        stderr_line!(
+            "fit written to {}: {} points with residual_mm, {} mesh vertices, {} triangles",
+            epd_io::name::shown(out),
+            fitted.points.len(),
+            fitted.mesh.vertices.len(),
+            fitted.mesh.faces.len()
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
 pub fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
     let cfg = estimate_config(args)?;
+    if let Some(out) = &args.export_fit {
+        return run_export(args, out, &cfg);
+    }
     let files = shard_files(&args.files, args.shard)?;
     let inputs = resolve_inputs(files, args.topic.as_deref())?;
     let total: u64 = inputs

@@ -5,11 +5,14 @@
 //!                    [--format text|json|csv] [--nominal-od-in X] [--loss cauchy|huber|none]
 //!                    [--loss-scale M] [--units m|mm] [--frame sensor|optical|body|flu]
 //!                    [--input-format F] [--calibration LUT.json [--unweighted]] [--topic T]
-//!                    [-o FILE] [--threads N] [--shard K/N] [-q]
+//!                    [-o FILE] [--threads N] [--shard K/N] [-q] [--export-fit OUT.ply]
 //! epd calibrate FILE… --known-id-mm D [--known-dmin-mm D2] --out LUT.json
 //!               [--min-range M] [--max-range M] [--range-bins N] [--intensity-bins N]
 //!               [--min-count N] [--passes N] [--units m|mm] [--frame sensor|optical] [--threads N] [-q]
 //! epd topics BAG…
+//! epd profile RUN.mcap|FILE… --out DIR [--topic T] [--odometry-topic TOPIC | --speed M_PER_S]
+//!             [--shard K/N] [fit options as for estimate] [--threads N] [-q]
+//! epd view FILE --out frame.png [--limit-mm L] [fit options as for estimate]
 //! epd simulate --out DIR [--frames K] [--seed S] [--sigma M] [--od-in X] [--ovality O]
 //!              [--wall-mm T] [--points N] [--outliers F] [--noise range|isotropic]
 //!              [--ply binary|ascii] [--precision f64|f32]
@@ -32,8 +35,10 @@
 mod args;
 mod calibrate;
 mod estimate;
+mod profile;
 mod simulate;
 mod topics;
+mod view;
 
 use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
@@ -162,6 +167,8 @@ fn main() -> ExitCode {
         Command::Calibrate(a) => calibrate::run_calibrate(a),
         Command::Simulate(a) => simulate::run_simulate(a),
         Command::Topics(a) => topics::run_topics(a),
+        Command::Profile(a) => profile::run_profile(a),
+        Command::View(a) => view::run_view(a),
     };
     match result {
         Ok(code) => code,

@@ -12,7 +12,7 @@ use crate::usage;
 pub fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
     use epd_io::ply::{PlyFormat, PlyPrecision};
     use tof_sim::NoiseModel;
-    use tof_sim::settings::{PoseOverride, SimulateError, SimulateSettings, Simulator};
+    use tof_sim::settings::{Feature, PoseOverride, SimulateError, SimulateSettings, Simulator};
     let (out, frames) = (a.out.clone(), a.frames);
     let format = match a.ply {
         PlyArg::Binary => PlyFormat::BinaryLittleEndian,
@@ -36,6 +36,11 @@ pub fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         },
         helios2: a.sensor == SensorArg::Helios2,
         pose: PoseOverride::default(),
+        feature: match (a.bend_at, a.tee_at) {
+            (Some(m), _) => Some(Feature::BendAt(m)),
+            (None, Some(m)) => Some(Feature::TeeAt(m)),
+            (None, None) => None,
+        },
     })
     .map_err(|e| match e {
         SimulateError::Setting(m) => usage(m),
@@ -69,7 +74,7 @@ pub fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
 /// `--out` names a folder, or nothing yet (it is created): a usage error (exit 2) naming
 /// what is there instead — a file, or a symbolic link to something missing (which
 /// `create_dir_all` reports as "File exists").
-fn check_out_folder(out: &std::path::Path) -> anyhow::Result<()> {
+pub(crate) fn check_out_folder(out: &std::path::Path) -> anyhow::Result<()> {
     let Ok(link) = std::fs::symlink_metadata(out) else {
         return Ok(());
     };

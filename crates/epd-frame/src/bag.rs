@@ -13,8 +13,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 pub use epd_io::bag::{
-    BagClouds, BagError, BagMessage, MCAP_MAGIC, POINT_CLOUD2, PointCloud2, TopicInfo, Topics,
-    bag_files, decode_point_cloud2, is_bag, topics,
+    BagClouds, BagError, BagMessage, MCAP_MAGIC, ODOMETRY, OdometryPosition, OdometryTrack,
+    POINT_CLOUD2, PointCloud2, TopicInfo, Topics, bag_files, decode_odometry, decode_point_cloud2,
+    is_bag, odometry, topics,
 };
 
 use crate::config::EstimateConfig;
@@ -50,6 +51,15 @@ impl BagFrames {
             bag: bag.to_path_buf(),
             clouds: BagClouds::open(bag, topic)?,
         })
+    }
+
+    /// Only the messages whose index lies in `keep` ([`BagClouds::only`]): the others are
+    /// skipped undecoded.
+    pub fn only(self, keep: std::ops::Range<u64>) -> BagFrames {
+        BagFrames {
+            bag: self.bag,
+            clouds: self.clouds.only(keep),
+        }
     }
 }
 

@@ -19,12 +19,14 @@
 //! With `--max-points N`, [`sampling`] chooses the N points that carry the information
 //! before step 2 (a pilot fit, then the rays of most influence on the mean diameter).
 //!
-//! [`config`] holds the settings as given and checked; [`shard`] the `--shard K/N` split
+//! [`export`] puts the fit where people can see it (the points' residuals, the wall as a
+//! mesh). [`config`] holds the settings as given and checked; [`shard`] the `--shard K/N` split
 //! of a batch. Arrows: epd-core ← epd-io ← epd-frame ← epd-cli, epd-py, bench-harness.
 #![deny(missing_docs)]
 
 pub mod bag;
 pub mod config;
+pub mod export;
 pub mod input;
 pub mod measure;
 /// The point-cloud readers, which live in `epd-io` (re-exported for the front ends).

@@ -324,6 +324,14 @@ fn measure_frame_as(
         size_outside_rigs = add_transfer_uncertainty(&mut est, s, cal);
     }
     let elapsed_ms = sampling_ms + t1.elapsed().as_secs_f64() * 1e3;
+    let bend_fit = scene.as_ref().and_then(|s| {
+        let b = s.survey.bend.as_ref()?;
+        Some((
+            s.survey.segmentation.straight.params,
+            b.geometry,
+            b.angle_seen,
+        ))
+    });
     Ok(FileEstimate {
         loss: (cfg.loss.clone(), radial_loss_scale_m(&est)),
         rms_residual_mm: straight_rms_mm(kept, mask, &est, cfg),
@@ -340,6 +348,7 @@ fn measure_frame_as(
         intensity_without_table: false,
         calibration_outside,
         size_outside_rigs,
+        bend_fit,
     })
 }
 

@@ -75,6 +75,10 @@ pub struct FileEstimate {
     /// frame's mean diameter lies outside them (`crate::measure::RIG_SIZE_MARGIN`); said
     /// in `status_reason`.
     pub size_outside_rigs: Option<(f64, f64)>,
+    /// The survey's bend ahead, when it found one: its placement in the pipe frame of the
+    /// survey's straight fit (those parameters first) and the angle seen so far (rad);
+    /// not a key of the report (`epd estimate --export-fit` meshes it as a torus).
+    pub bend_fit: Option<(epd_core::Params, epd_core::bend::BendGeometry, f64)>,
 }
 
 /// The CSV columns, in order: the keys of [`FileReport::fields`].
@@ -562,6 +566,7 @@ mod tests {
                 intensity_without_table: false,
                 calibration_outside: None,
                 size_outside_rigs: None,
+                bend_fit: None,
             }),
         }
     }

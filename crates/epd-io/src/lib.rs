@@ -22,6 +22,8 @@
 //!   UTF-8 kept).
 //! - [`diag`]: diagnostics on standard error that a closed pipe cannot turn into a
 //!   panic.
+//! - [`plot`]: figures of panels of series (lines, error bars, 1-σ bands), the bench
+//!   harness's and `epd profile`'s.
 //! - [`depth_png`]: a frame's depth image with its colour bar, drawn with plotters in
 //!   the figures' [`font`].
 //!
@@ -39,6 +41,7 @@ pub mod font;
 pub mod json;
 pub mod name;
 pub mod pcd;
+pub mod plot;
 pub mod ply;
 pub mod read;
 pub mod records;

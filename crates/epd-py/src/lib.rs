@@ -810,16 +810,23 @@ impl BagReader {
 /// index: frame_KKKK of `epd simulate --seed S` is `trial=K`), `points` (a uniform
 /// subsample of that many points), `outliers` (fraction), `noise` ("range",
 /// "isotropic"), `sensor` ("plain", "helios2"); `roll_deg`, `pitch_deg`, `yaw_deg`,
-/// `dy_mm`, `dz_mm` replace the drawn pose parameters. Returns `(points, truth)`: the
+/// `dy_mm`, `dz_mm` replace the drawn pose parameters; `bend_at` (m) puts a 90°
+/// long-radius elbow (radius 1.5 × the inner diameter) that far ahead of the sensor along
+/// the pipe, `tee_at` (m) a tee's branch opening (0.6 × the inner diameter), as
+/// `epd simulate --bend-at M` / `--tee-at M` (then truth also has `geometry` and
+/// `straight_until_m`). Returns `(points, truth)`: the
 /// measured points (an (N, 3) float64 array, m, sensor frame) and the ground truth with
-/// the keys and values of the JSON file `epd simulate` writes; with
+/// the keys and values of the JSON file `epd simulate` writes: `d_max_mm`, `d_min_mm`
+/// (mm), `roll_deg`, `pitch_deg`, `yaw_deg` (degrees), `dy_mm`, `dz_mm` (mm), `n_points`,
+/// `seed`, `trial`, `sigma_m` (m), `outlier_fraction`, `sensor`, and with a feature
+/// `geometry` and `straight_until_m` (m); with
 /// `return_properties=True`, `(points, truth, properties)` where properties holds `u`,
 /// `v` and (Helios2) `intensity` as in the PLY file.
 #[pyfunction]
 #[pyo3(signature = (
     od_in=20.0, wall_mm=12.0, ovality=0.02, sigma=0.03, seed=1, trial=0, points=None,
     outliers=0.0, noise="range", sensor="plain", roll_deg=None, pitch_deg=None,
-    yaw_deg=None, dy_mm=None, dz_mm=None, return_properties=false,
+    yaw_deg=None, dy_mm=None, dz_mm=None, return_properties=false, bend_at=None, tee_at=None,
 ))]
 #[allow(clippy::too_many_arguments)] // the tool's flags, as keyword arguments
 fn simulate<'py>(
@@ -840,8 +847,20 @@ fn simulate<'py>(
     dy_mm: Option<f64>,
     dz_mm: Option<f64>,
     return_properties: bool,
+    bend_at: Option<f64>,
+    tee_at: Option<f64>,
 ) -> PyResult<Bound<'py, PyAny>> {
     let noise = parse_noise(noise)?;
+    let feature = match (bend_at, tee_at) {
+        (Some(_), Some(_)) => {
+            return Err(PyValueError::new_err(
+                "bend_at and tee_at given together: a frame has one feature ahead; give one",
+            ));
+        }
+        (Some(m), None) => Some(tof_sim::settings::Feature::BendAt(m)),
+        (None, Some(m)) => Some(tof_sim::settings::Feature::TeeAt(m)),
+        (None, None) => None,
+    };
     let helios2 = parse_sensor(sensor)?;
     let points = match points {
         None => None,
@@ -868,6 +887,7 @@ fn simulate<'py>(
             dy: m(dy_mm),
             dz: m(dz_mm),
         },
+        feature,
     };
     let (frame, truth) = run_interruptible(py, || -> Result<_, SimulateError> {
         let sim = Simulator::new(&settings)?;
@@ -916,15 +936,20 @@ fn parse_sensor(sensor: &str) -> PyResult<bool> {
 /// The frame's per-point properties as the PLY file has them: `u`, `v` and, when the
 /// model gives one, `intensity`.
 fn frame_properties<'py>(py: Python<'py>, frame: &tof_sim::Frame) -> PyResult<Bound<'py, PyDict>> {
+    use epd_io::cloud::Values;
     let props = PyDict::new(py);
     let col = |i: usize| frame.pixels.iter().map(|p| f64::from(p[i])).collect();
     props.set_item("u", PyArray1::from_vec(py, col(0)))?;
     props.set_item("v", PyArray1::from_vec(py, col(1)))?;
-    if frame.intensity.len() == frame.measured.len()
-        && frame.intensity.iter().any(|i| i.is_finite())
-    {
-        let i: Vec<f64> = frame.intensity.iter().map(|&v| f64::from(v)).collect();
-        props.set_item("intensity", PyArray1::from_vec(py, i))?;
+    // The PLY's other properties: `intensity` (Helios2), `segment` and `part` (a frame with
+    // a bend or a tee ahead), as `epd.read` reads them from the file.
+    for p in frame.cloud().properties {
+        let v: Vec<f64> = match &p.values {
+            Values::F32(v) => v.iter().map(|&x| f64::from(x)).collect(),
+            Values::U16(v) => v.iter().map(|&x| f64::from(x)).collect(),
+            Values::U8(v) => v.iter().map(|&x| f64::from(x)).collect(),
+        };
+        props.set_item(p.name.as_str(), PyArray1::from_vec(py, v))?;
     }
     Ok(props)
 }

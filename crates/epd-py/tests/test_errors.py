@@ -99,6 +99,15 @@ def test_signature_shows_the_defaults():
     assert "d_max_mm" in epd.estimate.__doc__ and "stamp_ns" in epd.estimate.__doc__
 
 
+def test_status_reasons_are_in_a_users_words():
+    """A converged fit's status_reason names no solver setting (stat_tol, ftol, …)."""
+    points, _ = epd.simulate(seed=3, points=20000)
+    r = epd.estimate(points)
+    assert r["status"] == "converged"
+    for internal in ("stat_tol", "ftol", "xtol", "gtol"):
+        assert internal not in r["status_reason"], r["status_reason"]
+
+
 @pytest.mark.parametrize(
     "flags,kwargs",
     [

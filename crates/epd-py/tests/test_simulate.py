@@ -21,8 +21,10 @@ from conftest import run_epd, same_value
              "outliers": 0.02, "noise": "isotropic"},
         ),
         (["--points", "6000", "--sensor", "helios2"], {"points": 6000, "sensor": "helios2"}),
+        (["--points", "5000", "--bend-at", "1.5"], {"points": 5000, "bend_at": 1.5}),
+        (["--points", "5000", "--tee-at", "1.2"], {"points": 5000, "tee_at": 1.2}),
     ],
-    ids=["plain", "options", "helios2"],
+    ids=["plain", "options", "helios2", "bend", "tee"],
 )
 def test_frames_match_the_cli(epd_bin, tmp_path, flags, kwargs):
     run_epd(epd_bin, "simulate", "--out", tmp_path, "--frames", 2, "--seed", 9, *flags)
@@ -68,3 +70,31 @@ def test_read_gives_other_properties(tmp_path):
     assert list(props) == ["intensity", "confidence"]
     assert props["intensity"].tolist() == [50.0, 60.0]
     assert props["confidence"].dtype == np.float64
+
+
+@pytest.mark.parametrize("kwargs,layout", [({"bend_at": 1.5}, "bend_ahead"),
+                                           ({"tee_at": 1.2}, "tee_ahead")])
+def test_bends_and_tees_ahead_are_found_where_simulated(kwargs, layout):
+    """A frame with a bend (tee) M ahead: the truth says so, and the survey finds it there
+    (the straight section's end within 5 cm, as docs/bends-and-tees.md reports at 1-2 m)."""
+    at = next(iter(kwargs.values()))
+    points, truth = epd.simulate(seed=4, sigma=0.005, **kwargs)
+    assert truth["geometry"] == layout and truth["straight_until_m"] == at
+    r = epd.estimate(points)
+    assert r["geometry"] == layout, r
+    assert abs(r["straight_until_m"] - at) < 0.05, r
+    with pytest.raises(ValueError, match="bend_at and tee_at"):
+        epd.simulate(bend_at=1.0, tee_at=1.0)
+    with pytest.raises(ValueError, match=r"bend_at = -1 m"):
+        epd.simulate(bend_at=-1.0)
+
+
+def test_simulate_signature_shows_the_defaults():
+    import inspect
+
+    sig = inspect.signature(epd.simulate)
+    assert "Ellipsis" not in str(sig)
+    assert sig.parameters["bend_at"].default is None
+    assert sig.parameters["od_in"].default == 20.0
+    for key in ("d_max_mm", "straight_until_m", "n_points"):
+        assert key in epd.simulate.__doc__

@@ -6,8 +6,8 @@
 use std::num::NonZeroUsize;
 
 use crate::{
-    Frame, FrameSeed, Noise, NoiseModel, Pipe, PoseRanges, Scene, Sensor, SimError, Subsample,
-    WallModel, simulate_into,
+    Frame, FrameSeed, MeshResolution, Noise, NoiseModel, Pipe, Pipeline, PoseRanges, Scene,
+    Segment, Sensor, SimError, Subsample, WallModel, simulate_into,
 };
 use epd_core::Params;
 use epd_core::report::Field;
@@ -35,7 +35,43 @@ pub struct SimulateSettings {
     pub helios2: bool,
     /// Pose parameters to use instead of the sampled ones (radians, metres).
     pub pose: PoseOverride,
+    /// A bend or a tee ahead of the sensor (`None`: a straight pipe).
+    pub feature: Option<Feature>,
 }
+
+/// What lies ahead of the sensor in a simulated frame (`epd simulate --bend-at M` /
+/// `--tee-at M`), as in the `elbow_approach` and `tee_pass` scenarios.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Feature {
+    /// A 90° long-radius elbow ([`BEND_RADIUS_D`] × the mean inner diameter) starting this
+    /// far ahead of the sensor along the pipe (m), turning toward [`FEATURE_DIRECTION_DEG`].
+    BendAt(f64),
+    /// A tee whose branch ([`TEE_BRANCH_D`] × the mean inner diameter) opens this far ahead
+    /// of the sensor along the pipe (m: the opening's near edge), toward
+    /// [`FEATURE_DIRECTION_DEG`].
+    TeeAt(f64),
+}
+
+/// A simulated bend's centreline radius in mean inner diameters: 1.5, a long-radius elbow
+/// (ASME B16.9), as in the `elbow_approach` scenario.
+pub const BEND_RADIUS_D: f64 = 1.5;
+
+/// A simulated tee's branch diameter in mean inner diameters: 0.6, the `tee_pass`
+/// scenario's 300 mm branch on a 20" pipe (0.62 of its 484 mm inner diameter).
+pub const TEE_BRANCH_D: f64 = 0.6;
+
+/// The direction of a simulated bend's turn or tee's branch in the pipe frame (deg from
+/// the major axis toward the minor one): 40°, the scenarios' (neither axis, so that the
+/// roll matters).
+pub const FEATURE_DIRECTION_DEG: f64 = 40.0;
+
+/// The farthest a simulated feature may start (m): 20 m, beyond the Helios2's 8.3 m
+/// reach (the frame is then straight) and the scenarios' limit.
+pub const MAX_FEATURE_DISTANCE_M: f64 = 20.0;
+
+/// The straight pipe after a simulated bend or tee (m): 6 m, past the camera's reach
+/// seen through the feature.
+const AFTER_FEATURE_M: f64 = 6.0;
 
 /// Pose parameters given instead of drawn from the paper's ranges; `None` keeps the
 /// drawn value.
@@ -74,6 +110,7 @@ pub struct Simulator {
     seed: u64,
     helios2: bool,
     pose: PoseOverride,
+    feature: Option<Feature>,
 }
 
 impl Simulator {
@@ -125,6 +162,18 @@ impl Simulator {
                 )));
             }
         }
+        if let Some(f) = a.feature {
+            let (flag, at) = match f {
+                Feature::BendAt(m) => ("bend_at", m),
+                Feature::TeeAt(m) => ("tee_at", m),
+            };
+            if !(at > 0.0 && at <= MAX_FEATURE_DISTANCE_M) {
+                return Err(SimulateError::Setting(format!(
+                    "{flag} = {at} m: expected a distance ahead of the sensor in (0, \
+                     {MAX_FEATURE_DISTANCE_M}] m"
+                )));
+            }
+        }
         Ok(Simulator {
             pipe,
             noise,
@@ -133,6 +182,7 @@ impl Simulator {
             seed: a.seed,
             helios2: a.helios2,
             pose: a.pose,
+            feature: a.feature,
         })
     }
 
@@ -140,7 +190,10 @@ impl Simulator {
     pub fn frame(&self, k: u64, frame: &mut Frame) -> Result<(), SimulateError> {
         let mut truth = PoseRanges::default().sample(&self.pipe, self.seed, k)?;
         self.apply_pose(&mut truth)?;
-        let scene = Scene::new(&truth, WallModel::Exact, self.sensor.max_range)?;
+        let scene = match self.pipeline(&truth) {
+            None => Scene::new(&truth, WallModel::Exact, self.sensor.max_range)?,
+            Some(p) => Scene::pipeline(&truth, &p, &MeshResolution::default())?,
+        };
         simulate_into(
             &self.sensor,
             &scene,
@@ -154,6 +207,53 @@ impl Simulator {
             frame,
         )?;
         Ok(())
+    }
+
+    /// The pipeline of the feature ahead, in the pipe frame of `truth` (`None`: straight),
+    /// built as the `elbow_approach` and `tee_pass` scenarios build theirs.
+    pub fn pipeline(&self, truth: &Params) -> Option<Pipeline> {
+        let (d_max, d_min) = (truth.d_max, truth.d_min);
+        let d = 0.5 * (d_max + d_min);
+        let direction = FEATURE_DIRECTION_DEG.to_radians();
+        Some(match self.feature? {
+            Feature::BendAt(at) => Pipeline::with_one_bend(
+                d_max,
+                d_min,
+                -1.0,
+                at,
+                Segment::Bend {
+                    radius: BEND_RADIUS_D * d,
+                    angle: std::f64::consts::FRAC_PI_2,
+                    direction,
+                },
+                AFTER_FEATURE_M,
+            ),
+            Feature::TeeAt(at) => {
+                // The opening's near edge at `at`: a main run of 2·b whose branch is
+                // centred at its middle.
+                let b = TEE_BRANCH_D * d;
+                let len = 2.0 * b;
+                Pipeline {
+                    d_max,
+                    d_min,
+                    bend_diameter: None,
+                    start_x: -1.0,
+                    segments: vec![
+                        Segment::Straight {
+                            length: 1.0 + at - 0.5 * (len - b),
+                        },
+                        Segment::Tee {
+                            length: len,
+                            branch_diameter: b,
+                            direction,
+                        },
+                        Segment::Straight {
+                            length: AFTER_FEATURE_M,
+                        },
+                    ],
+                }
+            }
+        })
     }
 
     /// The given pose parameters in place of the drawn ones; the sensor must stay inside
@@ -183,8 +283,10 @@ impl Simulator {
 
     /// The ground truth of a frame made by [`Simulator::frame`] as `epd simulate` writes
     /// it, frame `k`: see [`truth_fields`].
+    /// With a feature ahead, two more fields: `geometry` (`bend_ahead` or `tee_ahead`)
+    /// and `straight_until_m` (where the straight section ends, m ahead).
     pub fn truth(&self, k: u64, frame: &Frame) -> Vec<(&'static str, Field)> {
-        truth_fields(
+        let mut f = truth_fields(
             &frame.truth,
             frame.len(),
             self.seed,
@@ -192,7 +294,16 @@ impl Simulator {
             self.noise.sigma,
             self.noise.outlier_fraction,
             if self.helios2 { "helios2" } else { "plain" },
-        )
+        );
+        if let Some(feature) = self.feature {
+            let (layout, at) = match feature {
+                Feature::BendAt(m) => ("bend_ahead", m),
+                Feature::TeeAt(m) => ("tee_ahead", m),
+            };
+            f.push(("geometry", Field::Text(layout.into())));
+            f.push(("straight_until_m", Field::Num(at)));
+        }
+        f
     }
 }
 

@@ -76,6 +76,8 @@ fn pipeline_diameters(s: &PipelineScenario, points: &[ProfileRow]) -> anyhow::Re
                     bars: false,
                     marker_triangle: m == "ml-epd-w",
                     dashed: false,
+                    band: false,
+                    markers_only: false,
                 });
             }
             fig11.push(v);
@@ -140,6 +142,8 @@ fn pipeline_section_errors(s: &PipelineScenario, sections: &[SectionRow]) -> any
                         bars: true,
                         marker_triangle: *m == "ml-epd-w",
                         dashed: false,
+                        band: false,
+                        markers_only: false,
                     })
                     .collect(),
             );
@@ -338,6 +342,8 @@ fn spread_series(rows: &[&SectionRow], f: Spread) -> Vec<Series> {
         bars: false,
         marker_triangle: false,
         dashed: true,
+        band: false,
+        markers_only: false,
     }];
     for m in METHODS {
         let std = points(m, |(std, _)| std);

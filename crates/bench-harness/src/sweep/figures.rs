@@ -117,6 +117,8 @@ impl<'a> Sweep<'a> {
                 bars,
                 marker_triangle: false,
                 dashed: false,
+                band: false,
+                markers_only: false,
             })
             .collect()
     }
@@ -310,6 +312,8 @@ fn crb_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
                     bars: false,
                     marker_triangle: false,
                     dashed: true,
+                    band: false,
+                    markers_only: false,
                 });
             }
             v.extend(sw.series(q, false, std));
@@ -371,6 +375,8 @@ fn coverage_figure(sw: &Sweep<'_>) -> anyhow::Result<Png> {
                     bars: false,
                     marker_triangle: false,
                     dashed: true,
+                    band: false,
+                    markers_only: false,
                 });
             }
             v.extend(sw.series(q, false, cov));
@@ -490,6 +496,8 @@ fn realtime_figure(scenario: &Scenario, summary: &[SummaryRow]) -> anyhow::Resul
         bars: false,
         marker_triangle: false,
         dashed: true,
+        band: false,
+        markers_only: false,
     }];
     let mut time = vec![Series {
         name: "full frame".into(),
@@ -498,6 +506,8 @@ fn realtime_figure(scenario: &Scenario, summary: &[SummaryRow]) -> anyhow::Resul
         bars: false,
         marker_triangle: false,
         dashed: true,
+        band: false,
+        markers_only: false,
     }];
     for (how, colour) in SamplingMethod::ALL.into_iter().zip(colours) {
         let r = realtime_points(scenario, summary, method, Some(how), |d, _| {
@@ -515,6 +525,8 @@ fn realtime_figure(scenario: &Scenario, summary: &[SummaryRow]) -> anyhow::Resul
                 bars: false,
                 marker_triangle: false,
                 dashed: false,
+                band: false,
+                markers_only: false,
             });
         }
     }

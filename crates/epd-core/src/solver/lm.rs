@@ -117,11 +117,18 @@ impl Status {
     pub fn reason(&self) -> &'static str {
         match self {
             Status::Converged(Convergence::ZeroResidual) => "the residuals are zero",
-            Status::Converged(Convergence::CostTolerance) => "the cost stopped decreasing (ftol)",
-            Status::Converged(Convergence::StepTolerance) => "the step became negligible (xtol)",
-            Status::Converged(Convergence::GradientTolerance) => "the gradient vanished (gtol)",
+            Status::Converged(Convergence::CostTolerance) => {
+                "the fit stopped improving: a further step no longer lowers the residuals"
+            }
+            Status::Converged(Convergence::StepTolerance) => {
+                "the fit settled: the last step changed the parameters by a negligible amount"
+            }
+            Status::Converged(Convergence::GradientTolerance) => {
+                "the fit settled at a minimum of the residuals"
+            }
             Status::Converged(Convergence::WithinUncertainty) => {
-                "the last step was below stat_tol of the parameters' standard deviations"
+                "the fit settled: the last step was a small fraction of the parameters' 1-σ, \
+                 so more iterations would not change the result measurably"
             }
             Status::IterationLimit => "the iteration limit was reached",
             Status::Degenerate(DegenerateReason::InvalidStart) => {

@@ -55,13 +55,20 @@ struct Cdr<'a> {
     body: &'a [u8],
     pos: usize,
     little: bool,
+    /// The message type named in errors.
+    format: &'static str,
 }
 
 impl<'a> Cdr<'a> {
     fn new(bytes: &'a [u8]) -> Result<Self, ReadError> {
+        Self::of(bytes, F)
+    }
+
+    /// A cursor over a message of type `format` (named in errors).
+    fn of(bytes: &'a [u8], format: &'static str) -> Result<Self, ReadError> {
         let Some((head, body)) = bytes.split_first_chunk::<4>() else {
             return Err(err(
-                F,
+                format,
                 format!(
                     "{} bytes: too short for the 4-byte CDR encapsulation header",
                     bytes.len()
@@ -73,7 +80,7 @@ impl<'a> Cdr<'a> {
             [0, 0] => false,
             [a, b] => {
                 return Err(err(
-                    F,
+                    format,
                     format!(
                         "CDR encapsulation {a:02x} {b:02x} is not plain CDR (00 00 big-endian, \
                          00 01 little-endian): XCDR2 or parameter-list encodings are not read"
@@ -85,6 +92,7 @@ impl<'a> Cdr<'a> {
             body,
             pos: 0,
             little,
+            format,
         })
     }
 
@@ -97,7 +105,7 @@ impl<'a> Cdr<'a> {
         let end = self.pos.checked_add(n).filter(|&e| e <= self.body.len());
         let Some(end) = end else {
             return Err(err(
-                F,
+                self.format,
                 format!(
                     "the message ends in {what} (byte {} of {}, {n} bytes needed): truncated",
                     self.at(),
@@ -124,8 +132,11 @@ impl<'a> Cdr<'a> {
             0 => Ok(false),
             1 => Ok(true),
             v => Err(err(
-                F,
-                format!("{what} is {v}, not a boolean (0 or 1): not a PointCloud2 message"),
+                self.format,
+                format!(
+                    "{what} is {v}, not a boolean (0 or 1): not a {} message",
+                    self.format
+                ),
             )),
         }
     }
@@ -135,11 +146,24 @@ impl<'a> Cdr<'a> {
         let b: [u8; 4] = self
             .take(4, what)?
             .try_into()
-            .map_err(|_| err(F, "internal: 4 bytes"))?;
+            .map_err(|_| err(self.format, "internal: 4 bytes"))?;
         Ok(if self.little {
             u32::from_le_bytes(b)
         } else {
             u32::from_be_bytes(b)
+        })
+    }
+
+    fn f64(&mut self, what: &str) -> Result<f64, ReadError> {
+        self.align(8, what)?;
+        let b: [u8; 8] = self
+            .take(8, what)?
+            .try_into()
+            .map_err(|_| err(self.format, "internal: 8 bytes"))?;
+        Ok(if self.little {
+            f64::from_le_bytes(b)
+        } else {
+            f64::from_be_bytes(b)
         })
     }
 
@@ -157,7 +181,8 @@ impl<'a> Cdr<'a> {
             Some(_) => bytes,
             None => &[],
         };
-        String::from_utf8(text.to_vec()).map_err(|_| err(F, format!("{what} is not UTF-8 text")))
+        String::from_utf8(text.to_vec())
+            .map_err(|_| err(self.format, format!("{what} is not UTF-8 text")))
     }
 }
 
@@ -254,6 +279,42 @@ pub fn decode_point_cloud2(bytes: &[u8]) -> Result<PointCloud2, ReadError> {
         width,
         is_dense,
         cloud,
+    })
+}
+
+/// The ROS 2 type name of the odometry messages [`decode_odometry`] reads.
+pub const ODOMETRY: &str = "nav_msgs/msg/Odometry";
+
+/// The format named in odometry errors.
+const ODOMETRY_F: &str = "Odometry";
+
+/// The position of a `nav_msgs/msg/Odometry` message at its header stamp.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OdometryPosition {
+    /// `header.stamp` as integer nanoseconds.
+    pub stamp_ns: i64,
+    /// `pose.pose.position` (x, y, z) in the odometry's frame (m).
+    pub position: [f64; 3],
+}
+
+/// Decode the stamp and position of one `nav_msgs/msg/Odometry` message from its CDR
+/// bytes: `header` (stamp, `frame_id`), `child_frame_id: string`, then
+/// `pose.pose.position` as three float64 (aligned to 8); the rest (orientation,
+/// covariances, twist) is not read.
+pub fn decode_odometry(bytes: &[u8]) -> Result<OdometryPosition, ReadError> {
+    let mut c = Cdr::of(bytes, ODOMETRY_F)?;
+    let sec = c.i32("header.stamp.sec")?;
+    let nanosec = c.u32("header.stamp.nanosec")?;
+    c.string("header.frame_id")?;
+    c.string("child_frame_id")?;
+    let position = [
+        c.f64("pose.pose.position.x")?,
+        c.f64("pose.pose.position.y")?,
+        c.f64("pose.pose.position.z")?,
+    ];
+    Ok(OdometryPosition {
+        stamp_ns: i64::from(sec) * 1_000_000_000 + i64::from(nanosec),
+        position,
     })
 }
 
@@ -689,6 +750,37 @@ pub(super) mod tests {
                 });
             }
             let _ = decode_point_cloud2(&b);
+        }
+    }
+
+    /// An Odometry message in CDR, little- and big-endian: its stamp and position read, the
+    /// position aligned to 8 after the two strings; a truncated one is an error naming
+    /// the field and the type.
+    #[test]
+    fn odometry_position() {
+        for little in [true, false] {
+            let mut w = W::new(little);
+            w.u32(12);
+            w.u32(500);
+            w.string("odom");
+            w.string("base_link");
+            w.align(8);
+            for v in [1.5f64, -2.25, 0.125] {
+                let b = if little {
+                    v.to_le_bytes()
+                } else {
+                    v.to_be_bytes()
+                };
+                w.out.extend_from_slice(&b);
+            }
+            // Orientation and the rest: not read.
+            w.out.extend_from_slice(&[0u8; 64]);
+            let o = decode_odometry(&w.out).unwrap();
+            assert_eq!(o.stamp_ns, 12_000_000_500);
+            assert_eq!(o.position, [1.5, -2.25, 0.125]);
+            let cut = &w.out[..w.out.len() - 64 - 4];
+            let e = decode_odometry(cut).unwrap_err().to_string();
+            assert!(e.contains("Odometry") && e.contains("position.z"), "{e}");
         }
     }
 }

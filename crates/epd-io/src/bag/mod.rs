@@ -18,7 +18,9 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-pub use cdr::{POINT_CLOUD2, PointCloud2, decode_point_cloud2};
+pub use cdr::{
+    ODOMETRY, OdometryPosition, POINT_CLOUD2, PointCloud2, decode_odometry, decode_point_cloud2,
+};
 
 use crate::read::ReadError;
 
@@ -378,40 +380,41 @@ pub struct BagMessage {
     pub cloud: Result<PointCloud2, ReadError>,
 }
 
-/// The PointCloud2 messages of one topic of a bag, in file order, decoded one at a time.
-/// After a [`BagError`] the iterator ends.
-pub struct BagClouds {
+/// The messages of one topic of a bag, in file order, as raw bytes; those outside a range
+/// of indices are counted, not copied. After a [`BagError`] the iterator ends.
+struct TopicMessages {
     files: std::vec::IntoIter<PathBuf>,
     current: Option<(PathBuf, Messages, Arc<AtomicU64>)>,
     topic: String,
     index: u64,
+    keep: std::ops::Range<u64>,
     done: bool,
 }
 
-impl BagClouds {
-    /// Open `path` (an `.mcap` file or a rosbag2 folder) for the messages of `topic`, which
-    /// the caller chose ([`Topics::choose`]); other topics are skipped.
-    pub fn open(path: &Path, topic: &str) -> Result<BagClouds, BagError> {
-        Ok(BagClouds {
+impl TopicMessages {
+    fn open(path: &Path, topic: &str) -> Result<TopicMessages, BagError> {
+        Ok(TopicMessages {
             files: bag_files(path)?.into_iter(),
             current: None,
             topic: topic.to_string(),
             index: 0,
+            keep: 0..u64::MAX,
             done: false,
         })
     }
-
-    /// The topic read.
-    pub fn topic(&self) -> &str {
-        &self.topic
-    }
 }
 
-impl Iterator for BagClouds {
-    type Item = Result<BagMessage, BagError>;
+impl Iterator for TopicMessages {
+    /// (index among the topic's messages, MCAP log time in ns, the message's bytes).
+    type Item = Result<(u64, u64, Vec<u8>), BagError>;
 
     fn next(&mut self) -> Option<Self::Item> {
         while !self.done {
+            if self.index >= self.keep.end {
+                // Past the range kept: the rest of the bag is not read.
+                self.done = true;
+                return None;
+            }
             if self.current.is_none() {
                 let file = self.files.next()?;
                 match open_messages(&file) {
@@ -427,27 +430,113 @@ impl Iterator for BagClouds {
                 None => self.current = None,
                 Some(Err(e)) => {
                     self.done = true;
-                    return Some(Err(damaged(
-                        file,
-                        count.load(Ordering::Relaxed),
-                        &e,
-                        self.index,
-                    )));
+                    let read = self.index.saturating_sub(self.keep.start);
+                    return Some(Err(damaged(file, count.load(Ordering::Relaxed), &e, read)));
                 }
                 Some(Ok(m)) if m.channel.topic != self.topic => {}
                 Some(Ok(m)) => {
                     let index = self.index;
                     self.index += 1;
-                    return Some(Ok(BagMessage {
-                        index,
-                        log_time_ns: m.log_time,
-                        cloud: decode_point_cloud2(&m.data),
-                    }));
+                    if !self.keep.contains(&index) {
+                        continue;
+                    }
+                    return Some(Ok((index, m.log_time, m.data.into_owned())));
                 }
             }
         }
         None
     }
+}
+
+/// The PointCloud2 messages of one topic of a bag, in file order, decoded one at a time.
+/// After a [`BagError`] the iterator ends.
+pub struct BagClouds {
+    messages: TopicMessages,
+}
+
+impl BagClouds {
+    /// Open `path` (an `.mcap` file or a rosbag2 folder) for the messages of `topic`, which
+    /// the caller chose ([`Topics::choose`]); other topics are skipped.
+    pub fn open(path: &Path, topic: &str) -> Result<BagClouds, BagError> {
+        Ok(BagClouds {
+            messages: TopicMessages::open(path, topic)?,
+        })
+    }
+
+    /// Only the messages whose index (among the topic's, from 0) lies in `keep`: the others
+    /// are skipped undecoded, and the bag is not read past `keep.end` (a `--shard`'s block).
+    pub fn only(mut self, keep: std::ops::Range<u64>) -> BagClouds {
+        self.messages.keep = keep;
+        self
+    }
+
+    /// The topic read.
+    pub fn topic(&self) -> &str {
+        &self.messages.topic
+    }
+}
+
+impl Iterator for BagClouds {
+    type Item = Result<BagMessage, BagError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        Some(
+            self.messages
+                .next()?
+                .map(|(index, log_time_ns, data)| BagMessage {
+                    index,
+                    log_time_ns,
+                    cloud: decode_point_cloud2(&data),
+                }),
+        )
+    }
+}
+
+/// The positions of an odometry topic, with what stopped the reading early.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct OdometryTrack {
+    /// Every message's stamp and position, in bag order.
+    pub positions: Vec<OdometryPosition>,
+    /// Messages that could not be decoded: (index, why).
+    pub undecoded: Vec<(u64, String)>,
+    /// The damage that ended the reading (the positions before it are kept).
+    pub damaged: Option<BagError>,
+}
+
+/// Every position of the `nav_msgs/msg/Odometry` topic `topic` of a bag. An odometry
+/// message is a few hundred bytes: a run of hours at 100 Hz holds a few ten thousand
+/// positions (24 bytes each) in memory; the clouds are never read.
+pub fn odometry(path: &Path, topic: &str) -> Result<OdometryTrack, BagError> {
+    let found = topics(path)?;
+    let Some(info) = found.topics.iter().find(|t| t.topic == topic) else {
+        let names: Vec<&str> = found.topics.iter().map(|t| t.topic.as_str()).collect();
+        return Err(BagError::Topic(format!(
+            "{}: no topic `{topic}` (the bag has: {})",
+            crate::name::shown(path),
+            names.join(", ")
+        )));
+    };
+    if info.message_type != ODOMETRY {
+        return Err(BagError::Topic(format!(
+            "{}: topic `{topic}` holds {} messages, not {ODOMETRY}",
+            crate::name::shown(path),
+            info.message_type
+        )));
+    }
+    let mut track = OdometryTrack::default();
+    for m in TopicMessages::open(path, topic)? {
+        match m {
+            Ok((index, _, data)) => match decode_odometry(&data) {
+                Ok(p) => track.positions.push(p),
+                Err(e) => track.undecoded.push((index, e.to_string())),
+            },
+            Err(e) => {
+                track.damaged = Some(e);
+                break;
+            }
+        }
+    }
+    Ok(track)
 }
 
 #[cfg(test)]
@@ -553,6 +642,30 @@ mod tests {
                 assert_eq!(c.stamp_ns, -3_000_000_000 + 250_000_000);
             }
         }
+    }
+
+    /// `only(2..4)` yields messages 2 and 3 with their indices; the others are not decoded,
+    /// and an empty range yields nothing.
+    #[test]
+    fn only_a_range_of_messages() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "a.mcap", &bag(true));
+        let got: Vec<u64> = BagClouds::open(&p, "/points")
+            .unwrap()
+            .only(2..4)
+            .map(|m| m.unwrap().index)
+            .collect();
+        assert_eq!(got, [2, 3]);
+        let first = BagClouds::open(&p, "/points").unwrap().only(5..9).next();
+        let c = first.unwrap().unwrap().cloud.unwrap();
+        assert_eq!(c.cloud.points[0], [5.0, 0.5, -0.5]);
+        assert_eq!(
+            BagClouds::open(&p, "/points").unwrap().only(3..3).count(),
+            0
+        );
+        // Not an odometry topic: refused with its type.
+        let e = odometry(&p, "/points").unwrap_err().to_string();
+        assert!(e.contains(ODOMETRY) && e.contains(POINT_CLOUD2), "{e}");
     }
 
     /// Chunks compressed with zstd or lz4 (as `ros2 bag record` may write them), whose
