@@ -697,30 +697,7 @@ pub fn survey(
         // The wall comes back onto the straight pipe beyond the departure: the main run
         // goes on past an opening — or past a dent, debris or an obstacle when the
         // departure runs inward.
-        if let Some(mut dent) = inward(&s.profile[i..], &straight, seg) {
-            dent.from_m = inward_start(&s.profile, i);
-            // The straight section ends where the dent's flank begins.
-            if s.straight_until.is_some_and(|end| dent.from_m < end)
-                && let Some(fit) = refit_before(
-                    &clean(points).points,
-                    &straight,
-                    dent.from_m,
-                    method,
-                    options,
-                    seg,
-                )
-            {
-                s.straight = fit;
-            }
-            s.layout = Layout::Straight;
-            s.straight_until = Some(dent.from_m);
-            return Ok(Survey {
-                segmentation: s,
-                bend: None,
-                dent: Some(dent),
-            });
-        }
-        return Ok(tee(s, seg));
+        return Ok(obstruction_or_tee(s, i, points, method, options, seg));
     }
     let beta = s.straight.params;
     let d_mean = 0.5 * (beta.d_max + beta.d_min);
@@ -741,13 +718,60 @@ pub fn survey(
             s.straight_until = Some(b.geometry.start);
             s.direction = Some(b.geometry.direction);
         }
-        None => return Ok(tee(s, seg)),
+        None => {
+            // No torus fits: an opening (a tee), or something lying inside the pipe
+            // that hides the wall beyond it when the departure runs inward.
+            let i = first_departure(&s.profile, seg).unwrap_or(0);
+            return Ok(obstruction_or_tee(s, i, points, method, options, seg));
+        }
     }
     Ok(Survey {
         segmentation: s,
         bend: accepted,
         dent: None,
     })
+}
+
+/// The survey's verdict for a departure at slice `i` that is not a bend: a dent, debris
+/// or an obstacle on the wall when it runs inward ([`inward`]) — the layout stays
+/// [`Layout::Straight`], the straight section ends where the dent's flank begins
+/// ([`inward_start`]) and is refitted on the points before it — otherwise a tee.
+fn obstruction_or_tee(
+    mut s: Segmentation,
+    i: usize,
+    points: &[[f64; 3]],
+    method: Method,
+    options: &EstimateOptions,
+    seg: &SegmentOptions,
+) -> Survey {
+    let straight = s.straight.params;
+    let Some(mut dent) = s
+        .profile
+        .get(i..)
+        .and_then(|run| inward(run, &straight, seg))
+    else {
+        return tee(s, seg);
+    };
+    dent.from_m = inward_start(&s.profile, i);
+    if s.straight_until.is_some_and(|end| dent.from_m < end)
+        && let Some(fit) = refit_before(
+            &clean(points).points,
+            &straight,
+            dent.from_m,
+            method,
+            options,
+            seg,
+        )
+    {
+        s.straight = fit;
+    }
+    s.layout = Layout::Straight;
+    s.straight_until = Some(dent.from_m);
+    Survey {
+        segmentation: s,
+        bend: None,
+        dent: Some(dent),
+    }
 }
 
 /// The survey's verdict for a tee. A branch opening starts abruptly: at the near edge
