@@ -1,0 +1,168 @@
+"""`epd estimate FILES --format json` with its defaults on frames of an elbow ahead that
+share no code with tof-sim or epd (issue 23's second, independent geometry): a numpy
+ray caster of its own. The pipe is round (inner diameter D) and runs along +X of the
+pipe frame (PCS) up to x0, then turns by Θ on a circle of centreline radius R_b toward the
+clock direction u = (0, cos φ_b, sin φ_b), then runs straight again. A point is inside
+the pipe when it is inside one of the three pieces: the straight tube before x0; the
+bend's ring, within D/2 of the centreline circle centred at (x0, 0, 0) + R_b·u and at a
+turned angle in [0, Θ]; the straight tube after. Each ray of the pinhole camera of
+`test_independent_frames.py` (SPEC.md eq. 3 for the pose) is marched in 5 mm steps from
+the sensor until it leaves the pipe, and the crossing is refined by bisection to 10⁻⁸ m;
+range noise N(0, σ²) is added along the ray. Nothing here is tof-sim's mesh or its torus.
+
+Measured and printed per distance: how many frames read `bend_ahead` with
+`straight_until_m` within 5 cm of x0. Issue 23's goal (≥ 99 % correct from 0.5 to 3 m) is
+not met on tof-sim's frames at 3 m nor on these, so the test asserts what holds and records
+the rest as xfail; it also asserts that no frame with a bend ahead is answered far off.
+"""
+
+import json
+import math
+import subprocess
+
+import numpy as np
+import pytest
+
+from test_independent_frames import rays, rot, write_ply
+
+SIGMA_M = 0.02
+MAX_RANGE_M = 6.0
+STEP_M = 0.005
+
+
+def inside(p, x0, radius, bend_r, phi_b, theta_b):
+    """Whether PCS points p (..., 3) lie inside the straight–bend–straight pipe."""
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    before = (x <= x0) & (y * y + z * z < radius * radius)
+    u = np.array([0.0, math.cos(phi_b), math.sin(phi_b)])
+    v = np.cross([1.0, 0.0, 0.0], u)
+    c = np.array([x0, 0.0, 0.0]) + bend_r * u
+    q = p - c
+    s = q[..., 0]  # along the first axis
+    w = q @ u  # toward the centre's outside (the centreline starts at w = −R_b)
+    h = q @ v  # out of the bend's plane
+    turned = np.arctan2(s, -w)
+    rho = np.hypot(np.hypot(s, w) - bend_r, h)
+    ring = (turned >= 0.0) & (turned <= theta_b) & (rho < radius)
+    tangent = math.cos(theta_b) * np.array([1.0, 0, 0]) + math.sin(theta_b) * u
+    end = c + bend_r * (-math.cos(theta_b) * u + math.sin(theta_b) * np.array([1.0, 0, 0]))
+    r = p - end
+    along = r @ tangent
+    off = r - along[..., None] * tangent
+    after = (along >= 0.0) & (np.einsum("...i,...i->...", off, off) < radius * radius)
+    return before | ring | after
+
+
+def bend_frame(rng, x0, diameter, bend_r, theta_b):
+    """One frame: points (n, 3) float32 in the sensor frame."""
+    roll = rng.uniform(-math.pi, math.pi)
+    pitch, yaw = np.radians(rng.uniform(-4.0, 4.0, size=2))
+    dy, dz = rng.uniform(-0.04, 0.04, size=2) * diameter / 0.5
+    phi_b = rng.uniform(0.0, 2 * math.pi)
+    d_s = rays().reshape(-1, 3)
+    e = d_s @ rot(roll, pitch, yaw).T  # directions in the PCS
+    origin = np.array([0.0, dy, dz])
+    args = (x0, diameter / 2, bend_r, phi_b, theta_b)
+    t_in = np.zeros(len(e))
+    hit = np.full(len(e), np.nan)
+    live = np.ones(len(e), dtype=bool)
+    t = 0.0
+    while t < MAX_RANGE_M and live.any():
+        t += STEP_M
+        out = ~inside(origin + e[live] * t, *args)
+        idx = np.flatnonzero(live)[out]
+        hit[idx] = t
+        live[idx] = False
+        t_in[live] = t
+    found = np.isfinite(hit)
+    lo, hi = t_in[found], hit[found]
+    ef = e[found]
+    for _ in range(20):
+        mid = 0.5 * (lo + hi)
+        ins = inside(origin + ef * mid[:, None], *args)
+        lo = np.where(ins, mid, lo)
+        hi = np.where(ins, hi, mid)
+    rng_m = 0.5 * (lo + hi) + rng.normal(0.0, SIGMA_M, size=lo.shape)
+    pts = d_s[found] * rng_m[:, None]
+    return pts.astype(np.float32)
+
+
+DIAMETER_M = 20 * 0.0254 - 2 * 0.0127  # a 20" pipe, 12.7 mm wall: 482.6 mm inside
+FRAMES = 8
+
+# Measured (`pytest -s test_independent_bends.py`, 8 frames per distance, 160 × 120
+# pixels): 0.75 m 7 of 8 (one `tee_ahead` 9 cm late), 1.0 m 8 of 8; 1.5 m 0 of 8 (7
+# refused `lack_of_fit` with geometry `straight`, 1 `tee_ahead`); 2.0 and 3.0 m 0 of 8
+# (`straight`, converged within 1.3σ̂: the bend holds too few of this camera's points for
+# the survey's slices, 12 points per 30° sector). The same caster at 640 × 480 pixels
+# found the bend's start within 3 cm at 1.5, 2.0 and 3.0 m in 6 of 6 frames but read 3
+# of them `tee_ahead` (the torus fit not accepted). Issue 23's goal is not met on this
+# geometry; the misses are recorded as xfail rather than loosened.
+NOT_MET = {
+    0.75: "issue 23: 7 of 8 (one tee_ahead)",
+    1.5: "issue 23: 0 of 8 (7 lack_of_fit read straight, 1 tee_ahead): too few points per slice",
+    2.0: "issue 23: 0 of 8 (straight): too few points per slice at 160 x 120",
+    3.0: "issue 23: 0 of 8 (straight): too few points per slice at 160 x 120",
+}
+
+
+def run_bends(epd_bin, tmp_path, ahead):
+    rng = np.random.default_rng(int(ahead * 100))
+    paths = []
+    for k in range(FRAMES):
+        pts = bend_frame(rng, ahead, DIAMETER_M, 1.5 * DIAMETER_M, math.pi / 2)
+        p = tmp_path / f"bend_{k}.ply"
+        write_ply(p, pts)
+        paths.append(str(p))
+    out = subprocess.run(
+        [str(epd_bin), "estimate", *paths, "--format", "json"],
+        capture_output=True,
+        text=True,
+    )
+    assert out.returncode in (0, 1), out.stderr
+    rows = [json.loads(line) for line in out.stdout.splitlines() if line.strip()]
+    assert len(rows) == FRAMES
+    return rows
+
+
+@pytest.mark.parametrize(
+    "ahead",
+    [
+        pytest.param(a, marks=pytest.mark.xfail(reason=NOT_MET[a])) if a in NOT_MET else a
+        for a in (0.75, 1.0, 1.5, 2.0, 3.0)
+    ],
+)
+def test_a_bend_ahead_is_read_as_a_bend(epd_bin, tmp_path, ahead):
+    """A 90° long-radius elbow (R_b = 1.5·D) `ahead` metres in front of the sensor:
+    every one of 8 frames reads `bend_ahead` with the straight section's end within 5 cm
+    of x0. With a true rate of 99 % all 8 read right with probability 0.92; a rate of
+    70 % passes with probability 0.06."""
+    rows = run_bends(epd_bin, tmp_path, ahead)
+    right = [
+        r
+        for r in rows
+        if r["geometry"] == "bend_ahead"
+        and r["straight_until_m"] is not None
+        and abs(r["straight_until_m"] - ahead) <= 0.05
+    ]
+    seen = [(r["status"], r["geometry"], r["straight_until_m"]) for r in rows]
+    print(f"{ahead} m: {len(right)} of {len(rows)} bend_ahead within 5 cm;", seen)
+    assert len(right) == len(rows), seen
+
+
+@pytest.mark.parametrize("ahead", [0.75, 1.5, 3.0])
+def test_no_frame_with_a_bend_ahead_is_answered_far_off(epd_bin, tmp_path, ahead):
+    """Whatever geometry it reads, a frame answered `converged` with diameters gives the
+    straight pipe's within max(5σ̂, 0.5 mm) (issue 22's bound: with an honest 1-σ,
+    P(|z| > 5) < 10⁻⁴ per diameter)."""
+    rows = run_bends(epd_bin, tmp_path, ahead)
+    far = []
+    for r in rows:
+        if r["status"] != "converged" or r["d_max_mm"] is None:
+            continue
+        for key in ("d_max_mm", "d_min_mm"):
+            err = r[key] - DIAMETER_M * 1e3
+            s = r["sigma_" + key]
+            if abs(err) > max(5 * s, 0.5):
+                far.append((r["file"], key, err, s, r["geometry"]))
+    assert not far, far
