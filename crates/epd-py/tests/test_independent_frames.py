@@ -153,8 +153,9 @@ COVERAGE_FLOOR = 0.95 - 4 * math.sqrt(0.95 * 0.05 / FRAMES)
 
 # Measured with the survey's variance law and the fitted axis's 1-σ (issue 23; `epd
 # estimate FILES --format json` with the defaults, 200 frames per model): independent
-# 0.920/0.905 and 0 of 200 misread; correlated 0.920/0.899 and 0 of 200 misread (0 of 200
-# more with seed 31). Multipath (seed 24): 40 of 200 answered, coverage 0.925/0.900, none
+# 0.920/0.905 and 0 of 200 misread; correlated 0.919/0.904 and 3 of 200 misread as a tee
+# (0 of 200 with seed 31; 0 of each before the axis's lateral covariance, whose one-by-one
+# predecessor was too wide on round pipes). Multipath (seed 24): 40 of 200 answered, coverage 0.925/0.900, none
 # far off, since the 1-σ carries the covariance of the range error the slices share
 # (`add_shared_offsets` in epd-core); 3 of 200 were far off before it (seed 25: 39
 # answered, 0.897/0.974, none far off).

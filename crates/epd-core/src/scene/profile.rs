@@ -343,12 +343,20 @@ pub struct AxisSigma {
     pub yaw: f64,
     /// 1-σ of pitch (rad).
     pub pitch: f64,
+    /// The axis's lateral covariance from the estimate's full covariance
+    /// ([`crate::estimate::AxisCov`]); when given, it replaces the four 1-σ above.
+    pub cov: Option<crate::estimate::AxisCov>,
 }
 
 impl AxisSigma {
-    /// From an estimate's reported 1-σ (a parameter without one counts as known). A fit
-    /// the form test refused (`lack_of_fit`) has a 1-σ that measures its misfit rather
-    /// than its noise: its axis counts as known, so that the profile shows the misfit.
+    /// From an estimate: its axis's lateral covariance ([`Estimate::axis_cov`]), else its
+    /// reported 1-σ (a parameter without one counts as known). A near-round pipe's roll is
+    /// nearly undetermined, and its reported pitch, yaw and offsets carry the turn of the
+    /// cross-section's labels that leaves the axis in place (a round 20" pipe: pitch and
+    /// yaw 2°, δz 44 mm reported, which would hide a 5 cm shift 1.5 m ahead); the
+    /// covariance does not. A fit the form test refused (`lack_of_fit`) has a 1-σ that
+    /// measures its misfit rather than its noise: its axis counts as known, so that the
+    /// profile shows the misfit.
     pub fn of(e: &Estimate) -> Self {
         if matches!(e.status, crate::check::FitStatus::LackOfFit(_)) {
             return Self::default();
@@ -360,12 +368,16 @@ impl AxisSigma {
             yaw: s(4),
             dy: s(5),
             dz: s(6),
+            cov: e.axis_cov,
         }
     }
 
     /// The variances of the axis's lateral position at axial distance x (m²): toward +Y
     /// and toward +Z of the PCS.
     pub fn lateral_variance(&self, x: f64) -> [f64; 2] {
+        if let Some(c) = &self.cov {
+            return c.lateral_variance(x);
+        }
         [
             self.dy * self.dy + (x * self.yaw).powi(2),
             self.dz * self.dz + (x * self.pitch).powi(2),
