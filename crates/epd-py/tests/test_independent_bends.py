@@ -16,14 +16,12 @@ not met on tof-sim's frames at 3 m nor on these, so the test asserts what holds 
 the rest as xfail; it also asserts that no frame with a bend ahead is answered far off.
 """
 
-import json
 import math
-import subprocess
 
 import numpy as np
 import pytest
 
-from test_independent_frames import rays, rot, write_ply
+from test_independent_frames import estimate_files, rays, rot, write_ply
 
 SIGMA_M = 0.02
 MAX_RANGE_M = 6.0
@@ -115,15 +113,7 @@ def run_bends(epd_bin, tmp_path, ahead):
         p = tmp_path / f"bend_{k}.ply"
         write_ply(p, pts)
         paths.append(str(p))
-    out = subprocess.run(
-        [str(epd_bin), "estimate", *paths, "--format", "json"],
-        capture_output=True,
-        text=True,
-    )
-    assert out.returncode in (0, 1), out.stderr
-    rows = [json.loads(line) for line in out.stdout.splitlines() if line.strip()]
-    assert len(rows) == FRAMES
-    return rows
+    return estimate_files(epd_bin, paths)
 
 
 @pytest.mark.parametrize(

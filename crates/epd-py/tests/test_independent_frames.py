@@ -119,6 +119,11 @@ def run(epd_bin, tmp_path, model, seed):
         write_ply(p, pts)
         truth[str(p)] = (d_max * 1e3, d_min * 1e3)
         paths.append(str(p))
+    return estimate_files(epd_bin, paths), truth
+
+
+def estimate_files(epd_bin, paths):
+    """`epd estimate PATHS --format json` with the defaults: one result per file."""
     out = subprocess.run(
         [str(epd_bin), "estimate", *paths, "--format", "json"],
         capture_output=True,
@@ -127,8 +132,8 @@ def run(epd_bin, tmp_path, model, seed):
     # Exit 1: some file was not answered `converged` (named on stderr); 2 or more: usage.
     assert out.returncode in (0, 1), out.stderr
     rows = [json.loads(line) for line in out.stdout.splitlines() if line.strip()]
-    assert len(rows) == FRAMES
-    return rows, truth
+    assert len(rows) == len(paths)
+    return rows
 
 
 def score(rows, truth):
