@@ -93,7 +93,7 @@ pub fn columns() -> Vec<&'static str> {
 }
 
 /// The fields after the estimate's, without the final `error`.
-const CONTEXT_KEYS: [&str; 23] = [
+const CONTEXT_KEYS: [&str; 26] = [
     "n_read",
     "n_out_of_range",
     "n_calibrated",
@@ -106,8 +106,11 @@ const CONTEXT_KEYS: [&str; 23] = [
     "nominal_od_mm",
     "wall_thickness_est_mm",
     "geometry",
+    "geometry_evidence",
     "straight_until_m",
+    "sigma_straight_until_m",
     "bend_radius_mm",
+    "sigma_bend_radius_mm",
     "bend_angle_deg",
     "bend_direction_deg",
     "bend_withheld",
@@ -279,8 +282,17 @@ impl FileReport {
                     g.map_or(Field::Null, |g| Field::Text(g.layout.into())),
                 ));
                 let opt = |v: Option<f64>| v.map_or(Field::Null, num);
+                f.push(("geometry_evidence", opt(g.map(|g| g.evidence))));
                 f.push(("straight_until_m", opt(g.and_then(|g| g.straight_until_m))));
+                f.push((
+                    "sigma_straight_until_m",
+                    opt(g.and_then(|g| g.sigma_straight_until_m)),
+                ));
                 f.push(("bend_radius_mm", opt(g.and_then(|g| g.bend_radius_mm))));
+                f.push((
+                    "sigma_bend_radius_mm",
+                    opt(g.and_then(|g| g.sigma_bend_radius_mm)),
+                ));
                 f.push(("bend_angle_deg", opt(g.and_then(|g| g.bend_angle_deg))));
                 f.push((
                     "bend_direction_deg",
@@ -483,8 +495,10 @@ impl GeometryReport {
                 d.depth_mm, d.clock_deg, d.at_m
             )),
             (Some(x), None) => t.push_str(&format!(
-                " — the straight section ends {x:.3} m ahead; the estimate uses \
-                 its points only"
+                " — the straight section ends {x:.3} m ahead{}; the estimate uses \
+                 its points only",
+                self.sigma_straight_until_m
+                    .map_or(String::new(), |s| format!(" (±{s:.3} m, 1-σ)"))
             )),
             _ => {}
         }
@@ -493,8 +507,11 @@ impl GeometryReport {
             self.bend_angle_deg,
             self.bend_direction_deg,
         ) {
+            let sd = self
+                .sigma_bend_radius_mm
+                .map_or(String::new(), |s| format!(" (±{s:.0} mm, 1-σ)"));
             t.push_str(&format!(
-                "\n  bend: radius {r:.0} mm, {a:.0}° seen so far, toward {c:.0}° \
+                "\n  bend: radius {r:.0} mm{sd}, {a:.0}° seen so far, toward {c:.0}° \
                  (clock angle from the sensor: 0 up, 90 right)"
             ));
         }
@@ -613,13 +630,45 @@ mod tests {
         GeometryReport {
             layout: "bend_ahead",
             straight_until_m: Some(1.0),
+            sigma_straight_until_m: Some(0.004),
+            evidence: 307.0,
             bend_radius_mm: Some(762.0),
+            sigma_bend_radius_mm: Some(3.5),
             bend_angle_deg: Some(60.0),
             bend_direction_deg: Some(90.0),
             straight_withheld: false,
             bend_withheld: None,
             dent: None,
         }
+    }
+
+    /// The scene's uncertainty and evidence reach the report: the keys carry the
+    /// survey's values, the text gives the ± as 1-σ, and a withheld bend withholds its
+    /// radius's 1-σ too (tested in `a_bend_the_table_did_not_observe_is_withheld`).
+    #[test]
+    fn the_scene_uncertainty_is_reported() {
+        let mut r = ok_report();
+        if let Ok(e) = &mut r.outcome {
+            e.geometry = Some(bend_ahead());
+        }
+        let f = r.fields();
+        let get = |k: &str| f.iter().find(|(n, _)| *n == k).unwrap().1.clone();
+        for (key, value) in [
+            ("geometry_evidence", 307.0),
+            ("sigma_straight_until_m", 0.004),
+            ("sigma_bend_radius_mm", 3.5),
+        ] {
+            assert!(
+                matches!(get(key), Field::Num(v) if v == value),
+                "{key}: {:?}",
+                get(key)
+            );
+        }
+        let text = r.text();
+        assert!(
+            text.contains("(±0.004 m, 1-σ)") && text.contains("(±4 mm, 1-σ)"),
+            "{text}"
+        );
     }
 
     /// A dent on a straight pipe: its three keys carry where, at which clock angle and how
@@ -731,6 +780,7 @@ mod tests {
             (g.bend_radius_mm, g.bend_angle_deg, g.bend_direction_deg),
             (None, None, None)
         );
+        assert_eq!(g.sigma_bend_radius_mm, None);
         let why = "only 12 % of the bend's points lie where the depth table observed";
         assert!(g.bend_withheld.as_ref().is_some_and(|t| t.contains(why)));
         let mut flagged = ok_report();

@@ -70,8 +70,17 @@ pub struct GeometryReport {
     pub layout: &'static str,
     /// Axial distance from the sensor to the end of the straight section (m).
     pub straight_until_m: Option<f64>,
+    /// Its 1-σ (m) (`epd_core::segment::Survey::straight_until_sigma`).
+    pub sigma_straight_until_m: Option<f64>,
+    /// The statistic behind the verdict (`epd_core::segment::Survey::evidence`): −log₁₀
+    /// of the departure test's least p-value over the frame's slices, adjusted for their
+    /// number; a straight pipe's frame reaches 3 with probability at most 10⁻³
+    /// (`epd_core::segment::SURVEY_FALSE_ALARM`).
+    pub evidence: f64,
     /// The bend's centreline radius (mm).
     pub bend_radius_mm: Option<f64>,
+    /// Its 1-σ (mm) (`epd_core::bend::BendFit::radius_sigma`).
+    pub sigma_bend_radius_mm: Option<f64>,
     /// The bend angle seen so far (deg).
     pub bend_angle_deg: Option<f64>,
     /// The bend's direction as a clock angle seen from the sensor (deg: 0 up, 90 right).
@@ -142,7 +151,13 @@ impl GeometryReport {
         Self {
             layout: seg.layout.name(),
             straight_until_m: seg.straight_until,
+            sigma_straight_until_m: seg.straight_until.and(s.straight_until_sigma),
+            evidence: s.evidence,
             bend_radius_mm: s.bend.map(|b| b.geometry.radius * 1e3),
+            sigma_bend_radius_mm: s
+                .bend
+                .map(|b| b.radius_sigma * 1e3)
+                .filter(|v| v.is_finite()),
             bend_angle_deg: s.bend.map(|b| b.angle_seen.to_degrees()),
             bend_direction_deg: s
                 .bend
@@ -170,6 +185,7 @@ impl GeometryReport {
             return;
         }
         self.bend_radius_mm = None;
+        self.sigma_bend_radius_mm = None;
         self.bend_angle_deg = None;
         self.bend_direction_deg = None;
         self.bend_withheld = Some(format!(

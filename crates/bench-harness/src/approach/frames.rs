@@ -36,6 +36,13 @@ pub struct FrameRow {
     pub bend_radius_err_pct: f64,
     /// Clock-angle error of the bend's or branch's direction (deg), NaN when none.
     pub direction_err_deg: f64,
+    /// The 1-σ of `straight_until_m` the survey reports (mm), NaN when none.
+    pub sigma_straight_until_mm: f64,
+    /// The 1-σ of the bend radius the survey reports (mm), NaN when none.
+    pub sigma_bend_radius_mm: f64,
+    /// The survey's departure evidence (`epd_core::segment::Survey::evidence`), NaN for
+    /// the plain fit.
+    pub geometry_evidence: f64,
 }
 
 pub(super) fn frame_rows(
@@ -80,6 +87,9 @@ pub(super) fn frame_rows(
         bend_radius_mm: nan,
         bend_radius_err_pct: nan,
         direction_err_deg: nan,
+        sigma_straight_until_mm: nan,
+        sigma_bend_radius_mm: nan,
+        geometry_evidence: nan,
     };
     let sv = survey(
         &f.measured,
@@ -120,12 +130,15 @@ pub(super) fn frame_rows(
         bend_radius_mm: radius,
         bend_radius_err_pct: radius_err,
         direction_err_deg: direction_err,
+        sigma_straight_until_mm: sv.straight_until_sigma.map_or(nan, |v| v * 1e3),
+        sigma_bend_radius_mm: sv.bend.map_or(nan, |b| b.radius_sigma * 1e3),
+        geometry_evidence: sv.evidence,
     };
     Ok([plain_row, seg_row])
 }
 
 /// The columns of `frames.csv`.
-pub const FRAME_COLUMNS: [&str; 10] = [
+pub const FRAME_COLUMNS: [&str; 13] = [
     "distance_m",
     "frame",
     "segmented",
@@ -136,6 +149,9 @@ pub const FRAME_COLUMNS: [&str; 10] = [
     "bend_radius_mm",
     "bend_radius_err_pct",
     "direction_err_deg",
+    "sigma_straight_until_mm",
+    "sigma_bend_radius_mm",
+    "geometry_evidence",
 ];
 
 /// `frames.csv`: one row per frame and fit ([`FRAME_COLUMNS`]).
@@ -153,6 +169,9 @@ pub(super) fn write_frames_csv(dir: &Path, rows: &[FrameRow]) -> anyhow::Result<
             num(r.bend_radius_mm),
             num(r.bend_radius_err_pct),
             num(r.direction_err_deg),
+            num(r.sigma_straight_until_mm),
+            num(r.sigma_bend_radius_mm),
+            num(r.geometry_evidence),
         ])?;
     }
     csv.finish()

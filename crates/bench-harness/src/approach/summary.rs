@@ -10,7 +10,7 @@ use super::scenario::{ApproachScenario, Feature};
 use crate::output::CsvFile;
 
 /// The columns of `approach.csv`.
-pub const APPROACH_COLUMNS: [&str; 8] = [
+pub const APPROACH_COLUMNS: [&str; 10] = [
     "distance_m",
     "segmented",
     "n_frames",
@@ -19,6 +19,8 @@ pub const APPROACH_COLUMNS: [&str; 8] = [
     "dmean_range_mm",
     "straight_until_err_max_mm",
     "bend_radius_err_max_pct",
+    "straight_until_cover95",
+    "bend_radius_cover95",
 ];
 
 /// One row of `approach.csv`.
@@ -41,6 +43,26 @@ pub struct ApproachRow {
     pub straight_until_err_max_mm: f64,
     /// Largest |error| of the bend radius (%).
     pub bend_radius_err_max_pct: f64,
+    /// Share of the frames with a `straight_until_m` and its 1-σ whose ±1.96σ holds the
+    /// truth ([`cover95`]).
+    pub straight_until_cover95: f64,
+    /// The same for the bend radius.
+    pub bend_radius_cover95: f64,
+}
+
+/// The share of the (error, 1-σ) pairs with both finite whose |error| ≤ 1.96·σ; NaN
+/// without any.
+pub fn cover95(pairs: impl Iterator<Item = (f64, f64)>) -> f64 {
+    let (mut n, mut held) = (0usize, 0usize);
+    for (e, sd) in pairs.filter(|(e, sd)| e.is_finite() && sd.is_finite()) {
+        n += 1;
+        held += usize::from(e.abs() <= 1.959_963_984_540_054 * sd);
+    }
+    if n == 0 {
+        f64::NAN
+    } else {
+        held as f64 / n as f64
+    }
 }
 
 pub(super) fn summarise(s: &ApproachScenario, rows: &[FrameRow]) -> Vec<ApproachRow> {
@@ -84,6 +106,17 @@ pub(super) fn summarise(s: &ApproachScenario, rows: &[FrameRow]) -> Vec<Approach
                 dmean_range_mm: if e.is_empty() { f64::NAN } else { hi - lo },
                 straight_until_err_max_mm: max_abs(|r| r.straight_until_err_mm),
                 bend_radius_err_max_pct: max_abs(|r| r.bend_radius_err_pct),
+                straight_until_cover95: cover95(
+                    r.iter()
+                        .map(|r| (r.straight_until_err_mm, r.sigma_straight_until_mm)),
+                ),
+                bend_radius_cover95: cover95(r.iter().map(|r| {
+                    (
+                        r.bend_radius_err_pct / 100.0 * r.bend_radius_mm
+                            / (1.0 + r.bend_radius_err_pct / 100.0),
+                        r.sigma_bend_radius_mm,
+                    )
+                })),
             });
         }
     }
@@ -103,6 +136,8 @@ pub(super) fn write_approach_csv(dir: &Path, summary: &[ApproachRow]) -> anyhow:
             num(r.dmean_range_mm),
             num(r.straight_until_err_max_mm),
             num(r.bend_radius_err_max_pct),
+            num(r.straight_until_cover95),
+            num(r.bend_radius_cover95),
         ])?;
     }
     csv.finish()

@@ -19,15 +19,32 @@ pub fn student_t_quantile(p: f64, nu: f64) -> f64 {
         return -student_t_quantile(1.0 - p, nu);
     }
     let target = 1.0 - p;
-    // P(T > t) for t > 0, x and 1 − x formed without cancellation.
-    let tail = |t: f64| {
-        let t2 = t * t;
-        0.5 * incomplete_beta(0.5 * nu, 0.5, nu / (nu + t2), t2 / (nu + t2))
-    };
     if !(target < 0.5) {
         return 0.0;
     }
-    invert_falling_tail(tail, target)
+    invert_falling_tail(|t| student_t_upper_tail(t, nu), target)
+}
+
+/// The upper tail P(T > t) of Student's t with ν degrees of freedom, for t ≥ 0:
+/// ½·I_x(ν/2, ½) with x = ν/(ν + t²) (Abramowitz & Stegun 26.7.1 with 26.5.27), x and
+/// 1 − x formed without cancellation. NaN for t < 0 or ν outside (0, ∞).
+pub fn student_t_upper_tail(t: f64, nu: f64) -> f64 {
+    if !(t >= 0.0 && nu > 0.0 && nu.is_finite()) {
+        return f64::NAN;
+    }
+    let t2 = t * t;
+    0.5 * incomplete_beta(0.5 * nu, 0.5, nu / (nu + t2), t2 / (nu + t2))
+}
+
+/// The upper tail P(F > f) of Fisher's F with (ν₁, ν₂) degrees of freedom, for f ≥ 0:
+/// I_y(ν₂/2, ν₁/2) with y = ν₂/(ν₂ + ν₁f) (Abramowitz & Stegun 26.6.2). NaN for f < 0 or
+/// either ν outside (0, ∞).
+pub fn f_upper_tail(f: f64, nu1: f64, nu2: f64) -> f64 {
+    if !(f >= 0.0 && nu1 > 0.0 && nu2 > 0.0 && nu1.is_finite() && nu2.is_finite()) {
+        return f64::NAN;
+    }
+    let d = nu2 + nu1 * f;
+    incomplete_beta(0.5 * nu2, 0.5 * nu1, nu2 / d, nu1 * f / d)
 }
 
 /// The x ≥ 0 where a tail probability that falls strictly from x = 0 reaches `target`:
@@ -67,11 +84,7 @@ pub fn f_upper_quantile(alpha: f64, nu1: f64, nu2: f64) -> f64 {
     {
         return f64::NAN;
     }
-    let tail = |f: f64| {
-        let d = nu2 + nu1 * f;
-        incomplete_beta(0.5 * nu2, 0.5 * nu1, nu2 / d, nu1 * f / d)
-    };
-    invert_falling_tail(tail, alpha)
+    invert_falling_tail(|f| f_upper_tail(f, nu1, nu2), alpha)
 }
 
 /// The regularised incomplete beta function I_x(a, b) for a, b > 0 and x ∈ [0, 1], with

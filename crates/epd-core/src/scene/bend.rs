@@ -102,6 +102,12 @@ pub struct BendFit {
     pub straight_sigma: f64,
     /// How the solver ended.
     pub status: Status,
+    /// 1-σ of the bend's start (m), of `geometry.start`, from the cluster jackknife over
+    /// the bend's points ([`BendProblem::jackknife_covariance`]); NaN when undetermined.
+    /// It holds the straight fit's β fixed, whose own uncertainty it leaves out.
+    pub start_sigma: f64,
+    /// 1-σ of the centreline radius R (m), as `start_sigma`.
+    pub radius_sigma: f64,
 }
 
 /// At most this many (evenly strided) points enter the bend fit.
@@ -161,6 +167,8 @@ pub fn fit_bend(
         first
     };
     let geometry = BendGeometry::from_vector(&rep.x);
+    let cov = problem.jackknife_covariance(&rep.x);
+    let sd = |k: usize| cov.map_or(f64::NAN, |c| c[(k, k)].max(0.0).sqrt());
     let sigma = robust_sigma(&rays, &geometry).unwrap_or(f64::NAN);
     let straight_sigma = straight_robust_sigma(&rays, (0.5 * straight.d_max, 0.5 * straight.d_min));
     let (angle_seen, n_inliers) = angle_seen(&rays, &geometry, sigma);
@@ -172,6 +180,8 @@ pub fn fit_bend(
         residual_sigma: sigma,
         straight_sigma,
         status: rep.status,
+        start_sigma: sd(0),
+        radius_sigma: sd(2),
     })
 }
 
@@ -259,26 +269,11 @@ struct BendProblem<'a> {
 
 impl NormalEquationsProblem<4> for BendProblem<'_> {
     fn normal_equations(&self, x: &SVector<f64, 4>) -> Option<NormalEquations<4>> {
-        let g = BendGeometry::from_vector(x);
-        let t0 = g.torus()?;
-        // ∂s/∂θ at a fixed point by central differences: 0.1 mm for lengths, 1e-4 rad for
-        // the direction.
-        let h = 1e-4;
-        let shifted: Vec<(Torus, Torus)> = (0..4)
-            .map(|k| {
-                let mut a = *x;
-                let mut b = *x;
-                a[k] += h;
-                b[k] -= h;
-                Some((
-                    BendGeometry::from_vector(&a).torus()?,
-                    BendGeometry::from_vector(&b).torus()?,
-                ))
-            })
-            .collect::<Option<_>>()?;
+        let (g, t0, shifted) = tori_at(x)?;
         let mut eq = NormalEquations::zero();
         for (q, d) in self.rays {
-            let Some((e, j)) = self.residual_and_gradient(&g, &t0, &shifted, h, q, d) else {
+            let Some((e, j)) = self.residual_and_gradient(&g, &t0, &shifted, TORUS_STEP, q, d)
+            else {
                 continue;
             };
             let (c, wg, wh) = self.loss.cost_and_weights(e);
@@ -289,7 +284,86 @@ impl NormalEquationsProblem<4> for BendProblem<'_> {
     }
 }
 
+/// The step of the central differences of ∂s/∂θ at a fixed point: 0.1 mm for lengths,
+/// 10⁻⁴ rad for the direction — small against a bend's size, large against rounding of
+/// distances of order 1 m (10⁻¹⁶ relative).
+const TORUS_STEP: f64 = 1e-4;
+
+/// A placement, its torus and the tori at x ± [`TORUS_STEP`]·e_k.
+type ToriAt = (BendGeometry, Torus, Vec<(Torus, Torus)>);
+
+/// The placement at `x`, its torus and the tori at x ± [`TORUS_STEP`]·e_k; `None` when
+/// any of them is not a ring torus.
+fn tori_at(x: &SVector<f64, 4>) -> Option<ToriAt> {
+    let g = BendGeometry::from_vector(x);
+    let t0 = g.torus()?;
+    let shifted = (0..4)
+        .map(|k| {
+            let mut a = *x;
+            let mut b = *x;
+            a[k] += TORUS_STEP;
+            b[k] -= TORUS_STEP;
+            Some((
+                BendGeometry::from_vector(&a).torus()?,
+                BendGeometry::from_vector(&b).torus()?,
+            ))
+        })
+        .collect::<Option<_>>()?;
+    Some((g, t0, shifted))
+}
+
 impl BendProblem<'_> {
+    /// The cluster jackknife covariance of θ̂ = `x` ("CR3", as the straight fit's 1-σ,
+    /// `fit::uncertainty::jackknife_covariance`): (G − 1)/G · Σ_g d_g d_gᵀ with
+    /// d_g = (H − H_g)⁻¹ s_g the one-step change of θ̂ when cell g is left out, s_g and
+    /// H_g cell g's score Σ w_g(e)·e·J and bread Σ w_h(e)·J Jᵀ under the fit's loss, H
+    /// their sum. The cells are the straight fit's ([`crate::fit::estimate::AXIAL_CELLS`]
+    /// bins of equal counts along the PCS axis × [`crate::fit::estimate::CLOCK_SECTORS`]
+    /// clock sectors about it): patches of the wall far wider than a camera's correlation
+    /// length, so that errors correlated between neighbouring pixels stay within a cell
+    /// and the variance survives them. `None` when H or a leave-one-out H − H_g is
+    /// singular (a parameter the points do not determine) or fewer than two cells hold
+    /// points.
+    fn jackknife_covariance(&self, x: &SVector<f64, 4>) -> Option<nalgebra::Matrix4<f64>> {
+        use crate::fit::estimate::{AXIAL_CELLS, CLOCK_SECTORS};
+        let (g, t0, shifted) = tori_at(x)?;
+        let mut axial: Vec<f64> = self.rays.iter().map(|(q, _)| q.x).collect();
+        axial.sort_by(f64::total_cmp);
+        let edges: Vec<f64> = (1..AXIAL_CELLS)
+            .map(|k| axial[k * axial.len() / AXIAL_CELLS])
+            .collect();
+        let mut cells = vec![NormalEquations::<4>::zero(); AXIAL_CELLS * CLOCK_SECTORS];
+        for (q, d) in self.rays {
+            let Some((e, j)) = self.residual_and_gradient(&g, &t0, &shifted, TORUS_STEP, q, d)
+            else {
+                continue;
+            };
+            let bin = edges.partition_point(|&x| x <= q.x);
+            let psi = (q.z - self.origin.z).atan2(q.y - self.origin.y);
+            let sector = ((psi / std::f64::consts::TAU + 0.5) * CLOCK_SECTORS as f64) as usize;
+            let (c, wg, wh) = self.loss.cost_and_weights(e);
+            cells[bin * CLOCK_SECTORS + sector.min(CLOCK_SECTORS - 1)]
+                .push_weighted(e, &j, c, wg, wh);
+        }
+        let mut h = nalgebra::Matrix4::zeros();
+        for c in &mut cells {
+            c.symmetrize();
+            h += c.jtj;
+        }
+        let used: Vec<&NormalEquations<4>> = cells.iter().filter(|c| c.n_residuals > 0).collect();
+        if used.len() < 2 {
+            return None;
+        }
+        h.try_inverse()?;
+        let mut v = nalgebra::Matrix4::zeros();
+        for c in &used {
+            let d = (h - c.jtj).try_inverse()? * c.jtr;
+            v += d * d.transpose();
+        }
+        let n = used.len() as f64;
+        Some(v * ((n - 1.0) / n))
+    }
+
     /// One ray's residual and its gradient in θ, given the torus `t0` at θ and the tori
     /// `shifted` at θ ± h·e_k.
     ///
@@ -514,7 +588,9 @@ mod tests {
         for (q, d) in &rays {
             let (_, _, wall) = p.range_error(&g, &t0, q, d).unwrap();
             seen[wall as usize] = true;
-            let (e, j) = p.residual_and_gradient(&g, &t0, &shifted, h, q, d).unwrap();
+            let (e, j) = p
+                .residual_and_gradient(&g, &t0, &shifted, TORUS_STEP, q, d)
+                .unwrap();
             let (e_direct, _, _) = p.range_error(&g, &t0, q, d).unwrap();
             assert_eq!(e, e_direct, "{wall:?}");
             let step = 1e-6;

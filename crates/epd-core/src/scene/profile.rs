@@ -67,6 +67,12 @@ pub struct Slice {
     pub critical_f: f64,
     /// See `critical_f`.
     pub critical_t: f64,
+    /// The slice's departure p-value, adjusted as the critical values are
+    /// ([`departure_p`]): the least of 2n·P(F(2, ν̂) > `shift_f`) and
+    /// 2n·K·P(t(ν̂) > `bump_m`/`bump_se_m`) (n slices tested, K sectors), at most 1. A
+    /// slice departs only when it is below [`SURVEY_FALSE_ALARM`] (and its shift or bump
+    /// exceeds `min_shift_m`). NaN for a slice not tested (fewer than six sectors).
+    pub departure_p: f64,
 }
 
 impl Slice {
@@ -283,7 +289,47 @@ pub(crate) fn calibrate_tests(
         s.variance_scale = kappa;
         s.critical_f = critical_f;
         s.critical_t = critical_t;
+        s.departure_p = departure_p(s, tested.len(), dof, sectors);
     }
+}
+
+/// A slice's departure p-value with the Bonferroni split of [`critical_values`] (each of
+/// the two tests gets half the false-alarm rate, divided among the `tested` slices, the
+/// bump's also among the `sectors`): min(1, 2n·P(F(2, ν) > F), 2n·K·P(t(ν) > b/se_b)).
+/// It lies below [`SURVEY_FALSE_ALARM`] exactly when the shift's F exceeds `critical_f`
+/// or the bump's t exceeds `critical_t`. NaN for a slice with fewer than six sectors,
+/// which the survey does not test.
+fn departure_p(s: &Slice, tested: usize, dof: f64, sectors: usize) -> f64 {
+    if s.n_sectors < 6 {
+        return f64::NAN;
+    }
+    let n = 2.0 * tested.max(1) as f64;
+    let p_shift = n * crate::fit::student::f_upper_tail(s.shift_f, 2.0, dof);
+    let t = s.bump_m / s.bump_se_m;
+    let p_bump = if t > 0.0 {
+        n * sectors as f64 * crate::fit::student::student_t_upper_tail(t, dof)
+    } else {
+        1.0
+    };
+    // A NaN statistic (no fit) is no evidence.
+    [p_shift, p_bump]
+        .into_iter()
+        .filter(|p| !p.is_nan())
+        .fold(1.0, f64::min)
+}
+
+/// The evidence of a departure in a profile: −log₁₀ of its least [`Slice::departure_p`],
+/// 0 when no slice was tested. A straight pipe's frame reaches −log₁₀
+/// [`SURVEY_FALSE_ALARM`] (3) with probability at most [`SURVEY_FALSE_ALARM`] under the
+/// profile's Gaussian model of the medians; a p-value below the smallest positive double
+/// counts as that (evidence ≈ 307.7).
+pub fn departure_evidence(profile: &[Slice]) -> f64 {
+    let p = profile
+        .iter()
+        .map(|s| s.departure_p)
+        .filter(|p| !p.is_nan())
+        .fold(1.0, f64::min);
+    -p.max(f64::MIN_POSITIVE).log10()
 }
 
 /// The median of `v` (reordered), `None` when empty.
@@ -435,6 +481,7 @@ pub(crate) fn slice_stats(sectors: &mut [Vec<f64>], start_m: f64, o: &SegmentOpt
         shift_f: f64::NAN,
         critical_f: f64::INFINITY,
         critical_t: f64::INFINITY,
+        departure_p: f64::NAN,
     };
     if meds.len() < 3 {
         return out;

@@ -36,7 +36,9 @@ use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
 use crate::params::Params;
 use crate::residual::Geometry;
 
-pub use crate::scene::profile::{AxisSigma, SURVEY_FALSE_ALARM, Slice, profile};
+pub use crate::scene::profile::{
+    AxisSigma, SURVEY_FALSE_ALARM, Slice, departure_evidence, profile,
+};
 
 /// What the frame shows ahead of the sensor.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -643,6 +645,29 @@ pub struct Survey {
     /// obstacle on the wall ([`inward`]); the layout is then [`Layout::Straight`] and the
     /// straight section's estimate uses the points before it.
     pub dent: Option<Dent>,
+    /// 1-σ (m) of `segmentation.straight_until`: for a bend, its start's from the bend's
+    /// fit ([`crate::bend::BendFit::start_sigma`]); for a tee, the opening's change point's
+    /// ([`crate::scene::edge::Edge::sigma_m`]); for a dent, whose start is the near edge
+    /// of its first departing slice, the slice's width over √12 (a uniform position
+    /// within it). `None` without an end, or when its fit leaves it undetermined.
+    pub straight_until_sigma: Option<f64>,
+    /// The evidence of a departure ([`departure_evidence`]): −log₁₀ of the profile's
+    /// least adjusted p-value; a straight pipe's frame reaches −log₁₀
+    /// [`SURVEY_FALSE_ALARM`] = 3 with probability at most [`SURVEY_FALSE_ALARM`].
+    pub evidence: f64,
+}
+
+impl Survey {
+    /// The survey of a segmentation with nothing found beyond its verdict.
+    fn plain(segmentation: Segmentation) -> Self {
+        Self {
+            evidence: departure_evidence(&segmentation.profile),
+            segmentation,
+            bend: None,
+            dent: None,
+            straight_until_sigma: None,
+        }
+    }
 }
 
 /// A local inward departure of the wall from the straight pipe, which the wall comes
@@ -681,11 +706,7 @@ pub fn survey(
     let (Some(end), Some(dir), Layout::BendAhead | Layout::TeeAhead) =
         (s.straight_until, s.direction, s.layout)
     else {
-        return Ok(Survey {
-            segmentation: s,
-            bend: None,
-            dent: None,
-        });
+        return Ok(Survey::plain(s));
     };
     // An opening is at most the branch's diameter long, and a branch is no wider than
     // the main pipe: the wall must be back within a diameter and the resuming slices.
@@ -726,9 +747,9 @@ pub fn survey(
         }
     }
     Ok(Survey {
-        segmentation: s,
+        straight_until_sigma: accepted.map(|b| b.start_sigma).filter(|v| v.is_finite()),
         bend: accepted,
-        dent: None,
+        ..Survey::plain(s)
     })
 }
 
@@ -750,7 +771,7 @@ fn obstruction_or_tee(
         .get(i..)
         .and_then(|run| inward(run, &straight, seg))
     else {
-        return tee(s, seg);
+        return tee(s, points, seg);
     };
     dent.from_m = inward_start(&s.profile, i);
     if s.straight_until.is_some_and(|end| dent.from_m < end)
@@ -768,24 +789,39 @@ fn obstruction_or_tee(
     s.layout = Layout::Straight;
     s.straight_until = Some(dent.from_m);
     Survey {
-        segmentation: s,
-        bend: None,
         dent: Some(dent),
+        straight_until_sigma: Some(seg.slice_m / 12f64.sqrt()),
+        ..Survey::plain(s)
     }
 }
 
-/// The survey's verdict for a tee. A branch opening starts abruptly: at the near edge
-/// of the first departing slice (within one slice), not where a bend's growth would
-/// start.
-fn tee(mut s: Segmentation, seg: &SegmentOptions) -> Survey {
+/// The survey's verdict for a tee. A branch opening starts abruptly, not where a
+/// bend's growth would start: at the change point of the exceedances on its side
+/// ([`crate::scene::edge::opening_edge`], within ± one sector of the bump's and two
+/// slices of the near edge of its first slice, [`opening_start`]); failing that, at
+/// that near edge, within a slice.
+fn tee(mut s: Segmentation, points: &[[f64; 3]], seg: &SegmentOptions) -> Survey {
     s.layout = Layout::TeeAhead;
+    let mut sigma = None;
     if let Some(i) = first_departure(&s.profile, seg) {
-        s.straight_until = Some(opening_start(&s.profile, i));
+        let j = opening_slice(&s.profile, i);
+        let near = s.profile[j].start_m;
+        let sector = std::f64::consts::TAU / seg.sectors as f64;
+        let window = (near - 2.0 * seg.slice_m, near, near + 2.0 * seg.slice_m);
+        let edge = crate::scene::edge::opening_edge(
+            &clean(points).points,
+            &s.straight.params,
+            s.profile[i].bump_psi,
+            sector,
+            window,
+        );
+        let (at, sd) = edge.map_or((near, seg.slice_m / 12f64.sqrt()), |e| (e.at_m, e.sigma_m));
+        s.straight_until = Some(at);
+        sigma = Some(sd);
     }
     Survey {
-        segmentation: s,
-        bend: None,
-        dent: None,
+        straight_until_sigma: sigma,
+        ..Survey::plain(s)
     }
 }
 
@@ -869,6 +905,7 @@ mod tests {
             shift_cov_m2: [1e-8, 0.0, 1e-8],
             misfit_dof: 9,
             variance_scale: 1.0,
+            departure_p: f64::NAN,
             shift_f: 0.5 * (shift / 1e-4).powi(2),
             critical_f,
             critical_t,
@@ -950,6 +987,49 @@ mod tests {
             "{departed} of {frames} straight profiles departed (bound {bound})"
         );
         assert!(naive > frames / 2, "unscaled: {naive} of {frames}");
+    }
+
+    /// The departure p-value is the tests' statistic on another scale: in every tested
+    /// slice of 500 straight profiles and 200 with a shift of 8 scaled standard errors
+    /// (clustered noise as above), it falls below [`SURVEY_FALSE_ALARM`] exactly when the
+    /// shift's F or the bump's t exceeds its critical value; the straight frames' evidence
+    /// reaches 3 no more often than the false-alarm bound above allows, the shifted ones'
+    /// in most frames.
+    #[test]
+    fn the_departure_evidence_is_the_tests_p_value() {
+        let mut rng = uniforms(31);
+        let se_median = (std::f64::consts::FRAC_PI_2 * 0.02f64.powi(2) / 60.0).sqrt();
+        let tau = 3.0 * se_median;
+        let se_shift = ((se_median.powi(2) + tau * tau) / 6.0).sqrt();
+        let level = -SURVEY_FALSE_ALARM.log10();
+        let (mut straight_alarms, mut shifted_found, mut checked) = (0, 0, 0);
+        for k in 0..700 {
+            let shift = if k < 500 { 0.0 } else { 8.0 * se_shift };
+            let prof = clustered_profile(&mut rng, tau, shift);
+            for s in prof.iter().filter(|s| !s.departure_p.is_nan()) {
+                let by_stat = s.shift_f > s.critical_f || s.bump_m > s.critical_t * s.bump_se_m;
+                // Away from the boundary, where rounding of the two routes could differ.
+                let near = (s.departure_p / SURVEY_FALSE_ALARM - 1.0).abs() < 1e-6;
+                if !near {
+                    assert_eq!(s.departure_p < SURVEY_FALSE_ALARM, by_stat, "{s:?}");
+                    checked += 1;
+                }
+            }
+            let evidence = departure_evidence(&prof);
+            assert!(evidence >= 0.0 && evidence.is_finite());
+            if k < 500 {
+                straight_alarms += usize::from(evidence >= level);
+            } else {
+                shifted_found += usize::from(evidence >= level);
+            }
+        }
+        assert!(checked > 700 * 12, "{checked} slices checked");
+        let bound = SURVEY_FALSE_ALARM + 4.0 * (SURVEY_FALSE_ALARM / 500.0).sqrt();
+        assert!(
+            (straight_alarms as f64) <= bound * 500.0,
+            "{straight_alarms} of 500"
+        );
+        assert!(shifted_found > 100, "{shifted_found} of 200");
     }
 
     /// Power: a lateral shift of 10 scaled standard errors in one slice (under the same
