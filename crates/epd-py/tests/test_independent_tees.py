@@ -154,8 +154,18 @@ def test_the_caster_is_exact():
 
 
 # Measured (`pytest -s test_independent_tees.py`, 8 frames per distance, 160 × 120
-# pixels, D_b ∈ [0.5, 1]·D, any side): filled in below from the runs.
-NOT_MET = {}
+# pixels, D_b ∈ [0.5, 1]·D, any side): 0.75 m and 1.0 m 8 of 8 `tee_ahead`, the opening
+# within −11 … +34 mm; 1.5, 2.0 and 3.0 m 0 of 8: every frame `straight`, converged (the
+# opening holds too few of this camera's points for the survey's slices, as the elbow's
+# in `test_independent_bends.py`). The same caster at 640 × 480 pixels: 4 of 4 at 0.75,
+# 1.5, 2.0 and 3.0 m, the opening within −18 … +30 mm (asserted at 1.5 and 3 m below).
+# Issue 23's goal is not met on this geometry at 160 × 120; the misses are recorded as
+# xfail rather than loosened.
+NOT_MET = {
+    1.5: "issue 23: 0 of 8 (all straight, converged): too few points per slice at 160 x 120",
+    2.0: "issue 23: 0 of 8 (all straight, converged): too few points per slice at 160 x 120",
+    3.0: "issue 23: 0 of 8 (all straight, converged): too few points per slice at 160 x 120",
+}
 
 
 def run_tees(epd_bin, tmp_path, ahead, w=None, h=None, frames=FRAMES):
@@ -199,6 +209,24 @@ def test_a_tee_ahead_is_read_as_a_tee(epd_bin, tmp_path, ahead):
         for r, b in zip(rows, drawn)
     ]
     print(f"{ahead} m: {len(right)} of {len(rows)} tee_ahead within 5 cm;", seen)
+    assert len(right) == len(rows), seen
+
+
+FULL_FRAMES = 6
+
+
+@pytest.mark.parametrize("ahead", [1.5, 3.0])
+def test_a_tee_ahead_is_read_as_a_tee_in_full_frames(epd_bin, tmp_path, ahead):
+    """The same at 640 × 480 pixels (a Helios2's frame), where the opening holds enough
+    points: every one of 6 frames reads `tee_ahead` within 5 cm. A true rate of 99 %
+    passes with probability 0.94, one of 70 % with probability 0.12."""
+    rows, drawn = run_tees(epd_bin, tmp_path, ahead, 640, 480, frames=FULL_FRAMES)
+    right = read_right(rows, ahead)
+    seen = [
+        (r["status"], r["geometry"], r["straight_until_m"], b)
+        for r, b in zip(rows, drawn)
+    ]
+    print(f"{ahead} m, 640 x 480: {len(right)} of {len(rows)} within 5 cm;", seen)
     assert len(right) == len(rows), seen
 
 

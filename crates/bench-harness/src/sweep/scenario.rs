@@ -116,7 +116,7 @@ fn set_dotted(table: &mut toml::Table, dotted: &str, value: toml::Value) -> Resu
 
 /// Set the swept `variable` to `value` in a copy of the file's table: one dotted key, or
 /// several joined by `+` (`"pipe+noise"`), swept together: each value is then a table
-/// holding every one of them (and optionally a `label`), e.g. `{ label = "8 in,
+/// holding every one of them (and optionally a `label`), e.g. `{ label = "8 in /
 /// independent", pipe = { nominal_od_in = 8.0 }, noise = { sigma_m = 0.02 } }`, each
 /// set at its key as a single swept key is.
 fn set_swept(table: &mut toml::Table, variable: &str, value: &toml::Value) -> Result<(), String> {

@@ -310,14 +310,14 @@ wall_thickness_mm = 8.0
 [sweep]
 variable = "pipe+noise"
 values = [
-  { label = "8 in, independent", pipe = { nominal_od_in = 8.0 }, noise = { sigma_m = 0.02 } },
+  { label = "8 in / independent", pipe = { nominal_od_in = 8.0 }, noise = { sigma_m = 0.02 } },
   { pipe = { nominal_od_in = 42.0, ovality = 0.01 }, noise = { sigma_m = 0.01, camera = { correlation_length_px = 2.0 } } },
 ]
 "#,
     )
     .unwrap();
     assert_eq!(s.sweep_variable, "pipe+noise");
-    assert_eq!(s.sweeps[0].0, "8 in, independent");
+    assert_eq!(s.sweeps[0].0, "8 in / independent");
     let (a, b) = (&s.sweeps[0].1, &s.sweeps[1].1);
     assert!(a.geometry && b.geometry);
     assert_eq!((a.pipe.nominal_od_in, a.noise.sigma), (8.0, 0.02));
