@@ -190,7 +190,10 @@ mod tests {
         for n in [1, 40, 1000, 100_000] {
             let want = 1.0 - 0.05f64.powf(1.0 / n as f64);
             let got = binomial_upper_bound(0, n, 0.05);
-            assert!((got - want).abs() < 1e-12 * want.max(1e-3), "n {n}: {got} vs {want}");
+            assert!(
+                (got - want).abs() < 1e-12 * want.max(1e-3),
+                "n {n}: {got} vs {want}"
+            );
         }
         // All alarmed: 1. One alarm in two: (1 − p)² + 2p(1 − p) = 1 − p² = α.
         assert_eq!(binomial_upper_bound(5, 5, 0.05), 1.0);
@@ -206,7 +209,10 @@ mod tests {
         let (k, n) = (50_000, 1_000_000);
         let p = binomial_upper_bound(k, n, 0.05);
         let approx = 0.05 + 1.645 * (0.05f64 * 0.95 / n as f64).sqrt();
-        assert!((p - approx).abs() < 0.02 * (approx - 0.05), "{p} vs {approx}");
+        assert!(
+            (p - approx).abs() < 0.02 * (approx - 0.05),
+            "{p} vs {approx}"
+        );
         let f = FalseAlarms::of(3, 12);
         assert_eq!((f.count, f.frames, f.rate), (3, 12, 0.25));
         assert!((f.se - (0.25f64 * 0.75 / 12.0).sqrt()).abs() < 1e-15);

@@ -52,7 +52,10 @@ fn a_small_false_alarm_run_counts_its_readings() {
     let (header, rows) = read_csv(&out.join("summary.csv"));
     let col = |name: &str| header.iter().position(|h| h == name).unwrap();
     for r in &rows {
-        let (frames, alarms) = counted.get(&r[col("sweep_value")]).copied().unwrap_or((0, 0));
+        let (frames, alarms) = counted
+            .get(&r[col("sweep_value")])
+            .copied()
+            .unwrap_or((0, 0));
         if frames == 0 {
             assert_eq!(r[col("geometry_frames")], "", "{r:?}");
             continue;

@@ -52,7 +52,9 @@ impl MethodRecord {
     /// Whether the fit converged and its estimate is reported (the trial counts in the
     /// statistics).
     pub fn ok(&self) -> bool {
-        self.status == Some(FitOutcome::Converged) && self.errors.is_some() && !self.straight_withheld
+        self.status == Some(FitOutcome::Converged)
+            && self.errors.is_some()
+            && !self.straight_withheld
     }
 
     /// Whether the frame's geometry was reported as anything but `straight` (`None`: no

@@ -141,7 +141,9 @@ fn set_swept(table: &mut toml::Table, variable: &str, value: &toml::Value) -> Re
     }
     for part in parts {
         let Some(x) = v.get(part) else {
-            return Err(format!("lacks `{part}`: every value of `{variable}` sets it"));
+            return Err(format!(
+                "lacks `{part}`: every value of `{variable}` sets it"
+            ));
         };
         set_dotted(table, part, x.clone())?;
     }

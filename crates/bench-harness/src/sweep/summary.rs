@@ -180,9 +180,8 @@ pub fn false_alarms<'a>(
         .into_iter()
         .filter_map(super::record::MethodRecord::false_alarm)
         .collect();
-    (!alarms.is_empty()).then(|| {
-        FalseAlarms::of(alarms.iter().filter(|&&a| a).count(), alarms.len())
-    })
+    (!alarms.is_empty())
+        .then(|| FalseAlarms::of(alarms.iter().filter(|&&a| a).count(), alarms.len()))
 }
 
 #[cfg(test)]
@@ -229,7 +228,8 @@ mod tests {
     #[test]
     fn false_alarms_are_counted_from_the_records() {
         // 7 straight, 2 tees ahead, 1 in a bend (withheld), 1 without an estimate.
-        let mut trials: Vec<TrialRecord> = (0..7).map(|_| record(Some("straight"), false)).collect();
+        let mut trials: Vec<TrialRecord> =
+            (0..7).map(|_| record(Some("straight"), false)).collect();
         trials.push(record(Some("tee_ahead"), false));
         trials.push(record(Some("tee_ahead"), false));
         trials.push(record(Some("in_bend"), true));
@@ -240,7 +240,10 @@ mod tests {
         for r in &rows {
             assert_eq!(r.false_alarms, Some(want), "{}", r.quantity);
             // The withheld frame and the one without an estimate do not count.
-            assert_eq!((r.stats.n, r.n_failed), (if r.quantity == "time_ms" { 10 } else { 9 }, 2));
+            assert_eq!(
+                (r.stats.n, r.n_failed),
+                (if r.quantity == "time_ms" { 10 } else { 9 }, 2)
+            );
         }
         assert!((want.rate - 0.3).abs() < 1e-15);
         assert!((want.se - (0.3f64 * 0.7 / 10.0).sqrt()).abs() < 1e-15);
@@ -269,6 +272,10 @@ mod tests {
         let rows = summarise("v", &[Method::MlEpd], &plain);
         assert!(rows.iter().all(|r| r.false_alarms.is_none()));
         let cells = summary_row("x", &rows[0]);
-        assert!(cells[SUMMARY_COLUMNS.len() - 5..].iter().all(String::is_empty));
+        assert!(
+            cells[SUMMARY_COLUMNS.len() - 5..]
+                .iter()
+                .all(String::is_empty)
+        );
     }
 }

@@ -6,8 +6,8 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 use epd_core::{
-    EstimateOptions, Loss, LossScale, Method, N_PARAMS, Params, cramer_rao_bound,
-    errors_against, estimate,
+    EstimateOptions, Loss, LossScale, Method, N_PARAMS, Params, cramer_rao_bound, errors_against,
+    estimate,
 };
 use epd_frame::{EstimateConfig, EstimateSettings, FrameInput, measure_frame};
 use tof_sim::{Frame, FrameSeed, Scene, WallModel, simulate_into_with};
@@ -168,9 +168,7 @@ fn measured(
         Ok(c) => c,
         Err(e) => return (MethodRecord::error(m, e.to_string(), 0.0), None),
     };
-    cfg.sampling = setting
-        .sampling
-        .map(|s| s.with_seed(sampling_seed(seeds)));
+    cfg.sampling = setting.sampling.map(|s| s.with_seed(sampling_seed(seeds)));
     let input = FrameInput {
         points: Cow::Borrowed(points),
         intensity: None,

@@ -337,7 +337,10 @@ values = [
         .to_string()
     };
     let e = bad("{ pipe = { nominal_od_in = 8.0 } }");
-    assert!(e.contains("sweep.values") && e.contains("lacks `noise`"), "{e}");
+    assert!(
+        e.contains("sweep.values") && e.contains("lacks `noise`"),
+        "{e}"
+    );
     let e = bad("{ pipe = {}, noise = {}, sensor = { width = 8 } }");
     assert!(e.contains("has `sensor`, which is not swept"), "{e}");
     let e = bad("8.0");
