@@ -148,6 +148,7 @@ pub const APPROACH_FILES: &[&str] = &[
     "metadata.json",
     "frames.csv",
     "approach.csv",
+    "confusion.csv",
     "approach.png",
 ];
 

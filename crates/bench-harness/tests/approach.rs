@@ -33,6 +33,7 @@ fn an_approach_run_replaces_its_own_results() {
         let frames = std::fs::read_to_string(out.join("frames.csv")).unwrap();
         for f in [
             "approach.csv",
+            "confusion.csv",
             "approach.png",
             "metadata.json",
             "scenario.toml",
@@ -43,6 +44,20 @@ fn an_approach_run_replaces_its_own_results() {
         // One frame, plain and surveyed; the survey finds the elbow 1 m ahead.
         assert_eq!(rows.len(), 2, "{frames}");
         assert!(rows[1].contains(",true,bend_ahead,"), "{frames}");
+        // The confusion matrix counts the survey's reading: one row per geometry,
+        // the frame under its reading, zeros elsewhere.
+        let confusion = std::fs::read_to_string(out.join("confusion.csv")).unwrap();
+        let mut lines = confusion.lines();
+        assert_eq!(lines.next(), Some("true_scene,distance_m,geometry,count"));
+        let cells: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+        let read = rows[1].split(',').nth(3).unwrap();
+        assert!(cells.len() >= 4, "{confusion}");
+        for c in &cells {
+            assert_eq!((c[0], c[1]), ("elbow", "1"), "{confusion}");
+            let want = if c[2] == read { "1" } else { "0" };
+            assert_eq!(c[3], want, "{confusion}");
+        }
+        assert_eq!(cells.iter().filter(|c| c[2] == read).count(), 1);
         if run == 0 {
             first = frames.into_bytes();
         } else {

@@ -31,6 +31,7 @@ fn same(a: &SummaryRow, b: &SummaryRow) -> bool {
             .all(|(&x, y)| f(x, y))
         && o(a.crb_std, b.crb_std)
         && o(a.coverage95, b.coverage95)
+        && a.false_alarms == b.false_alarms
 }
 
 #[test]

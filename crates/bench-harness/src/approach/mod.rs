@@ -26,7 +26,9 @@
 //! segmented, geometry, dmean_err_mm, straight_until_m, straight_until_err_mm,
 //! bend_radius_mm, bend_radius_err_pct, direction_err_deg`), `approach.csv` (one row
 //! per distance × segmented: `distance_m, segmented, n_frames, n_found, dmean_bias_mm,
-//! dmean_range_mm, straight_until_err_max_mm, bend_radius_err_max_pct`), `approach.png`,
+//! dmean_range_mm, straight_until_err_max_mm, bend_radius_err_max_pct`), `confusion.csv`
+//! (one row per distance × geometry the survey can report: `true_scene, distance_m,
+//! geometry, count`, the survey's readings of that distance's frames), `approach.png`,
 //! `scenario.toml`, `metadata.json`.
 
 use std::path::{Path, PathBuf};
@@ -40,11 +42,11 @@ use crate::output::{StagedFiles, write_new, write_run};
 use crate::provenance::Metadata;
 use crate::scenario::ScenarioError;
 use frames::{frame_rows, write_frames_csv};
-use summary::{summarise, write_approach_csv};
+use summary::{confusion, summarise, write_approach_csv, write_confusion_csv};
 
 pub use frames::{FRAME_COLUMNS, FrameRow};
 pub use scenario::{ApproachScenario, Feature};
-pub use summary::{APPROACH_COLUMNS, ApproachRow};
+pub use summary::{APPROACH_COLUMNS, ApproachRow, CONFUSION_COLUMNS, ConfusionRow};
 
 mod figures;
 mod frames;
@@ -136,6 +138,7 @@ fn stage(s: &ApproachScenario, dir: &Path, progress: bool) -> anyhow::Result<App
     let mut files = vec![write_frames_csv(dir, &rows)?];
     let summary = summarise(s, &rows);
     files.push(write_approach_csv(dir, &summary)?);
+    files.push(write_confusion_csv(dir, &confusion(s, &rows))?);
     files.push(write_new(&dir.join("scenario.toml"), s.source.as_bytes())?);
     let png = figures::plot_approach(s, &rows)?;
     files.push(write_new(&dir.join(&png.name), &png.bytes)?);

@@ -142,3 +142,75 @@ pub(super) fn write_approach_csv(dir: &Path, summary: &[ApproachRow]) -> anyhow:
     }
     csv.finish()
 }
+
+/// The columns of `confusion.csv`.
+pub const CONFUSION_COLUMNS: [&str; 4] = ["true_scene", "distance_m", "geometry", "count"];
+
+/// One row of `confusion.csv`: of a distance's frames, how many the survey read as
+/// `geometry`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ConfusionRow {
+    /// What lies ahead: the scenario's kind (`elbow` or `tee`).
+    pub true_scene: &'static str,
+    /// Distance to the straight section's end (m).
+    pub distance_m: f64,
+    /// The geometry reported.
+    pub geometry: &'static str,
+    /// Frames read so.
+    pub count: usize,
+}
+
+/// The survey's readings by distance: for each distance every geometry the survey can
+/// report (`straight`, `bend_ahead`, `tee_ahead`, `in_bend`, then any other it reported),
+/// with the number of frames read as it (zeros included, so each distance's counts sum
+/// to its frames). Only the survey's rows (`segmented`) count.
+pub fn confusion(s: &ApproachScenario, rows: &[FrameRow]) -> Vec<ConfusionRow> {
+    use epd_core::segment::Layout;
+    let true_scene = match s.feature {
+        Feature::Elbow { .. } => "elbow",
+        Feature::Tee { .. } => "tee",
+    };
+    let mut names: Vec<&'static str> = [
+        Layout::Straight,
+        Layout::BendAhead,
+        Layout::TeeAhead,
+        Layout::InBend,
+    ]
+    .map(Layout::name)
+    .to_vec();
+    for r in rows.iter().filter(|r| r.segmented) {
+        if !names.contains(&r.geometry) {
+            names.push(r.geometry);
+        }
+    }
+    let mut out = Vec::new();
+    for &d in &s.distances_m {
+        for &g in &names {
+            let count = rows
+                .iter()
+                .filter(|r| r.segmented && r.distance_m == d && r.geometry == g)
+                .count();
+            out.push(ConfusionRow {
+                true_scene,
+                distance_m: d,
+                geometry: g,
+                count,
+            });
+        }
+    }
+    out
+}
+
+/// `confusion.csv`: one row per distance and geometry ([`CONFUSION_COLUMNS`]).
+pub(super) fn write_confusion_csv(dir: &Path, rows: &[ConfusionRow]) -> anyhow::Result<PathBuf> {
+    let mut csv = CsvFile::create(&dir.join("confusion.csv"), &CONFUSION_COLUMNS)?;
+    for r in rows {
+        csv.row([
+            r.true_scene.to_string(),
+            num(r.distance_m),
+            r.geometry.to_string(),
+            r.count.to_string(),
+        ])?;
+    }
+    csv.finish()
+}

@@ -36,12 +36,31 @@ pub struct MethodRecord {
     /// Estimate − truth under the symmetries.
     #[serde(with = "bits::opt_errors")]
     pub errors: Option<ParamErrors>,
+    /// The geometry ahead the frame library reported (`straight`, `bend_ahead`,
+    /// `tee_ahead`, `in_bend`) when the scenario surveys it (`geometry = true`); `None`
+    /// otherwise, or when no estimate could be made.
+    #[serde(default)]
+    pub geometry: Option<String>,
+    /// Whether the survey withheld the straight section's estimate (in a bend, or too
+    /// little straight pipe in view): `epd estimate` then reports no diameters, so the
+    /// trial does not count in the statistics.
+    #[serde(default)]
+    pub straight_withheld: bool,
 }
 
 impl MethodRecord {
-    /// Whether the fit converged (the trial counts in the statistics).
+    /// Whether the fit converged and its estimate is reported (the trial counts in the
+    /// statistics).
     pub fn ok(&self) -> bool {
-        self.status == Some(FitOutcome::Converged) && self.errors.is_some()
+        self.status == Some(FitOutcome::Converged)
+            && self.errors.is_some()
+            && !self.straight_withheld
+    }
+
+    /// Whether the frame's geometry was reported as anything but `straight` (`None`: no
+    /// geometry reported).
+    pub fn false_alarm(&self) -> Option<bool> {
+        self.geometry.as_deref().map(|g| g != "straight")
     }
 
     /// The status as written in `trials.csv`: the estimate's, or `error`.
@@ -292,6 +311,8 @@ mod tests {
                         dy: 1e-3,
                         dz: 2e-3,
                     }),
+                    geometry: Some("tee_ahead".into()),
+                    straight_withheld: true,
                 },
                 MethodRecord {
                     method: Method::MlEpd,
@@ -302,6 +323,8 @@ mod tests {
                     estimate: None,
                     sigma: [None; N_PARAMS],
                     errors: None,
+                    geometry: None,
+                    straight_withheld: false,
                 },
             ],
             error: Some("x".into()),
@@ -330,6 +353,17 @@ mod tests {
             record.truth.to_array().map(f64::to_bits)
         );
         assert_eq!(back.methods[0].message, record.methods[0].message);
+        assert_eq!(back.methods[0].geometry.as_deref(), Some("tee_ahead"));
+        assert!(back.methods[0].straight_withheld && !back.methods[0].ok());
+        // Records of a shard written before the geometry was recorded read back as
+        // not surveyed.
+        let old = line
+            .replace(r#","geometry":"tee_ahead","straight_withheld":true"#, "")
+            .replace(r#","geometry":null,"straight_withheld":false"#, "");
+        assert!(!old.contains("geometry"), "{old}");
+        let old: TrialRecord = serde_json::from_str(&old).unwrap();
+        assert_eq!(old.methods[0].geometry, None);
+        assert!(!old.methods[0].straight_withheld);
         assert_eq!(
             back.methods[0].time_ms.to_bits(),
             record.methods[0].time_ms.to_bits()

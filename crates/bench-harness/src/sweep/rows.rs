@@ -88,7 +88,8 @@ pub const QUANTITIES: [Quantity; 8] = [
 ];
 
 /// `trials.csv` columns: the error columns README lists first, then the truth and
-/// estimate in full, the reported 1-σ, the Cramér–Rao 1-σ and the solver's message.
+/// estimate in full, the reported 1-σ, the Cramér–Rao 1-σ, the geometry the frame library
+/// reported (empty unless the scenario sets `geometry = true`) and the solver's message.
 pub const TRIAL_COLUMNS: &[&str] = &[
     "sweep_variable",
     "sweep_value",
@@ -134,6 +135,7 @@ pub const TRIAL_COLUMNS: &[&str] = &[
     "crb_yaw_deg",
     "crb_dy_mm",
     "crb_dz_mm",
+    "geometry",
     "message",
 ];
 
@@ -156,6 +158,11 @@ pub const SUMMARY_COLUMNS: &[&str] = &[
     "sem",
     "crb_std",
     "coverage95",
+    "geometry_frames",
+    "false_alarms",
+    "false_alarm_rate",
+    "false_alarm_se",
+    "false_alarm_upper95",
 ];
 
 /// `v` × `scale` as CSV text, empty when there is no value.
@@ -218,13 +225,16 @@ fn trial_row(variable: &str, value: &str, t: &TrialRecord, m: &MethodRecord) -> 
     for i in 0..7 {
         f.push(opt(t.crb[i], scales[i]));
     }
+    f.push(m.geometry.clone().unwrap_or_default());
     f.push(m.message.clone());
     f
 }
 
 /// The row of `summary.csv` of `r` ([`SUMMARY_COLUMNS`]); `variable` is the swept key.
-pub(crate) fn summary_row(variable: &str, r: &SummaryRow) -> [String; 17] {
+pub(crate) fn summary_row(variable: &str, r: &SummaryRow) -> [String; 22] {
     let s = &r.stats;
+    let fa = r.false_alarms.as_ref();
+    let fa_num = |v: fn(&crate::stats::FalseAlarms) -> f64| fa.map_or(String::new(), |f| num(v(f)));
     [
         variable.to_string(),
         r.sweep_value.clone(),
@@ -243,5 +253,10 @@ pub(crate) fn summary_row(variable: &str, r: &SummaryRow) -> [String; 17] {
         num(s.sem()),
         r.crb_std.map_or(String::new(), num),
         r.coverage95.map_or(String::new(), num),
+        fa.map_or(String::new(), |f| f.frames.to_string()),
+        fa.map_or(String::new(), |f| f.count.to_string()),
+        fa_num(|f| f.rate),
+        fa_num(|f| f.se),
+        fa_num(|f| f.upper95),
     ]
 }

@@ -44,6 +44,10 @@ pub struct Setting {
     pub range_gate: Option<(f64, f64)>,
     /// The points fitted of each frame (`sampling`; `None`: all of them).
     pub sampling: Option<epd_frame::sampling::Sampling>,
+    /// Whether each frame goes through the frame library with the scene ahead surveyed,
+    /// as `epd estimate` measures a file (`geometry = true`), its reported geometry
+    /// recorded; else every point is fitted as one straight pipe.
+    pub geometry: bool,
 }
 
 impl Setting {
@@ -107,6 +111,42 @@ fn set_dotted(table: &mut toml::Table, dotted: &str, value: toml::Value) -> Resu
             .ok_or_else(|| format!("`{s}` is not a section"))?;
     }
     t.insert(last.to_string(), value);
+    Ok(())
+}
+
+/// Set the swept `variable` to `value` in a copy of the file's table: one dotted key, or
+/// several joined by `+` (`"pipe+noise"`), swept together: each value is then a table
+/// holding every one of them (and optionally a `label`), e.g. `{ label = "8 in /
+/// independent", pipe = { nominal_od_in = 8.0 }, noise = { sigma_m = 0.02 } }`, each
+/// set at its key as a single swept key is.
+fn set_swept(table: &mut toml::Table, variable: &str, value: &toml::Value) -> Result<(), String> {
+    if !variable.contains('+') {
+        return set_dotted(table, variable, value.clone());
+    }
+    let parts: Vec<&str> = variable.split('+').collect();
+    let toml::Value::Table(v) = value else {
+        return Err(format!(
+            "is not a table: sweeping `{variable}` together, each value is a table with the \
+             keys {}",
+            parts.join(", ")
+        ));
+    };
+    if let Some(k) = v
+        .keys()
+        .find(|k| k.as_str() != "label" && !parts.contains(&k.as_str()))
+    {
+        return Err(format!(
+            "has `{k}`, which is not swept: the keys of `{variable}` (and `label`) only"
+        ));
+    }
+    for part in parts {
+        let Some(x) = v.get(part) else {
+            return Err(format!(
+                "lacks `{part}`: every value of `{variable}` sets it"
+            ));
+        };
+        set_dotted(table, part, x.clone())?;
+    }
     Ok(())
 }
 
@@ -193,8 +233,13 @@ impl Scenario {
         for value in &values {
             let text = value_text(value);
             let mut t = table.clone();
-            set_dotted(&mut t, &variable, value.clone())
-                .map_err(|m| invalid("sweep.variable", m))?;
+            set_swept(&mut t, &variable, value).map_err(|m| {
+                if variable.contains('+') {
+                    invalid("sweep.values", format!("(swept value {text}) {m}"))
+                } else {
+                    invalid("sweep.variable", m)
+                }
+            })?;
             let f: File = t.try_into().map_err(|e: toml::de::Error| {
                 invalid(
                     &variable,
@@ -221,7 +266,8 @@ impl Scenario {
 
 /// `name` becomes a folder: not empty, no path separator, not `.` or `..`.
 /// `[sweep]`: 1 to [`MAX_SWEEP_VALUES`] values of a key that can be swept (not the run's
-/// own keys: `name`, `seed`, `trials`, `methods`, `timing`, `sweep.*`).
+/// own keys: `name`, `seed`, `trials`, `methods`, `timing`, `sweep.*`), or of several such
+/// keys joined by `+` ([`set_swept`]).
 fn check_sweep(s: &SweepFile) -> Result<(), KeyError> {
     if s.values.is_empty() {
         return Err(key_err(
@@ -235,9 +281,12 @@ fn check_sweep(s: &SweepFile) -> Result<(), KeyError> {
             format!("has {} values: at most {MAX_SWEEP_VALUES}", s.values.len()),
         ));
     }
-    if s.variable.starts_with("sweep")
-        || ["name", "seed", "trials", "methods", "timing"].contains(&s.variable.as_str())
-    {
+    let fixed = |part: &str| {
+        part.is_empty()
+            || part.starts_with("sweep")
+            || ["name", "seed", "trials", "methods", "timing"].contains(&part)
+    };
+    if s.variable.split('+').any(fixed) {
         return Err(key_err(
             "sweep.variable",
             format!("= \"{}\": cannot be swept", s.variable),
@@ -368,6 +417,7 @@ fn to_setting(f: &File) -> Result<Setting, KeyError> {
     };
     Ok(Setting {
         sampling,
+        geometry: f.geometry,
         sensor,
         pipe,
         noise,

@@ -7,7 +7,7 @@ use anyhow::Context;
 
 use super::record::TrialRecord;
 use super::rows::QUANTITIES;
-use crate::stats::Stats;
+use crate::stats::{FalseAlarms, Stats};
 
 /// One row of `summary.csv`.
 #[derive(Clone, Debug, PartialEq)]
@@ -30,6 +30,10 @@ pub struct SummaryRow {
     /// coverage of the nominal 95 % interval (parameters only; trials without a
     /// reported 1-σ, e.g. an undetermined roll, count as not covered).
     pub coverage95: Option<f64>,
+    /// With `geometry = true`: the frames whose geometry was reported and how many were
+    /// read as anything but `straight` (the same on every row of a setting and method);
+    /// `None` when the scenario does not survey the geometry.
+    pub false_alarms: Option<FalseAlarms>,
 }
 
 /// The rows of a `summary.csv` as written by a run (columns by name; an empty cell is a
@@ -88,6 +92,10 @@ pub fn read_summary(path: &Path) -> anyhow::Result<Vec<SummaryRow>> {
             n_failed: count("n_failed")?,
             crb_std: opt("crb_std")?,
             coverage95: opt("coverage95")?,
+            false_alarms: match (opt("geometry_frames")?, opt("false_alarms")?) {
+                (Some(n), Some(k)) => Some(FalseAlarms::of(k as usize, n as usize)),
+                _ => None,
+            },
         });
     }
     Ok(rows)
@@ -104,6 +112,7 @@ pub(crate) fn summarise(
         let results: Vec<_> = trials.iter().map(|t| (&t.methods[mi], t)).collect();
         let ok: Vec<_> = results.iter().filter(|(r, _)| r.ok()).collect();
         let n_failed = results.len() - ok.len();
+        let false_alarms = false_alarms(results.iter().map(|(r, _)| *r));
         for q in &QUANTITIES {
             let v: Vec<f64> = ok
                 .iter()
@@ -138,6 +147,7 @@ pub(crate) fn summarise(
                 n_failed,
                 crb_std,
                 coverage95,
+                false_alarms,
             });
         }
         let times: Vec<f64> = results
@@ -154,7 +164,118 @@ pub(crate) fn summarise(
             n_failed,
             crb_std: None,
             coverage95: None,
+            false_alarms,
         });
     }
     rows
+}
+
+/// The false alarms of one method over a setting's `records`: of the frames whose
+/// geometry was reported, those read as anything but `straight`; `None` when no record
+/// carries a geometry (the scenario does not survey it).
+pub fn false_alarms<'a>(
+    records: impl IntoIterator<Item = &'a super::record::MethodRecord>,
+) -> Option<FalseAlarms> {
+    let alarms: Vec<bool> = records
+        .into_iter()
+        .filter_map(super::record::MethodRecord::false_alarm)
+        .collect();
+    (!alarms.is_empty())
+        .then(|| FalseAlarms::of(alarms.iter().filter(|&&a| a).count(), alarms.len()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sweep::record::MethodRecord;
+    use crate::sweep::rows::{SUMMARY_COLUMNS, summary_row};
+    use epd_core::{FitOutcome, Method, N_PARAMS, ParamErrors, Params};
+
+    fn record(geometry: Option<&str>, withheld: bool) -> TrialRecord {
+        let errors = ParamErrors {
+            d_max: 1e-4,
+            d_min: -1e-4,
+            d_mean: 0.0,
+            roll: 0.0,
+            pitch: 0.0,
+            yaw: 0.0,
+            dy: 0.0,
+            dz: 0.0,
+        };
+        let params = Params::from_array([0.5, 0.49, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        TrialRecord {
+            setting: 0,
+            trial: 0,
+            n_points: 1000,
+            truth: params,
+            crb: [None; N_PARAMS],
+            error: None,
+            methods: vec![MethodRecord {
+                method: Method::MlEpd,
+                status: geometry.map(|_| FitOutcome::Converged),
+                message: String::new(),
+                iterations: 3,
+                time_ms: 1.0,
+                estimate: geometry.map(|_| params),
+                sigma: [Some(1e-3); N_PARAMS],
+                errors: geometry.map(|_| errors),
+                geometry: geometry.map(String::from),
+                straight_withheld: withheld,
+            }],
+        }
+    }
+
+    #[test]
+    fn false_alarms_are_counted_from_the_records() {
+        // 7 straight, 2 tees ahead, 1 in a bend (withheld), 1 without an estimate.
+        let mut trials: Vec<TrialRecord> =
+            (0..7).map(|_| record(Some("straight"), false)).collect();
+        trials.push(record(Some("tee_ahead"), false));
+        trials.push(record(Some("tee_ahead"), false));
+        trials.push(record(Some("in_bend"), true));
+        trials.push(record(None, false));
+        let rows = summarise("v", &[Method::MlEpd], &trials);
+        assert_eq!(rows.len(), QUANTITIES.len() + 1);
+        let want = FalseAlarms::of(3, 10);
+        for r in &rows {
+            assert_eq!(r.false_alarms, Some(want), "{}", r.quantity);
+            // The withheld frame and the one without an estimate do not count.
+            assert_eq!(
+                (r.stats.n, r.n_failed),
+                (if r.quantity == "time_ms" { 10 } else { 9 }, 2)
+            );
+        }
+        assert!((want.rate - 0.3).abs() < 1e-15);
+        assert!((want.se - (0.3f64 * 0.7 / 10.0).sqrt()).abs() < 1e-15);
+        assert!(want.upper95 > 0.3 && want.upper95 < 1.0);
+        let cells = summary_row("pipe+noise", &rows[0]);
+        let cell = |name: &str| {
+            let i = SUMMARY_COLUMNS.iter().position(|c| *c == name).unwrap();
+            cells[i].clone()
+        };
+        assert_eq!(cell("geometry_frames"), "10");
+        assert_eq!(cell("false_alarms"), "3");
+        assert_eq!(cell("false_alarm_rate").parse::<f64>().unwrap(), want.rate);
+        assert_eq!(cell("false_alarm_se").parse::<f64>().unwrap(), want.se);
+        assert_eq!(
+            cell("false_alarm_upper95").parse::<f64>().unwrap(),
+            want.upper95
+        );
+        // Without a surveyed geometry: no count, empty cells.
+        let plain: Vec<TrialRecord> = (0..3)
+            .map(|_| {
+                let mut t = record(Some("straight"), false);
+                t.methods[0].geometry = None;
+                t
+            })
+            .collect();
+        let rows = summarise("v", &[Method::MlEpd], &plain);
+        assert!(rows.iter().all(|r| r.false_alarms.is_none()));
+        let cells = summary_row("x", &rows[0]);
+        assert!(
+            cells[SUMMARY_COLUMNS.len() - 5..]
+                .iter()
+                .all(String::is_empty)
+        );
+    }
 }

@@ -1,13 +1,15 @@
 //! One trial: a simulated frame, every method on the same cloud, errors against the truth
 //! under the symmetries, and the Cramér–Rao bound of the frame, as a [`TrialRecord`].
 
+use std::borrow::Cow;
 use std::sync::Mutex;
 use std::time::Instant;
 
 use epd_core::{
-    EstimateOptions, LossScale, Method, N_PARAMS, Params, cramer_rao_bound, errors_against,
+    EstimateOptions, Loss, LossScale, Method, N_PARAMS, Params, cramer_rao_bound, errors_against,
     estimate,
 };
+use epd_frame::{EstimateConfig, EstimateSettings, FrameInput, measure_frame};
 use tof_sim::{Frame, FrameSeed, Scene, WallModel, simulate_into_with};
 
 use super::record::{MethodRecord, TrialRecord};
@@ -99,6 +101,11 @@ fn run_with(
         .methods
         .iter()
         .map(|&m| {
+            if setting.geometry {
+                let (record, n) = measured(setting, m, &frame.measured, seeds, &truth);
+                n_points = n.unwrap_or(n_points);
+                return record;
+            }
             let t0 = Instant::now();
             // With `sampling`, the choice is part of the estimate's time; it is seeded by
             // the frame's seeds, so every method of a trial fits its own choice
@@ -127,6 +134,61 @@ fn run_with(
         crb,
         methods,
         error: None,
+    }
+}
+
+/// Method `m` on a frame's `points` through the frame library, as `epd estimate`
+/// measures a file (`epd_frame::measure_frame`: the scene ahead surveyed, then the
+/// straight section fitted), with the setting's loss, loss scale, range gate and
+/// sampling as `epd estimate`'s flags would give them. The record carries the reported
+/// geometry; with it the points fitted when the frame was sampled.
+fn measured(
+    setting: &Setting,
+    m: Method,
+    points: &[[f64; 3]],
+    seeds: FrameSeed,
+    truth: &Params,
+) -> (MethodRecord, Option<usize>) {
+    let settings = EstimateSettings {
+        method: m,
+        min_range: setting.range_gate.map(|g| g.0),
+        max_range: setting.range_gate.map(|g| g.1),
+        loss: setting.loss.name().into(),
+        // `--loss-scale` fixes the scale; without it the scale follows the residuals.
+        loss_scale: match setting.loss {
+            Loss::Huber { scale } | Loss::Cauchy { scale } if !setting.loss_scale_auto => {
+                Some(scale)
+            }
+            _ => None,
+        },
+        geometry: true,
+        ..EstimateSettings::default()
+    };
+    let mut cfg = match EstimateConfig::new(&settings) {
+        Ok(c) => c,
+        Err(e) => return (MethodRecord::error(m, e.to_string(), 0.0), None),
+    };
+    cfg.sampling = setting.sampling.map(|s| s.with_seed(sampling_seed(seeds)));
+    let input = FrameInput {
+        points: Cow::Borrowed(points),
+        intensity: None,
+        sigma: None,
+        read_ms: 0.0,
+    };
+    let t0 = Instant::now();
+    let measured = measure_frame(input, &cfg);
+    let time_ms = t0.elapsed().as_secs_f64() * 1e3;
+    match measured {
+        Ok(e) => {
+            let n = e.sampled.map(|(n, _)| n);
+            let mut record = MethodRecord::of(m, Ok(e.estimate), truth, time_ms);
+            if let Some(g) = &e.geometry {
+                record.geometry = Some(g.layout.to_string());
+                record.straight_withheld = g.straight_withheld;
+            }
+            (record, n)
+        }
+        Err(message) => (MethodRecord::error(m, message, time_ms), None),
     }
 }
 
@@ -172,6 +234,8 @@ impl MethodRecord {
                 estimate: Some(e.params),
                 sigma: e.sigma,
                 errors: Some(errors_against(&e.params, truth)),
+                geometry: None,
+                straight_withheld: false,
             },
             Err(err) => MethodRecord::error(method, err.to_string(), time_ms),
         }
@@ -188,6 +252,8 @@ impl MethodRecord {
             estimate: None,
             sigma: [None; N_PARAMS],
             errors: None,
+            geometry: None,
+            straight_withheld: false,
         }
     }
 }

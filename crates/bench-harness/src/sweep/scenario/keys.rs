@@ -191,6 +191,11 @@ pub(super) struct File {
     /// `max_points = "all"`: every point.
     #[serde(default)]
     pub(super) sampling: Option<SamplingFile>,
+    /// `geometry = true`: each frame is measured as `epd estimate` measures a file, the
+    /// scene ahead surveyed first (`epd_frame::measure_frame`), and the geometry it
+    /// reports is recorded; unset or `false`: every point fitted as one straight pipe.
+    #[serde(default)]
+    pub(super) geometry: bool,
     pub(super) sweep: Option<SweepFile>,
 }
 

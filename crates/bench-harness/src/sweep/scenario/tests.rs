@@ -298,3 +298,61 @@ fn sampling_is_swept_by_label_and_checked() {
         assert!(e.contains(key) && e.contains(needle), "{extra}: {e}");
     }
 }
+
+#[test]
+fn keys_swept_together() {
+    let s = parse(
+        r#"
+name = "fa"
+geometry = true
+[pipe]
+wall_thickness_mm = 8.0
+[sweep]
+variable = "pipe+noise"
+values = [
+  { label = "8 in / independent", pipe = { nominal_od_in = 8.0 }, noise = { sigma_m = 0.02 } },
+  { pipe = { nominal_od_in = 42.0, ovality = 0.01 }, noise = { sigma_m = 0.01, camera = { correlation_length_px = 2.0 } } },
+]
+"#,
+    )
+    .unwrap();
+    assert_eq!(s.sweep_variable, "pipe+noise");
+    assert_eq!(s.sweeps[0].0, "8 in / independent");
+    let (a, b) = (&s.sweeps[0].1, &s.sweeps[1].1);
+    assert!(a.geometry && b.geometry);
+    assert_eq!((a.pipe.nominal_od_in, a.noise.sigma), (8.0, 0.02));
+    assert_eq!((b.pipe.nominal_od_in, b.pipe.ovality), (42.0, 0.01));
+    assert_eq!(b.camera.correlation_length_px, 2.0);
+    // A swept table replaces the file's table whole, as a single swept table does.
+    assert_eq!(a.pipe.wall_thickness, crate::defaults::wall_mm() * 1e-3);
+    // Unlabelled values are named by their TOML text.
+    assert!(s.sweeps[1].0.contains("42"), "{}", s.sweeps[1].0);
+    assert!(!parse("name = \"fa\"\n").unwrap().sweeps[0].1.geometry);
+
+    let bad = |values: &str| {
+        parse(&format!(
+            "name = \"fa\"\n[sweep]\nvariable = \"pipe+noise\"\nvalues = [{values}]\n"
+        ))
+        .unwrap_err()
+        .to_string()
+    };
+    let e = bad("{ pipe = { nominal_od_in = 8.0 } }");
+    assert!(
+        e.contains("sweep.values") && e.contains("lacks `noise`"),
+        "{e}"
+    );
+    let e = bad("{ pipe = {}, noise = {}, sensor = { width = 8 } }");
+    assert!(e.contains("has `sensor`, which is not swept"), "{e}");
+    let e = bad("8.0");
+    assert!(e.contains("is not a table"), "{e}");
+    let e = bad("{ pipe = { nominal_od_in = -8.0 }, noise = {} }");
+    assert!(e.contains("nominal_od_in"), "{e}");
+    for v in ["pipe+trials", "pipe+", "noise+sweep.values"] {
+        let e = parse(&format!(
+            "name = \"fa\"\n[sweep]\nvariable = \"{v}\"\nvalues = [{{}}]\n"
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("cannot be swept"), "{v}: {e}");
+    }
+}
