@@ -320,7 +320,10 @@ enum Input<'py> {
 /// `n_out_of_range`, `n_calibrated`, `weighted`, `rms_residual_mm` (mm), `elapsed_ms`,
 /// `read_ms` (ms), `loss`, `loss_scale_m` (m), `nominal_od_mm`, `wall_thickness_est_mm`
 /// (mm), `geometry` ("straight", "bend_ahead", "tee_ahead", "in_bend"),
-/// `straight_until_m` (m), `bend_radius_mm` (mm), `bend_angle_deg`,
+/// `geometry_evidence` (−log₁₀ of the departure test's adjusted p-value; 3 or more is a
+/// departure at the survey's false-alarm rate of 10⁻³ per frame), `straight_until_m` (m)
+/// and its 1-σ `sigma_straight_until_m` (m), `bend_radius_mm` and its 1-σ
+/// `sigma_bend_radius_mm` (mm), `bend_angle_deg`,
 /// `bend_direction_deg` (degrees), `bend_withheld`, `dent_at_m` (m), `dent_clock_deg`
 /// (degrees), `dent_depth_mm` (mm; a dent, debris or an obstacle on a straight pipe's
 /// wall), `n_sampled` and `sampling` (with

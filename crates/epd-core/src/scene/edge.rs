@@ -34,6 +34,10 @@ pub struct Edge {
     /// likelihood ([`change_point`]), at least the spacing of the two points it falls
     /// between over √12 (a uniform position between them).
     pub sigma_m: f64,
+    /// The share of the clock sectors tested (those with [`MIN_WALL_POINTS`] of wall
+    /// before the opening) whose exceedances rise within a quarter of the window after
+    /// `at_m` ([`open_share`]).
+    pub open_share: f64,
 }
 
 /// The change point of the exceedances on the side `psi` (polar angle of the straight
@@ -68,10 +72,15 @@ pub fn opening_edge(
     let off = |a: f64, c: f64| {
         (a - c + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
     };
-    let mut side: Vec<(f64, f64, f64)> = points
+    let window: Vec<(f64, f64, f64)> = points
         .iter()
         .filter_map(|p| deviation(&geom, &m, beta, p))
-        .filter(|&(x, _, a)| x >= from_m && x < to_m && off(a, psi).abs() <= half_width)
+        .filter(|&(x, _, _)| x >= from_m && x < to_m)
+        .collect();
+    let mut side: Vec<(f64, f64, f64)> = window
+        .iter()
+        .copied()
+        .filter(|&(_, _, a)| off(a, psi).abs() <= half_width)
         .collect();
     side.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mut wall: Vec<f64> = side
@@ -112,10 +121,91 @@ pub fn opening_edge(
         Some(e) => (e, narrow),
         None => (first, half_width),
     };
+    let at_m = edge.at_m - 0.5 * ramp(w);
+    let sectors = (std::f64::consts::TAU / half_width).round().max(1.0) as usize;
     Some(Edge {
-        at_m: edge.at_m - 0.5 * ramp(w),
+        at_m,
         sigma_m: edge.sigma_m.hypot(ramp(w) / 12f64.sqrt()),
+        open_share: open_share(&window, sectors, wall_until_m, (edge.at_m, reach)),
     })
+}
+
+/// The one-sided level of [`open_share`]'s test per sector.
+pub const OPEN_SECTOR_ALPHA: f64 = 0.05;
+
+/// The exceedance rate a sector must exceed to open: ten times the Gaussian tail beyond
+/// [`EXCEEDANCE_SIGMAS`], Φ(−3) = 1.35·10⁻³. The factor leaves room for what a camera
+/// adds to Gaussian noise: its systematic range errors raised the wall's rate to 0.5 %
+/// (4×) over a slice in tof-sim's camera model (`a_close_tee_under_the_cameras_noise`),
+/// which a test of any rise would call open; an opening's or a multipath band's rays
+/// exceed by their whole depth, at rates of tens of percent.
+pub const OPEN_RATE: f64 = 10.0 * 1.349_898_031_630_094_6e-3;
+
+/// Its normal quantile, Φ⁻¹(1 − [`OPEN_SECTOR_ALPHA`]).
+const Z_OPEN: f64 = 1.644_853_626_951_472_2;
+
+/// The share of `sectors` clock sectors in which an opening begins: for each sector
+/// with at least [`MIN_WALL_POINTS`] window points before `wall_until_m`, a point
+/// exceeds that sector's wall (its median + [`EXCEEDANCE_SIGMAS`]·1.4826·MAD, as the
+/// incidence and so the deviations' spread differ around the pipe), and the sector
+/// opens when the share of exceedances in `after` (m..m) is above the wall's by the
+/// one-sided two-proportion z-test at [`OPEN_SECTOR_ALPHA`]. A branch no wider than the
+/// main pipe opens over at most half the circumference (±90° at its centre, less near its
+/// edge), so more than half the sectors opening at once is no branch: a band of range
+/// error all around (multipath over a range band, a change of the pipe's diameter).
+/// 0 without a tested sector.
+pub fn open_share(
+    window: &[(f64, f64, f64)],
+    sectors: usize,
+    wall_until_m: f64,
+    (after_from, after_to): (f64, f64),
+) -> f64 {
+    let tau = std::f64::consts::TAU;
+    let sector_of = |a: f64| ((a.rem_euclid(tau) / tau * sectors as f64) as usize).min(sectors - 1);
+    let mut wall: Vec<Vec<f64>> = vec![Vec::new(); sectors];
+    for &(_, d, a) in window.iter().filter(|v| v.0 < wall_until_m) {
+        wall[sector_of(a)].push(d);
+    }
+    let limits: Vec<Option<(f64, usize, usize)>> = wall
+        .iter_mut()
+        .map(|d| {
+            (d.len() >= MIN_WALL_POINTS).then(|| {
+                let n = d.len();
+                let (c, s) = crate::loss::median_and_mad_sigma(d);
+                let limit = c + EXCEEDANCE_SIGMAS * s;
+                let e = d.iter().filter(|&&v| v > limit).count();
+                (limit, n, e)
+            })
+        })
+        .collect();
+    let mut after = vec![(0usize, 0usize); sectors];
+    for &(_, d, a) in window
+        .iter()
+        .filter(|v| v.0 >= after_from && v.0 < after_to)
+    {
+        let k = sector_of(a);
+        if let Some((limit, _, _)) = limits[k] {
+            after[k].0 += 1;
+            after[k].1 += usize::from(d > limit);
+        }
+    }
+    let (mut tested, mut open) = (0usize, 0usize);
+    for (lim, &(n_a, e_a)) in limits.iter().zip(&after) {
+        let Some((_, n_b, e_b)) = *lim else { continue };
+        if n_a == 0 {
+            continue;
+        }
+        tested += 1;
+        let (n_a, e_a, n_b, e_b) = (n_a as f64, e_a as f64, n_b as f64, e_b as f64);
+        let p = OPEN_RATE.max(e_b / n_b);
+        let se = (p * (1.0 - p) / n_a).sqrt();
+        open += usize::from(e_a / n_a - p > Z_OPEN * se);
+    }
+    if tested == 0 {
+        0.0
+    } else {
+        open as f64 / tested as f64
+    }
 }
 
 /// The fewest wall points before the opening from which its spread is taken: with n
@@ -179,6 +269,8 @@ fn change_point(x: &[f64], z: &[bool]) -> Option<Edge> {
     Some(Edge {
         at_m: at,
         sigma_m: rms.max(spacing / 12f64.sqrt()),
+        // Sectors are [`opening_edge`]'s to judge.
+        open_share: f64::NAN,
     })
 }
 
@@ -238,6 +330,40 @@ mod tests {
         let falling: Vec<bool> = (0..100).map(|i| i < 50).collect();
         assert_eq!(change_point(&x, &falling), None);
         assert_eq!(change_point(&x[..1], &[true]), None);
+    }
+
+    /// Points on a round pipe's wall (2 mm noise, on axis) from 0.5 to 2 m, with `open`
+    /// deciding which read 0.3 m long.
+    fn wall_with(open: impl Fn(f64, f64) -> bool, seed: u64) -> Vec<[f64; 3]> {
+        let mut u = uniforms(seed);
+        (0..20_000)
+            .map(|_| {
+                let x = 0.5 + 1.5 * u();
+                let psi = std::f64::consts::TAU * u();
+                let wall = Vector3::new(x, 0.0, 0.0) + 0.25 * radial(psi);
+                let noise = 0.002 * (u() + u() + u() - 1.5) * 2.0;
+                let r = wall.norm() + noise + if open(x, psi) { 0.3 } else { 0.0 };
+                let p = wall.normalize() * r;
+                [p.x, p.y, p.z]
+            })
+            .collect()
+    }
+
+    /// A branch opens in few sectors; a band of range error all around (from 1.23 m,
+    /// as multipath over a range band gives) opens in all: the share tells them apart
+    /// on either side of one half.
+    #[test]
+    fn a_ring_is_no_opening() {
+        let beta = Params::from_array([0.5, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        let tee = wall_with(
+            |x, psi| (psi - 1.0).abs() < 0.5 && x >= 1.23 + 0.25 * (1.0 - (psi - 1.0).cos()),
+            13,
+        );
+        let e = opening_edge(&tee, &beta, 1.0, 0.5, (1.0, 1.2, 1.5)).unwrap();
+        assert!(e.open_share < 0.5, "{e:?}");
+        let ring = wall_with(|x, _| x >= 1.23, 17);
+        let e = opening_edge(&ring, &beta, 1.0, 0.5, (1.0, 1.2, 1.5)).unwrap();
+        assert!((e.at_m - 1.23).abs() < 0.01 && e.open_share > 0.9, "{e:?}");
     }
 
     /// Points on a round pipe's wall (2 mm noise) with an equal tee's opening on one

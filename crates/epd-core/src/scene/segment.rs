@@ -799,7 +799,10 @@ fn obstruction_or_tee(
 /// bend's growth would start: at the change point of the exceedances on its side
 /// ([`crate::scene::edge::opening_edge`], within ± one sector of the bump's and two
 /// slices of the near edge of its first slice, [`opening_start`]); failing that, at
-/// that near edge, within a slice.
+/// that near edge, within a slice. When more than half the sectors open there at once
+/// ([`crate::scene::edge::open_share`]) it is no branch but a band of range error all
+/// around — multipath over a band of ranges, as a camera in a pipe sees — and the frame
+/// reads [`Layout::Straight`], its straight section ending where the band begins.
 fn tee(mut s: Segmentation, points: &[[f64; 3]], seg: &SegmentOptions) -> Survey {
     s.layout = Layout::TeeAhead;
     let mut sigma = None;
@@ -815,6 +818,9 @@ fn tee(mut s: Segmentation, points: &[[f64; 3]], seg: &SegmentOptions) -> Survey
             sector,
             window,
         );
+        if edge.is_some_and(|e| e.open_share > 0.5) {
+            s.layout = Layout::Straight;
+        }
         let (at, sd) = edge.map_or((near, seg.slice_m / 12f64.sqrt()), |e| (e.at_m, e.sigma_m));
         s.straight_until = Some(at);
         sigma = Some(sd);
