@@ -92,7 +92,11 @@ pub(crate) fn check_output_path(out: &Path, inputs: &[PathBuf], flag: &str) -> a
 /// On SIGINT, SIGTERM and SIGHUP (each unless ignored at start): remove the temporary
 /// files of the outputs being written, then end as the signal would
 /// (`epd_io::atomic::remove_pending_temporaries`). The handler runs on its own thread
-/// (signal-hook's iterator), so it may take locks and remove files.
+/// (signal-hook's iterator), so it may take locks and remove files. A handled signal
+/// that the parent left blocked (a mask is inherited through `exec`) is unblocked here,
+/// before any other thread starts (threads inherit the mask): blocked, it would stay
+/// pending and the process could not be stopped by it. An ignored signal is the user's
+/// choice (`nohup`) and stays ignored; a blocked one is rarely meant for the program.
 #[cfg(unix)]
 fn remove_temporaries_on_signals() {
     use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
@@ -108,6 +112,16 @@ fn remove_temporaries_on_signals() {
         .into_iter()
         .filter(|&s| !ignored(s))
         .collect();
+    // SAFETY: sigemptyset/sigaddset fill a local set; pthread_sigmask changes only this
+    // thread's mask (no other thread runs yet).
+    unsafe {
+        let mut set: libc::sigset_t = std::mem::zeroed();
+        libc::sigemptyset(&mut set);
+        for &s in &wanted {
+            libc::sigaddset(&mut set, s);
+        }
+        libc::pthread_sigmask(libc::SIG_UNBLOCK, &set, std::ptr::null_mut());
+    }
     let Ok(mut signals) = signal_hook::iterator::Signals::new(&wanted) else {
         stderr_line!("warning: no signal handler: an interrupted -o may leave a temporary file");
         return;

@@ -177,6 +177,16 @@ fn calibrate_writes_the_table_before_its_diagnostics() {
 /// gives every child an ignored SIGINT, which `epd` (as documented) keeps ignored — the
 /// "hang" of the signal test in CI (issue 27).
 fn with_signals<'a>(cmd: &'a mut Command, ignored: &'static [libc::c_int]) -> &'a mut Command {
+    with_signal_mask(cmd, ignored, &[])
+}
+
+/// [`with_signals`], then `blocked` blocked in the child's signal mask (as a parent that
+/// blocks them before `exec` leaves them).
+fn with_signal_mask<'a>(
+    cmd: &'a mut Command,
+    ignored: &'static [libc::c_int],
+    blocked: &'static [libc::c_int],
+) -> &'a mut Command {
     use std::os::unix::process::CommandExt;
     // SAFETY: between fork and exec the closure makes only async-signal-safe calls
     // (`signal`, `sigemptyset`, `sigaddset`, `sigprocmask`) on its own stack and on the
@@ -199,6 +209,14 @@ fn with_signals<'a>(cmd: &'a mut Command, ignored: &'static [libc::c_int]) -> &'
             if libc::sigprocmask(libc::SIG_UNBLOCK, &set, std::ptr::null_mut()) != 0 {
                 return Err(std::io::Error::last_os_error());
             }
+            let mut block: libc::sigset_t = std::mem::zeroed();
+            libc::sigemptyset(&mut block);
+            for &s in blocked {
+                libc::sigaddset(&mut block, s);
+            }
+            if libc::sigprocmask(libc::SIG_BLOCK, &block, std::ptr::null_mut()) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
             Ok(())
         })
     }
@@ -213,9 +231,19 @@ fn start_long_write(
     out: &Path,
     ignored: &'static [libc::c_int],
 ) -> std::process::Child {
+    start_long_write_masked(dir, out, ignored, &[])
+}
+
+/// [`start_long_write`] with `blocked` blocked when `epd` starts ([`with_signal_mask`]).
+fn start_long_write_masked(
+    dir: &Path,
+    out: &Path,
+    ignored: &'static [libc::c_int],
+    blocked: &'static [libc::c_int],
+) -> std::process::Child {
     let frame = write(dir, "frame.ply", &good_ply(20_000));
     let before = temporaries(dir);
-    let child = with_signals(&mut epd(), ignored)
+    let child = with_signal_mask(&mut epd(), ignored, blocked)
         .args(["estimate", "--threads", "1", "-q", "--format", "json", "-o"])
         .arg(out)
         .args(std::iter::repeat_n(&frame, 5000))
@@ -311,6 +339,34 @@ fn a_signal_ignored_at_start_stays_ignored() {
         );
         let status = wait_at_most(&mut child, Duration::from_secs(10), "TERM");
         assert_eq!(status.signal(), Some(libc::SIGTERM), "{status:?}");
+        assert_eq!(temporaries(dir.path()), Vec::<String>::new(), "SIG{name}");
+    }
+}
+
+/// A signal blocked when `epd` starts (a parent that blocks SIGTERM, SIGINT and SIGHUP
+/// around its `fork` and `exec`, as some supervisors and shells do, leaves them blocked)
+/// is unblocked: each still ends a long `-o` write within 10 s, leaving no temporary file.
+/// Without the unblocking the signal stays pending and the write runs on (checked: the
+/// test then fails with "still running").
+#[test]
+fn a_signal_blocked_at_start_still_ends_the_write() {
+    for (sig, name) in [
+        (libc::SIGTERM, "TERM"),
+        (libc::SIGINT, "INT"),
+        (libc::SIGHUP, "HUP"),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("results.json");
+        let mut child = start_long_write_masked(
+            dir.path(),
+            &out,
+            &[],
+            &[libc::SIGTERM, libc::SIGINT, libc::SIGHUP],
+        );
+        // SAFETY: a signal to our own child, which has not been waited for.
+        assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, sig) }, 0);
+        let status = wait_at_most(&mut child, Duration::from_secs(10), name);
+        assert_eq!(status.signal(), Some(sig), "{status:?}");
         assert_eq!(temporaries(dir.path()), Vec::<String>::new(), "SIG{name}");
     }
 }
