@@ -126,7 +126,12 @@ fn main() -> anyhow::Result<()> {
     let t30 = calibrate_rig_sizes(&[r30], &settings)?;
     let t2030 = calibrate_rig_sizes(&[r20, r30], &settings)?;
     // The rigs' fitted poses against the truth.
-    for (name, t, fr) in [("20", &t20, &rig20), ("30", &t30, &rig30)] {
+    let both: Vec<&Frame> = rig20.iter().chain(rig30.iter()).collect();
+    for (name, t, fr) in [
+        ("20", &t20, rig20.iter().collect::<Vec<_>>()),
+        ("30", &t30, rig30.iter().collect()),
+        ("20+30", &t2030, both),
+    ] {
         for (fit, f) in t.fits.iter().zip(fr.iter()) {
             if let Ok(e) = fit {
                 let off = |p: &Params| p.dy.hypot(p.dz) * 1e3;

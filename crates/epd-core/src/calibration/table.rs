@@ -50,8 +50,13 @@ impl Axis {
         (self.lo..=self.hi).contains(&x)
     }
 
-    fn width(&self) -> f64 {
+    pub(super) fn width(&self) -> f64 {
         (self.hi - self.lo) / self.n as f64
+    }
+
+    /// The centre of bin k.
+    pub(super) fn centre(&self, k: usize) -> f64 {
+        self.lo + (k as f64 + 0.5) * self.width()
     }
 
     /// The bin holding x (clamped to the axis).
