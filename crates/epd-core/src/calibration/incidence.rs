@@ -47,7 +47,14 @@ use crate::error::EpdError;
 /// Helios2 model cos θ follows from range and intensity, so every bin's observations lie
 /// on a surface — points of later frames lie on the same surface, so the slope across it
 /// is neither determined nor used.
-pub const MIN_GRADIENT_SPREAD: f64 = 0.05;
+pub const MIN_GRADIENT_SPREAD: f64 = 0.15;
+
+/// The fewest observations of a bin for its linear model to have a gradient (fewer: the
+/// bin's mean): the value at the bin's centre is extrapolated from the observations'
+/// centroid by the gradient, whose standard error is σ/(√n·spread); with 200 points
+/// spread over at least [`MIN_GRADIENT_SPREAD`] of a bin, half a bin's extrapolation
+/// adds at most about a quarter of a point's σ... 
+pub const MIN_GRADIENT_COUNT: usize = 200;
 
 /// Where a bin's value comes from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -623,7 +630,7 @@ fn fit_bin(v: &[([f64; 3], f64)], centre: [f64; 3], width: [f64; 3]) -> Option<B
     let eig = SymmetricEigen::new(cov);
     let mut g = Vector3::zeros();
     for (k, &lambda) in eig.eigenvalues.iter().enumerate() {
-        if lambda > MIN_GRADIENT_SPREAD * MIN_GRADIENT_SPREAD {
+        if n >= MIN_GRADIENT_COUNT && lambda > MIN_GRADIENT_SPREAD * MIN_GRADIENT_SPREAD {
             let e = eig.eigenvectors.column(k);
             g += e * (e.dot(&czy) / lambda);
         }
