@@ -20,18 +20,13 @@
 //!   "support": { "range_m": [0.5, 2.0], "intensity": [9.1, 980.0],
 //!                "cos_incidence": [0.11, 0.52] },
 //!   "incidence": { "log_cos_incidence": { "lo": -2.2, "hi": -0.6, "bins": 16 },
-//!                  "offset_mm": [[…]], "gradient_mm": [[…]], "spread_mm": [[…]],
-//!                  "se_mm": [[…]], "count": [[…]], "support": [[…]] } }
+//!                  "offset_mm": [[…]], "spread_mm": [[…]], "se_mm": [[…]],
+//!                  "count": [[…]], "support": [[…]] } }
 //! ```
 //! The incidence table's rows are range bins, each of intensity bins × incidence bins
 //! values (incidence fastest); `support` is 0 outside (values written as 0, read as
-//! none), 1 observed, 2 bridged (`epd_core::calibration::IncidenceTable`). Each bin is a
-//! linear model: `offset_mm` its value at the bin's centre, `gradient_mm` its gradient,
-//! three values a bin (mm per metre of range, per unit of ln I, per unit of ln cos θ),
-//! so a row holds 3 × intensity × incidence values; a table without `gradient_mm`
-//! (written before it) is read with zero gradients, its offsets the bins' means, and
-//! corrects as it did. `se_mm` is each bin's standard error, shared by every point the
-//! bin corrects.
+//! none), 1 observed, 2 bridged (`epd_core::calibration::IncidenceTable`). `se_mm` is
+//! each bin mean's standard error, shared by every point the bin corrects.
 
 use std::path::Path;
 
@@ -52,10 +47,10 @@ pub const VERSION: u32 = 2;
 /// table it makes ([`MAX_TABLE_BINS`] bins, one range bin each, every value of the
 /// longest form serde_json writes: 24 characters, indented by 6 and followed by `,\n`,
 /// 3 values a bin; 3 rows of 12 bytes of brackets each) and its version-2 incidence table
-/// of as many bins again (8 values a bin, 6 rows of brackets), plus 4 KiB for the rest:
-/// about 497 MB. Anything larger is not a table `epd calibrate` could have written.
+/// of as many bins again (5 values a bin, 5 rows of brackets), plus 4 KiB for the rest:
+/// about 369 MB. Anything larger is not a table `epd calibrate` could have written.
 pub const MAX_TABLE_FILE_BYTES: u64 =
-    4096 + (MAX_TABLE_BINS as u64) * (BYTES_PER_VALUE * 11 + BYTES_PER_ROW * 9);
+    4096 + (MAX_TABLE_BINS as u64) * (BYTES_PER_VALUE * 8 + BYTES_PER_ROW * 8);
 
 /// Bytes of one value in a written table at most (see [`MAX_TABLE_FILE_BYTES`]).
 const BYTES_PER_VALUE: u64 = 6 + 24 + 2;
@@ -94,7 +89,6 @@ struct SpansFile {
 struct IncidenceFile {
     log_cos_incidence: AxisFile,
     offset_mm: Vec<Vec<f64>>,
-    gradient_mm: Vec<Vec<f64>>,
     spread_mm: Vec<Vec<f64>>,
     se_mm: Vec<Vec<f64>>,
     count: Vec<Vec<u64>>,
@@ -107,8 +101,6 @@ struct IncidenceHeader<'a> {
     log_cos_incidence: AxisFile,
     #[serde(borrow)]
     offset_mm: &'a RawValue,
-    #[serde(borrow, default)]
-    gradient_mm: Option<&'a RawValue>,
     #[serde(borrow)]
     spread_mm: &'a RawValue,
     #[serde(borrow)]
@@ -344,20 +336,6 @@ fn read_incidence(h: &IncidenceHeader<'_>, plain: &DepthTable) -> Result<Inciden
         offset_m: outside_nan(mm(
             Rows::new("incidence.offset_mm", nr, per).read(h.offset_mm)?
         )),
-        gradient: match h.gradient_mm {
-            None => vec![[0.0; 3]; nr * per],
-            Some(g) => mm(Rows::new("incidence.gradient_mm", nr, per * 3).read(g)?)
-                .chunks_exact(3)
-                .zip(&support)
-                .map(|(c, s)| {
-                    if *s == Support::Outside {
-                        [0.0; 3]
-                    } else {
-                        [c[0], c[1], c[2]]
-                    }
-                })
-                .collect(),
-        },
         spread_m: outside_nan(mm(
             Rows::new("incidence.spread_mm", nr, per).read(h.spread_mm)?
         )),
@@ -502,22 +480,9 @@ impl CalibrationTable {
                         .collect();
                     rows(&vals, per)
                 };
-                let gradient: Vec<f64> = t
-                    .gradient
-                    .iter()
-                    .zip(&t.support)
-                    .flat_map(|(g, s)| {
-                        if *s == Support::Outside {
-                            [0.0; 3]
-                        } else {
-                            g.map(|v| v * 1e3)
-                        }
-                    })
-                    .collect();
                 IncidenceFile {
                     log_cos_incidence: axis(&t.log_cos_incidence),
                     offset_mm: inside(&t.offset_m, 1e3),
-                    gradient_mm: rows(&gradient, per * 3),
                     spread_mm: inside(&t.spread_m, 1e3),
                     se_mm: inside(&t.se_m, 1e3),
                     count: rows(&t.count, per),

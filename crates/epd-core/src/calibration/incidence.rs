@@ -15,46 +15,14 @@
 //! - every other bin is **outside**: a point there is not corrected — it is left out
 //!   (NaN) and counted (`calibration_outside`), never corrected by an extrapolated value.
 //!
-//! **Each bin is a local linear model**, not a mean: its value at the bin's centre and
-//! its gradient over (range, ln I, ln cos θ), fitted by least squares to the bin's
-//! observations (after the clipping of [`super::DepthTable::build`]). A bin's mean is the
-//! error at the centroid of its observations, not at its centre; where two rigs share a
-//! bin they fill different parts of it (at the same range a 30" pipe returns about 1.5×
-//! the intensity of a 20" one, less than one intensity bin apart), and the error changes
-//! by centimetres across a bin (tens of mm per unit of ln I at 1.8 m on the Helios2
-//! model), so the mean of the mixture was the right value for neither: measured on
-//! tof-sim with the rigs' true poses (`cargo run --release -p bench-harness --example
-//! calibration_diagnose`), a 20" + 30" table of means was +0.2 to +0.7 mm off the
-//! simulator's error at every range of 30" frames, a 30"-only table within 0.1 mm. A
-//! direction along which the bin's observations hardly spread ([`MIN_GRADIENT_SPREAD`])
-//! gets no gradient. A point's correction blends the linear models of the 8 bins around
-//! it with trilinear weights (exact for an error linear over them).
-//!
 //! The incidence axis is ln cos θ: an ln(D₁/D₂) change of pipe size is the same step of
 //! ln cos θ at every range (cos θ ≈ R/r for a sensor near the axis).
 
-use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
 
 use super::rig::Observation;
-use super::table::{Axis, MAX_OFFSET_M, MAX_TABLE_BINS, MAX_TABLE_RANGE_M};
+use super::table::{Axis, MAX_OFFSET_M, MAX_TABLE_BINS, MAX_TABLE_RANGE_M, clipped_mean};
 use crate::error::EpdError;
-
-/// The least spread of a bin's observations (standard deviation in bin widths) along a
-/// direction of (range, ln I, ln cos θ) for the bin's gradient to have a component along
-/// it: 5 % of a bin width (observations filling the bin evenly spread 29 %). The slope's
-/// standard error grows as 1/spread, and where the observations are that thin — on the
-/// Helios2 model cos θ follows from range and intensity, so every bin's observations lie
-/// on a surface — points of later frames lie on the same surface, so the slope across it
-/// is neither determined nor used.
-pub const MIN_GRADIENT_SPREAD: f64 = 0.15;
-
-/// The fewest observations of a bin for its linear model to have a gradient (fewer: the
-/// bin's mean): the value at the bin's centre is extrapolated from the observations'
-/// centroid by the gradient, whose standard error is σ/(√n·spread); with 200 points
-/// spread over at least [`MIN_GRADIENT_SPREAD`] of a bin, half a bin's extrapolation
-/// adds at most about a quarter of a point's σ... 
-pub const MIN_GRADIENT_COUNT: usize = 200;
 
 /// Where a bin's value comes from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -166,13 +134,8 @@ pub struct IncidenceTable {
     pub log_intensity: Axis,
     /// ln cos θ axis.
     pub log_cos_incidence: Axis,
-    /// Offset per bin at the bin's centre (m), NaN outside the support: the bin's
-    /// linear model's value there (module doc).
+    /// Mean offset per bin (m), NaN outside the support.
     pub offset_m: Vec<f64>,
-    /// The gradient of each bin's linear model: metres of offset per metre of range,
-    /// per unit of ln I and per unit of ln cos θ; zero for bridged bins (and for tables
-    /// written before it, whose offsets are bin means).
-    pub gradient: Vec<[f64; 3]>,
     /// Spread 1.4826·MAD per bin (m), NaN outside the support.
     pub spread_m: Vec<f64>,
     /// Standard error of each bin's mean (m): spread/√count for an observed bin, the
@@ -235,7 +198,7 @@ impl IncidenceTable {
                     "{nr} × {ni} × {nc} bins: at most {MAX_TABLE_BINS} (2²⁰) bins"
                 ))
             })?;
-        let mut per_bin: Vec<Vec<([f64; 3], f64)>> = vec![Vec::new(); cells];
+        let mut per_bin: Vec<Vec<f64>> = vec![Vec::new(); cells];
         for o in obs {
             let (r, i, c) = (o.obs.model_range_m, o.obs.intensity, o.cos_incidence);
             if !(r.is_finite() && i > 0.0 && i.is_finite() && c > 0.0 && c <= 1.0) {
@@ -250,47 +213,34 @@ impl IncidenceTable {
             }
             let k = (bins.range.bin(r) * ni + bins.log_intensity.bin(li)) * nc
                 + bins.log_cos_incidence.bin(lc);
-            per_bin[k].push(([r, li, lc], o.obs.offset_m));
+            per_bin[k].push(o.obs.offset_m);
         }
         let mut t = Self {
             range: bins.range,
             log_intensity: bins.log_intensity,
             log_cos_incidence: bins.log_cos_incidence,
             offset_m: vec![f64::NAN; cells],
-            gradient: vec![[0.0; 3]; cells],
             spread_m: vec![f64::NAN; cells],
             se_m: vec![f64::NAN; cells],
             count: vec![0; cells],
             support: vec![Support::Outside; cells],
         };
-        let stats: Vec<Option<BinModel>> = per_bin
-            .par_iter()
-            .enumerate()
-            .map(|(k, v)| {
+        let stats: Vec<Option<(f64, f64, usize)>> = per_bin
+            .par_iter_mut()
+            .map(|v| {
                 if v.len() < bins.min_count {
                     return None;
                 }
-                let (i, j, l) = (k / (ni * nc), (k / nc) % ni, k % nc);
-                let centre = [
-                    t.range.centre(i),
-                    t.log_intensity.centre(j),
-                    t.log_cos_incidence.centre(l),
-                ];
-                let width = [
-                    t.range.width(),
-                    t.log_intensity.width(),
-                    t.log_cos_incidence.width(),
-                ];
-                fit_bin(v, centre, width)
+                let (mean, spread) = clipped_mean(v);
+                (spread > 0.0).then_some((mean, spread, v.len()))
             })
             .collect();
         for (k, s) in stats.into_iter().enumerate() {
-            if let Some(m) = s {
-                t.offset_m[k] = m.value;
-                t.gradient[k] = m.gradient;
-                t.spread_m[k] = m.spread;
-                t.se_m[k] = m.spread / (m.n as f64).sqrt();
-                t.count[k] = m.n as u64;
+            if let Some((mean, spread, n)) = s {
+                t.offset_m[k] = mean;
+                t.spread_m[k] = spread;
+                t.se_m[k] = spread / (n as f64).sqrt();
+                t.count[k] = n as u64;
                 t.support[k] = Support::Observed;
             }
         }
@@ -364,7 +314,6 @@ impl IncidenceTable {
             })?;
         let lens = [
             self.offset_m.len(),
-            self.gradient.len(),
             self.spread_m.len(),
             self.se_m.len(),
             self.count.len(),
@@ -372,8 +321,8 @@ impl IncidenceTable {
         ];
         if lens.iter().any(|&n| n != cells) {
             return Err(EpdError::InvalidOption(format!(
-                "depth table: {cells} bins but {lens:?} offsets, gradients, spreads, standard \
-                 errors, counts and support flags"
+                "depth table: {cells} bins but {lens:?} offsets, spreads, standard errors, \
+                 counts and support flags"
             )));
         }
         if !(self.range.lo >= 0.0 && self.range.hi <= MAX_TABLE_RANGE_M) {
@@ -401,21 +350,6 @@ impl IncidenceTable {
                     MAX_OFFSET_M * 1e3
                 )));
             }
-            let widths = [
-                self.range.width(),
-                self.log_intensity.width(),
-                self.log_cos_incidence.width(),
-            ];
-            let g = self.gradient[k];
-            if !(0..3).all(|a| g[a].is_finite() && (g[a] * widths[a]).abs() <= MAX_OFFSET_M) {
-                return Err(EpdError::InvalidOption(format!(
-                    "depth table: gradient {:?} mm (per m of range, per unit of ln I and of ln \
-                     cos θ) of bin {k}: across one bin it may change the offset by at most {} \
-                     mm",
-                    g.map(|v| v * 1e3),
-                    MAX_OFFSET_M * 1e3
-                )));
-            }
             if !(s.is_finite() && s > 0.0 && s <= MAX_OFFSET_M && e.is_finite() && e >= 0.0) {
                 return Err(EpdError::InvalidOption(format!(
                     "depth table: spread {} mm or standard error {} mm of bin {k}: need a \
@@ -436,10 +370,8 @@ impl IncidenceTable {
 
     /// The offset and spread at model range `r` (m), ln intensity `li` and ln cos θ
     /// `lc`, or `None` outside the support: the bin holding the point must be observed
-    /// or bridged; the value blends, with trilinear weights between bin centres (constant
-    /// beyond the outer centres), the linear models of the 8 bins around the point, each
-    /// evaluated at the point; a corner outside the support is replaced by the holding
-    /// bin's model.
+    /// or bridged; the value is trilinear between bin centres (constant beyond the outer
+    /// centres), each corner outside the support replaced by the holding bin's value.
     pub fn lookup(&self, r: f64, li: f64, lc: f64) -> Option<Lookup> {
         if !(self.range.holds(r)
             && self.log_intensity.holds(li)
@@ -467,17 +399,11 @@ impl IncidenceTable {
                     if w == 0.0 {
                         continue;
                     }
-                    let (mut a, mut b, mut c) = (i, j, l);
-                    if self.support[self.index(a, b, c)] == Support::Outside {
-                        (a, b, c) = (bi, bj, bl);
+                    let mut k = self.index(i, j, l);
+                    if self.support[k] == Support::Outside {
+                        k = home;
                     }
-                    let k = self.index(a, b, c);
-                    let g = self.gradient[k];
-                    let at = self.offset_m[k]
-                        + g[0] * (r - self.range.centre(a))
-                        + g[1] * (li - self.log_intensity.centre(b))
-                        + g[2] * (lc - self.log_cos_incidence.centre(c));
-                    o += w * at;
+                    o += w * self.offset_m[k];
                     s += w * self.spread_m[k];
                 }
             }
@@ -575,77 +501,4 @@ impl IncidenceTable {
         }
         Ok(c)
     }
-}
-
-/// One observed bin's linear model.
-struct BinModel {
-    /// Offset at the bin's centre (m).
-    value: f64,
-    /// Gradient (m per m of range, per unit of ln I, per unit of ln cos θ).
-    gradient: [f64; 3],
-    /// 1.4826·MAD of the residuals about the model (m).
-    spread: f64,
-    /// Observations used (after clipping).
-    n: usize,
-}
-
-/// The linear model of one bin's observations (`(range, ln I, ln cos θ)`, offset):
-/// clipped as [`super::DepthTable::build`] clips (median ± 4·1.4826·MAD), then the least-squares gradient in
-/// coordinates scaled by the bin's widths, with no component along the directions whose
-/// spread is below [`MIN_GRADIENT_SPREAD`]; its value at `centre` and the spread of the
-/// residuals. `None` when the residuals have no spread.
-fn fit_bin(v: &[([f64; 3], f64)], centre: [f64; 3], width: [f64; 3]) -> Option<BinModel> {
-    let mut off: Vec<f64> = v.iter().map(|o| o.1).collect();
-    let (med, spread0) = crate::loss::median_and_mad_sigma(&mut off);
-    let kept: Vec<([f64; 3], f64)> = v
-        .iter()
-        .filter(|o| (o.1 - med).abs() <= 4.0 * spread0)
-        .map(|(x, y)| {
-            let z = [0, 1, 2].map(|a| (x[a] - centre[a]) / width[a]);
-            (z, *y)
-        })
-        .collect();
-    let n = kept.len();
-    if n == 0 {
-        return None;
-    }
-    let nf = n as f64;
-    let mut zbar = Vector3::zeros();
-    let mut ybar = 0.0;
-    for (z, y) in &kept {
-        zbar += Vector3::from(*z);
-        ybar += y;
-    }
-    zbar /= nf;
-    ybar /= nf;
-    let mut cov = Matrix3::zeros();
-    let mut czy = Vector3::zeros();
-    for (z, y) in &kept {
-        let d = Vector3::from(*z) - zbar;
-        cov += d * d.transpose();
-        czy += d * (y - ybar);
-    }
-    cov /= nf;
-    czy /= nf;
-    let eig = SymmetricEigen::new(cov);
-    let mut g = Vector3::zeros();
-    for (k, &lambda) in eig.eigenvalues.iter().enumerate() {
-        if n >= MIN_GRADIENT_COUNT && lambda > MIN_GRADIENT_SPREAD * MIN_GRADIENT_SPREAD {
-            let e = eig.eigenvectors.column(k);
-            g += e * (e.dot(&czy) / lambda);
-        }
-    }
-    // Value at the centre (z = 0), and the residuals' spread about the model.
-    let value = ybar - g.dot(&zbar);
-    let mut res: Vec<f64> = kept
-        .iter()
-        .map(|(z, y)| y - value - g.dot(&Vector3::from(*z)))
-        .collect();
-    let spread = crate::loss::median_and_mad_sigma(&mut res).1;
-    (spread > 0.0 && value.is_finite()).then(|| BinModel {
-        value,
-        gradient: [0, 1, 2].map(|a| g[a] / width[a]),
-        spread,
-        n,
-    })
 }

@@ -50,13 +50,8 @@ impl Axis {
         (self.lo..=self.hi).contains(&x)
     }
 
-    pub(super) fn width(&self) -> f64 {
+    fn width(&self) -> f64 {
         (self.hi - self.lo) / self.n as f64
-    }
-
-    /// The centre of bin k.
-    pub(super) fn centre(&self, k: usize) -> f64 {
-        self.lo + (k as f64 + 0.5) * self.width()
     }
 
     /// The bin holding x (clamped to the axis).
