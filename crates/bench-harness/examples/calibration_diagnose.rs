@@ -62,7 +62,10 @@ fn cal(v: &[Frame]) -> Vec<CalibrationFrame<'_>> {
 }
 
 fn env(k: &str, d: usize) -> usize {
-    std::env::var(k).ok().and_then(|v| v.parse().ok()).unwrap_or(d)
+    std::env::var(k)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(d)
 }
 
 fn id(od: f64) -> f64 {
@@ -70,11 +73,19 @@ fn id(od: f64) -> f64 {
 }
 
 /// The incidence table from observations at the rigs' true poses (no pose fitted).
-fn oracle(rigs: &[&[Frame]], settings: &epd_core::calibration::CalibrationSettings) -> anyhow::Result<IncidenceTable> {
+fn oracle(
+    rigs: &[&[Frame]],
+    settings: &epd_core::calibration::CalibrationSettings,
+) -> anyhow::Result<IncidenceTable> {
     let mut obs = Vec::new();
     for r in rigs {
         for f in r.iter() {
-            obs.extend(offsets_with_incidence(&f.points, &f.intensity, &f.truth, settings.gate)?);
+            obs.extend(offsets_with_incidence(
+                &f.points,
+                &f.intensity,
+                &f.truth,
+                settings.gate,
+            )?);
         }
     }
     let bins = IncidenceBins::spanning(
@@ -183,15 +194,21 @@ fn main() -> anyhow::Result<()> {
         for (od, test) in sizes.iter().zip(&tests) {
             let mut acc = vec![(0.0f64, 0usize); 10];
             for f in test {
-                let Some(g) = epd_core::residual::Geometry::new(&f.truth) else { continue };
+                let Some(g) = epd_core::residual::Geometry::new(&f.truth) else {
+                    continue;
+                };
                 for ((x, m), &i) in f.exact.iter().zip(&f.points).zip(&f.intensity) {
                     let rho = (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
                     if !(rho.is_finite() && i > 0.0 && m.iter().any(|v| *v != 0.0)) {
                         continue;
                     }
-                    let Some(c) = g.cos_incidence(x) else { continue };
+                    let Some(c) = g.cos_incidence(x) else {
+                        continue;
+                    };
                     let truth = phys.systematic_error(rho, phys.amplitude(rho, c));
-                    let Some(l) = it.lookup(rho, i.ln(), c.ln()) else { continue };
+                    let Some(l) = it.lookup(rho, i.ln(), c.ln()) else {
+                        continue;
+                    };
                     let k = (((rho - 0.5) / 0.15).floor() as isize).clamp(0, 9) as usize;
                     acc[k].0 += (l.offset_m - truth) * 1e3;
                     acc[k].1 += 1;
