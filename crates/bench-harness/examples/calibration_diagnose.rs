@@ -202,7 +202,7 @@ fn main() -> anyhow::Result<()> {
     for (name, table) in &tables {
         let Some(it) = &table.incidence else { continue };
         for (od, test) in sizes.iter().zip(&tests) {
-            let mut acc = vec![(0.0f64, 0usize); 10];
+            let mut acc = [(0.0f64, 0usize); 10];
             for f in test {
                 let Some(g) = epd_core::residual::Geometry::new(&f.truth) else {
                     continue;

@@ -225,8 +225,10 @@ pub(super) struct Surveyed {
 impl Surveyed {
     /// Correct `frame` with the run's table (the incidence table when there is one, its
     /// incidences iterated with the fit as `epd estimate` does: [`by_incidence`]) and
-    /// read its scene from the corrected points as `epd estimate` does
-    /// (`epd_frame::scene::FrameScene::survey`, ML-EPD, `opts`).
+    /// read its scene (`epd_frame::scene::FrameScene::survey`, ML-EPD, `opts`) from the
+    /// points corrected by the plain table — unlike `epd estimate` with a version-2
+    /// table, which surveys the incidence table's points and so loses a bend's points
+    /// outside its support (docs/calibration.md, the pipeline run).
     pub(super) fn of(
         s: &PipelineScenario,
         tables: &RunTables,
@@ -236,23 +238,21 @@ impl Surveyed {
     ) -> anyhow::Result<Self> {
         let table = &tables.plain;
         let intensity: Vec<f64> = frame.intensity.iter().map(|&i| i as f64).collect();
-        let by_table = || -> anyhow::Result<(Vec<[f64; 3]>, Vec<f64>)> {
-            let mut c = frame.measured.clone();
-            let (_, sig) = table.correct_with_sigmas(&mut c, &intensity)?;
-            Ok((c, sig))
-        };
-        let (corrected, table_sigma) = match &tables.incidence {
-            // A frame whose raw points cannot be fitted as a straight pipe (in a bend)
-            // has no incidences to look the table up with: the plain table corrects it.
-            Some(it) => match by_incidence(it, &frame.measured, &intensity, opts) {
-                Ok(c) => c,
-                Err(_) => by_table()?,
-            },
-            None => by_table()?,
-        };
+        let mut plain = frame.measured.clone();
+        let (_, plain_sigma) = table.correct_with_sigmas(&mut plain, &intensity)?;
+        // The incidence table leaves the points outside its support out (NaN): a bend's
+        // or a tee's wall beyond what the straight rig showed. The survey needs them to
+        // see what lies ahead, so it reads the points the plain table corrected (all
+        // of them); the estimates use the incidence table's. (A frame whose raw points
+        // cannot be fitted as a straight pipe, in a bend, has no incidences: the plain
+        // table's points then serve for both.)
+        let incidence = tables
+            .incidence
+            .as_ref()
+            .and_then(|it| by_incidence(it, &frame.measured, &intensity, opts).ok());
         let raw_range_m = ranges(&frame.measured);
         let scene = FrameScene::survey(
-            &corrected,
+            &plain,
             Method::MlEpd,
             opts,
             Some((table, &raw_range_m, &intensity)),
@@ -263,9 +263,10 @@ impl Surveyed {
                 s.place_name(plan.place),
                 plan.index,
                 plan.x,
-                corrected.iter().filter(|p| **p != [0.0; 3]).count()
+                plain.iter().filter(|p| **p != [0.0; 3]).count()
             )
         })?;
+        let (corrected, table_sigma) = incidence.unwrap_or((plain, plain_sigma));
         let report = &scene.geometry;
         let geometry = Geometry {
             found: report.layout,
