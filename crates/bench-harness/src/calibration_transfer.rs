@@ -4,7 +4,7 @@
 //! 30" pipes under tof-sim's Helios2 model; per size and table the calibrated
 //! mean-diameter error, the reported 1-σ, whether it covers, and the share of points
 //! outside the table's support. `cargo run --release -p bench-harness --example
-//! calibration_transfer -- OUT_DIR [FRAMES_PER_SIZE]` writes `frames.csv`,
+//! calibration_transfer -- OUT_DIR [FRAMES_PER_SIZE] [PASSES]` writes `frames.csv`,
 //! `summary.csv` and `calibration_transfer.png` to OUT_DIR.
 
 use std::borrow::Cow;
@@ -73,8 +73,9 @@ fn as_cal(v: &[Frame]) -> Vec<CalibrationFrame<'_>> {
         .collect()
 }
 
-/// Run the experiment into `out` with `per_size` test frames per pipe size.
-pub fn run(out: &Path, per_size: u64) -> anyhow::Result<()> {
+/// Run the experiment into `out` with `per_size` test frames per pipe size and `passes`
+/// passes of the rigs' pose/table refinement.
+pub fn run(out: &Path, per_size: u64, passes: u32) -> anyhow::Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let id = |od: f64| (od * 25.4 - 2.0 * WALL_MM) * 1e-3;
     let rig20 = frames(20.0, 0.0, 7, RIG_FRAMES)?;
@@ -89,7 +90,7 @@ pub fn run(out: &Path, per_size: u64) -> anyhow::Result<()> {
         intensity_bins: 12,
         incidence_bins: 16,
         min_count: 30,
-        passes: 3,
+        passes,
     }
     .check()?;
     let r20 = RigFrames {

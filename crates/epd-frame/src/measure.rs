@@ -296,6 +296,18 @@ fn measure_frame_as(
                 if let Some(s) = table_sigmas {
                     sigmas = Some(Cow::Owned(s));
                 }
+                // The bins' standard errors, shared by the points each one corrected.
+                if let Some(i) = intensity
+                    && i.len() == points.len()
+                {
+                    shared = Some(SharedErrors {
+                        shift: Shares::Interpolated(cal.table.shared_error_terms(&points, i)),
+                        n_groups: cal.table.offset_m.len(),
+                        outside_fraction: calibration_outside.unwrap_or(0.0),
+                        sigma_m: Vec::new(),
+                        raw_diameters: None,
+                    });
+                }
             }
         }
     }
@@ -379,13 +391,22 @@ pub const MOSTLY_OUTSIDE: f64 = 0.5;
 /// A point's shared range error: its bin and the bin mean's standard error (m).
 type Shift = Option<(u32, f64)>;
 
+/// The shared range errors of a frame's points.
+#[derive(Clone, Debug)]
+enum Shares {
+    /// One bin per point (the incidence table: the bin holding the point).
+    Home(Vec<Shift>),
+    /// The 4 bins a version-1 table's bilinear interpolation read, each with its weight
+    /// × its standard error (`epd_core::DepthTable::shared_error_terms`).
+    Interpolated(Vec<[(u32, f64); 4]>),
+}
+
 /// What the incidence table's correction leaves to the 1-σ: per point the bin whose
 /// mean corrected it (its standard error shared by every point of the bin).
 #[derive(Clone, Debug)]
 struct SharedErrors {
-    /// Per point: (bin, the bin mean's standard error in m); `None` for a point the
-    /// table did not correct.
-    shift: Vec<Shift>,
+    /// Per point: the bins whose errors it shares, with their standard errors (m).
+    shift: Shares,
     /// Groups: the table's bins.
     n_groups: usize,
     /// Of the valid points with an intensity, the fraction outside the support.
@@ -393,8 +414,10 @@ struct SharedErrors {
     /// The table's spread at each corrected point (m), for a weighted fit.
     sigma_m: Vec<f64>,
     /// The (Dmax, Dmin) of the fit on the raw points (m): the correction's whole effect
-    /// on the diameters is the corrected fit's minus these.
-    raw_diameters: (f64, f64),
+    /// on the diameters is the corrected fit's minus these (the incidence table's
+    /// rounds fit them; `None` for a version-1 table, which is not checked against the
+    /// rig's size).
+    raw_diameters: Option<(f64, f64)>,
 }
 
 /// The incidence table's correction of a frame's `points` in place: the frame fitted
@@ -452,11 +475,12 @@ fn correct_by_incidence(
     let Some((corrected, corr)) = out else {
         return Err("no incidence round ran".into());
     };
-    let shift = corr
-        .bin
-        .iter()
-        .map(|b| b.map(|b| (b, table.se_m[b as usize])))
-        .collect();
+    let shift = Shares::Home(
+        corr.bin
+            .iter()
+            .map(|b| b.map(|b| (b, table.se_m[b as usize])))
+            .collect(),
+    );
     let total = corr.moved + corr.outside;
     *points = corrected;
     Ok((
@@ -470,7 +494,7 @@ fn correct_by_incidence(
                 corr.outside as f64 / total as f64
             },
             sigma_m: corr.sigma_m,
-            raw_diameters,
+            raw_diameters: Some(raw_diameters),
         },
     ))
 }
@@ -493,6 +517,7 @@ fn add_transfer_uncertainty(
     s: &SharedErrors,
     cal: &crate::table::CalibrationTable,
 ) -> Option<(f64, f64)> {
+    let raw = s.raw_diameters?;
     let lo = cal.rigs.iter().map(|r| r.0.1).fold(f64::INFINITY, f64::min);
     let hi = cal.rigs.iter().map(|r| r.0.0).fold(0.0f64, f64::max);
     let d = est.d_mean();
@@ -501,10 +526,7 @@ fn add_transfer_uncertainty(
     {
         return None;
     }
-    let delta = [
-        est.params.d_max - s.raw_diameters.0,
-        est.params.d_min - s.raw_diameters.1,
-    ];
+    let delta = [est.params.d_max - raw.0, est.params.d_min - raw.1];
     if let Some(mut cov) = est.diameter_cov {
         for k in 0..2 {
             cov[k][k] += delta[k] * delta[k];
@@ -519,9 +541,11 @@ fn add_transfer_uncertainty(
     Some((lo * 1e3, hi * 1e3))
 }
 
-/// Add the depth table's own uncertainty to the diameters' 1-σ: each bin mean's
-/// standard error, shared by every point the bin corrected, propagated through the fit's Jacobian ([`epd_core::calibration::shared_error_cov`])
-/// and added to the fit's own covariance. The fitted points: those of the straight
+/// Add the depth table's own uncertainty to the diameters' 1-σ: each bin's standard
+/// error, shared by every point the bin corrected (a version-1 table: by every point
+/// whose bilinear interpolation read it, times its weight), propagated through the
+/// fit's Jacobian ([`epd_core::calibration::shared_error_cov_terms`]) and added to the
+/// fit's own covariance. The fitted points: those of the straight
 /// section (`mask`) within the range gate.
 fn add_table_uncertainty(
     est: &mut epd_core::Estimate,
@@ -535,22 +559,40 @@ fn add_table_uncertainty(
     };
     let geom = epd_core::residual::Geometry::new(&est.params);
     let gate = cfg.options.range_gate();
-    let (p, sh): (Vec<[f64; 3]>, Vec<Shift>) = points
-        .iter()
-        .zip(&s.shift)
-        .enumerate()
-        .filter(|(k, _)| mask.is_none_or(|m| m.get(*k).copied().unwrap_or(false)))
-        .filter(|(_, (p, _))| match (gate, &geom) {
-            (Some((lo, hi)), Some(g)) => {
-                let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-                (lo..=hi).contains(&(g.line_parameter(p) * r))
+    let fitted = |k: usize, p: &[f64; 3]| {
+        mask.is_none_or(|m| m.get(k).copied().unwrap_or(false))
+            && match (gate, &geom) {
+                (Some((lo, hi)), Some(g)) => {
+                    let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                    (lo..=hi).contains(&(g.line_parameter(p) * r))
+                }
+                _ => true,
             }
-            _ => true,
-        })
-        .map(|(_, (p, s))| (*p, *s))
-        .unzip();
-    let Some(extra) = epd_core::calibration::shared_error_cov(&p, &sh, s.n_groups, &est.params)
-    else {
+    };
+    fn pick<T: Copy>(
+        points: &[[f64; 3]],
+        terms: &[T],
+        keep: impl Fn(usize, &[f64; 3]) -> bool,
+    ) -> (Vec<[f64; 3]>, Vec<T>) {
+        points
+            .iter()
+            .zip(terms)
+            .enumerate()
+            .filter(|(k, (p, _))| keep(*k, p))
+            .map(|(_, (p, t))| (*p, *t))
+            .unzip()
+    }
+    let extra = match &s.shift {
+        Shares::Home(sh) => {
+            let (p, sh) = pick(points, sh, fitted);
+            epd_core::calibration::shared_error_cov(&p, &sh, s.n_groups, &est.params)
+        }
+        Shares::Interpolated(t) => {
+            let (p, t) = pick(points, t, fitted);
+            epd_core::calibration::shared_error_cov_terms(&p, &t, s.n_groups, &est.params)
+        }
+    };
+    let Some(extra) = extra else {
         return;
     };
     for a in 0..2 {

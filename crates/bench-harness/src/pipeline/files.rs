@@ -4,12 +4,11 @@
 
 use std::path::{Path, PathBuf};
 
-use epd_core::DepthTable;
 use epd_frame::table::CalibrationTable;
 use epd_io::csv::num;
 
 use super::PipelineScenario;
-use super::rows::ProfileRow;
+use super::rows::{ProfileRow, RunTables};
 use super::summary::SectionRow;
 use crate::output::CsvFile;
 use crate::provenance::Metadata;
@@ -181,14 +180,19 @@ pub(super) fn metadata(
 
 /// The depth table in the file format of `epd calibrate` (`epd estimate --calibration`
 /// reads it).
-pub(super) fn table_file(t: &DepthTable, n_obs: usize, s: &PipelineScenario) -> CalibrationTable {
+pub(super) fn table_file(t: &RunTables, n_obs: usize, s: &PipelineScenario) -> CalibrationTable {
+    let known = (s.rig.d_max(), s.rig.d_min());
     CalibrationTable {
-        table: t.clone(),
-        known: (s.rig.d_max(), s.rig.d_min()),
+        table: t.plain.clone(),
+        known,
         frames: s.rig_frames,
         n_observations: n_obs as u64,
-        incidence: None,
-        rigs: Vec::new(),
-        spans: None,
+        incidence: t.incidence.clone(),
+        rigs: if t.incidence.is_some() {
+            vec![(known, s.rig_frames)]
+        } else {
+            Vec::new()
+        },
+        spans: t.incidence.as_ref().map(|_| t.spans),
     }
 }

@@ -25,14 +25,13 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use anyhow::Context;
-use epd_core::DepthTable;
 use rayon::prelude::*;
 
 use crate::experiment::{Experiment, Finished, Refused, Request};
 use crate::output::{INTERRUPTED, Interrupted, StagedFiles, write_new, write_run};
 use crate::scenario::ScenarioError;
 use files::{metadata, table_file, write_profile, write_sections};
-use rows::{FrameStatus, ProfileRow, calibrate, frame_rows};
+use rows::{FrameStatus, ProfileRow, RunTables, calibrate, frame_rows};
 use summary::summarise;
 
 pub use files::{PROFILE_COLUMNS, SECTION_COLUMNS};
@@ -135,20 +134,26 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
         }
     };
     say(&format!("calibration rig: {} frames", s.rig_frames));
-    let (table, n_obs) = calibrate(s).context("the calibration rig")?;
+    let (tables, n_obs) = calibrate(s).context("the calibration rig")?;
+    let table = &tables.plain;
     let filled = table.count.iter().filter(|&&c| c > 0).count();
     say(&format!(
-        "depth table: {} × {} bins, {filled} filled, from {n_obs} points",
-        table.range.n, table.log_intensity.n
+        "depth table: {} × {} bins{}, {filled} filled, from {n_obs} points",
+        table.range.n,
+        table.log_intensity.n,
+        match &tables.incidence {
+            Some(t) => format!(" (and × {} incidence bins)", t.log_cos_incidence.n),
+            None => String::new(),
+        }
     ));
-    let rows = estimate_run(s, &table, &say)?;
+    let rows = estimate_run(s, &tables, &say)?;
     let mut files = vec![write_profile(dir, s, &rows)?];
     let sections = summarise(s, &rows);
     files.push(write_sections(dir, &sections)?);
     files.push(write_new(&dir.join("scenario.toml"), s.source.as_bytes())?);
     files.push(write_new(
         &dir.join("depth_table.json"),
-        table_file(&table, n_obs, s).to_json().as_bytes(),
+        table_file(&tables, n_obs, s).to_json().as_bytes(),
     )?);
     for png in figures::plot_pipeline(s, &rows, &sections)? {
         files.push(write_new(&dir.join(&png.name), &png.bytes)?);
@@ -172,7 +177,7 @@ fn stage(s: &PipelineScenario, dir: &Path, progress: bool) -> anyhow::Result<Pip
 /// run is interrupted.
 fn estimate_run(
     s: &PipelineScenario,
-    table: &DepthTable,
+    table: &RunTables,
     say: &dyn Fn(&str),
 ) -> anyhow::Result<Vec<ProfileRow>> {
     let mut rows = Vec::new();

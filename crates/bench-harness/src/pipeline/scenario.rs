@@ -51,6 +51,9 @@ pub struct PipelineScenario {
     pub rig_frames: usize,
     /// Table bins (range, intensity).
     pub table_bins: (usize, usize),
+    /// Bins of the incidence axis (`pipeline.rig.incidence_bins`); 0: the range ×
+    /// intensity table alone corrects the frames.
+    pub incidence_bins: usize,
     /// Passes of the calibration's alternating refinement.
     pub calibration_passes: usize,
     /// The pose along the distance.
@@ -183,6 +186,7 @@ impl PipelineScenario {
             rig,
             rig_frames: p.rig.frames,
             table_bins: (p.rig.range_bins, p.rig.intensity_bins),
+            incidence_bins: p.rig.incidence_bins,
             calibration_passes: p.rig.passes,
             drift,
             rig_drift,

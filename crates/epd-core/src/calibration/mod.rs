@@ -29,7 +29,7 @@ mod tests;
 pub use incidence::{
     Correction, IncidenceBins, IncidenceObservation, IncidenceTable, Lookup, Support,
 };
-pub use propagate::shared_error_cov;
+pub use propagate::{shared_error_cov, shared_error_cov_terms};
 pub use rig::{
     Calibration, CalibrationFrame, CalibrationSettings, Observation, RigFrames, calibrate,
     calibrate_rigs, incidences, offsets, offsets_with_incidence,

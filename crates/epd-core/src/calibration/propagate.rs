@@ -29,10 +29,28 @@ pub fn shared_error_cov(
     n_groups: usize,
     beta: &Params,
 ) -> Option<[[f64; 2]; 2]> {
+    let terms: Vec<[(u32, f64); 1]> = shift
+        .iter()
+        .map(|s| [s.unwrap_or((u32::MAX, 0.0))])
+        .collect();
+    shared_error_cov_terms(points, &terms, n_groups, beta)
+}
+
+/// [`shared_error_cov`] where a point shares the errors of up to `K` groups:
+/// `terms[k]` lists (group, aₖ) pairs, point k's range moving by Σ aₖ·e_g — a point
+/// corrected by a value interpolated between bins carries each bin's error times its
+/// interpolation weight. A group out of `0..n_groups` (e.g. `u32::MAX`) or a non-finite
+/// aₖ is no term.
+pub fn shared_error_cov_terms<const K: usize>(
+    points: &[[f64; 3]],
+    terms: &[[(u32, f64); K]],
+    n_groups: usize,
+    beta: &Params,
+) -> Option<[[f64; 2]; 2]> {
     let geom = Geometry::new(beta)?;
     let mut h = SMatrix::<f64, N_PARAMS, N_PARAMS>::zeros();
     let mut s = vec![SVector::<f64, N_PARAMS>::zeros(); n_groups];
-    for (p, sh) in points.iter().zip(shift) {
+    for (p, sh) in points.iter().zip(terms) {
         if !super::table::usable(p) {
             continue;
         }
@@ -42,11 +60,12 @@ pub fn shared_error_cov(
             continue;
         }
         h += g * g.transpose();
-        if let Some((grp, a)) = sh
-            && let Some(sg) = s.get_mut(*grp as usize)
-            && a.is_finite()
-        {
-            *sg += g * *a;
+        for (grp, a) in sh {
+            if let Some(sg) = s.get_mut(*grp as usize)
+                && a.is_finite()
+            {
+                *sg += g * *a;
+            }
         }
     }
     let svd = h.svd(true, true);

@@ -291,6 +291,89 @@ impl DepthTable {
         }
     }
 
+    /// For each bin, the filled bin whose values it holds: itself when filled, else the
+    /// one [`Self::fill_empty_bins`] copied (the nearest filled bin of its range row, else
+    /// that bin of the nearest filled row); `None` when no bin is filled.
+    pub fn source_bins(&self) -> Option<Vec<usize>> {
+        let (nr, ni) = (self.range.n, self.log_intensity.n);
+        let filled = |k: usize| self.count.get(k).is_some_and(|&c| c > 0);
+        let row_filled = |i: usize| (0..ni).any(|j| filled(i * ni + j));
+        let rows: Vec<usize> = (0..nr).filter(|&i| row_filled(i)).collect();
+        if rows.is_empty() {
+            return None;
+        }
+        let in_row = |i: usize, j: usize| {
+            (0..ni)
+                .filter(|&f| filled(i * ni + f))
+                .min_by_key(|&f| (f.abs_diff(j), f))
+                .map(|f| i * ni + f)
+        };
+        Some(
+            (0..nr * ni)
+                .map(|k| {
+                    let (i, j) = (k / ni, k % ni);
+                    let row = if row_filled(i) {
+                        i
+                    } else {
+                        rows.iter()
+                            .copied()
+                            .min_by_key(|&f| (f.abs_diff(i), f))
+                            .unwrap_or(i)
+                    };
+                    in_row(row, j).unwrap_or(k)
+                })
+                .collect(),
+        )
+    }
+
+    /// The shared errors of corrected points (SCS, m) and their intensities: per point
+    /// the (filled bin, weight × that bin mean's standard error spread/√count in m) of
+    /// the 4 bins the bilinear interpolation at its corrected range and intensity reads
+    /// (each empty bin standing for the filled bin it copied, [`Self::source_bins`]);
+    /// `(u32::MAX, 0)` for the terms of a point that was not corrected. The input of
+    /// [`super::shared_error_cov_terms`] with groups the table's bins.
+    pub fn shared_error_terms(
+        &self,
+        points: &[[f64; 3]],
+        intensity: &[f64],
+    ) -> Vec<[(u32, f64); 4]> {
+        let none = [(u32::MAX, 0.0); 4];
+        let Some(src) = self.source_bins() else {
+            return vec![none; points.len()];
+        };
+        let ni = self.log_intensity.n;
+        let se = |k: usize| {
+            let b = src[k];
+            let n = self.count[b].max(1) as f64;
+            (b as u32, self.spread_m[b] / n.sqrt())
+        };
+        points
+            .par_iter()
+            .zip(intensity.par_iter())
+            .map(|(p, &i)| {
+                if !(usable(p) && i > 0.0 && i.is_finite()) {
+                    return none;
+                }
+                let (i0, i1, fi) = self.range.bracket(norm(p));
+                let (j0, j1, fj) = self.log_intensity.bracket(i.ln());
+                let mut out = none;
+                for (t, (a, b, w)) in [
+                    (i0, j0, (1.0 - fi) * (1.0 - fj)),
+                    (i0, j1, (1.0 - fi) * fj),
+                    (i1, j0, fi * (1.0 - fj)),
+                    (i1, j1, fi * fj),
+                ]
+                .into_iter()
+                .enumerate()
+                {
+                    let (g, e) = se(a * ni + b);
+                    out[t] = (g, w * e);
+                }
+                out
+            })
+            .collect()
+    }
+
     /// Check a table read from elsewhere: axes valid, one finite value per bin.
     pub fn validate(&self) -> Result<(), EpdError> {
         self.range.validate("range")?;

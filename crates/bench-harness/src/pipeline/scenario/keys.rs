@@ -55,6 +55,10 @@ pub(super) struct RigFile {
     pub(super) range_bins: usize,
     #[serde(default = "default_intensity_bins")]
     pub(super) intensity_bins: usize,
+    /// Bins of the ln cos θ axis of a version-2 (incidence) table; 0: the range ×
+    /// intensity table alone.
+    #[serde(default)]
+    pub(super) incidence_bins: usize,
     /// Amplitude of the sensor's offset from the rig's axis (mm): off the axis the rig
     /// shows each range at more incidence angles, hence intensities.
     #[serde(default = "default_rig_offset_mm")]
@@ -431,6 +435,15 @@ impl RigFile {
             return Err(key_err(
                 "pipeline.rig.range_bins",
                 "and intensity_bins must lie in [1, 1000]".into(),
+            ));
+        }
+        if self.incidence_bins > 1000 {
+            return Err(key_err(
+                "pipeline.rig.incidence_bins",
+                format!(
+                    "= {}: must lie in [0, 1000] (0: no incidence axis)",
+                    self.incidence_bins
+                ),
             ));
         }
         Ok(rig)
