@@ -277,23 +277,12 @@ fn change_point(x: &[f64], z: &[bool]) -> Option<Edge> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::uniforms;
     use nalgebra::Vector3;
 
     /// The unit vector of the polar angle `psi` in the cross-section (PCS, 0 along x).
     fn radial(psi: f64) -> Vector3<f64> {
         Vector3::new(0.0, psi.cos(), psi.sin())
-    }
-
-    /// A seeded generator of uniforms in [0, 1) (SplitMix64).
-    fn uniforms(seed: u64) -> impl FnMut() -> f64 {
-        let mut state = seed;
-        move || {
-            state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = state;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-        }
     }
 
     /// A step in the rate of exceedances at a known x, points at random positions: the

@@ -890,6 +890,7 @@ pub fn straight_mask(points: &[[f64; 3]], beta: &Params, end: f64, margin: f64) 
 mod tests {
     use super::*;
     use crate::scene::profile::{ROBUST_DOF_SHARE, calibrate_tests, critical_values, slice_stats};
+    use crate::scene::uniforms;
 
     /// A slice at `x` with a shift (m) toward +Y and a bump (m), standard errors 0.1 mm,
     /// tested as one of 12 slices of 12 sectors.
@@ -945,18 +946,6 @@ mod tests {
             .collect();
         calibrate_tests(&mut slices, ns, &AxisSigma::default(), 0.05);
         slices
-    }
-
-    /// A small, seeded generator of uniforms in [0, 1) (SplitMix64).
-    fn uniforms(seed: u64) -> impl FnMut() -> f64 {
-        let mut state = seed;
-        move || {
-            state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = state;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-        }
     }
 
     /// The level of the departure tests under clustered noise whose shared part is 3× the
