@@ -296,34 +296,30 @@ impl DepthTable {
     /// that bin of the nearest filled row); `None` when no bin is filled.
     pub fn source_bins(&self) -> Option<Vec<usize>> {
         let (nr, ni) = (self.range.n, self.log_intensity.n);
-        let filled = |k: usize| self.count.get(k).is_some_and(|&c| c > 0);
-        let row_filled = |i: usize| (0..ni).any(|j| filled(i * ni + j));
-        let rows: Vec<usize> = (0..nr).filter(|&i| row_filled(i)).collect();
-        if rows.is_empty() {
+        let filled: Vec<bool> = (0..nr * ni)
+            .map(|k| self.count.get(k).is_some_and(|&c| c > 0))
+            .collect();
+        let row_filled: Vec<bool> = (0..nr)
+            .map(|i| filled[i * ni..(i + 1) * ni].iter().any(|&f| f))
+            .collect();
+        let near_row = nearest_true(&row_filled);
+        if near_row.iter().all(Option::is_none) {
             return None;
         }
-        let in_row = |i: usize, j: usize| {
-            (0..ni)
-                .filter(|&f| filled(i * ni + f))
-                .min_by_key(|&f| (f.abs_diff(j), f))
-                .map(|f| i * ni + f)
-        };
-        Some(
-            (0..nr * ni)
-                .map(|k| {
-                    let (i, j) = (k / ni, k % ni);
-                    let row = if row_filled(i) {
-                        i
-                    } else {
-                        rows.iter()
-                            .copied()
-                            .min_by_key(|&f| (f.abs_diff(i), f))
-                            .unwrap_or(i)
-                    };
-                    in_row(row, j).unwrap_or(k)
-                })
-                .collect(),
-        )
+        // Linear in the bins (a crafted table of 2·10⁵ bins takes milliseconds, issue 27):
+        // each row's nearest filled bins from two sweeps, not a scan per bin.
+        let mut out = Vec::with_capacity(nr * ni);
+        for (i, near) in near_row.iter().enumerate() {
+            let row = near.unwrap_or(i);
+            let in_row = nearest_true(&filled[row * ni..(row + 1) * ni]);
+            out.extend(
+                in_row
+                    .iter()
+                    .enumerate()
+                    .map(|(j, f)| f.map_or(i * ni + j, |f| row * ni + f)),
+            );
+        }
+        Some(out)
     }
 
     /// The shared errors of corrected points (SCS, m) and their intensities: per point
@@ -816,4 +812,54 @@ pub(super) fn usable(p: &[f64; 3]) -> bool {
 
 pub(super) fn norm(p: &[f64; 3]) -> f64 {
     (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt()
+}
+
+/// For each index, the nearest index whose flag is set (ties to the lower one), `None`
+/// when none is: two sweeps, O(n).
+fn nearest_true(flags: &[bool]) -> Vec<Option<usize>> {
+    let n = flags.len();
+    let mut before = vec![None; n];
+    let mut last = None;
+    for (k, &f) in flags.iter().enumerate() {
+        if f {
+            last = Some(k);
+        }
+        before[k] = last;
+    }
+    let mut next = None;
+    let mut out = vec![None; n];
+    for k in (0..n).rev() {
+        if flags[k] {
+            next = Some(k);
+        }
+        out[k] = match (before[k], next) {
+            (Some(b), Some(a)) => Some(if k - b <= a - k { b } else { a }),
+            (b, a) => b.or(a),
+        };
+    }
+    out
+}
+
+#[cfg(test)]
+mod nearest_tests {
+    use super::nearest_true;
+
+    /// Against the scan it replaces (the nearest set flag, ties to the lower index), on
+    /// every pattern of up to 10 flags.
+    #[test]
+    fn nearest_true_is_the_scan() {
+        for n in 0..=10usize {
+            for bits in 0u32..(1 << n) {
+                let flags: Vec<bool> = (0..n).map(|k| bits >> k & 1 == 1).collect();
+                let scan: Vec<Option<usize>> = (0..n)
+                    .map(|j| {
+                        (0..n)
+                            .filter(|&f| flags[f])
+                            .min_by_key(|&f| (f.abs_diff(j), f))
+                    })
+                    .collect();
+                assert_eq!(nearest_true(&flags), scan, "{flags:?}");
+            }
+        }
+    }
 }
