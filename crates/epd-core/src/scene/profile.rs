@@ -329,7 +329,8 @@ pub fn departure_evidence(profile: &[Slice]) -> f64 {
         .map(|s| s.departure_p)
         .filter(|p| !p.is_nan())
         .fold(1.0, f64::min);
-    -p.max(f64::MIN_POSITIVE).log10()
+    // 0 − log₁₀ p, not −log₁₀ p: a p of 1 gives +0, not −0 (which JSON prints as "-0").
+    0.0 - p.max(f64::MIN_POSITIVE).log10()
 }
 
 /// The median of `v` (reordered), `None` when empty.
