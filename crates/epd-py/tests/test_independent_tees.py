@@ -190,6 +190,17 @@ def read_right(rows, ahead):
     ]
 
 
+def assert_all_read_right(rows, drawn, ahead, label):
+    """Every frame reads `tee_ahead` within 5 cm ([`read_right`]); prints what each read."""
+    right = read_right(rows, ahead)
+    seen = [
+        (r["status"], r["geometry"], r["straight_until_m"], b)
+        for r, b in zip(rows, drawn)
+    ]
+    print(f"{label}: {len(right)} of {len(rows)} tee_ahead within 5 cm;", seen)
+    assert len(right) == len(rows), seen
+
+
 @pytest.mark.parametrize(
     "ahead",
     [
@@ -203,13 +214,7 @@ def test_a_tee_ahead_is_read_as_a_tee(epd_bin, tmp_path, ahead):
     of the opening's near edge. With a true rate of 99 % all 8 read right with
     probability 0.92; a rate of 70 % passes with probability 0.06."""
     rows, drawn = run_tees(epd_bin, tmp_path, ahead)
-    right = read_right(rows, ahead)
-    seen = [
-        (r["status"], r["geometry"], r["straight_until_m"], b)
-        for r, b in zip(rows, drawn)
-    ]
-    print(f"{ahead} m: {len(right)} of {len(rows)} tee_ahead within 5 cm;", seen)
-    assert len(right) == len(rows), seen
+    assert_all_read_right(rows, drawn, ahead, f"{ahead} m")
 
 
 FULL_FRAMES = 6
@@ -231,13 +236,7 @@ def test_a_tee_ahead_is_read_as_a_tee_in_full_frames(epd_bin, tmp_path, ahead):
     points: every one of 6 frames reads `tee_ahead` within 5 cm. A true rate of 99 %
     passes with probability 0.94, one of 70 % with probability 0.12."""
     rows, drawn = run_tees(epd_bin, tmp_path, ahead, 640, 480, frames=FULL_FRAMES)
-    right = read_right(rows, ahead)
-    seen = [
-        (r["status"], r["geometry"], r["straight_until_m"], b)
-        for r, b in zip(rows, drawn)
-    ]
-    print(f"{ahead} m, 640 x 480: {len(right)} of {len(rows)} within 5 cm;", seen)
-    assert len(right) == len(rows), seen
+    assert_all_read_right(rows, drawn, ahead, f"{ahead} m, 640 x 480")
 
 
 @pytest.mark.parametrize("ahead", [0.75, 1.5, 3.0])
