@@ -220,17 +220,7 @@ def test_a_tee_ahead_is_read_as_a_tee(epd_bin, tmp_path, ahead):
 FULL_FRAMES = 6
 
 
-FULL_FRAMES_NOT_MET = (
-    "issue 23: since the survey's ring test (a departure opening more than half the clock "
-    "sectors at once reads as multipath all around, straight), 1 of 6 full frames 3 m "
-    "ahead (a 0.64 D branch at clock 26 deg) reads `straight` with straight_until_m 2.997: "
-    "its opening passed the ring test; 6 of 6 without that test"
-)
-
-
-@pytest.mark.parametrize(
-    "ahead", [1.5, pytest.param(3.0, marks=pytest.mark.xfail(reason=FULL_FRAMES_NOT_MET))]
-)
+@pytest.mark.parametrize("ahead", [1.5, 3.0])
 def test_a_tee_ahead_is_read_as_a_tee_in_full_frames(epd_bin, tmp_path, ahead):
     """The same at 640 × 480 pixels (a Helios2's frame), where the opening holds enough
     points: every one of 6 frames reads `tee_ahead` within 5 cm. A true rate of 99 %

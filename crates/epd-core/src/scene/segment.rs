@@ -795,21 +795,22 @@ fn obstruction_or_tee(
     }
 }
 
-/// The share of the clock sectors opening at once above which a departure is a ring,
-/// not a branch ([`tee`]): a branch no wider than the main pipe opens at most half of
-/// them (±90° at its centre, fewer within a slice of its edge), while a multipath band
-/// opens nearly all. Not enough at a distance: a numpy tee of 0.64·D 3 m ahead
-/// (`test_independent_tees.py`, full frames) opened more than three quarters of them and
-/// reads `straight` (noted in the test's xfail).
+/// The share of the clock sectors on the far side from an opening
+/// ([`crate::scene::edge::Edge::far_open_share`]) above which a departure is a ring, not a
+/// branch ([`tee`]): a branch no wider than the main pipe opens none of them (each opens
+/// by the sector test's false alarm alone, 5 %), while a multipath band opens nearly all.
+/// The share over all sectors was used before: at 3 m a numpy tee's opening was the only
+/// sector with enough wall to be tested, its share 1 of 1, and the frame read `straight`
+/// (`test_independent_tees.py`, full frames).
 const RING_SHARE: f64 = 0.5;
 
 /// The survey's verdict for a tee. A branch opening starts abruptly, not where a
 /// bend's growth would start: at the change point of the exceedances on its side
 /// ([`crate::scene::edge::opening_edge`], within ± one sector of the bump's and two
 /// slices of the near edge of its first slice, [`opening_start`]); failing that, at
-/// that near edge, within a slice. When more than [`RING_SHARE`] of the sectors open there at once
-/// ([`crate::scene::edge::open_share`]) it is no branch but a band of range error all
-/// around — multipath over a band of ranges, as a camera in a pipe sees — and the frame
+/// that near edge, within a slice. When more than [`RING_SHARE`] of the sectors on the far
+/// side from the opening open there too ([`crate::scene::edge::open_share`]) it is no
+/// branch but a band of range error all around — multipath over a band of ranges, as a camera in a pipe sees — and the frame
 /// reads [`Layout::Straight`], its straight section ending where the band begins.
 fn tee(mut s: Segmentation, points: &[[f64; 3]], seg: &SegmentOptions) -> Survey {
     s.layout = Layout::TeeAhead;
@@ -826,7 +827,7 @@ fn tee(mut s: Segmentation, points: &[[f64; 3]], seg: &SegmentOptions) -> Survey
             sector,
             window,
         );
-        if edge.is_some_and(|e| e.open_share > RING_SHARE) {
+        if edge.is_some_and(|e| e.far_open_share > RING_SHARE) {
             s.layout = Layout::Straight;
         }
         let (at, sd) = edge.map_or((near, seg.slice_m / 12f64.sqrt()), |e| (e.at_m, e.sigma_m));
