@@ -288,3 +288,80 @@ fn calibration_refuses_what_it_cannot_use() {
         .unwrap();
     assert_eq!(o.status.code(), Some(2));
 }
+
+/// A version-2 table (range × intensity × incidence, the default) corrects only the
+/// points inside the support its straight rig observed; a bend's or a tee's wall lies
+/// mostly outside it. Surveyed on those points, bends 1.5 m ahead read `tee_ahead` and
+/// tees 1 m ahead `straight` (4 of 4 each before the fix); the survey now reads the
+/// points the table's range × intensity part corrected, and the straight section is
+/// fitted on the incidence table's. Every frame names its scene, and a tee's
+/// `straight_until_m` lies within issue 23's 5 cm of the truth.
+#[test]
+fn a_version_2_table_still_sees_what_lies_ahead() {
+    let dir = tempfile::tempdir().unwrap();
+    let rig = simulate(&dir.path().join("rig"), "7", "3", "9.5", "0");
+    let lut = dir.path().join("lut.json");
+    ok(&epd()
+        .arg("calibrate")
+        .args(&rig)
+        .args(["--known-id-mm", "489.0", "--out"])
+        .arg(&lut)
+        .output()
+        .unwrap());
+    let table: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&lut).unwrap()).unwrap();
+    assert_eq!(
+        table["version"], 2,
+        "the default table has an incidence axis"
+    );
+    for (scene, flag, at, seed) in [
+        ("bend_ahead", "--bend-at", "1.5", "8"),
+        ("tee_ahead", "--tee-at", "1.0", "9"),
+    ] {
+        let out = dir.path().join(scene);
+        ok(&epd()
+            .args(["simulate", "--out"])
+            .arg(&out)
+            .args([
+                "--frames",
+                "2",
+                "--seed",
+                seed,
+                "--od-in",
+                "20",
+                "--wall-mm",
+                "12.7",
+            ])
+            .args(["--sensor", "helios2", "--precision", "f32", flag, at])
+            .output()
+            .unwrap());
+        let mut files: Vec<PathBuf> = std::fs::read_dir(&out)
+            .unwrap()
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.extension().is_some_and(|e| e == "ply"))
+            .collect();
+        files.sort();
+        let o = epd()
+            .args(["estimate", "--format", "json", "-q", "--calibration"])
+            .arg(&lut)
+            .args(&files)
+            .output()
+            .unwrap();
+        ok(&o);
+        let text = String::from_utf8_lossy(&o.stdout);
+        let rows: Vec<serde_json::Value> = text
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+        assert_eq!(rows.len(), 2, "{text}");
+        for d in rows {
+            assert_eq!(d["geometry"], scene, "{d}");
+            assert_eq!(d["status"], "converged", "{d}");
+            let until = d["straight_until_m"].as_f64().unwrap();
+            if scene == "tee_ahead" {
+                assert!((until - 1.0).abs() <= 0.05, "{d}");
+            }
+        }
+    }
+}

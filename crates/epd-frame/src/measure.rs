@@ -257,6 +257,10 @@ fn measure_frame_as(
     let mut calibration_outside = None;
     let mut shared: Option<SharedErrors> = None;
     let mut sigmas: Option<Cow<'_, [f64]>> = sigma.map(Cow::Borrowed);
+    let failed = |e: epd_core::EpdError| format!("{e} ({n_read} points read)");
+    // The scene, when it is surveyed on other points than those fitted (a version-2
+    // table's: [`survey_for_incidence`]).
+    let mut scene_apart: Option<FrameScene> = None;
     if let Some(cal) = &cfg.calibration {
         match (&cal.incidence, intensity) {
             (Some(inc), Some(i)) => {
@@ -267,7 +271,18 @@ fn measure_frame_as(
                             .into(),
                     );
                 }
-                let (moved, s) = correct_by_incidence(cal, inc, points.to_mut(), i, cfg)?;
+                if cfg.geometry {
+                    let raw_r = raw_range_m.as_deref().unwrap_or(&[]);
+                    scene_apart = Some(survey_for_incidence(cal, &points, i, raw_r, cfg).map_err(
+                        |e| {
+                            format!(
+                                "{e} (the survey on the plain table's points; {n_read} points read)"
+                            )
+                        },
+                    )?);
+                }
+                let straight = scene_apart.as_ref().and_then(|s| s.straight.as_deref());
+                let (moved, s) = correct_by_incidence(cal, inc, points.to_mut(), i, straight, cfg)?;
                 n_calibrated = Some(moved);
                 calibration_outside = Some(s.outside_fraction);
                 if cfg.weighted {
@@ -314,10 +329,12 @@ fn measure_frame_as(
     // Invalid pixels (NaN, inf, zeros) are dropped and counted by the estimator; the
     // range gate keeps points by their model range (see EstimateOptions).
     let kept: &[[f64; 3]] = &points;
-    let failed = |e: epd_core::EpdError| format!("{e} ({n_read} points read)");
     // Between stages, a caller's stop request is honoured (`epd_core::cancel`).
     epd_core::cancel::checkpoint();
-    let scene = if cfg.geometry {
+    let surveyed_apart = scene_apart.is_some();
+    let scene = if let Some(s) = scene_apart {
+        Some(s)
+    } else if cfg.geometry {
         let table = match (&cfg.calibration, raw_range_m.as_deref(), intensity) {
             (Some(cal), Some(r), Some(i)) => Some((&cal.table, r, i)),
             _ => None,
@@ -327,7 +344,14 @@ fn measure_frame_as(
         None
     };
     epd_core::cancel::checkpoint();
-    let mut est = fit_straight(kept, sigmas.as_deref(), scene.as_ref(), cfg).map_err(failed)?;
+    let mut est = fit_straight(
+        kept,
+        sigmas.as_deref(),
+        scene.as_ref(),
+        !surveyed_apart,
+        cfg,
+    )
+    .map_err(failed)?;
     epd_core::cancel::checkpoint();
     let mask = scene.as_ref().and_then(|s| s.straight.as_deref());
     let mut size_outside_rigs = None;
@@ -420,19 +444,52 @@ struct SharedErrors {
     raw_diameters: Option<(f64, f64)>,
 }
 
+/// The scene of a frame to be corrected by a version-2 (incidence) table, surveyed on
+/// its points corrected by the table's plain range × intensity part. The incidence
+/// table leaves out (NaN) the points outside its support — a bend's or a tee's wall,
+/// whose incidences and ranges straight rigs never showed — so a survey of its points
+/// would not see what lies ahead (issue 24: a bend read `straight` with the version-2
+/// table of the pipeline run); the plain table corrects every point its range and
+/// intensity axes hold. The straight section it finds is then fitted on the incidence
+/// table's points ([`correct_by_incidence`]).
+fn survey_for_incidence(
+    cal: &crate::table::CalibrationTable,
+    raw: &[[f64; 3]],
+    intensity: &[f64],
+    raw_range_m: &[f64],
+    cfg: &EstimateConfig,
+) -> Result<FrameScene, String> {
+    let mut plain = raw.to_vec();
+    cal.correct_points(false, &mut plain, Some(intensity), false)?;
+    let table = (raw_range_m.len() == raw.len()).then_some((&cal.table, raw_range_m, intensity));
+    FrameScene::survey(&plain, cfg.method, &cfg.options, table).map_err(|e| e.to_string())
+}
+
 /// The incidence table's correction of a frame's `points` in place: the frame fitted
 /// on its raw points, then up to [`INCIDENCE_ROUNDS`] rounds of cos θ of each ray at
 /// the fitted wall → the raw points corrected by the table → refit, until the mean
 /// diameter moves by less than [`INCIDENCE_TOLERANCE_M`]. Points outside the table's
-/// support are left out (NaN) and counted. The points moved and what the 1-σ needs.
+/// support are left out (NaN) and counted. With `straight` (the scene's straight
+/// section, [`survey_for_incidence`]) only its points are fitted and corrected, the
+/// others left out (NaN, not counted): a bend's or a tee's wall is no straight
+/// cylinder, and the incidences of a fit that included it would be wrong. The points
+/// moved and what the 1-σ needs.
 fn correct_by_incidence(
     cal: &crate::table::CalibrationTable,
     table: &epd_core::calibration::IncidenceTable,
     points: &mut Vec<[f64; 3]>,
     intensity: &[f64],
+    straight: Option<&[bool]>,
     cfg: &EstimateConfig,
 ) -> Result<(usize, SharedErrors), String> {
-    let raw = points.clone();
+    let mut raw = points.clone();
+    if let Some(keep) = straight {
+        for (p, &k) in raw.iter_mut().zip(keep) {
+            if !k {
+                *p = [f64::NAN; 3];
+            }
+        }
+    }
     let fit = |p: &[[f64; 3]]| {
         estimate(p, cfg.method, &cfg.options).map_err(|e| format!("{e} (the incidence round)"))
     };
@@ -609,12 +666,14 @@ fn add_table_uncertainty(
 }
 
 /// The estimate on the straight section's points (those the scene keeps; all of them
-/// when nothing lies ahead): unweighted, the survey's own straight estimate when there is
-/// a scene; weighted by `sigmas` when given.
+/// when nothing lies ahead): unweighted, the survey's own straight estimate when the
+/// scene was surveyed on these `points` (`surveyed_here`); weighted by `sigmas` when
+/// given.
 fn fit_straight(
     points: &[[f64; 3]],
     sigmas: Option<&[f64]>,
     scene: Option<&FrameScene>,
+    surveyed_here: bool,
     cfg: &EstimateConfig,
 ) -> Result<epd_core::Estimate, epd_core::EpdError> {
     let survey = scene.map(|s| &s.survey);
@@ -625,8 +684,17 @@ fn fit_straight(
         (_, Some(s), _) if s.segmentation.straight_withheld => Ok(s.segmentation.straight),
         // The survey's straight estimate is the (unweighted) estimate on the straight
         // section's points: all of them when nothing lies ahead.
-        (None, Some(s), _) => Ok(s.segmentation.straight),
-        (None, None, _) => estimate(points, cfg.method, &cfg.options),
+        (None, Some(s), _) if surveyed_here => Ok(s.segmentation.straight),
+        (None, _, None) => estimate(points, cfg.method, &cfg.options),
+        (None, _, Some(keep)) => {
+            let p: Vec<[f64; 3]> = points
+                .iter()
+                .zip(keep)
+                .filter(|(_, k)| **k)
+                .map(|(p, _)| *p)
+                .collect();
+            estimate(&p, cfg.method, &cfg.options)
+        }
         (Some(sig), _, Some(keep)) => {
             let (p, w): (Vec<[f64; 3]>, Vec<f64>) = points
                 .iter()

@@ -226,9 +226,10 @@ impl Surveyed {
     /// Correct `frame` with the run's table (the incidence table when there is one, its
     /// incidences iterated with the fit as `epd estimate` does: [`by_incidence`]) and
     /// read its scene (`epd_frame::scene::FrameScene::survey`, ML-EPD, `opts`) from the
-    /// points corrected by the plain table — unlike `epd estimate` with a version-2
-    /// table, which surveys the incidence table's points and so loses a bend's points
-    /// outside its support (docs/calibration.md, the pipeline run).
+    /// points corrected by the plain table, as `epd estimate` does with a version-2 table
+    /// (`epd_frame::measure`; the incidence table leaves out a bend's points outside its
+    /// support: docs/calibration.md, the pipeline run), its incidence rounds fitting the
+    /// straight section the survey found.
     pub(super) fn of(
         s: &PipelineScenario,
         tables: &RunTables,
@@ -243,13 +244,10 @@ impl Surveyed {
         // The incidence table leaves the points outside its support out (NaN): a bend's
         // or a tee's wall beyond what the straight rig showed. The survey needs them to
         // see what lies ahead, so it reads the points the plain table corrected (all
-        // of them); the estimates use the incidence table's. (A frame whose raw points
+        // of them); the estimates use the incidence table's, its rounds fitting the
+        // straight section the survey found. (A frame whose raw points
         // cannot be fitted as a straight pipe, in a bend, has no incidences: the plain
         // table's points then serve for both.)
-        let incidence = tables
-            .incidence
-            .as_ref()
-            .and_then(|it| by_incidence(it, &frame.measured, &intensity, opts).ok());
         let raw_range_m = ranges(&frame.measured);
         let scene = FrameScene::survey(
             &plain,
@@ -266,6 +264,17 @@ impl Surveyed {
                 plain.iter().filter(|p| **p != [0.0; 3]).count()
             )
         })?;
+        let incidence = tables.incidence.as_ref().and_then(|it| {
+            let mut raw = frame.measured.clone();
+            if let Some(keep) = &scene.straight {
+                for (p, &k) in raw.iter_mut().zip(keep) {
+                    if !k {
+                        *p = [f64::NAN; 3];
+                    }
+                }
+            }
+            by_incidence(it, &raw, &intensity, opts).ok()
+        });
         let (corrected, table_sigma) = incidence.unwrap_or((plain, plain_sigma));
         let report = &scene.geometry;
         let geometry = Geometry {
