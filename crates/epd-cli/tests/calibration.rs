@@ -35,6 +35,11 @@ fn simulate(dir: &Path, seed: &str, frames: &str, wall_mm: &str, ovality: &str) 
         .output()
         .unwrap();
     ok(&o);
+    ply_files(dir)
+}
+
+/// The PLY files of `dir` (a simulation's output), sorted.
+fn ply_files(dir: &Path) -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
         .unwrap()
         .flatten()
@@ -335,17 +340,10 @@ fn a_version_2_table_still_sees_what_lies_ahead() {
             .args(["--sensor", "helios2", "--precision", "f32", flag, at])
             .output()
             .unwrap());
-        let mut files: Vec<PathBuf> = std::fs::read_dir(&out)
-            .unwrap()
-            .flatten()
-            .map(|e| e.path())
-            .filter(|p| p.extension().is_some_and(|e| e == "ply"))
-            .collect();
-        files.sort();
         let o = epd()
             .args(["estimate", "--format", "json", "-q", "--calibration"])
             .arg(&lut)
-            .args(&files)
+            .args(ply_files(&out))
             .output()
             .unwrap();
         ok(&o);
