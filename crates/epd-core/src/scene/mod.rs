@@ -1,11 +1,13 @@
 //! What lies ahead of the sensor: the survey of a frame near a bend or a tee
 //! (`segment`, on the departure profile of `profile`), the torus of a bend with its exact ray cast (`torus`) and the bend's fit
-//! (`bend`), and where an opening begins (`edge`).
+//! (`bend`), where an opening begins (`edge`), and the opening test of the slices too
+//! sparse for the medians (`sparse`).
 
 pub mod bend;
 pub mod edge;
 pub mod profile;
 pub mod segment;
+pub mod sparse;
 pub mod torus;
 
 /// A small, seeded generator of uniforms in [0, 1) (SplitMix64), for the scene's tests.

@@ -73,6 +73,14 @@ pub struct Slice {
     /// slice departs only when it is below [`SURVEY_FALSE_ALARM`] (and its shift or bump
     /// exceeds `min_shift_m`). NaN for a slice not tested (fewer than six sectors).
     pub departure_p: f64,
+    /// For a slice too sparse for the medians' tests (fewer than six sectors): the
+    /// opening test's least p-value over its sectors, adjusted over every sector tested
+    /// in the frame ([`crate::scene::sparse`]); the slice opens below
+    /// [`crate::scene::sparse::OPENING_FALSE_ALARM`]. NaN when not tested.
+    pub opening_p: f64,
+    /// The polar angle ψ of the sector centre where `opening_p` was found (rad), NaN
+    /// without it.
+    pub opening_psi: f64,
 }
 
 impl Slice {
@@ -99,9 +107,54 @@ impl Slice {
         self.n_sectors >= 6 && b > o.min_shift_m && b > self.critical_t * self.bump_se_m
     }
 
-    /// Whether the slice departs from the straight pipe: a significant shift or bump.
+    /// Whether a slice too sparse for the medians shows an opening's exceedances
+    /// ([`crate::scene::sparse`]).
+    pub fn opens(&self) -> bool {
+        self.opening_p < crate::scene::sparse::OPENING_FALSE_ALARM
+    }
+
+    /// Whether the slice departs from the straight pipe: a significant shift or bump, or
+    /// in a sparse slice an opening.
     pub fn departs(&self, o: &SegmentOptions) -> bool {
-        self.shifts(o) || self.bumps(o)
+        self.shifts(o) || self.bumps(o) || self.opens()
+    }
+
+    /// The side of the wall a departure without a shift lies on: the bump's sector
+    /// centre, or in a sparse slice (fewer than six sectors, where only the opening test
+    /// runs) the opening's (rad; NaN without either).
+    pub fn side(&self) -> f64 {
+        if self.n_sectors >= 6 {
+            self.bump_psi
+        } else {
+            self.opening_psi
+        }
+    }
+
+    /// A slice at `start_m` with no points: nothing fitted, nothing tested.
+    pub fn empty(start_m: f64) -> Self {
+        Self {
+            start_m,
+            n_points: 0,
+            n_sectors: 0,
+            widening_m: f64::NAN,
+            shift_m: [f64::NAN; 2],
+            shift_se_m: f64::NAN,
+            opposite_m: f64::NAN,
+            bump_m: f64::NAN,
+            bump_se_m: f64::NAN,
+            bump_psi: f64::NAN,
+            bump_follows_wall: false,
+            variance_ratio: f64::NAN,
+            misfit_dof: 0,
+            shift_cov_m2: [f64::NAN; 3],
+            variance_scale: 1.0,
+            shift_f: f64::NAN,
+            critical_f: f64::INFINITY,
+            critical_t: f64::INFINITY,
+            departure_p: f64::NAN,
+            opening_p: f64::NAN,
+            opening_psi: f64::NAN,
+        }
     }
 }
 
@@ -184,11 +237,19 @@ pub fn profile(
             )
         })
         .collect();
-    calibrate_tests(&mut slices, ns, axis, o.slice_m);
+    let law = calibrate_tests(&mut slices, ns, axis, o.slice_m);
+    crate::scene::sparse::test_openings(&mut slices, &cells, ns, &law);
     for (i, s) in slices.iter_mut().enumerate().skip(1) {
-        if s.bump_psi.is_finite() {
-            let k = ((s.bump_psi / tau * ns as f64) as usize).min(ns - 1);
-            s.bump_follows_wall = cells[(i - 1) * ns + k].len() >= o.min_points;
+        // The wall in view before the departure's side: a median there, or in a sparse
+        // slice any point.
+        let (psi, needed) = if s.n_sectors >= 6 {
+            (s.bump_psi, o.min_points)
+        } else {
+            (s.opening_psi, 1)
+        };
+        if psi.is_finite() {
+            let k = ((psi / tau * ns as f64) as usize).min(ns - 1);
+            s.bump_follows_wall = cells[(i - 1) * ns + k].len() >= needed;
         }
     }
     slices
@@ -240,12 +301,15 @@ pub(crate) const ROBUST_DOF_SHARE: f64 = 0.37 * 2.0 / std::f64::consts::PI;
 /// the fit in units of its scaled standard error is t(ν̂). Each test gets half of
 /// [`SURVEY_FALSE_ALARM`], divided among the n slices tested (and the sectors for the
 /// bump, which takes the largest of them).
+///
+/// Returns the law κ(n) ([`crate::scene::sparse::DesignEffect`]) for the sparse slices'
+/// opening test; independent points when no slice was tested.
 pub(crate) fn calibrate_tests(
     slices: &mut [Slice],
     sectors: usize,
     axis: &AxisSigma,
     slice_m: f64,
-) {
+) -> crate::scene::sparse::DesignEffect {
     // (ln n̄, ln r, ν) of each tested slice.
     let tested: Vec<(f64, f64, f64)> = slices
         .iter()
@@ -256,7 +320,7 @@ pub(crate) fn calibrate_tests(
         })
         .collect();
     if tested.is_empty() {
-        return;
+        return crate::scene::sparse::DesignEffect::INDEPENDENT;
     }
     let mut slopes: Vec<f64> = Vec::new();
     for (i, a) in tested.iter().enumerate() {
@@ -291,6 +355,7 @@ pub(crate) fn calibrate_tests(
         s.critical_t = critical_t;
         s.departure_p = departure_p(s, tested.len(), dof, sectors);
     }
+    crate::scene::sparse::DesignEffect { a, b }
 }
 
 /// A slice's departure p-value with the Bonferroni split of [`critical_values`] (each of
@@ -464,25 +529,9 @@ pub(crate) fn slice_stats(sectors: &mut [Vec<f64>], start_m: f64, o: &SegmentOpt
         by_sector[k] = m;
     }
     let mut out = Slice {
-        start_m,
         n_points,
         n_sectors: meds.len(),
-        widening_m: f64::NAN,
-        shift_m: [f64::NAN; 2],
-        shift_se_m: f64::NAN,
-        opposite_m: f64::NAN,
-        bump_m: f64::NAN,
-        bump_se_m: f64::NAN,
-        bump_psi: f64::NAN,
-        bump_follows_wall: false,
-        variance_ratio: f64::NAN,
-        misfit_dof: 0,
-        shift_cov_m2: [f64::NAN; 3],
-        variance_scale: 1.0,
-        shift_f: f64::NAN,
-        critical_f: f64::INFINITY,
-        critical_t: f64::INFINITY,
-        departure_p: f64::NAN,
+        ..Slice::empty(start_m)
     };
     if meds.len() < 3 {
         return out;

@@ -166,12 +166,25 @@ pub struct Segmentation {
     pub rounds: usize,
 }
 
-/// The first slice of the first run of `persistence` departing slices.
+/// The first slice of the first run of `persistence` departing slices, counting only
+/// the slices that hold points (far down the pipe, or with a coarse camera, a slice may
+/// fall between two rings of pixels and hold none, which says nothing either way), or
+/// the first sparse slice that opens on its own: the opening test's false-alarm rate is
+/// stated for the whole frame ([`crate::scene::sparse::OPENING_FALSE_ALARM`]) without
+/// persistence, and an opening seen by a coarse camera may fill the cells of a single
+/// ring of pixels.
 fn first_departure(profile: &[Slice], o: &SegmentOptions) -> Option<usize> {
-    let flags: Vec<bool> = profile.iter().map(|s| s.departs(o)).collect();
-    (0..flags.len()).find(|&i| {
-        i + o.persistence <= flags.len() && flags[i..i + o.persistence].iter().all(|&f| f)
-    })
+    let seen: Vec<usize> = (0..profile.len())
+        .filter(|&i| profile[i].n_points > 0)
+        .collect();
+    let flags: Vec<bool> = seen.iter().map(|&i| profile[i].departs(o)).collect();
+    (0..flags.len())
+        .find(|&j| {
+            profile[seen[j]].opens()
+                || (j + o.persistence <= flags.len()
+                    && flags[j..j + o.persistence].iter().all(|&f| f))
+        })
+        .map(|j| seen[j])
 }
 
 /// The straight pipe refitted on the points (SCS) whose ray meets the wall of `beta`
@@ -446,7 +459,7 @@ fn opening_start(profile: &[Slice], i: usize) -> f64 {
 
 /// The slice where a branch opening starts ([`opening_start`]).
 fn opening_slice(profile: &[Slice], i: usize) -> usize {
-    let psi = profile[i].bump_psi;
+    let psi = profile[i].side();
     let mut j = i;
     while j > 0 && i - j < 2 {
         let p = &profile[j - 1];
@@ -477,7 +490,9 @@ fn departure_direction(run: &[Slice], o: &SegmentOptions) -> f64 {
     if sy != 0.0 || sz != 0.0 {
         return sz.atan2(sy);
     }
-    run.iter().find(|s| s.bumps(o)).map_or(0.0, |s| s.bump_psi)
+    run.iter()
+        .find(|s| s.bumps(o) || s.opens())
+        .map_or(0.0, |s| s.side())
 }
 
 /// The axial coordinate where the departure starts, from the first departing slice
@@ -807,7 +822,8 @@ const RING_SHARE: f64 = 0.5;
 /// The survey's verdict for a tee. A branch opening starts abruptly, not where a
 /// bend's growth would start: at the change point of the exceedances on its side
 /// ([`crate::scene::edge::opening_edge`], within ± one sector of the bump's and two
-/// slices of the near edge of its first slice, [`opening_start`]); failing that, at
+/// slices of the near edge of its first slice, [`opening_start`], the wall taken in the
+/// two slices before that edge, or failing that the two before them); failing that, at
 /// that near edge, within a slice. When more than [`RING_SHARE`] of the sectors on the far
 /// side from the opening open there too ([`crate::scene::edge::open_share`]) it is no
 /// branch but a band of range error all around — multipath over a band of ranges, as a camera in a pipe sees — and the frame
@@ -819,14 +835,21 @@ fn tee(mut s: Segmentation, points: &[[f64; 3]], seg: &SegmentOptions) -> Survey
         let j = opening_slice(&s.profile, i);
         let near = s.profile[j].start_m;
         let sector = std::f64::consts::TAU / seg.sectors as f64;
-        let window = (near - 2.0 * seg.slice_m, near, near + 2.0 * seg.slice_m);
-        let edge = crate::scene::edge::opening_edge(
-            &clean(points).points,
-            &s.straight.params,
-            s.profile[i].bump_psi,
-            sector,
-            window,
-        );
+        let cleaned = clean(points).points;
+        let edge_before = |wall_until: f64| {
+            crate::scene::edge::opening_edge(
+                &cleaned,
+                &s.straight.params,
+                s.profile[i].side(),
+                sector,
+                (wall_until - 2.0 * seg.slice_m, wall_until, near + 2.0 * seg.slice_m),
+            )
+        };
+        // The wall is taken before the opening's first slice; when the opening began
+        // earlier than that slice says (a refit that moved the slices, a weak first
+        // centimetre: [`opening_slice`] looks back two slices), the wall's window holds
+        // it and its spread hides the step: then the two slices before.
+        let edge = edge_before(near).or_else(|| edge_before(near - 2.0 * seg.slice_m));
         if edge.is_some_and(|e| e.far_open_share > RING_SHARE) {
             s.layout = Layout::Straight;
         }
@@ -925,6 +948,7 @@ mod tests {
             shift_f: 0.5 * (shift / 1e-4).powi(2),
             critical_f,
             critical_t,
+            ..Slice::empty(x)
         }
     }
 
