@@ -91,15 +91,7 @@ fn main() {
     );
     let mut configs = Vec::new();
     for (name, table) in tables {
-        let file = CalibrationTable {
-            table,
-            known: (rig.d_max(), rig.d_min()),
-            frames: 3,
-            n_observations: 1,
-            incidence: None,
-            rigs: Vec::new(),
-            spans: None,
-        };
+        let file = CalibrationTable::plain(table, (rig.d_max(), rig.d_min()), 3, 1);
         let path = dir.path().join("table.json");
         let text = file.to_json();
         std::fs::write(&path, &text).expect("write");
