@@ -47,6 +47,19 @@ fn with(p: ToFPhysics) -> Noise {
     }
 }
 
+/// The frame of `sensor` in `scene` with the physical error model `p` and no other noise,
+/// every pixel, the default seeds.
+fn physical_frame(sensor: &Sensor, scene: &Scene, p: ToFPhysics) -> Frame {
+    simulate(
+        sensor,
+        scene,
+        &with(p),
+        Subsample::All,
+        FrameSeed::default(),
+    )
+    .unwrap()
+}
+
 /// Every number of a frame, as bits (NaN compares equal to itself).
 fn bits(f: &Frame) -> Vec<u64> {
     let mut v = Vec::new();
@@ -109,14 +122,7 @@ fn amplitude_matches_the_hand_computation_in_a_circular_pipe() {
         multipath_ratio: 0.0,
         ..ToFPhysics::helios2()
     };
-    let f = simulate(
-        &Sensor::helios2(),
-        &scene,
-        &with(p),
-        Subsample::All,
-        FrameSeed::default(),
-    )
-    .unwrap();
+    let f = physical_frame(&Sensor::helios2(), &scene, p);
     let mut n = 0;
     for i in 0..f.len() {
         if !f.is_valid(i) {
@@ -271,14 +277,7 @@ fn frame_systematic_error_is_the_model() {
         ..ToFPhysics::helios2()
     };
     let scene = Scene::new(&pipe(2.0 * r0, 0.0), WallModel::Exact, 6.0).unwrap();
-    let f = simulate(
-        &Sensor::helios2(),
-        &scene,
-        &with(p),
-        Subsample::All,
-        FrameSeed::default(),
-    )
-    .unwrap();
+    let f = physical_frame(&Sensor::helios2(), &scene, p);
     let mut n = 0;
     for i in 0..f.len() {
         if !f.is_valid(i) {
@@ -311,14 +310,7 @@ fn invalid_pixels_are_zeros_with_intensity_zero() {
             max_range: 2.0,
             ..Sensor::helios2()
         };
-        let f = simulate(
-            &sensor,
-            &scene,
-            &with(p),
-            Subsample::All,
-            FrameSeed::default(),
-        )
-        .unwrap();
+        let f = physical_frame(&sensor, &scene, p);
         let (mut invalid, mut of_kind) = (0, 0);
         for i in 0..f.len() {
             let x = Vector3::from(f.exact[i]);
@@ -531,14 +523,7 @@ fn helios2_figures_in_the_20in_pipe() {
     assert!((0.001..0.004).contains(&at(0.5)));
     assert!((0.01..0.03).contains(&at(2.0)), "{}", at(2.0));
     let scene = Scene::new(&pipe(2.0 * r0, 0.0), WallModel::Exact, 6.0).unwrap();
-    let f = simulate(
-        &Sensor::helios2(),
-        &scene,
-        &with(p),
-        Subsample::All,
-        FrameSeed::default(),
-    )
-    .unwrap();
+    let f = physical_frame(&Sensor::helios2(), &scene, p);
     let invalid = (0..f.len()).filter(|&i| !f.is_valid(i)).count();
     let far_valid = (0..f.len())
         .filter(|&i| f.is_valid(i))

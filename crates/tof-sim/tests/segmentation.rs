@@ -33,12 +33,25 @@ fn elbow(ahead: f64) -> Pipeline {
 
 /// A frame of `pipeline` from the paper's random pose `k`, range noise σ.
 fn frame(pipeline: &Pipeline, k: u64, sigma: f64) -> (Vec<[f64; 3]>, Params) {
+    let truth = pose(pipeline, k);
+    let scene = Scene::pipeline(&truth, pipeline, &MeshResolution::default()).unwrap();
+    (cast(&scene, k, sigma), truth)
+}
+
+/// Pose `k` of seed 9 ([`PoseRanges::default`] in the paper's pipe) with `pipeline`'s
+/// diameters.
+fn pose(pipeline: &Pipeline, k: u64) -> Params {
     let mut truth = PoseRanges::default()
         .sample(&Pipe::paper_20in(), 9, k)
         .unwrap();
     truth.d_max = pipeline.d_max;
     truth.d_min = pipeline.d_min;
-    let scene = Scene::pipeline(&truth, pipeline, &MeshResolution::default()).unwrap();
+    truth
+}
+
+/// The measured points of frame `k` of seed 9 through `scene` by the Helios2 sensor, with
+/// range noise of `sigma` (m; none at 0), every pixel.
+fn cast(scene: &Scene, k: u64, sigma: f64) -> Vec<[f64; 3]> {
     let noise = if sigma > 0.0 {
         Noise::range(sigma)
     } else {
@@ -49,8 +62,9 @@ fn frame(pipeline: &Pipeline, k: u64, sigma: f64) -> (Vec<[f64; 3]>, Params) {
         trial: k,
         sweep_index: 0,
     };
-    let f = simulate(&Sensor::helios2(), &scene, &noise, Subsample::All, seed).unwrap();
-    (f.measured, truth)
+    simulate(&Sensor::helios2(), scene, &noise, Subsample::All, seed)
+        .unwrap()
+        .measured
 }
 
 fn options() -> EstimateOptions {
@@ -151,28 +165,13 @@ fn frame_through(
     k: u64,
     sigma: f64,
 ) -> (Vec<[f64; 3]>, Params) {
-    let mut truth = PoseRanges::default()
-        .sample(&Pipe::paper_20in(), 9, k)
-        .unwrap();
-    truth.d_max = pipeline.d_max;
-    truth.d_min = pipeline.d_min;
+    let truth = pose(pipeline, k);
     let mesh = LabeledMesh {
         mesh: mesh.mesh.clone(),
         labels: mesh.labels.clone(),
     };
     let scene = Scene::with_labeled_mesh(&truth, mesh).unwrap();
-    let noise = if sigma > 0.0 {
-        Noise::range(sigma)
-    } else {
-        Noise::none()
-    };
-    let seed = FrameSeed {
-        seed: 9,
-        trial: k,
-        sweep_index: 0,
-    };
-    let f = simulate(&Sensor::helios2(), &scene, &noise, Subsample::All, seed).unwrap();
-    (f.measured, truth)
+    (cast(&scene, k, sigma), truth)
 }
 
 /// The one-sided binomial test against a rate of ½: the fewest successes of `n` that
