@@ -13,6 +13,10 @@ use tof_sim::{
     WallModel, Wiggle, simulate, simulate_with,
 };
 
+mod common;
+
+use common::determinism::{bits, on_threads};
+
 /// FNV-1a (64-bit) over the bits of every list of a frame: equal hashes ⇔ (for practical
 /// purposes) bit-identical frames.
 fn frame_hash(f: &Frame) -> u64 {
@@ -572,16 +576,6 @@ fn flying_pixels_mix_ranges_across_depth_edges() {
     );
 }
 
-fn bits(f: &Frame) -> Vec<u64> {
-    f.measured
-        .iter()
-        .flatten()
-        .chain(f.exact.iter().flatten())
-        .map(|v| v.to_bits())
-        .chain(f.sigma.iter().map(|s| s.to_bits()))
-        .collect()
-}
-
 /// Every option on, a contaminated scene: the same frame for one and two threads, a
 /// function of (seed, trial, sweep index).
 #[test]
@@ -608,11 +602,7 @@ fn every_option_is_deterministic_per_seeds_and_threads() {
         ..Noise::range(0.01)
     };
     let run = |threads: usize, s: FrameSeed| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| {
+        on_threads(threads, || {
             simulate_with(
                 &Sensor::helios2(),
                 &scene,

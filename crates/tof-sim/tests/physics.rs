@@ -11,6 +11,10 @@ use tof_sim::{
     WallModel, simulate,
 };
 
+mod common;
+
+use common::determinism::{bits, on_threads};
+
 /// A sensor on the axis of an untilted circular pipe of diameter `d` (m), rotated about
 /// the axis by nothing, yawed by `yaw` (rad).
 fn pipe(d: f64, yaw: f64) -> Params {
@@ -58,20 +62,6 @@ fn physical_frame(sensor: &Sensor, scene: &Scene, p: ToFPhysics) -> Frame {
         FrameSeed::default(),
     )
     .unwrap()
-}
-
-/// Every number of a frame, as bits (NaN compares equal to itself).
-fn bits(f: &Frame) -> Vec<u64> {
-    let mut v = Vec::new();
-    for i in 0..f.len() {
-        v.extend(f.measured[i].map(f64::to_bits));
-        v.extend(f.exact[i].map(f64::to_bits));
-        v.extend(f.directions[i].map(f64::to_bits));
-        v.extend(f.pixels[i].map(u64::from));
-        v.push(f.intensity[i].to_bits() as u64);
-        v.push(f.sigma[i].to_bits());
-    }
-    v
 }
 
 /// In a circular pipe of radius R seen from its axis, a ray at angle φ from the axis meets
@@ -403,11 +393,7 @@ fn physical_frames_identical_for_one_and_two_threads() {
             ..with(ToFPhysics::helios2())
         };
         let run = |threads: usize, sweep_index: u64| {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            pool.install(|| {
+            on_threads(threads, || {
                 simulate(
                     &Sensor::helios2(),
                     &scene,
