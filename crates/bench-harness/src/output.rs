@@ -103,6 +103,25 @@ impl CsvFile {
     pub(crate) fn finish(self) -> anyhow::Result<PathBuf> {
         finish(self.w, &self.path)
     }
+
+    /// The new file `path` whole: the header `columns`, one record per item of `rows`,
+    /// flushed and synced; its path.
+    pub(crate) fn write_all<R, I, T>(
+        path: &Path,
+        columns: &[&str],
+        rows: R,
+    ) -> anyhow::Result<PathBuf>
+    where
+        R: IntoIterator<Item = I>,
+        I: IntoIterator<Item = T>,
+        T: AsRef<[u8]>,
+    {
+        let mut csv = Self::create(path, columns)?;
+        for r in rows {
+            csv.row(r)?;
+        }
+        csv.finish()
+    }
 }
 
 /// The output folder may not be used (a usage error: nothing was written).
