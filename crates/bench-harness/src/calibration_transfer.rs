@@ -17,7 +17,7 @@ use epd_frame::rig::{RigSettings, calibrate_rig_sizes};
 use epd_frame::{EstimateConfig, EstimateSettings, FrameInput, measure_frame};
 use tof_sim::settings::{PoseOverride, SimulateSettings, Simulator};
 
-use crate::plots::{Axis, Figure, Legend, Panel, Series, render};
+use crate::plots::{Figure, Panel, Series, render};
 
 /// The pipe sizes measured (nominal OD, inch).
 pub const SIZES_IN: [f64; 8] = [16.0, 18.0, 20.0, 22.0, 24.0, 26.0, 28.0, 30.0];
@@ -209,17 +209,13 @@ pub fn run(out: &Path, per_size: u64, passes: u32) -> anyhow::Result<()> {
     std::fs::write(out.join("frames.csv"), rows)?;
     std::fs::write(out.join("summary.csv"), summary)?;
     let png = render(
-        Figure {
-            name: "calibration_transfer.png".into(),
-            title: "Calibrated mean-diameter error against pipe size (tof-sim Helios2)".into(),
-            grid: (1, 1),
-            size: (900, 560),
-            x_label: "pipe nominal OD (inch)",
-            xa: Axis { log: false },
-            ya: Axis { log: false },
-            legend: Legend::PerPanel,
-            x_names: &[],
-        },
+        Figure::linear(
+            "calibration_transfer.png",
+            "Calibrated mean-diameter error against pipe size (tof-sim Helios2)".into(),
+            (1, 1),
+            (900, 560),
+            "pipe nominal OD (inch)",
+        ),
         &[Panel {
             title: "mean over frames, bars: mean reported 1-σ of the mean diameter".into(),
             y_label: "Dmean error (mm)".into(),
