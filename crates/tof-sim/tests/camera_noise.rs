@@ -638,25 +638,18 @@ fn every_option_is_deterministic_per_seeds_and_threads() {
         sigma_range_exponent: 0.0,
         ..cam
     };
-    let a = simulate_with(
-        &Sensor::helios2(),
-        &scene,
-        &physical,
-        &cam,
-        Subsample::All,
-        seeds(1),
-    )
-    .unwrap();
-    let b = simulate_with(
-        &Sensor::helios2(),
-        &scene,
-        &physical,
-        &cam,
-        Subsample::All,
-        seeds(1),
-    )
-    .unwrap();
-    assert_eq!(bits(&a), bits(&b));
+    let run = || {
+        simulate_with(
+            &Sensor::helios2(),
+            &scene,
+            &physical,
+            &cam,
+            Subsample::All,
+            seeds(1),
+        )
+        .unwrap()
+    };
+    assert_eq!(bits(&run()), bits(&run()));
 }
 
 /// A bad option is refused before anything is cast, naming its field.
