@@ -15,13 +15,8 @@ repo=$(cd "$here/.." && pwd)
 scenario=$(realpath "${1:-$repo/scenarios/sigma_sweep.toml}")
 n=${2:-1000}
 work=${3:-/tmp/epd-merge-bench}
-if [[ -z "${BENCH_HARNESS:-}" ]]; then
-    (cd "$repo" && cargo build --release -p bench-harness -j 2 >&2)
-    BENCH_HARNESS=$repo/target/release/bench-harness
-fi
-bin=$BENCH_HARNESS
-now() { date +%s.%N; }
-secs() { awk -v a="$1" -v b="$2" 'BEGIN { printf "%.2f", b - a }'; }
+# shellcheck source=bench-common.sh
+source "$here/bench-common.sh"
 mkdir -p "$work/shards"
 if [[ ${REUSE:-0} != 1 || ! -f "$work/shards/shard-$n-of-$n/shard.json" ]]; then
     t0=$(now)
@@ -29,8 +24,7 @@ if [[ ${REUSE:-0} != 1 || ! -f "$work/shards/shard-$n-of-$n/shard.json" ]]; then
         --out "$work/shards/shard-{}-of-$n"
     echo "made $n shards in $(secs "$t0" "$(now)") s (2 at a time)"
 fi
-dirs=()
-for ((k = 1; k <= n; k++)); do dirs+=("$work/shards/shard-$k-of-$n"); done
+shard_dirs "$work" "$n"
 for i in 1 2 3; do
     t0=$(now)
     "$bin" merge "${dirs[@]}" --quiet --out "$work/merged"
@@ -38,10 +32,7 @@ for i in 1 2 3; do
 done
 if [[ ${COMPARE:-0} == 1 ]]; then
     "$bin" "$scenario" --quiet --out "$work/whole"
-    trials() { cut -d, -f1-7,9- "$1/trials.csv"; }
-    summary() { awk -F, -v OFS=, '$4 == "time_ms" { print $1, $2, $3, $4, $5, $6, $7; next } { print }' "$1/summary.csv"; }
-    if cmp -s <(trials "$work/merged") <(trials "$work/whole") &&
-        cmp -s <(summary "$work/merged") <(summary "$work/whole"); then
+    if same_apart_from_timings "$work/merged" "$work/whole"; then
         echo "merged trials.csv and summary.csv equal the unsharded run's apart from timings"
     else
         echo "error: the merge differs from the unsharded run" >&2

@@ -15,14 +15,9 @@ repo=$(cd "$here/.." && pwd)
 scenario=$(realpath "${1:-$repo/scenarios/sigma_sweep.toml}")
 n=${2:-4}
 work=${3:-/tmp/epd-shard-speedup}
-if [[ -z "${BENCH_HARNESS:-}" ]]; then
-    (cd "$repo" && cargo build --release -p bench-harness -j 2 >&2)
-    BENCH_HARNESS=$repo/target/release/bench-harness
-fi
-bin=$BENCH_HARNESS
+# shellcheck source=bench-common.sh
+source "$here/bench-common.sh"
 mkdir -p "$work/shards"
-now() { date +%s.%N; }
-secs() { awk -v a="$1" -v b="$2" 'BEGIN { printf "%.2f", b - a }'; }
 
 # CPU seconds (user + system) of this script's children so far: bash's `times`, which
 # must run in this shell (not in a $(…) subshell), then read back.
@@ -41,8 +36,7 @@ for ((k = 1; k <= n; k++)); do
 done
 wait
 t2=$(now)
-dirs=()
-for ((k = 1; k <= n; k++)); do dirs+=("$work/shards/shard-$k-of-$n"); done
+shard_dirs "$work" "$n"
 "$bin" merge "${dirs[@]}" --quiet --out "$work/merged"
 t3=$(now)
 cpu_now
@@ -50,10 +44,7 @@ c3=$(cpu_read)
 rm -f "$work/.times"
 load1=$(cut -d' ' -f1 /proc/loadavg)
 
-trials() { cut -d, -f1-7,9- "$1/trials.csv"; }
-summary() { awk -F, -v OFS=, '$4 == "time_ms" { print $1, $2, $3, $4, $5, $6, $7; next } { print }' "$1/summary.csv"; }
-if cmp -s <(trials "$work/merged") <(trials "$work/whole") &&
-    cmp -s <(summary "$work/merged") <(summary "$work/whole"); then
+if same_apart_from_timings "$work/merged" "$work/whole"; then
     same="equal to the run apart from timings"
 else
     same="DIFFERENT from the run"

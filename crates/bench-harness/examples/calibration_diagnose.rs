@@ -14,6 +14,7 @@
 
 use std::borrow::Cow;
 
+use bench_harness::calibration_transfer::{inner_diameter_m, simulator};
 use epd_core::calibration::{
     CalibrationFrame, IncidenceBins, IncidenceTable, RigFrames, Support, incidences,
     offsets_with_incidence,
@@ -21,9 +22,6 @@ use epd_core::calibration::{
 use epd_core::{Method, Params, estimate, estimate_weighted};
 use epd_frame::rig::{RigSettings, calibrate_rig_sizes};
 use epd_frame::{CalibrationTable, EstimateConfig, EstimateSettings, FrameInput, measure_frame};
-use tof_sim::settings::{PoseOverride, SimulateSettings, Simulator};
-
-const WALL_MM: f64 = 12.0;
 
 struct Frame {
     exact: Vec<[f64; 3]>,
@@ -33,20 +31,7 @@ struct Frame {
 }
 
 fn frames(od_in: f64, ovality: f64, seed: u64, n: u64) -> anyhow::Result<Vec<Frame>> {
-    let sim = Simulator::new(&SimulateSettings {
-        seed,
-        sigma: 0.03,
-        od_in,
-        ovality,
-        wall_mm: WALL_MM,
-        points: None,
-        outliers: 0.0,
-        noise: tof_sim::NoiseModel::Range,
-        helios2: true,
-        pose: PoseOverride::default(),
-        feature: None,
-    })
-    .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let sim = simulator(od_in, ovality, seed)?;
     let mut f = tof_sim::Frame::empty();
     (0..n)
         .map(|k| {
@@ -76,10 +61,6 @@ fn env(k: &str, d: usize) -> usize {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(d)
-}
-
-fn id(od: f64) -> f64 {
-    (od * 25.4 - 2.0 * WALL_MM) * 1e-3
 }
 
 /// The incidence table from observations at the rigs' true poses (no pose fitted).
@@ -124,7 +105,7 @@ fn main() -> anyhow::Result<()> {
     let rig30 = frames(30.0, 0.0, 17, 6)?;
     let (c20, c30) = (cal(&rig20), cal(&rig30));
     let settings = RigSettings {
-        known_id_mm: id(20.0) * 1e3,
+        known_id_mm: inner_diameter_m(20.0) * 1e3,
         known_dmin_mm: None,
         min_range: 0.5,
         max_range: 2.0,
@@ -136,11 +117,11 @@ fn main() -> anyhow::Result<()> {
     }
     .check()?;
     let r20 = RigFrames {
-        known: (id(20.0), id(20.0)),
+        known: (inner_diameter_m(20.0), inner_diameter_m(20.0)),
         frames: &c20,
     };
     let r30 = RigFrames {
-        known: (id(30.0), id(30.0)),
+        known: (inner_diameter_m(30.0), inner_diameter_m(30.0)),
         frames: &c30,
     };
     let t20 = calibrate_rig_sizes(&[r20], &settings)?;

@@ -17,18 +17,26 @@ use epd_frame::rig::{RigSettings, calibrate_rig_sizes};
 use epd_frame::{EstimateConfig, EstimateSettings, FrameInput, measure_frame};
 use tof_sim::settings::{PoseOverride, SimulateSettings, Simulator};
 
-use crate::plots::{Axis, Figure, Legend, Panel, Series, render};
+use crate::plots::{Figure, Panel, Series, render};
 
 /// The pipe sizes measured (nominal OD, inch).
 pub const SIZES_IN: [f64; 8] = [16.0, 18.0, 20.0, 22.0, 24.0, 26.0, 28.0, 30.0];
 
 /// Wall thickness of every pipe (mm), as `epd simulate`'s default.
-const WALL_MM: f64 = 12.0;
+pub const WALL_MM: f64 = 12.0;
 
 /// Frames per rig.
 const RIG_FRAMES: u64 = 6;
 
-fn simulator(od_in: f64, ovality: f64, seed: u64) -> anyhow::Result<Simulator> {
+/// The inner diameter (m) of a pipe of nominal OD `od_in` (inch) and a [`WALL_MM`] wall.
+pub fn inner_diameter_m(od_in: f64) -> f64 {
+    (od_in * 25.4 - 2.0 * WALL_MM) * 1e-3
+}
+
+/// The experiment's simulator: `epd simulate --sensor helios2` (the realistic Helios2
+/// error model, every point of the frame) in a pipe of nominal OD `od_in` (inch), a
+/// [`WALL_MM`] wall and `ovality`, its poses and noise drawn from `seed`.
+pub fn simulator(od_in: f64, ovality: f64, seed: u64) -> anyhow::Result<Simulator> {
     Simulator::new(&SimulateSettings {
         seed,
         sigma: 0.03,
@@ -77,7 +85,7 @@ fn as_cal(v: &[Frame]) -> Vec<CalibrationFrame<'_>> {
 /// passes of the rigs' pose/table refinement.
 pub fn run(out: &Path, per_size: u64, passes: u32) -> anyhow::Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let id = |od: f64| (od * 25.4 - 2.0 * WALL_MM) * 1e-3;
+    let id = inner_diameter_m;
     let rig20 = frames(20.0, 0.0, 7, RIG_FRAMES)?;
     let rig30 = frames(30.0, 0.0, 17, RIG_FRAMES)?;
     let (c20, c30) = (as_cal(&rig20), as_cal(&rig30));
@@ -201,17 +209,13 @@ pub fn run(out: &Path, per_size: u64, passes: u32) -> anyhow::Result<()> {
     std::fs::write(out.join("frames.csv"), rows)?;
     std::fs::write(out.join("summary.csv"), summary)?;
     let png = render(
-        Figure {
-            name: "calibration_transfer.png".into(),
-            title: "Calibrated mean-diameter error against pipe size (tof-sim Helios2)".into(),
-            grid: (1, 1),
-            size: (900, 560),
-            x_label: "pipe nominal OD (inch)",
-            xa: Axis { log: false },
-            ya: Axis { log: false },
-            legend: Legend::PerPanel,
-            x_names: &[],
-        },
+        Figure::linear(
+            "calibration_transfer.png",
+            "Calibrated mean-diameter error against pipe size (tof-sim Helios2)".into(),
+            (1, 1),
+            (900, 560),
+            "pipe nominal OD (inch)",
+        ),
         &[Panel {
             title: "mean over frames, bars: mean reported 1-σ of the mean diameter".into(),
             y_label: "Dmean error (mm)".into(),

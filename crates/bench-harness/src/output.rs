@@ -103,6 +103,25 @@ impl CsvFile {
     pub(crate) fn finish(self) -> anyhow::Result<PathBuf> {
         finish(self.w, &self.path)
     }
+
+    /// The new file `path` whole: the header `columns`, one record per item of `rows`,
+    /// flushed and synced; its path.
+    pub(crate) fn write_all<R, I, T>(
+        path: &Path,
+        columns: &[&str],
+        rows: R,
+    ) -> anyhow::Result<PathBuf>
+    where
+        R: IntoIterator<Item = I>,
+        I: IntoIterator<Item = T>,
+        T: AsRef<[u8]>,
+    {
+        let mut csv = Self::create(path, columns)?;
+        for r in rows {
+            csv.row(r)?;
+        }
+        csv.finish()
+    }
 }
 
 /// The output folder may not be used (a usage error: nothing was written).
@@ -252,10 +271,6 @@ fn check_output_folder(out: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A staging or old folder this young is never taken for stale: it may not be locked
-/// yet.
-const STALE_AFTER: std::time::Duration = std::time::Duration::from_secs(10);
-
 /// Lock `dir` (an advisory `flock` on the folder itself) for as long as the returned
 /// handle lives: a staging folder whose lock can be taken belongs to no live run.
 fn lock_dir(dir: &Path) -> anyhow::Result<File> {
@@ -271,38 +286,20 @@ fn lock_dir(dir: &Path) -> anyhow::Result<File> {
 
 /// Whether `name` is a staging (`.run-XXXXXX`) or old-run (`.old-XXXXXX`) folder name.
 fn is_staging_name(name: &str) -> bool {
-    [".run-", ".old-"].iter().any(|p| {
-        name.strip_prefix(p)
-            .is_some_and(|r| r.len() == 6 && r.bytes().all(|b| b.is_ascii_alphanumeric()))
-    })
+    epd_io::atomic::is_temporary_name_of(name, &[".run-", ".old-"])
 }
 
 /// Remove the staging and old-run folders that killed runs (SIGKILL, power loss) left
 /// beside the output folder, in `parent`. A folder is removed only when its name is
 /// one this program makes, it is a real folder (not a link), it is older than
-/// [`STALE_AFTER`], it holds nothing but run files (an old run one level down), and no
-/// live run holds its lock. Best effort: what cannot be removed stays. Returns how many
-/// were removed.
+/// [`epd_io::atomic::STALE_AFTER`] (the temporary files' rule:
+/// [`epd_io::atomic::stale_entries`]), it holds nothing but run files (an old run one
+/// level down), and no live run holds its lock. Best effort: what cannot be removed
+/// stays. Returns how many were removed.
 fn remove_stale(parent: &Path) -> usize {
-    let Ok(entries) = std::fs::read_dir(parent) else {
-        return 0;
-    };
     let mut removed = 0;
-    for e in entries.flatten() {
-        let name = e.file_name().to_string_lossy().into_owned();
-        if !is_staging_name(&name) {
-            continue;
-        }
-        let path = e.path();
-        let Ok(meta) = std::fs::symlink_metadata(&path) else {
-            continue;
-        };
-        let old_enough = meta
-            .modified()
-            .ok()
-            .and_then(|m| m.elapsed().ok())
-            .is_some_and(|age| age >= STALE_AFTER);
-        if !meta.is_dir() || !old_enough || !holds_only_run_files(&path) {
+    for (path, meta) in epd_io::atomic::stale_entries(parent, is_staging_name) {
+        if !meta.is_dir() || !holds_only_run_files(&path) {
             continue;
         }
         let Ok(lock) = lock_dir(&path) else {

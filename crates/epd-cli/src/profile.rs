@@ -14,9 +14,7 @@ use anyhow::Context;
 use epd_core::report::Field;
 use epd_frame::bag::{BagFrames, damage_report, odometry};
 use epd_frame::report::FileReport;
-use epd_io::plot::{
-    Axis, BLUE, Figure, GAP, GREEN, Legend, Panel, Point, RED, RGBColor, Series, render,
-};
+use epd_io::plot::{BLUE, Figure, GAP, GREEN, Panel, Point, RED, RGBColor, Series, render};
 use epd_io::stderr_line;
 use rayon::prelude::*;
 
@@ -528,17 +526,13 @@ fn plot_profile(rows: &[Row], x_label: &str, name: &str) -> anyhow::Result<epd_i
     }
     let n = panels.len();
     Ok(render(
-        Figure {
-            name: "profile.png".into(),
-            title: format!("{name}: profile of the run ({} frames)", rows.len()),
-            grid: (n, 1),
-            size: (1440, 460 * n as u32 + 20),
+        Figure::linear(
+            "profile.png",
+            format!("{name}: profile of the run ({} frames)", rows.len()),
+            (n, 1),
+            (1440, 460 * n as u32 + 20),
             x_label,
-            xa: Axis { log: false },
-            ya: Axis { log: false },
-            legend: Legend::PerPanel,
-            x_names: &[],
-        },
+        ),
         &panels,
     )?)
 }

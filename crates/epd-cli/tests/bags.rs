@@ -142,15 +142,7 @@ fn a_bag_gives_the_estimates_of_its_points() {
         assert_eq!(r["frame_id"], "cam_optical_frame");
         assert!(w["stamp_ns"].is_null() && w["frame_id"].is_null());
         assert_eq!(r["status"], "converged");
-        for key in [
-            "d_max_mm",
-            "d_min_mm",
-            "roll_deg",
-            "pitch_deg",
-            "yaw_deg",
-            "dy_mm",
-            "dz_mm",
-        ] {
+        for key in common::PARAM_KEYS {
             let (a, b) = (r[key].as_f64().unwrap(), w[key].as_f64().unwrap());
             assert!((a - b).abs() <= 1e-6, "{k} {key}: {a} vs {b}");
         }

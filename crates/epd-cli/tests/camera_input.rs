@@ -42,16 +42,6 @@ fn csv(dir: &std::path::Path, name: &str, f: impl Fn([f64; 3]) -> [f64; 3]) -> s
     path
 }
 
-const KEYS: [&str; 7] = [
-    "d_max_mm",
-    "d_min_mm",
-    "roll_deg",
-    "pitch_deg",
-    "yaw_deg",
-    "dy_mm",
-    "dz_mm",
-];
-
 #[test]
 fn millimetres_and_the_optical_frame_give_the_sensor_frame_result() {
     let dir = common::temp_dir("camera");
@@ -72,7 +62,7 @@ fn millimetres_and_the_optical_frame_give_the_sensor_frame_result() {
     ] {
         let (r, code) = estimate(file, &args);
         assert_eq!(code, 0, "{args:?}: {r}");
-        for k in KEYS {
+        for k in common::PARAM_KEYS {
             let (a, b) = (r[k].as_f64().unwrap(), base[k].as_f64().unwrap());
             // The same points up to the 1e-3 mm of the text (and rounding).
             assert!((a - b).abs() < 1e-3, "{args:?} {k}: {a} vs {b}");
@@ -102,7 +92,7 @@ fn a_wrong_unit_or_frame_is_refused_with_the_flag_to_use() {
     let (r, code) = estimate(&optical, &[]);
     assert_eq!(code, 1, "{r}");
     assert_eq!(r["status"], "implausible");
-    for k in KEYS {
+    for k in common::PARAM_KEYS {
         assert!(r[k].is_null(), "{k}: {r}");
     }
     assert!(

@@ -47,15 +47,7 @@ fn simulate_then_estimate_recovers_the_truth() {
             &std::fs::read_to_string(dir.join(format!("frame_{k:04}.json"))).unwrap(),
         )
         .unwrap();
-        for key in [
-            "d_max_mm",
-            "d_min_mm",
-            "roll_deg",
-            "pitch_deg",
-            "yaw_deg",
-            "dy_mm",
-            "dz_mm",
-        ] {
+        for key in common::PARAM_KEYS {
             let (e, t) = (r[key].as_f64().unwrap(), truth[key].as_f64().unwrap());
             assert!((e - t).abs() < 1e-3, "frame {k} {key}: {e} vs {t}");
         }

@@ -11,35 +11,15 @@
 use std::borrow::Cow;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use epd_core::calibration::{CalibrationFrame, CalibrationSettings, calibrate};
 use epd_core::{EstimateOptions, Loss, LossScale, Method, estimate_weighted};
 use epd_frame::read::{Format, read_bytes};
 use epd_frame::{EstimateConfig, EstimateSettings, FrameInput, measure_frame};
 use epd_io::ply::{PlyFormat, PlyPrecision, write as write_ply};
-use tof_sim::{
-    FrameSeed, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, ToFPhysics, WallModel,
-};
+use tof_sim::{FrameSeed, Noise, PoseRanges, Scene, Sensor, Subsample, WallModel};
 
-fn frame(pipe: &Pipe, k: u64) -> tof_sim::Frame {
-    let truth = PoseRanges::default().sample(pipe, 3, k).expect("pose");
-    let scene = Scene::new(&truth, WallModel::Exact, 6.0).expect("scene");
-    let noise = Noise {
-        physics: Some(ToFPhysics::helios2()),
-        ..Noise::none()
-    };
-    tof_sim::simulate(
-        &Sensor::helios2(),
-        &scene,
-        &noise,
-        Subsample::All,
-        FrameSeed {
-            seed: 3,
-            trial: k,
-            sweep_index: 0,
-        },
-    )
-    .expect("frame")
-}
+mod helios2_rig;
+
+use helios2_rig::{helios2_frame as frame, inspection_pipe, rig, rig_table};
 
 fn bench(c: &mut Criterion) {
     // As `epd` does at start-up.
@@ -51,40 +31,9 @@ fn bench(c: &mut Criterion) {
         .with_range_gate(0.5, 2.0)
         .expect("gate");
     // The table from three rig frames (20", 9.5 mm wall, round).
-    let rig = Pipe {
-        nominal_od_in: 20.0,
-        wall_thickness: 0.0095,
-        ovality: 0.0,
-    };
-    let rig_frames: Vec<(tof_sim::Frame, Vec<f64>)> = (0..3)
-        .map(|k| {
-            let f = frame(&rig, k);
-            let i = f.intensity.iter().map(|&v| v as f64).collect();
-            (f, i)
-        })
-        .collect();
-    let views: Vec<CalibrationFrame<'_>> = rig_frames
-        .iter()
-        .map(|(f, i)| CalibrationFrame {
-            points: &f.measured,
-            intensity: i,
-        })
-        .collect();
-    let settings = CalibrationSettings {
-        known: (rig.d_max(), rig.d_min()),
-        gate: (0.5, 2.0),
-        bins: (30, 12),
-        min_count: 30,
-        passes: 3,
-        incidence_bins: 0,
-    };
-    let table = calibrate(&views, &settings, &options).expect("table").table;
+    let table = rig_table(&rig(), &options);
     // One inspection frame as the camera's PLY.
-    let pipe = Pipe {
-        wall_thickness: 0.0127,
-        ovality: 0.01,
-        ..Pipe::paper_20in()
-    };
+    let pipe = inspection_pipe();
     let f = frame(&pipe, 10);
     let mut ply = Vec::new();
     write_ply(

@@ -13,27 +13,14 @@ use std::borrow::Cow;
 use std::time::Instant;
 
 use epd_core::DepthTable;
-use epd_core::calibration::{Axis, CalibrationFrame, CalibrationSettings, calibrate};
+use epd_core::calibration::Axis;
 use epd_core::{EstimateOptions, Loss, LossScale};
 use epd_frame::{CalibrationTable, EstimateConfig, EstimateSettings, FrameInput, measure_frame};
-use tof_sim::{
-    FrameSeed, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, ToFPhysics, WallModel,
-};
 
-fn frame(pipe: &Pipe, k: u64) -> tof_sim::Frame {
-    let truth = PoseRanges::default().sample(pipe, 3, k).expect("pose");
-    let scene = Scene::new(&truth, WallModel::Exact, 6.0).expect("scene");
-    let noise = Noise {
-        physics: Some(ToFPhysics::helios2()),
-        ..Noise::none()
-    };
-    let seed = FrameSeed {
-        seed: 3,
-        trial: k,
-        sweep_index: 0,
-    };
-    tof_sim::simulate(&Sensor::helios2(), &scene, &noise, Subsample::All, seed).expect("frame")
-}
+#[path = "../benches/helios2_rig/mod.rs"]
+mod helios2_rig;
+
+use helios2_rig::{helios2_frame as frame, inspection_pipe, rig, rig_table};
 
 /// `real`'s values resampled onto `nr × ni` bins over the same axes.
 fn resampled(real: &DepthTable, nr: usize, ni: usize) -> DepthTable {
@@ -80,39 +67,9 @@ fn main() {
         .with_loss(Loss::from_name("cauchy", 0.05).expect("loss"))
         .expect("loss")
         .with_loss_scale(LossScale::Auto);
-    let rig = Pipe {
-        nominal_od_in: 20.0,
-        wall_thickness: 0.0095,
-        ovality: 0.0,
-    };
-    let rig_frames: Vec<(tof_sim::Frame, Vec<f64>)> = (0..3)
-        .map(|k| {
-            let f = frame(&rig, k);
-            let i = f.intensity.iter().map(|&v| v as f64).collect();
-            (f, i)
-        })
-        .collect();
-    let views: Vec<CalibrationFrame<'_>> = rig_frames
-        .iter()
-        .map(|(f, i)| CalibrationFrame {
-            points: &f.measured,
-            intensity: i,
-        })
-        .collect();
-    let settings = CalibrationSettings {
-        known: (rig.d_max(), rig.d_min()),
-        gate: (0.5, 2.0),
-        bins: (30, 12),
-        min_count: 30,
-        passes: 3,
-        incidence_bins: 0,
-    };
-    let real = calibrate(&views, &settings, &options).expect("table").table;
-    let pipe = Pipe {
-        wall_thickness: 0.0127,
-        ovality: 0.01,
-        ..Pipe::paper_20in()
-    };
+    let rig = rig();
+    let real = rig_table(&rig, &options);
+    let pipe = inspection_pipe();
     let inspection = frame(&pipe, 10);
     let intensity: Vec<f64> = inspection.intensity.iter().map(|&v| v as f64).collect();
     let dir = tempfile::tempdir().expect("temp dir");
@@ -134,15 +91,7 @@ fn main() {
     );
     let mut configs = Vec::new();
     for (name, table) in tables {
-        let file = CalibrationTable {
-            table,
-            known: (rig.d_max(), rig.d_min()),
-            frames: 3,
-            n_observations: 1,
-            incidence: None,
-            rigs: Vec::new(),
-            spans: None,
-        };
+        let file = CalibrationTable::plain(table, (rig.d_max(), rig.d_min()), 3, 1);
         let path = dir.path().join("table.json");
         let text = file.to_json();
         std::fs::write(&path, &text).expect("write");

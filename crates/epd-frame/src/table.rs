@@ -353,6 +353,21 @@ fn rows<T: Copy>(v: &[T], n: usize) -> Vec<Vec<T>> {
 }
 
 impl CalibrationTable {
+    /// A range × intensity table alone, as version 1 held it: `table` made from `frames`
+    /// frames and `n_observations` points of a rig of known (Dmax, Dmin) `known` (m),
+    /// without an incidence table, a list of rigs or the spans they covered.
+    pub fn plain(table: DepthTable, known: (f64, f64), frames: usize, n_observations: u64) -> Self {
+        Self {
+            table,
+            known,
+            frames,
+            n_observations,
+            incidence: None,
+            rigs: Vec::new(),
+            spans: None,
+        }
+    }
+
     /// The table's correction in place: each point (SCS, m) moved along its ray by the
     /// table's offset at its range and `intensity`; when `weighted`, also each point's σᵢ
     /// (refused when per-point σ are `sigma_given` too). The number of points moved.
@@ -625,15 +640,12 @@ mod tests {
             })
             .collect();
         let bins = TableBins::spanning(&obs, 5, 3).unwrap();
-        CalibrationTable {
-            table: DepthTable::build(&obs, &bins).unwrap(),
-            known: (0.5842, 0.5842),
-            frames: 3,
-            n_observations: 4000,
-            incidence: None,
-            rigs: Vec::new(),
-            spans: None,
-        }
+        CalibrationTable::plain(
+            DepthTable::build(&obs, &bins).unwrap(),
+            (0.5842, 0.5842),
+            3,
+            4000,
+        )
     }
 
     #[test]
@@ -738,29 +750,18 @@ mod tests {
     fn the_largest_table_calibrate_makes_fits_the_file_limit() {
         for (nr, ni) in [(MAX_TABLE_BINS, 1), (1, MAX_TABLE_BINS)] {
             let cells = nr * ni;
-            let t = CalibrationTable {
-                table: DepthTable {
-                    range: Axis {
-                        lo: 0.5,
-                        hi: 2.0,
-                        n: nr,
-                    },
-                    log_intensity: Axis {
-                        lo: 1.0,
-                        hi: 7.0,
-                        n: ni,
-                    },
+            let t = CalibrationTable::plain(
+                DepthTable {
+                    range: Axis::new(0.5, 2.0, nr),
+                    log_intensity: Axis::new(1.0, 7.0, ni),
                     offset_m: vec![-1.234_567_890_123_456_7e-301; cells],
                     spread_m: vec![1.234_567_890_123_456_7e-301; cells],
                     count: vec![u64::MAX; cells],
                 },
-                known: (0.5, 0.5),
-                frames: usize::MAX,
-                n_observations: u64::MAX,
-                incidence: None,
-                rigs: Vec::new(),
-                spans: None,
-            };
+                (0.5, 0.5),
+                usize::MAX,
+                u64::MAX,
+            );
             let text = t.to_json();
             assert!(text.contains("-1.2345678901234567e-298"));
             assert!(

@@ -32,31 +32,20 @@ fn cases(default: u32) -> u32 {
 fn seeds() -> Vec<String> {
     let (nr, ni) = (30, 12);
     let cells = nr * ni;
-    let real = CalibrationTable {
-        table: DepthTable {
-            range: Axis {
-                lo: 0.5,
-                hi: 2.0,
-                n: nr,
-            },
-            log_intensity: Axis {
-                lo: 1.0,
-                hi: 7.0,
-                n: ni,
-            },
+    let real = CalibrationTable::plain(
+        DepthTable {
+            range: Axis::new(0.5, 2.0, nr),
+            log_intensity: Axis::new(1.0, 7.0, ni),
             offset_m: (0..cells)
                 .map(|k| 0.01 * ((k as f64) * 0.37).sin())
                 .collect(),
             spread_m: (0..cells).map(|k| 0.005 + 0.001 * (k % 7) as f64).collect(),
             count: (0..cells as u64).map(|k| 30 + k).collect(),
         },
-        known: (0.5842, 0.5842),
-        frames: 20,
-        n_observations: 2_400_000,
-        incidence: None,
-        rigs: Vec::new(),
-        spans: None,
-    };
+        (0.5842, 0.5842),
+        20,
+        2_400_000,
+    );
     let small = |nr: &str, ni: &str, rows: usize, cols: usize| {
         let row = |v: &str| format!("[{}]", vec![v; cols].join(","));
         let arr = |v: &str| format!("[{}]", vec![row(v); rows].join(","));

@@ -305,13 +305,46 @@ impl Write for Output {
     }
 }
 
-/// Whether `name` is one of this module's temporary file names: a prefix of
-/// [`TEMP_PREFIXES`] and 6 letters or digits.
-fn is_temporary_name(name: &str) -> bool {
-    TEMP_PREFIXES.iter().any(|p| {
+/// Whether `name` is one of `prefixes` followed by 6 letters or digits: a temporary
+/// name made of a fixed prefix and `tempfile`'s 6 random characters, as this module names
+/// its files ([`TEMP_PREFIXES`]) and the bench harness its staging folders.
+pub fn is_temporary_name_of(name: &str, prefixes: &[&str]) -> bool {
+    prefixes.iter().any(|p| {
         name.strip_prefix(p)
             .is_some_and(|r| r.len() == 6 && r.bytes().all(|b| b.is_ascii_alphanumeric()))
     })
+}
+
+/// Whether `name` is one of this module's temporary file names: a prefix of
+/// [`TEMP_PREFIXES`] and 6 letters or digits.
+fn is_temporary_name(name: &str) -> bool {
+    is_temporary_name_of(name, &TEMP_PREFIXES)
+}
+
+/// The entries of `dir` a killed writer may have left: those whose (UTF-8) name `is_ours`
+/// accepts and that are unmodified for [`STALE_AFTER`], each with its own metadata (a
+/// link is not followed). An entry that cannot be read is passed over, and a `dir` that
+/// cannot be read has none. The caller decides what of them to remove (their kind, their
+/// lock).
+pub fn stale_entries(
+    dir: &Path,
+    is_ours: impl Fn(&str) -> bool,
+) -> impl Iterator<Item = (PathBuf, std::fs::Metadata)> {
+    std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter(move |e| e.file_name().to_str().is_some_and(&is_ours))
+        .filter_map(|e| {
+            let path = e.path();
+            let meta = std::fs::symlink_metadata(&path).ok()?;
+            let old_enough = meta
+                .modified()
+                .ok()
+                .and_then(|m| m.elapsed().ok())
+                .is_some_and(|age| age >= STALE_AFTER);
+            old_enough.then_some((path, meta))
+        })
 }
 
 /// Remove the temporary files that killed writers (SIGKILL, power loss) left in `dir`: a
@@ -320,24 +353,9 @@ fn is_temporary_name(name: &str) -> bool {
 /// process, this one included, is writing it). Best effort: what cannot be removed
 /// stays. Returns how many were removed.
 pub fn remove_stale_temporaries(dir: &Path) -> usize {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return 0;
-    };
     let mut removed = 0;
-    for e in entries.flatten() {
-        if !e.file_name().to_str().is_some_and(is_temporary_name) {
-            continue;
-        }
-        let path = e.path();
-        let Ok(meta) = std::fs::symlink_metadata(&path) else {
-            continue;
-        };
-        let old_enough = meta
-            .modified()
-            .ok()
-            .and_then(|m| m.elapsed().ok())
-            .is_some_and(|age| age >= STALE_AFTER);
-        if !meta.is_file() || !old_enough {
+    for (path, meta) in stale_entries(dir, is_temporary_name) {
+        if !meta.is_file() {
             continue;
         }
         let mut open = std::fs::OpenOptions::new();

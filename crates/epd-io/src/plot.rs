@@ -95,6 +95,22 @@ pub struct Panel<'a> {
     pub series: &'a [Series],
 }
 
+impl<'a> Panel<'a> {
+    /// One panel per list of `series` and title of `titles` (in order, as many as the
+    /// shorter has), all with the y axis description `y_label`.
+    pub fn each(series: &'a [Vec<Series>], titles: &[String], y_label: &str) -> Vec<Self> {
+        series
+            .iter()
+            .zip(titles)
+            .map(|(v, t)| Panel {
+                title: t.clone(),
+                y_label: y_label.into(),
+                series: v,
+            })
+            .collect()
+    }
+}
+
 /// Where a figure's legend goes; either way it never covers data.
 #[derive(Clone, Copy, PartialEq, Eq)]
 pub enum Legend {
@@ -564,6 +580,32 @@ pub struct Figure<'a> {
     /// Names of the x values 0, 1, 2, … when they are categories (a swept table), drawn
     /// as the x tick labels instead of the numbers; empty: numbers.
     pub x_names: &'a [String],
+}
+
+impl<'a> Figure<'a> {
+    /// The figure `name` with `title` over a `grid` of panels, `size` px: linear axes,
+    /// numbers on the x axis ([`x_label`](Self::x_label) describing it) and a legend in
+    /// each panel; other axes or legends by struct update (`Figure { ya: Axis { log: true
+    /// }, ..Figure::linear(…) }`).
+    pub fn linear(
+        name: &str,
+        title: String,
+        grid: (usize, usize),
+        size: (u32, u32),
+        x_label: &'a str,
+    ) -> Self {
+        Figure {
+            name: name.into(),
+            title,
+            grid,
+            size,
+            x_label,
+            xa: Axis { log: false },
+            ya: Axis { log: false },
+            legend: Legend::PerPanel,
+            x_names: &[],
+        }
+    }
 }
 
 /// Render panels in a grid to an encoded PNG.

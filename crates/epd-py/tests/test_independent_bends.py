@@ -21,10 +21,9 @@ import math
 import numpy as np
 import pytest
 
-from test_independent_frames import estimate_files, rays, rot, write_ply
+from casting import DIAMETER_M, FRAMES, answered_far_off, draw_pose, estimate_frames, read_ahead
+from test_independent_frames import MAX_RANGE_M, SIGMA_M, rays, rot
 
-SIGMA_M = 0.02
-MAX_RANGE_M = 6.0
 STEP_M = 0.005
 
 
@@ -53,13 +52,9 @@ def inside(p, x0, radius, bend_r, phi_b, theta_b):
 
 def bend_frame(rng, x0, diameter, bend_r, theta_b):
     """One frame: points (n, 3) float32 in the sensor frame."""
-    roll = rng.uniform(-math.pi, math.pi)
-    pitch, yaw = np.radians(rng.uniform(-4.0, 4.0, size=2))
-    dy, dz = rng.uniform(-0.04, 0.04, size=2) * diameter / 0.5
-    phi_b = rng.uniform(0.0, 2 * math.pi)
+    roll, pitch, yaw, origin, phi_b = draw_pose(rng, diameter)
     d_s = rays().reshape(-1, 3)
     e = d_s @ rot(roll, pitch, yaw).T  # directions in the PCS
-    origin = np.array([0.0, dy, dz])
     args = (x0, diameter / 2, bend_r, phi_b, theta_b)
     t_in = np.zeros(len(e))
     hit = np.full(len(e), np.nan)
@@ -85,9 +80,6 @@ def bend_frame(rng, x0, diameter, bend_r, theta_b):
     return pts.astype(np.float32)
 
 
-DIAMETER_M = 20 * 0.0254 - 2 * 0.0127  # a 20" pipe, 12.7 mm wall: 482.6 mm inside
-FRAMES = 8
-
 # Measured (`pytest -s test_independent_bends.py`, 8 frames per distance, 160 × 120
 # pixels): 0.75, 1.0 and 1.5 m 8 of 8; 2.0 m 6 of 8 (2 `straight`), 3.0 m 1 of 8 (7
 # `straight`, converged). Before the sparse slices' opening test
@@ -108,13 +100,10 @@ NOT_MET = {
 
 def run_bends(epd_bin, tmp_path, ahead):
     rng = np.random.default_rng(int(ahead * 100))
-    paths = []
-    for k in range(FRAMES):
-        pts = bend_frame(rng, ahead, DIAMETER_M, 1.5 * DIAMETER_M, math.pi / 2)
-        p = tmp_path / f"bend_{k}.ply"
-        write_ply(p, pts)
-        paths.append(str(p))
-    return estimate_files(epd_bin, paths)
+    frames = [
+        bend_frame(rng, ahead, DIAMETER_M, 1.5 * DIAMETER_M, math.pi / 2) for _ in range(FRAMES)
+    ]
+    return estimate_frames(epd_bin, tmp_path, "bend", frames)
 
 
 @pytest.mark.parametrize(
@@ -130,13 +119,7 @@ def test_a_bend_ahead_is_read_as_a_bend(epd_bin, tmp_path, ahead):
     of x0. With a true rate of 99 % all 8 read right with probability 0.92; a rate of
     70 % passes with probability 0.06."""
     rows = run_bends(epd_bin, tmp_path, ahead)
-    right = [
-        r
-        for r in rows
-        if r["geometry"] == "bend_ahead"
-        and r["straight_until_m"] is not None
-        and abs(r["straight_until_m"] - ahead) <= 0.05
-    ]
+    right = read_ahead(rows, "bend_ahead", ahead)
     seen = [(r["status"], r["geometry"], r["straight_until_m"]) for r in rows]
     print(f"{ahead} m: {len(right)} of {len(rows)} bend_ahead within 5 cm;", seen)
     assert len(right) == len(rows), seen
@@ -147,14 +130,5 @@ def test_no_frame_with_a_bend_ahead_is_answered_far_off(epd_bin, tmp_path, ahead
     """Whatever geometry it reads, a frame answered `converged` with diameters gives the
     straight pipe's within max(5σ̂, 0.5 mm) (issue 22's bound: with an honest 1-σ,
     P(|z| > 5) < 10⁻⁴ per diameter)."""
-    rows = run_bends(epd_bin, tmp_path, ahead)
-    far = []
-    for r in rows:
-        if r["status"] != "converged" or r["d_max_mm"] is None:
-            continue
-        for key in ("d_max_mm", "d_min_mm"):
-            err = r[key] - DIAMETER_M * 1e3
-            s = r["sigma_" + key]
-            if abs(err) > max(5 * s, 0.5):
-                far.append((r["file"], key, err, s, r["geometry"]))
+    far = answered_far_off(run_bends(epd_bin, tmp_path, ahead), DIAMETER_M)
     assert not far, far

@@ -48,12 +48,13 @@ def rot(roll, pitch, yaw):
     return rz @ ry @ rx
 
 
-def rays():
-    """Unit sensing directions of the pinhole camera in the sensor frame, (H, W, 3)."""
-    fx = (W / 2) / math.tan(math.radians(FOV_DEG[0] / 2))
-    fy = (H / 2) / math.tan(math.radians(FOV_DEG[1] / 2))
-    u = (np.arange(W) + 0.5 - W / 2) / fx
-    v = -(np.arange(H) + 0.5 - H / 2) / fy
+def rays(w=W, h=H):
+    """Unit sensing directions of the pinhole camera (w × h pixels, FOV_DEG) in the sensor
+    frame, (h, w, 3)."""
+    fx = (w / 2) / math.tan(math.radians(FOV_DEG[0] / 2))
+    fy = (h / 2) / math.tan(math.radians(FOV_DEG[1] / 2))
+    u = (np.arange(w) + 0.5 - w / 2) / fx
+    v = -(np.arange(h) + 0.5 - h / 2) / fy
     uu, vv = np.meshgrid(u, v)
     d = np.stack([np.ones_like(uu), -uu, vv], axis=-1)
     return d / np.linalg.norm(d, axis=-1, keepdims=True)

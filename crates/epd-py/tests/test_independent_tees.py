@@ -29,13 +29,10 @@ import math
 import numpy as np
 import pytest
 
-from test_independent_frames import estimate_files, rays, rot, write_ply
+from casting import DIAMETER_M, FRAMES, answered_far_off, draw_pose, estimate_frames, read_ahead
+from test_independent_frames import MAX_RANGE_M, SIGMA_M, rays, rot
 
-SIGMA_M = 0.02
-MAX_RANGE_M = 6.0
-DIAMETER_M = 20 * 0.0254 - 2 * 0.0127  # a 20" pipe, 12.7 mm wall: 482.6 mm inside
 BRANCH_SHARE = (0.5, 1.0)  # D_b / D, drawn per frame
-FRAMES = 8
 
 
 def larger_root(qa, qb, qc):
@@ -77,30 +74,14 @@ def tee_ranges(origin, e, x0, diameter, branch_d, phi_b):
 
 def tee_frame(rng, x0, diameter, w=None, h=None):
     """One frame: (points (n, 3) float32 in the sensor frame, D_b, φ_b)."""
-    roll = rng.uniform(-math.pi, math.pi)
-    pitch, yaw = np.radians(rng.uniform(-4.0, 4.0, size=2))
-    dy, dz = rng.uniform(-0.04, 0.04, size=2) * diameter / 0.5
-    phi_b = rng.uniform(0.0, 2 * math.pi)
+    roll, pitch, yaw, origin, phi_b = draw_pose(rng, diameter)
     branch_d = rng.uniform(*BRANCH_SHARE) * diameter
-    d_s = (rays() if w is None else rays_of(w, h)).reshape(-1, 3)
+    d_s = (rays() if w is None else rays(w, h)).reshape(-1, 3)
     e = d_s @ rot(roll, pitch, yaw).T  # directions in the PCS
-    origin = np.array([0.0, dy, dz])
     t = tee_ranges(origin, e, x0, diameter, branch_d, phi_b)
     keep = np.isfinite(t) & (t > 0) & (t <= MAX_RANGE_M)
     measured = t[keep] + rng.normal(0.0, SIGMA_M, size=int(keep.sum()))
     return (d_s[keep] * measured[:, None]).astype(np.float32), branch_d, phi_b
-
-
-def rays_of(w, h, fov_deg=(69.0, 51.0)):
-    """The unit sensing directions of a w × h pinhole camera (as
-    `test_independent_frames.rays`, another resolution)."""
-    fx = (w / 2) / math.tan(math.radians(fov_deg[0] / 2))
-    fy = (h / 2) / math.tan(math.radians(fov_deg[1] / 2))
-    u = (np.arange(w) + 0.5 - w / 2) / fx
-    v = -(np.arange(h) + 0.5 - h / 2) / fy
-    uu, vv = np.meshgrid(u, v)
-    d = np.stack([np.ones_like(uu), -uu, vv], axis=-1)
-    return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
 def test_the_caster_is_exact():
@@ -170,29 +151,15 @@ NOT_MET = {
 
 def run_tees(epd_bin, tmp_path, ahead, w=None, h=None, frames=FRAMES):
     rng = np.random.default_rng(2300 + int(ahead * 100))
-    paths, drawn = [], []
-    for k in range(frames):
-        pts, branch_d, phi_b = tee_frame(rng, ahead, DIAMETER_M, w, h)
-        p = tmp_path / f"tee_{k}.ply"
-        write_ply(p, pts)
-        paths.append(str(p))
-        drawn.append((round(branch_d / DIAMETER_M, 2), round(math.degrees(phi_b))))
-    return estimate_files(epd_bin, paths), drawn
-
-
-def read_right(rows, ahead):
-    return [
-        r
-        for r in rows
-        if r["geometry"] == "tee_ahead"
-        and r["straight_until_m"] is not None
-        and abs(r["straight_until_m"] - ahead) <= 0.05
-    ]
+    cast = [tee_frame(rng, ahead, DIAMETER_M, w, h) for _ in range(frames)]
+    drawn = [(round(b / DIAMETER_M, 2), round(math.degrees(phi))) for _, b, phi in cast]
+    return estimate_frames(epd_bin, tmp_path, "tee", [pts for pts, _, _ in cast]), drawn
 
 
 def assert_all_read_right(rows, drawn, ahead, label):
-    """Every frame reads `tee_ahead` within 5 cm ([`read_right`]); prints what each read."""
-    right = read_right(rows, ahead)
+    """Every frame reads `tee_ahead` within 5 cm (`casting.read_ahead`); prints what each
+    read."""
+    right = read_ahead(rows, "tee_ahead", ahead)
     seen = [
         (r["status"], r["geometry"], r["straight_until_m"], b)
         for r, b in zip(rows, drawn)
@@ -234,13 +201,5 @@ def test_no_frame_with_a_tee_ahead_is_answered_far_off(epd_bin, tmp_path, ahead)
     """Whatever geometry it reads, a frame answered `converged` with diameters gives the
     straight pipe's within max(5σ̂, 0.5 mm) (issue 22's bound, as for the bends)."""
     rows, _ = run_tees(epd_bin, tmp_path, ahead)
-    far = []
-    for r in rows:
-        if r["status"] != "converged" or r["d_max_mm"] is None:
-            continue
-        for key in ("d_max_mm", "d_min_mm"):
-            err = r[key] - DIAMETER_M * 1e3
-            s = r["sigma_" + key]
-            if abs(err) > max(5 * s, 0.5):
-                far.append((r["file"], key, err, s, r["geometry"]))
+    far = answered_far_off(rows, DIAMETER_M)
     assert not far, far

@@ -9,9 +9,13 @@ use nalgebra::Vector3;
 use tof_sim::camera::correlation;
 use tof_sim::{
     CameraNoise, Contamination, FloorLayer, FlyingPixels, Frame, FrameSeed, MultipathBand, Noise,
-    NoiseModel, Obstacle, Pipe, PoseRanges, Scene, Sensor, Subsample, ToFPhysics, WallModel,
-    Wiggle, simulate, simulate_with,
+    NoiseModel, Obstacle, Pipe, PoseRanges, Scene, Sensor, SimError, Subsample, ToFPhysics,
+    WallModel, Wiggle, simulate, simulate_with,
 };
+
+mod common;
+
+use common::determinism::{bits, on_threads};
 
 /// FNV-1a (64-bit) over the bits of every list of a frame: equal hashes ⇔ (for practical
 /// purposes) bit-identical frames.
@@ -143,6 +147,19 @@ fn seeds(sweep_index: u64) -> FrameSeed {
         trial: 1,
         sweep_index,
     }
+}
+
+/// Frame `seeds(0)` of the [`wide`] sensor in `scene`: range noise of σ = 0.01 m with
+/// `cam`'s options, every pixel.
+fn wide_frame(scene: &Scene, cam: &CameraNoise) -> Result<Frame, SimError> {
+    simulate_with(
+        &wide(),
+        scene,
+        &Noise::range(0.01),
+        cam,
+        Subsample::All,
+        seeds(0),
+    )
 }
 
 /// Each point's range error along its ray (m): (x̂ − x)·d, and its true range |x|.
@@ -290,15 +307,7 @@ fn range_dependent_sigma_follows_the_power_law() {
         sigma_reference_range_m: 1.5,
         ..CameraNoise::default()
     };
-    let f = simulate_with(
-        &wide(),
-        &scene,
-        &Noise::range(0.01),
-        &cam,
-        Subsample::All,
-        seeds(0),
-    )
-    .unwrap();
+    let f = wide_frame(&scene, &cam).unwrap();
     let e = errors(&f);
     for (i, &(_, r)) in e.iter().enumerate() {
         assert!((f.sigma[i] - 0.01 * (r / 1.5).powi(2)).abs() < 1e-15 * f.sigma[i].max(1.0));
@@ -394,15 +403,7 @@ fn multipath_bands_add_their_offset() {
         multipath_bands: vec![band(1.0, 1.5, 0.04), band(1.3, 2.0, 0.01)],
         ..CameraNoise::default()
     };
-    let f = simulate_with(
-        &wide(),
-        &scene,
-        &Noise::range(0.01),
-        &cam,
-        Subsample::All,
-        seeds(0),
-    )
-    .unwrap();
+    let f = wide_frame(&scene, &cam).unwrap();
     let e = errors(&f);
     for (lo, hi, want) in [
         (0.0, 1.0, 0.0),
@@ -575,16 +576,6 @@ fn flying_pixels_mix_ranges_across_depth_edges() {
     );
 }
 
-fn bits(f: &Frame) -> Vec<u64> {
-    f.measured
-        .iter()
-        .flatten()
-        .chain(f.exact.iter().flatten())
-        .map(|v| v.to_bits())
-        .chain(f.sigma.iter().map(|s| s.to_bits()))
-        .collect()
-}
-
 /// Every option on, a contaminated scene: the same frame for one and two threads, a
 /// function of (seed, trial, sweep index).
 #[test]
@@ -611,11 +602,7 @@ fn every_option_is_deterministic_per_seeds_and_threads() {
         ..Noise::range(0.01)
     };
     let run = |threads: usize, s: FrameSeed| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| {
+        on_threads(threads, || {
             simulate_with(
                 &Sensor::helios2(),
                 &scene,
@@ -651,25 +638,18 @@ fn every_option_is_deterministic_per_seeds_and_threads() {
         sigma_range_exponent: 0.0,
         ..cam
     };
-    let a = simulate_with(
-        &Sensor::helios2(),
-        &scene,
-        &physical,
-        &cam,
-        Subsample::All,
-        seeds(1),
-    )
-    .unwrap();
-    let b = simulate_with(
-        &Sensor::helios2(),
-        &scene,
-        &physical,
-        &cam,
-        Subsample::All,
-        seeds(1),
-    )
-    .unwrap();
-    assert_eq!(bits(&a), bits(&b));
+    let run = || {
+        simulate_with(
+            &Sensor::helios2(),
+            &scene,
+            &physical,
+            &cam,
+            Subsample::All,
+            seeds(1),
+        )
+        .unwrap()
+    };
+    assert_eq!(bits(&run()), bits(&run()));
 }
 
 /// A bad option is refused before anything is cast, naming its field.
@@ -680,15 +660,7 @@ fn bad_options_name_their_field() {
         correlation_length_px: f64::NAN,
         ..CameraNoise::default()
     };
-    let e = simulate_with(
-        &wide(),
-        &scene,
-        &Noise::range(0.01),
-        &cam,
-        Subsample::All,
-        seeds(0),
-    )
-    .unwrap_err();
+    let e = wide_frame(&scene, &cam).unwrap_err();
     assert!(e.to_string().contains("noise.correlation_length_px"), "{e}");
     let cam = CameraNoise {
         multipath_bands: vec![MultipathBand {
@@ -698,14 +670,6 @@ fn bad_options_name_their_field() {
         }],
         ..CameraNoise::default()
     };
-    let e = simulate_with(
-        &wide(),
-        &scene,
-        &Noise::range(0.01),
-        &cam,
-        Subsample::All,
-        seeds(0),
-    )
-    .unwrap_err();
+    let e = wide_frame(&scene, &cam).unwrap_err();
     assert!(e.to_string().contains("noise.multipath_bands.far_m"), "{e}");
 }

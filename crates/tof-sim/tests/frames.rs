@@ -8,6 +8,10 @@ use tof_sim::{
     simulate,
 };
 
+mod common;
+
+use common::determinism::{bits, on_threads};
+
 /// The wall range along unit `d` (SCS) by the quadratic in the PCS, written here anew.
 fn oracle_range(b: &Params, d: &Vector3<f64>) -> Option<f64> {
     let o = b.scs_to_pcs(&Point3::origin());
@@ -289,10 +293,6 @@ fn range_filter_and_subsample() {
     assert_eq!(h.measured.len(), f.measured.len());
 }
 
-fn bits(f: &tof_sim::Frame) -> Vec<u64> {
-    f.measured.iter().flatten().map(|v| v.to_bits()).collect()
-}
-
 #[test]
 fn identical_for_one_and_two_threads_and_a_function_of_the_seeds() {
     let truth = random_truths(1)[0];
@@ -303,11 +303,7 @@ fn identical_for_one_and_two_threads_and_a_function_of_the_seeds() {
         sweep_index: 1,
     };
     let run = |threads: usize, seeds: FrameSeed| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| {
+        on_threads(threads, || {
             simulate(
                 &Sensor::helios2(),
                 &scene,

@@ -11,6 +11,10 @@ use tof_sim::{
     WallModel, simulate,
 };
 
+mod common;
+
+use common::determinism::{bits, on_threads};
+
 /// A sensor on the axis of an untilted circular pipe of diameter `d` (m), rotated about
 /// the axis by nothing, yawed by `yaw` (rad).
 fn pipe(d: f64, yaw: f64) -> Params {
@@ -47,18 +51,17 @@ fn with(p: ToFPhysics) -> Noise {
     }
 }
 
-/// Every number of a frame, as bits (NaN compares equal to itself).
-fn bits(f: &Frame) -> Vec<u64> {
-    let mut v = Vec::new();
-    for i in 0..f.len() {
-        v.extend(f.measured[i].map(f64::to_bits));
-        v.extend(f.exact[i].map(f64::to_bits));
-        v.extend(f.directions[i].map(f64::to_bits));
-        v.extend(f.pixels[i].map(u64::from));
-        v.push(f.intensity[i].to_bits() as u64);
-        v.push(f.sigma[i].to_bits());
-    }
-    v
+/// The frame of `sensor` in `scene` with the physical error model `p` and no other noise,
+/// every pixel, the default seeds.
+fn physical_frame(sensor: &Sensor, scene: &Scene, p: ToFPhysics) -> Frame {
+    simulate(
+        sensor,
+        scene,
+        &with(p),
+        Subsample::All,
+        FrameSeed::default(),
+    )
+    .unwrap()
 }
 
 /// In a circular pipe of radius R seen from its axis, a ray at angle φ from the axis meets
@@ -109,14 +112,7 @@ fn amplitude_matches_the_hand_computation_in_a_circular_pipe() {
         multipath_ratio: 0.0,
         ..ToFPhysics::helios2()
     };
-    let f = simulate(
-        &Sensor::helios2(),
-        &scene,
-        &with(p),
-        Subsample::All,
-        FrameSeed::default(),
-    )
-    .unwrap();
+    let f = physical_frame(&Sensor::helios2(), &scene, p);
     let mut n = 0;
     for i in 0..f.len() {
         if !f.is_valid(i) {
@@ -271,14 +267,7 @@ fn frame_systematic_error_is_the_model() {
         ..ToFPhysics::helios2()
     };
     let scene = Scene::new(&pipe(2.0 * r0, 0.0), WallModel::Exact, 6.0).unwrap();
-    let f = simulate(
-        &Sensor::helios2(),
-        &scene,
-        &with(p),
-        Subsample::All,
-        FrameSeed::default(),
-    )
-    .unwrap();
+    let f = physical_frame(&Sensor::helios2(), &scene, p);
     let mut n = 0;
     for i in 0..f.len() {
         if !f.is_valid(i) {
@@ -311,14 +300,7 @@ fn invalid_pixels_are_zeros_with_intensity_zero() {
             max_range: 2.0,
             ..Sensor::helios2()
         };
-        let f = simulate(
-            &sensor,
-            &scene,
-            &with(p),
-            Subsample::All,
-            FrameSeed::default(),
-        )
-        .unwrap();
+        let f = physical_frame(&sensor, &scene, p);
         let (mut invalid, mut of_kind) = (0, 0);
         for i in 0..f.len() {
             let x = Vector3::from(f.exact[i]);
@@ -411,11 +393,7 @@ fn physical_frames_identical_for_one_and_two_threads() {
             ..with(ToFPhysics::helios2())
         };
         let run = |threads: usize, sweep_index: u64| {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            pool.install(|| {
+            on_threads(threads, || {
                 simulate(
                     &Sensor::helios2(),
                     &scene,
@@ -531,14 +509,7 @@ fn helios2_figures_in_the_20in_pipe() {
     assert!((0.001..0.004).contains(&at(0.5)));
     assert!((0.01..0.03).contains(&at(2.0)), "{}", at(2.0));
     let scene = Scene::new(&pipe(2.0 * r0, 0.0), WallModel::Exact, 6.0).unwrap();
-    let f = simulate(
-        &Sensor::helios2(),
-        &scene,
-        &with(p),
-        Subsample::All,
-        FrameSeed::default(),
-    )
-    .unwrap();
+    let f = physical_frame(&Sensor::helios2(), &scene, p);
     let invalid = (0..f.len()).filter(|&i| !f.is_valid(i)).count();
     let far_valid = (0..f.len())
         .filter(|&i| f.is_valid(i))

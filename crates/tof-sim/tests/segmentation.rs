@@ -4,7 +4,7 @@
 
 use std::f64::consts::FRAC_PI_2;
 
-use epd_core::segment::{Layout, SegmentOptions, clock_angle_deg, survey};
+use epd_core::segment::{Layout, SegmentOptions, Survey, clock_angle_deg, survey};
 use epd_core::{EstimateOptions, Loss, Method, Params, estimate};
 use rayon::prelude::*;
 use tof_sim::pipeline::LabeledMesh;
@@ -33,12 +33,25 @@ fn elbow(ahead: f64) -> Pipeline {
 
 /// A frame of `pipeline` from the paper's random pose `k`, range noise σ.
 fn frame(pipeline: &Pipeline, k: u64, sigma: f64) -> (Vec<[f64; 3]>, Params) {
+    let truth = pose(pipeline, k);
+    let scene = Scene::pipeline(&truth, pipeline, &MeshResolution::default()).unwrap();
+    (cast(&scene, k, sigma), truth)
+}
+
+/// Pose `k` of seed 9 ([`PoseRanges::default`] in the paper's pipe) with `pipeline`'s
+/// diameters.
+fn pose(pipeline: &Pipeline, k: u64) -> Params {
     let mut truth = PoseRanges::default()
         .sample(&Pipe::paper_20in(), 9, k)
         .unwrap();
     truth.d_max = pipeline.d_max;
     truth.d_min = pipeline.d_min;
-    let scene = Scene::pipeline(&truth, pipeline, &MeshResolution::default()).unwrap();
+    truth
+}
+
+/// The measured points of frame `k` of seed 9 through `scene` by the Helios2 sensor, with
+/// range noise of `sigma` (m; none at 0), every pixel.
+fn cast(scene: &Scene, k: u64, sigma: f64) -> Vec<[f64; 3]> {
     let noise = if sigma > 0.0 {
         Noise::range(sigma)
     } else {
@@ -49,14 +62,26 @@ fn frame(pipeline: &Pipeline, k: u64, sigma: f64) -> (Vec<[f64; 3]>, Params) {
         trial: k,
         sweep_index: 0,
     };
-    let f = simulate(&Sensor::helios2(), &scene, &noise, Subsample::All, seed).unwrap();
-    (f.measured, truth)
+    simulate(&Sensor::helios2(), scene, &noise, Subsample::All, seed)
+        .unwrap()
+        .measured
 }
 
 fn options() -> EstimateOptions {
     EstimateOptions::default()
         .with_loss(Loss::from_name("cauchy", 0.05).unwrap())
         .unwrap()
+}
+
+/// The survey of `points` by ML-EPD with [`options`] and the default segment options.
+fn ml_survey(points: &[[f64; 3]]) -> Survey {
+    survey(
+        points,
+        Method::MlEpd,
+        &options(),
+        &SegmentOptions::default(),
+    )
+    .unwrap()
 }
 
 /// The Helios2 model's range-dependent noise and invalid pixels, without its systematic
@@ -84,7 +109,7 @@ fn noise_free_elbow_is_recovered() {
     let bend = p.first_bend().unwrap();
     for k in 0..2 {
         let (pts, truth) = frame(&p, k, 0.0);
-        let s = survey(&pts, Method::MlEpd, &options(), &SegmentOptions::default()).unwrap();
+        let s = ml_survey(&pts);
         let seg = &s.segmentation;
         assert_eq!(seg.layout, Layout::BendAhead, "frame {k}");
         let until = seg.straight_until.unwrap();
@@ -122,7 +147,7 @@ fn noisy_elbow_is_cut_off_the_straight_estimate() {
     let mut plain_worst: f64 = 0.0;
     for k in 0..2 {
         let (pts, truth) = frame(&p, k, 0.03);
-        let s = survey(&pts, Method::MlEpd, &options(), &SegmentOptions::default()).unwrap();
+        let s = ml_survey(&pts);
         let seg = &s.segmentation;
         assert_eq!(seg.layout, Layout::BendAhead, "frame {k}");
         let until = seg.straight_until.unwrap();
@@ -151,28 +176,13 @@ fn frame_through(
     k: u64,
     sigma: f64,
 ) -> (Vec<[f64; 3]>, Params) {
-    let mut truth = PoseRanges::default()
-        .sample(&Pipe::paper_20in(), 9, k)
-        .unwrap();
-    truth.d_max = pipeline.d_max;
-    truth.d_min = pipeline.d_min;
+    let truth = pose(pipeline, k);
     let mesh = LabeledMesh {
         mesh: mesh.mesh.clone(),
         labels: mesh.labels.clone(),
     };
     let scene = Scene::with_labeled_mesh(&truth, mesh).unwrap();
-    let noise = if sigma > 0.0 {
-        Noise::range(sigma)
-    } else {
-        Noise::none()
-    };
-    let seed = FrameSeed {
-        seed: 9,
-        trial: k,
-        sweep_index: 0,
-    };
-    let f = simulate(&Sensor::helios2(), &scene, &noise, Subsample::All, seed).unwrap();
-    (f.measured, truth)
+    (cast(&scene, k, sigma), truth)
 }
 
 /// The one-sided binomial test against a rate of ½: the fewest successes of `n` that
@@ -227,7 +237,7 @@ fn a_far_elbow_under_noise_keeps_its_radius() {
             .into_par_iter()
             .map(|k| {
                 let (pts, _) = frame_through(&mesh, &p, k, 0.03);
-                survey(&pts, Method::MlEpd, &options(), &SegmentOptions::default()).unwrap()
+                ml_survey(&pts)
             })
             .collect();
         let mut found = 0;
@@ -283,12 +293,7 @@ fn least_of_is_the_binomial_critical_count() {
 fn range_dependent_noise_keeps_the_elbow_an_elbow() {
     let noise = camera_noise();
     let cast = |p: &Pipeline, k: u64| {
-        let mut truth = PoseRanges::default()
-            .sample(&Pipe::paper_20in(), 9, k)
-            .unwrap();
-        truth.d_max = p.d_max;
-        truth.d_min = p.d_min;
-        let scene = Scene::pipeline(&truth, p, &MeshResolution::default()).unwrap();
+        let scene = Scene::pipeline(&pose(p, k), p, &MeshResolution::default()).unwrap();
         let seed = FrameSeed {
             seed: 9,
             trial: k,
@@ -300,13 +305,7 @@ fn range_dependent_noise_keeps_the_elbow_an_elbow() {
     };
     let p = elbow(2.0);
     for k in 0..2 {
-        let s = survey(
-            &cast(&p, k),
-            Method::MlEpd,
-            &options(),
-            &SegmentOptions::default(),
-        )
-        .unwrap();
+        let s = ml_survey(&cast(&p, k));
         assert_eq!(s.segmentation.layout, Layout::BendAhead, "frame {k}");
         let b = s.bend.unwrap();
         assert!(
@@ -338,13 +337,7 @@ fn range_dependent_noise_keeps_the_elbow_an_elbow() {
         ],
     };
     for k in 0..2 {
-        let s = survey(
-            &cast(&tee, k),
-            Method::MlEpd,
-            &options(),
-            &SegmentOptions::default(),
-        )
-        .unwrap();
+        let s = ml_survey(&cast(&tee, k));
         assert_eq!(s.segmentation.layout, Layout::TeeAhead, "tee frame {k}");
     }
 }
@@ -370,7 +363,7 @@ fn tee_is_told_from_a_bend() {
     };
     let want = p.straight_until().unwrap();
     let (pts, _) = frame(&p, 0, 0.03);
-    let s = survey(&pts, Method::MlEpd, &options(), &SegmentOptions::default()).unwrap();
+    let s = ml_survey(&pts);
     assert_eq!(s.segmentation.layout, Layout::TeeAhead);
     assert!(s.bend.is_none());
     let until = s.segmentation.straight_until.unwrap();
@@ -465,7 +458,7 @@ fn a_close_tee_under_the_cameras_noise_is_found_or_withheld() {
 fn straight_pipe_stays_the_plain_estimate() {
     let p = elbow(8.0);
     let (pts, _) = frame(&p, 0, 0.03);
-    let s = survey(&pts, Method::MlEpd, &options(), &SegmentOptions::default()).unwrap();
+    let s = ml_survey(&pts);
     assert_eq!(s.segmentation.layout, Layout::Straight);
     assert_eq!(s.segmentation.straight_until, None);
     let plain = estimate(&pts, Method::MlEpd, &options()).unwrap();
@@ -532,13 +525,7 @@ fn a_dent_is_neither_a_tee_nor_a_bend() {
                 seed,
             )
             .unwrap();
-            let s = survey(
-                &f.measured,
-                Method::MlEpd,
-                &options(),
-                &SegmentOptions::default(),
-            )
-            .unwrap();
+            let s = ml_survey(&f.measured);
             (s, truth)
         })
         .collect();

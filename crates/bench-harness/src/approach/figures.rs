@@ -3,7 +3,7 @@
 use plotters::style::RGBColor;
 
 use super::{ApproachScenario, FrameRow};
-use crate::plots::{Axis, BLUE, Figure, GREEN, Legend, Panel, Png, Point, RED, Series, render};
+use crate::plots::{BLUE, Figure, GREEN, Panel, Png, Point, RED, Series, render};
 
 /// (distance, mean, min, max) of `f` over the frames of each distance with the survey
 /// (`segmented`) or without, finite values only; distances without any left out.
@@ -106,20 +106,16 @@ pub(crate) fn plot_approach(s: &ApproachScenario, rows: &[FrameRow]) -> anyhow::
         })
         .collect();
     render(
-        Figure {
-            name: "approach.png".into(),
-            title: format!(
+        Figure::linear(
+            "approach.png",
+            format!(
                 "{}: mean, min and max over the frames at each distance",
                 s.name
             ),
-            grid: (2, 2),
-            size: (1440, 1000),
-            x_label: "distance to the end of the straight section (m)",
-            xa: Axis { log: false },
-            ya: Axis { log: false },
-            legend: Legend::PerPanel,
-            x_names: &[],
-        },
+            (2, 2),
+            (1440, 1000),
+            "distance to the end of the straight section (m)",
+        ),
         &panels,
     )
 }

@@ -156,23 +156,28 @@ pub const FRAME_COLUMNS: [&str; 13] = [
 
 /// `frames.csv`: one row per frame and fit ([`FRAME_COLUMNS`]).
 pub(super) fn write_frames_csv(dir: &Path, rows: &[FrameRow]) -> anyhow::Result<PathBuf> {
-    let mut csv = CsvFile::create(&dir.join("frames.csv"), &FRAME_COLUMNS)?;
-    for r in rows {
-        csv.row([
-            num(r.distance_m),
-            r.frame.to_string(),
-            r.segmented.to_string(),
-            r.geometry.to_string(),
-            num(r.dmean_err_mm),
-            num(r.straight_until_m),
-            num(r.straight_until_err_mm),
-            num(r.bend_radius_mm),
-            num(r.bend_radius_err_pct),
-            num(r.direction_err_deg),
-            num(r.sigma_straight_until_mm),
-            num(r.sigma_bend_radius_mm),
-            num(r.geometry_evidence),
-        ])?;
-    }
-    csv.finish()
+    CsvFile::write_all(
+        &dir.join("frames.csv"),
+        &FRAME_COLUMNS,
+        rows.iter().map(frame_row),
+    )
+}
+
+/// The row of `frames.csv` of `r` ([`FRAME_COLUMNS`]).
+fn frame_row(r: &FrameRow) -> [String; FRAME_COLUMNS.len()] {
+    [
+        num(r.distance_m),
+        r.frame.to_string(),
+        r.segmented.to_string(),
+        r.geometry.to_string(),
+        num(r.dmean_err_mm),
+        num(r.straight_until_m),
+        num(r.straight_until_err_mm),
+        num(r.bend_radius_mm),
+        num(r.bend_radius_err_pct),
+        num(r.direction_err_deg),
+        num(r.sigma_straight_until_mm),
+        num(r.sigma_bend_radius_mm),
+        num(r.geometry_evidence),
+    ]
 }

@@ -125,22 +125,27 @@ pub(super) fn summarise(s: &ApproachScenario, rows: &[FrameRow]) -> Vec<Approach
 
 /// `approach.csv`: one row per distance and fit ([`APPROACH_COLUMNS`]).
 pub(super) fn write_approach_csv(dir: &Path, summary: &[ApproachRow]) -> anyhow::Result<PathBuf> {
-    let mut csv = CsvFile::create(&dir.join("approach.csv"), &APPROACH_COLUMNS)?;
-    for r in summary {
-        csv.row([
-            num(r.distance_m),
-            r.segmented.to_string(),
-            r.n_frames.to_string(),
-            r.n_found.to_string(),
-            num(r.dmean_bias_mm),
-            num(r.dmean_range_mm),
-            num(r.straight_until_err_max_mm),
-            num(r.bend_radius_err_max_pct),
-            num(r.straight_until_cover95),
-            num(r.bend_radius_cover95),
-        ])?;
-    }
-    csv.finish()
+    CsvFile::write_all(
+        &dir.join("approach.csv"),
+        &APPROACH_COLUMNS,
+        summary.iter().map(approach_row),
+    )
+}
+
+/// The row of `approach.csv` of `r` ([`APPROACH_COLUMNS`]).
+fn approach_row(r: &ApproachRow) -> [String; APPROACH_COLUMNS.len()] {
+    [
+        num(r.distance_m),
+        r.segmented.to_string(),
+        r.n_frames.to_string(),
+        r.n_found.to_string(),
+        num(r.dmean_bias_mm),
+        num(r.dmean_range_mm),
+        num(r.straight_until_err_max_mm),
+        num(r.bend_radius_err_max_pct),
+        num(r.straight_until_cover95),
+        num(r.bend_radius_cover95),
+    ]
 }
 
 /// The columns of `confusion.csv`.
@@ -203,14 +208,16 @@ pub fn confusion(s: &ApproachScenario, rows: &[FrameRow]) -> Vec<ConfusionRow> {
 
 /// `confusion.csv`: one row per distance and geometry ([`CONFUSION_COLUMNS`]).
 pub(super) fn write_confusion_csv(dir: &Path, rows: &[ConfusionRow]) -> anyhow::Result<PathBuf> {
-    let mut csv = CsvFile::create(&dir.join("confusion.csv"), &CONFUSION_COLUMNS)?;
-    for r in rows {
-        csv.row([
-            r.true_scene.to_string(),
-            num(r.distance_m),
-            r.geometry.to_string(),
-            r.count.to_string(),
-        ])?;
-    }
-    csv.finish()
+    CsvFile::write_all(
+        &dir.join("confusion.csv"),
+        &CONFUSION_COLUMNS,
+        rows.iter().map(|r| {
+            [
+                r.true_scene.to_string(),
+                num(r.distance_m),
+                r.geometry.to_string(),
+                r.count.to_string(),
+            ]
+        }),
+    )
 }

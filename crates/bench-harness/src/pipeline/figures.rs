@@ -5,8 +5,7 @@ use plotters::style::RGBColor;
 use super::rows::ProfileRow;
 use super::{METHODS, PipelineScenario, SectionRow};
 use crate::plots::{
-    Axis, BLUE, Figure, GAP, GREEN, Legend, Panel, Png, Point, RED, REFERENCE, Series, colour,
-    render,
+    Axis, BLUE, Figure, GAP, GREEN, Panel, Png, Point, RED, REFERENCE, Series, colour, render,
 };
 use crate::stats::Stats;
 
@@ -84,27 +83,15 @@ fn pipeline_diameters(s: &PipelineScenario, points: &[ProfileRow]) -> anyhow::Re
             titles.push(format!("{}: {label} (with the depth table)", sec.name));
         }
     }
-    let panels: Vec<Panel<'_>> = fig11
-        .iter()
-        .zip(&titles)
-        .map(|(v, t)| Panel {
-            title: t.clone(),
-            y_label: "diameter (mm)".into(),
-            series: v,
-        })
-        .collect();
+    let panels = Panel::each(&fig11, &titles, "diameter (mm)");
     render(
-        Figure {
-            name: "diameters.png".into(),
-            title: format!("{name}: per-frame diameters (Fig. 11)"),
-            grid: (s.sections.len(), 2),
-            size: (1440, 480 * s.sections.len() as u32 + 40),
-            x_label: "frame",
-            xa: Axis { log: false },
-            ya: Axis { log: false },
-            legend: Legend::PerPanel,
-            x_names: &[],
-        },
+        Figure::linear(
+            "diameters.png",
+            format!("{name}: per-frame diameters (Fig. 11)"),
+            (s.sections.len(), 2),
+            (1440, 480 * s.sections.len() as u32 + 40),
+            "frame",
+        ),
         &panels,
     )
 }
@@ -157,27 +144,15 @@ fn pipeline_section_errors(s: &PipelineScenario, sections: &[SectionRow]) -> any
             ));
         }
     }
-    let panels: Vec<Panel<'_>> = fig12
-        .iter()
-        .zip(&titles)
-        .map(|(v, t)| Panel {
-            title: t.clone(),
-            y_label: "error (mm)".into(),
-            series: v,
-        })
-        .collect();
+    let panels = Panel::each(&fig12, &titles, "error (mm)");
     render(
-        Figure {
-            name: "section_errors.png".into(),
-            title: format!("{name}: errors per section (Fig. 12; line: bias, bars: min…max)"),
-            grid: (3, 2),
-            size: (1440, 1480),
-            x_label: "nominal wall thickness of the section (mm)",
-            xa: Axis { log: false },
-            ya: Axis { log: false },
-            legend: Legend::PerPanel,
-            x_names: &[],
-        },
+        Figure::linear(
+            "section_errors.png",
+            format!("{name}: errors per section (Fig. 12; line: bias, bars: min…max)"),
+            (3, 2),
+            (1440, 1480),
+            "nominal wall thickness of the section (mm)",
+        ),
         &panels,
     )
 }
@@ -285,20 +260,16 @@ fn pipeline_profile(s: &PipelineScenario, points: &[ProfileRow]) -> anyhow::Resu
         oval.push(Series::line(name, c, ovality, triangles));
     }
     render(
-        Figure {
-            name: "profile.png".into(),
-            title: format!(
+        Figure::linear(
+            "profile.png",
+            format!(
                 "{}: pipe tally along the run (with the depth table)",
                 s.name
             ),
-            grid: (3, 1),
-            size: (1440, 1400),
-            x_label: "odometer distance (m)",
-            xa: Axis { log: false },
-            ya: Axis { log: false },
-            legend: Legend::PerPanel,
-            x_names: &[],
-        },
+            (3, 1),
+            (1440, 1400),
+            "odometer distance (m)",
+        ),
         &[
             Panel {
                 title: "mean inner diameter".into(),
@@ -380,29 +351,20 @@ fn pipeline_weights(s: &PipelineScenario, sections: &[SectionRow]) -> anyhow::Re
             ));
         }
     }
-    let panels: Vec<Panel<'_>> = spread
-        .iter()
-        .zip(&titles)
-        .map(|(v, t)| Panel {
-            title: t.clone(),
-            y_label: "std (mm, log)".into(),
-            series: v,
-        })
-        .collect();
+    let panels = Panel::each(&spread, &titles, "std (mm, log)");
     render(
         Figure {
-            name: "weights.png".into(),
-            title: format!(
-                "{}: spread per section against the Cramér–Rao bound",
-                s.name
-            ),
-            grid: (2, 2),
-            size: (1440, 1040),
-            x_label: "nominal wall thickness of the section (mm)",
-            xa: Axis { log: false },
             ya: Axis { log: true },
-            legend: Legend::PerPanel,
-            x_names: &[],
+            ..Figure::linear(
+                "weights.png",
+                format!(
+                    "{}: spread per section against the Cramér–Rao bound",
+                    s.name
+                ),
+                (2, 2),
+                (1440, 1040),
+                "nominal wall thickness of the section (mm)",
+            )
         },
         &panels,
     )

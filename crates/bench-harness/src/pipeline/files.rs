@@ -74,21 +74,21 @@ pub(super) fn write_profile(
     s: &PipelineScenario,
     rows: &[ProfileRow],
 ) -> anyhow::Result<PathBuf> {
-    let mut csv = CsvFile::create(&dir.join("profile.csv"), PROFILE_COLUMNS)?;
-    for r in rows {
-        csv.row(profile_row(s, r))?;
-    }
-    csv.finish()
+    CsvFile::write_all(
+        &dir.join("profile.csv"),
+        PROFILE_COLUMNS,
+        rows.iter().map(|r| profile_row(s, r)),
+    )
 }
 
 /// `sections.csv` in `dir`: one row per section, method and calibration
 /// ([`SECTION_COLUMNS`]).
 pub(super) fn write_sections(dir: &Path, sections: &[SectionRow]) -> anyhow::Result<PathBuf> {
-    let mut csv = CsvFile::create(&dir.join("sections.csv"), SECTION_COLUMNS)?;
-    for r in sections {
-        csv.row(section_row(r))?;
-    }
-    csv.finish()
+    CsvFile::write_all(
+        &dir.join("sections.csv"),
+        SECTION_COLUMNS,
+        sections.iter().map(section_row),
+    )
 }
 
 /// The row of `profile.csv` of `r` ([`PROFILE_COLUMNS`]).

@@ -126,11 +126,13 @@ pub(crate) fn finish_run(
     start: Instant,
     extra: impl FnOnce(Metadata) -> Metadata,
 ) -> anyhow::Result<(Vec<PathBuf>, f64)> {
-    let mut summary_csv = CsvFile::create(&dir.join("summary.csv"), SUMMARY_COLUMNS)?;
-    for row in summary {
-        summary_csv.row(summary_row(&scenario.sweep_variable, row))?;
-    }
-    let mut files = vec![summary_csv.finish()?];
+    let mut files = vec![CsvFile::write_all(
+        &dir.join("summary.csv"),
+        SUMMARY_COLUMNS,
+        summary
+            .iter()
+            .map(|r| summary_row(&scenario.sweep_variable, r)),
+    )?];
     files.push(write_new(
         &dir.join("scenario.toml"),
         scenario.source.as_bytes(),

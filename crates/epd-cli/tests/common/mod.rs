@@ -12,6 +12,19 @@ use tof_sim::{
     Frame, FrameSeed, Noise, Pipe, PoseRanges, Scene, Sensor, Subsample, WallModel, simulate,
 };
 
+/// The report's keys of the seven parameters β (eq. 2), in mm and degrees: what a frame's
+/// truth (`frame_NNNN.json`) and an estimate share.
+#[allow(dead_code)]
+pub const PARAM_KEYS: [&str; 7] = [
+    "d_max_mm",
+    "d_min_mm",
+    "roll_deg",
+    "pitch_deg",
+    "yaw_deg",
+    "dy_mm",
+    "dz_mm",
+];
+
 /// A noise-free frame of trial `k` (20" pipe, 3 % ovality), `n` points.
 #[allow(dead_code)]
 pub fn frame(k: u64, n: usize) -> Frame {

@@ -20,6 +20,12 @@ pub struct Axis {
 }
 
 impl Axis {
+    /// `n` bins over [`lo`, `hi`], as given: a table checks its axes when it is built or
+    /// read.
+    pub const fn new(lo: f64, hi: f64, n: usize) -> Self {
+        Self { lo, hi, n }
+    }
+
     pub(super) fn validate(&self, name: &str) -> Result<(), EpdError> {
         if !(self.lo.is_finite() && self.hi.is_finite() && self.hi > self.lo && self.n >= 1) {
             return Err(EpdError::InvalidOption(format!(
