@@ -842,7 +842,11 @@ fn tee(mut s: Segmentation, points: &[[f64; 3]], seg: &SegmentOptions) -> Survey
                 &s.straight.params,
                 s.profile[i].side(),
                 sector,
-                (wall_until - 2.0 * seg.slice_m, wall_until, near + 2.0 * seg.slice_m),
+                (
+                    wall_until - 2.0 * seg.slice_m,
+                    wall_until,
+                    near + 2.0 * seg.slice_m,
+                ),
             )
         };
         // The wall is taken before the opening's first slice; when the opening began
