@@ -73,9 +73,9 @@ pub struct Slice {
     /// slice departs only when it is below [`SURVEY_FALSE_ALARM`] (and its shift or bump
     /// exceeds `min_shift_m`). NaN for a slice not tested (fewer than six sectors).
     pub departure_p: f64,
-    /// For a slice too sparse for the medians' tests (fewer than six sectors): the
-    /// opening test's least p-value over its sectors, adjusted over every sector tested
-    /// in the frame ([`crate::scene::sparse`]); the slice opens below
+    /// The opening test's least p-value over the slice's cells too sparse for the
+    /// medians' tests (all of them in a slice with fewer than six sectors), adjusted over
+    /// every cell tested in the frame ([`crate::scene::sparse`]); the slice opens below
     /// [`crate::scene::sparse::OPENING_FALSE_ALARM`]. NaN when not tested.
     pub opening_p: f64,
     /// The polar angle ψ of the sector centre where `opening_p` was found (rad), NaN
@@ -107,27 +107,36 @@ impl Slice {
         self.n_sectors >= 6 && b > o.min_shift_m && b > self.critical_t * self.bump_se_m
     }
 
-    /// Whether a slice too sparse for the medians shows an opening's exceedances
-    /// ([`crate::scene::sparse`]).
+    /// Whether the slice's cells too sparse for the medians show an opening's
+    /// exceedances ([`crate::scene::sparse`]).
     pub fn opens(&self) -> bool {
         self.opening_p < crate::scene::sparse::OPENING_FALSE_ALARM
     }
 
     /// Whether the slice departs from the straight pipe: a significant shift or bump, or
-    /// in a sparse slice an opening.
+    /// an opening in its sparse cells.
     pub fn departs(&self, o: &SegmentOptions) -> bool {
         self.shifts(o) || self.bumps(o) || self.opens()
     }
 
     /// The side of the wall a departure without a shift lies on: the bump's sector
-    /// centre, or in a sparse slice (fewer than six sectors, where only the opening test
-    /// runs) the opening's (rad; NaN without either).
+    /// centre when the bump is significant, else the opening's when the slice opens,
+    /// else the bump's (rad; NaN without either).
     pub fn side(&self) -> f64 {
-        if self.n_sectors >= 6 {
-            self.bump_psi
-        } else {
+        if self.side_is_opening() {
             self.opening_psi
+        } else {
+            self.bump_psi
         }
+    }
+
+    /// Whether [`Slice::side`] is the opening's: the slice opens and its bump is not
+    /// significant.
+    fn side_is_opening(&self) -> bool {
+        let bumps = self.n_sectors >= 6
+            && self.bump_m > 0.0
+            && self.bump_m > self.critical_t * self.bump_se_m;
+        !bumps && self.opens()
     }
 
     /// A slice at `start_m` with no points: nothing fitted, nothing tested.
@@ -238,14 +247,14 @@ pub fn profile(
         })
         .collect();
     let law = calibrate_tests(&mut slices, ns, axis, o.slice_m);
-    crate::scene::sparse::test_openings(&mut slices, &cells, ns, &law);
+    crate::scene::sparse::test_openings(&mut slices, &cells, ns, o.min_points, &law);
     for (i, s) in slices.iter_mut().enumerate().skip(1) {
-        // The wall in view before the departure's side: a median there, or in a sparse
-        // slice any point.
-        let (psi, needed) = if s.n_sectors >= 6 {
-            (s.bump_psi, o.min_points)
-        } else {
+        // The wall in view before the departure's side: a median there, or, for an
+        // opening in sparse cells, any point.
+        let (psi, needed) = if s.side_is_opening() {
             (s.opening_psi, 1)
+        } else {
+            (s.bump_psi, o.min_points)
         };
         if psi.is_finite() {
             let k = ((psi / tau * ns as f64) as usize).min(ns - 1);

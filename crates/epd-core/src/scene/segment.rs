@@ -169,7 +169,7 @@ pub struct Segmentation {
 /// The first slice of the first run of `persistence` departing slices, counting only
 /// the slices that hold points (far down the pipe, or with a coarse camera, a slice may
 /// fall between two rings of pixels and hold none, which says nothing either way), or
-/// the first sparse slice that opens on its own: the opening test's false-alarm rate is
+/// the first slice whose sparse cells open on their own: the opening test's false-alarm rate is
 /// stated for the whole frame ([`crate::scene::sparse::OPENING_FALSE_ALARM`]) without
 /// persistence, and an opening seen by a coarse camera may fill the cells of a single
 /// ring of pixels.

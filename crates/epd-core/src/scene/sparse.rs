@@ -1,13 +1,16 @@
-//! The opening test of the slices too sparse for the medians' tests: a coarse camera
+//! The opening test of the cells too sparse for the medians' tests: a coarse camera
 //! (160 × 120 pixels) or a distant stretch of pipe leaves fewer than
-//! [`crate::segment::SegmentOptions::min_points`] points in most of a slice's sectors,
-//! so the harmonic fit of the sector medians (`profile`'s shift and bump) is not
-//! defined there, and a branch opening 1.5 m ahead went unseen
-//! (`test_independent_tees.py`: 0 of 8 frames at 160 × 120).
+//! [`crate::segment::SegmentOptions::min_points`] points in a slice's sectors, whose
+//! medians the harmonic fit (`profile`'s shift and bump) then leaves out — all of them
+//! in a sparse slice, where the fit is not defined, and a branch opening 1.5 m ahead went
+//! unseen (`test_independent_tees.py`: 0 of 8 frames at 160 × 120); some of them in a
+//! slice the medians do test, where an opening's sector may be one so left out (tof-sim's
+//! tee 3 m ahead, full frames: 3 of 6 read `straight`). Every cell is tested by one of the
+//! two: by the medians when it holds `min_points`, else here.
 //!
 //! A ray that crosses an opening runs on to the branch's far wall, so its point lies
 //! many σ outside the straight wall; a wall point does so only as the noise's tail. In
-//! each sparse slice, a point *exceeds* when its deviation is above the local wall's
+//! each sparse cell, a point *exceeds* when its deviation is above the local wall's
 //! median + [`EXCEEDANCE_SIGMAS`]·1.4826·MAD (taken over the slice and its neighbours,
 //! at least [`LOCAL_WALL_POINTS`] points). A sector of n points with e exceedances is
 //! tested against the wall's rate p₀ by the binomial upper tail P(X ≥ e), X ~ Bin(n, p₀),
@@ -57,21 +60,25 @@ impl DesignEffect {
     }
 }
 
-/// The sectors (of 12, 30° each) a sparse slice must have points in to be tested: six,
-/// as the medians' tests need medians in. A slice at the edge of the view, where the wall
+/// The sectors (of 12, 30° each) a slice must have points in for its sparse cells to be
+/// tested: six, as the medians' tests need medians in. A slice at the edge of the view, where the wall
 /// enters it near the sensor, has points in a few sectors only — many of them, at short
 /// range with a noise there far below the fit's own error (range noise growing as r²: 10
 /// of 120 straight 8" frames read `in_bend` when such slices were tested, their sectors
 /// exceeding by the fitted axis's offset); it is not sparse but partly out of view.
 pub const MIN_SECTORS_IN_VIEW: usize = 6;
 
-/// Test the slices the medians could not (fewer than six sectors with a median, at least
-/// [`MIN_SECTORS_IN_VIEW`] with points) for an opening, setting their `opening_p` and `opening_psi`: `cells` holds each slice's
-/// sectors' deviations (slice-major, `sectors` per slice), as `profile` binned them.
+/// Test the cells the medians could not (those with fewer than `min_points` points, or
+/// every cell of a slice with fewer than six sectors with a median) of the slices with at
+/// least [`MIN_SECTORS_IN_VIEW`] sectors in view for an opening, setting the slices'
+/// `opening_p` and `opening_psi` (and `departure_p` to the least of its own and
+/// `opening_p`): `cells` holds each slice's sectors' deviations (slice-major, `sectors` per
+/// slice), as `profile` binned them.
 pub(crate) fn test_openings(
     slices: &mut [Slice],
     cells: &[Vec<f64>],
     sectors: usize,
+    min_points: usize,
     law: &DesignEffect,
 ) {
     let in_view = |i: usize| {
@@ -81,33 +88,40 @@ pub(crate) fn test_openings(
             .count()
     };
     let sparse: Vec<usize> = (0..slices.len())
-        .filter(|&i| slices[i].n_sectors < 6 && in_view(i) >= MIN_SECTORS_IN_VIEW)
+        .filter(|&i| in_view(i) >= MIN_SECTORS_IN_VIEW)
         .collect();
     if sparse.is_empty() {
         return;
     }
     let cell = |i: usize, k: usize| &cells[i * sectors + k];
-    // Per sparse slice, per sector: (points, exceedances).
+    // Per slice tested, per sector: (points, exceedances); (0, 0) for a cell left to the
+    // medians.
     let mut counts: Vec<Vec<(usize, usize)>> = Vec::with_capacity(sparse.len());
+    // Every cell's (points, exceedances) of the slices tested, the medians' too: the
+    // wall's rate.
+    let (mut n_all, mut e_all) = (0usize, 0usize);
     for &i in &sparse {
         let limit = local_limit(slices, cells, sectors, i);
         counts.push(
             (0..sectors)
                 .map(|k| {
                     let d = cell(i, k);
-                    (d.len(), d.iter().filter(|&&v| v > limit).count())
+                    let e = d.iter().filter(|&&v| v > limit).count();
+                    n_all += d.len();
+                    e_all += e;
+                    // A cell whose median the medians' tests use is theirs.
+                    if slices[i].n_sectors >= 6 && d.len() >= min_points {
+                        return (0, 0);
+                    }
+                    (d.len(), e)
                 })
                 .collect(),
         );
     }
-    // The wall's rate: the pooled rate of the sparse slices (an opening raises it, which
-    // only makes the test more conservative), at least ten times the Gaussian tail, as
-    // the edge's ring test takes it ([`OPEN_RATE`]: a camera's systematic errors raise
-    // the wall's rate above the Gaussian 0.135 %).
-    let (n_all, e_all) = counts
-        .iter()
-        .flatten()
-        .fold((0usize, 0usize), |(n, e), c| (n + c.0, e + c.1));
+    // The wall's rate: the pooled rate of every cell of the slices tested (an opening
+    // raises it, which only makes the test more conservative), at least ten times the
+    // Gaussian tail, as the edge's ring test takes it ([`OPEN_RATE`]: a camera's systematic
+    // errors raise the wall's rate above the Gaussian 0.135 %).
     let p0 = (e_all as f64 / n_all.max(1) as f64).max(OPEN_RATE);
     // Every (window, sector) tested, over the scales: the Bonferroni factor.
     // Window starts j (in `sparse`) of `w` slices.
@@ -154,8 +168,8 @@ pub(crate) fn test_openings(
         }
     }
     for &i in &sparse {
-        // The medians did not test the slice (NaN): its evidence is the opening test's.
-        slices[i].departure_p = slices[i].opening_p;
+        let (p, o) = (slices[i].departure_p, slices[i].opening_p);
+        slices[i].departure_p = if p.is_nan() { o } else { p.min(o) };
     }
 }
 
@@ -273,12 +287,12 @@ mod tests {
         let mut alarms = 0;
         for _ in 0..2000 {
             let (mut slices, cells) = frame(&mut u, 4, |_, _| false);
-            test_openings(&mut slices, &cells, 12, &law);
+            test_openings(&mut slices, &cells, 12, 12, &law);
             alarms += usize::from(slices.iter().any(|s| s.opening_p < OPENING_FALSE_ALARM));
         }
         assert!(alarms <= 2, "{alarms} of 2000 straight frames opened");
         let (mut slices, cells) = frame(&mut u, 4, |i, k| (20..22).contains(&i) && k == 3);
-        test_openings(&mut slices, &cells, 12, &law);
+        test_openings(&mut slices, &cells, 12, 12, &law);
         for (i, s) in slices.iter().enumerate() {
             let opens = s.opening_p < OPENING_FALSE_ALARM;
             assert_eq!(opens, (20..22).contains(&i), "slice {i}: {s:?}");
@@ -306,7 +320,7 @@ mod tests {
             cells.iter().filter(|c| c.iter().any(|&d| d > 0.1)).count(),
             4
         );
-        test_openings(&mut slices, &cells, 12, &law);
+        test_openings(&mut slices, &cells, 12, 12, &law);
         let open: Vec<usize> = (0..slices.len()).filter(|&i| slices[i].opens()).collect();
         assert_eq!(open.first(), Some(&20), "{:?}", &slices[18..24]);
         assert!(open.iter().all(|i| (20..24).contains(i)), "{open:?}");
@@ -316,6 +330,38 @@ mod tests {
         );
         let one = (tested_cells(12, 40) as f64) * binomial_tail(4, 2, OPEN_RATE, &law);
         assert!(one > OPENING_FALSE_ALARM, "{one}");
+    }
+
+    /// In a slice the medians test (6 or more sectors with 12 points), a cell with fewer
+    /// points is tested here: 4 of its 4 points 0.2 m out open the slice, in that sector;
+    /// the same 4 points among 20 wall points in a cell the medians use are theirs, and
+    /// the slice does not open here.
+    #[test]
+    fn a_sparse_cell_in_a_dense_slice_is_tested() {
+        let mut u = uniforms(41);
+        let law = DesignEffect::INDEPENDENT;
+        for (wall, opens) in [(0, true), (20, false)] {
+            let (mut slices, mut cells) = frame(&mut u, 20, |_, _| false);
+            for s in slices.iter_mut() {
+                s.n_sectors = 12;
+            }
+            let c = &mut cells[20 * 12 + 3];
+            c.truncate(wall);
+            c.extend([0.2, 0.201, 0.199, 0.2]);
+            test_openings(&mut slices, &cells, 12, 12, &law);
+            assert_eq!(slices[20].opens(), opens, "{:?}", slices[20]);
+            if opens {
+                assert!(
+                    (slices[20].opening_psi - 3.5 / 12.0 * std::f64::consts::TAU).abs() < 1e-12
+                );
+            }
+            assert!(
+                slices
+                    .iter()
+                    .enumerate()
+                    .all(|(i, s)| i == 20 || !s.opens())
+            );
+        }
     }
 
     /// The sectors tested over the windows of a frame of `slices` sparse slices, every
@@ -354,9 +400,9 @@ mod tests {
         let (mut with_law, mut without) = (0, 0);
         for _ in 0..500 {
             let (mut slices, cells) = patchy(&mut u);
-            test_openings(&mut slices, &cells, 12, &eight);
+            test_openings(&mut slices, &cells, 12, 12, &eight);
             with_law += usize::from(slices.iter().any(|s| s.opening_p < OPENING_FALSE_ALARM));
-            test_openings(&mut slices, &cells, 12, &DesignEffect::INDEPENDENT);
+            test_openings(&mut slices, &cells, 12, 12, &DesignEffect::INDEPENDENT);
             without += usize::from(slices.iter().any(|s| s.opening_p < OPENING_FALSE_ALARM));
         }
         assert_eq!(with_law, 0);
