@@ -25,8 +25,8 @@ What is checked is issue 22's goals on frames we did not make with tof-sim:
 
 And issue 23's goal that ≤ 1 % of straight frames read as a bend or a tee (correlated
 noise included): the count read otherwise is binomial; the test fails above 0.01 + 4 SE
-= 0.038 (7 of 200), which a true rate of 1 % passes with probability > 0.999 and one of
-5 % fails with probability ≈ 0.3; the measured counts are printed.
+= 0.038 (8 or more of 200), which a true rate of 1 % reaches with probability 0.001 and
+one of 5 % with probability 0.79 (binomial tails, exact); the measured counts are printed.
 """
 
 import json
