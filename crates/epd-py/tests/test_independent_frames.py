@@ -3,10 +3,15 @@ share no code with tof-sim or epd: a numpy ray caster of the pipe written from
 SPEC.md (eq. 3: x_P = Rz(yaw)·Ry(pitch)·Rx(roll)·x_S + [0, δy, δz]; the wall
 y²/(Dmax/2)² + z²/(Dmin/2)² = 1), a pinhole camera of its own (160 × 120, 69° × 51°,
 the sensor frame: X along the optical axis, Y left, Z up), pipe sizes, ovalities and
-poses off the paper's grid, and three range-error models of its own: independent,
-spatially correlated (a 2-pixel Gaussian blur of the noise image, rescaled to σ) and a
-multipath band (every range in 1–2 m read 2.5σ long). Frames are written as binary
-little-endian PLY (float32 x y z), as checks outside the project write them.
+poses off the paper's grid, and range-error models of its own: independent,
+spatially correlated (a 2-pixel Gaussian blur of the noise image, rescaled to σ), a
+multipath band (every range in 1–2 m read 2.5σ long), range noise growing as r²
+(σ(r) = S0_M·(r / 1 m)², as a phase camera's does with falling return power) and far
+outliers (independent noise, then OUTLIER_SHARE of the pixels read anywhere in
+OUTLIER_RANGE_M). `frame` and `run` take the camera's size (W × H by default; the
+survey's false alarms at 320 × 240 are checked in `test_straight_false_alarms.py`).
+Frames are written as binary little-endian PLY (float32 x y z), as checks outside the
+project write them.
 
 What is checked is issue 22's goals on frames we did not make with tof-sim:
 - coverage of the ±1.96σ̂ interval for Dmax and Dmin (independent and correlated noise):
@@ -20,8 +25,8 @@ What is checked is issue 22's goals on frames we did not make with tof-sim:
 
 And issue 23's goal that ≤ 1 % of straight frames read as a bend or a tee (correlated
 noise included): the count read otherwise is binomial; the test fails above 0.01 + 4 SE
-= 0.038 (7 of 200), which a true rate of 1 % passes with probability > 0.999 and one of
-5 % fails with probability ≈ 0.3; the measured counts are printed.
+= 0.038 (8 or more of 200), which a true rate of 1 % reaches with probability 0.001 and
+one of 5 % with probability 0.79 (binomial tails, exact); the measured counts are printed.
 """
 
 import json
@@ -36,6 +41,10 @@ SIGMA_M = 0.02
 W, H = 160, 120
 FOV_DEG = (69.0, 51.0)
 MAX_RANGE_M = 6.0
+S0_M = 0.02  # range-squared model: σ(r) = S0_M·(r / 1 m)², 20 mm at 1 m
+OUTLIER_SHARE = 0.05  # outliers model: the share of pixels read anywhere in OUTLIER_RANGE_M
+OUTLIER_RANGE_M = (0.3, 6.0)
+MODELS = ("independent", "correlated", "multipath", "range_squared", "outliers")
 
 
 def rot(roll, pitch, yaw):
@@ -70,8 +79,12 @@ def blur(img, px):
     return np.apply_along_axis(lambda a: np.convolve(a, k, mode="valid"), 0, rows)
 
 
-def frame(rng, model):
-    """One frame: (points (n, 3) float32 in the sensor frame, Dmax, Dmin in m)."""
+def frame(rng, model, w=W, h=H):
+    """One frame of a `w` × `h` camera under the range-error `model` (one of MODELS):
+    (points (n, 3) float32 in the sensor frame, Dmax, Dmin in m). The draws of the
+    first three models are those they had before the others were added (same seed, same
+    frame at W × H)."""
+    assert model in MODELS, model
     od = rng.uniform(14.0, 32.0) * 25.4e-3
     inner = od - 2 * rng.uniform(0.006, 0.015)
     ovality = rng.uniform(0.01, 0.04)
@@ -79,7 +92,7 @@ def frame(rng, model):
     roll = rng.uniform(-math.pi, math.pi)
     pitch, yaw = np.radians(rng.uniform(-6.0, 6.0, size=2))
     dy, dz = rng.uniform(-0.05, 0.05, size=2) * inner / 0.5
-    d_s = rays()
+    d_s = rays(w, h)
     e = d_s @ rot(roll, pitch, yaw).T  # directions in the PCS
     a2, b2 = (d_max / 2) ** 2, (d_min / 2) ** 2
     qa = e[..., 1] ** 2 / a2 + e[..., 2] ** 2 / b2
@@ -91,9 +104,14 @@ def frame(rng, model):
     if model == "correlated":
         noise = blur(noise, 2.0)
         noise *= SIGMA_M / noise.std()
+    if model == "range_squared":
+        noise *= (S0_M / SIGMA_M) * t**2  # NaN where the ray misses: dropped below
     measured = t + noise
     if model == "multipath":
         measured = measured + np.where((t >= 1.0) & (t <= 2.0), 2.5 * SIGMA_M, 0.0)
+    if model == "outliers":
+        wild = rng.random(t.shape) < OUTLIER_SHARE
+        measured = np.where(wild, rng.uniform(*OUTLIER_RANGE_M, size=t.shape), measured)
     keep = np.isfinite(t) & (t <= MAX_RANGE_M)
     pts = (d_s * measured[..., None])[keep]
     return pts.astype(np.float32), d_max, d_min
@@ -110,13 +128,15 @@ def write_ply(path, pts):
         f.write(np.ascontiguousarray(pts, dtype="<f4").tobytes())
 
 
-def run(epd_bin, tmp_path, model, seed):
+def run(epd_bin, tmp_path, model, seed, frames=FRAMES, w=W, h=H):
+    """`frames` frames of a `w` × `h` camera under `model`, drawn from `seed`, written to
+    `tmp_path` and estimated: (one result per frame, {file: (Dmax, Dmin) in mm})."""
     rng = np.random.default_rng(seed)
     truth = {}
     paths = []
-    for k in range(FRAMES):
-        pts, d_max, d_min = frame(rng, model)
-        p = tmp_path / f"{model}_{k:03d}.ply"
+    for k in range(frames):
+        pts, d_max, d_min = frame(rng, model, w, h)
+        p = tmp_path / f"{model}_{w}x{h}_{k:03d}.ply"
         write_ply(p, pts)
         truth[str(p)] = (d_max * 1e3, d_min * 1e3)
         paths.append(str(p))
