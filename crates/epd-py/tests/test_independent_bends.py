@@ -11,9 +11,8 @@ the sensor until it leaves the pipe, and the crossing is refined by bisection to
 range noise N(0, σ²) is added along the ray. Nothing here is tof-sim's mesh or its torus.
 
 Measured and printed per distance: how many frames read `bend_ahead` with
-`straight_until_m` within 5 cm of x0. Issue 23's goal (≥ 99 % correct from 0.5 to 3 m)
-is not met on these at 160 × 120 at 3 m (tof-sim's approach frames are all read right from
-0.5 to 4 m, 6 per distance), so the test asserts what holds and records the rest as xfail; it also asserts that no frame with a bend ahead is answered far off.
+`straight_until_m` within 5 cm of x0 (8 of 8 at every distance from 0.75 to 3 m at
+160 × 120; a rate of 99 % reads all 8 right with probability 0.92), so the test asserts it; it also asserts that no frame with a bend ahead is answered far off.
 """
 
 import math
@@ -81,20 +80,16 @@ def bend_frame(rng, x0, diameter, bend_r, theta_b):
 
 
 # Measured (`pytest -s test_independent_bends.py`, 8 frames per distance, 160 × 120
-# pixels): 0.75, 1.0, 1.5 and 2.0 m 8 of 8, the start within −5.3 … +5.4 mm; 3.0 m 5 of 8
-# (3 `straight`, converged). Before the sparse slices' opening test
-# (`epd_core::scene::sparse`) 1.5 m was 0 of 8 (refused `lack_of_fit` with geometry
-# `straight`) and 2.0 and 3.0 m 0 of 8 (`straight`: the bend holds too few of this
-# camera's points for the medians' tests, 12 points per 30° sector).
+# pixels): 8 of 8 at 0.75, 1.0, 1.5, 2.0 and 3.0 m, the start within −8.9 … +5.4 mm.
+# Before the opening test of the sparse cells (`epd_core::scene::sparse`) 1.5 m was 0 of 8
+# (refused `lack_of_fit` with geometry `straight`) and 2.0 and 3.0 m 0 of 8 (`straight`:
+# the bend holds too few of this camera's points for the medians' tests, 12 points per
+# 30° sector).
 # The same caster at 640 × 480 pixels: the bend read `bend_ahead` with its start within
 # 3 mm in 6 of 6 frames at 1.5, 2.0 and 3.0 m (2 each). Before the axis's lateral
 # covariance (`epd_core::estimate::AxisCov`) this round pipe's roll-coupled pose 1-σ hid
-# the bend's shift: 0.75 m 7 of 8, and 3 of the 6 full frames read `tee_ahead`. Issue
-# 23's goal is not met on this geometry at this resolution at 3 m; the misses are
-# recorded as xfail rather than loosened.
-NOT_MET = {
-    3.0: "issue 23: 5 of 8 (3 straight) at 160 x 120",
-}
+# the bend's shift: 0.75 m 7 of 8, and 3 of the 6 full frames read `tee_ahead`.
+NOT_MET: dict = {}
 
 
 def run_bends(epd_bin, tmp_path, ahead):

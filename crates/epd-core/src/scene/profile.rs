@@ -249,16 +249,21 @@ pub fn profile(
     let law = calibrate_tests(&mut slices, ns, axis, o.slice_m);
     crate::scene::sparse::test_openings(&mut slices, &cells, ns, o.min_points, &law);
     for (i, s) in slices.iter_mut().enumerate().skip(1) {
-        // The wall in view before the departure's side: a median there, or, for an
-        // opening in sparse cells, any point.
-        let (psi, needed) = if s.side_is_opening() {
-            (s.opening_psi, 1)
+        // The wall in view before the departure's side: a median there in the slice
+        // before, or, for an opening in sparse cells, any point there within the longest
+        // window the opening test pools (a sparse slice's cell may hold none by chance).
+        let (psi, needed, back) = if s.side_is_opening() {
+            let longest = crate::scene::sparse::WINDOW_SLICES.iter().max().copied();
+            (s.opening_psi, 1, longest.unwrap_or(1))
         } else {
-            (s.bump_psi, o.min_points)
+            (s.bump_psi, o.min_points, 1)
         };
         if psi.is_finite() {
             let k = ((psi / tau * ns as f64) as usize).min(ns - 1);
-            s.bump_follows_wall = cells[(i - 1) * ns + k].len() >= needed;
+            s.bump_follows_wall = (i.saturating_sub(back)..i)
+                .map(|j| cells[j * ns + k].len())
+                .sum::<usize>()
+                >= needed;
         }
     }
     slices
