@@ -121,8 +121,10 @@ fn a_bag_gives_the_estimates_of_its_points() {
         .unwrap();
     assert!(
         out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+        "{:?}: {}{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr),
+        String::from_utf8_lossy(&out.stdout)
     );
     let rows = json_lines(&out.stdout);
     assert_eq!(rows.len(), 3);

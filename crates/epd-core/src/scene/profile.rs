@@ -247,7 +247,7 @@ pub fn profile(
         })
         .collect();
     let law = calibrate_tests(&mut slices, ns, axis, o.slice_m);
-    crate::scene::sparse::test_openings(&mut slices, &cells, ns, o.min_points, &law);
+    crate::scene::sparse::test_openings(&mut slices, &cells, o, &law);
     for (i, s) in slices.iter_mut().enumerate().skip(1) {
         // The wall in view before the departure's side: a median there in the slice
         // before, or, for an opening in sparse cells, any point there within the longest
