@@ -3,7 +3,8 @@
 # virtualenv, `pip install ./crates/epd-py pytest numpy rosbags` (pip fetches maturin from PyPI,
 # which builds the extension in the release profile), the `epd` binary the tests compare
 # against (release: it reuses the wheel's compiled crates), then pytest. `rosbags` writes
-# the ROS 2 bags of test_bags.py (a bag writer this project did not write).
+# the ROS 2 bags of test_bags.py (a bag writer this project did not write); `plyfile`
+# reads `--export-fit`'s PLY in test_profile.py (a reader it did not write).
 #
 #   .ci/python-tests.sh [PYTEST ARGS…]
 #
@@ -17,8 +18,8 @@ target=$(cargo metadata --format-version 1 --no-deps |
 venv=${EPD_PY_VENV:-$target/python-venv}
 echo "== python venv $venv ($("$PYTHON" --version))"
 "$PYTHON" -m venv --clear "$venv"
-echo "== pip install ./crates/epd-py pytest numpy rosbags"
-"$venv/bin/python" -m pip install --quiet --disable-pip-version-check ./crates/epd-py pytest numpy rosbags
+echo "== pip install ./crates/epd-py pytest numpy rosbags plyfile"
+"$venv/bin/python" -m pip install --quiet --disable-pip-version-check ./crates/epd-py pytest numpy rosbags plyfile
 echo "== cargo build --release -p epd-cli --bin epd (the tests compare against it)"
 cargo build --release -p epd-cli --bin epd
 export EPD_BIN="$target/release/epd"

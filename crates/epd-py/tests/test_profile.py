@@ -5,7 +5,7 @@ did not write) of a known pipe, and `epd estimate FILE --export-fit OUT.ply` / `
   first message, the distance from `--speed` or from an odometry topic's path length, and
   the mean diameter and ovality within their 1-σ of the truth;
 - `--shard K/N` outputs concatenate into the whole run's table;
-- the exported PLY (read here by a reader of its own, numpy only) holds the points with a
+- the exported PLY (read here by a reader of its own, numpy only, and by `plyfile`) holds the points with a
   `residual_mm` equal to their range error to the fitted wall, computed here from the
   reported fit, and mesh vertices on that wall to 1e-6.
 
@@ -268,6 +268,37 @@ def test_export_fit_residuals_and_wall(epd_bin, tmp_path):
     assert (f["n"] == 3).all()
     assert f["v"].min() >= len(points) and f["v"].max() < len(v)
     assert any("d_max_mm" in c for c in comments)
+
+
+def test_export_fit_reads_in_plyfile(epd_bin, tmp_path):
+    """The export read by `plyfile` (a PLY reader this project did not write, as viewers
+    parse the format): the same points, residuals and triangles as our own reader sees,
+    each triangle's three vertices on the fitted wall."""
+    plyfile = pytest.importorskip("plyfile")
+    pts = pipe_frame(6)
+    xyz = tmp_path / "frame.xyz"
+    np.savetxt(xyz, pts, fmt="%.17g")
+    ply = tmp_path / "fit.ply"
+    est = json.loads(run_epd(epd_bin, "estimate", xyz, "--format", "json",
+                             "--export-fit", ply).stdout)
+    data = plyfile.PlyData.read(str(ply))
+    v, f = data["vertex"].data, data["face"].data
+    assert {"x", "y", "z", "residual_mm", "mesh"} <= set(v.dtype.names)
+    points = v[v["mesh"] == 0]
+    np.testing.assert_allclose(np.stack([points[c] for c in "xyz"], axis=1), pts, atol=1e-12)
+    np.testing.assert_allclose(points["residual_mm"],
+                               range_residual_mm(np.stack([points[c] for c in "xyz"], axis=1),
+                                                 est), atol=2e-3)
+    tri = np.stack(f["vertex_indices"])
+    assert tri.shape == (len(f), 3) and len(f) > 0
+    ours = read_ply(ply)[0]["face"]["v"]
+    np.testing.assert_array_equal(tri, ours)
+    assert (v["mesh"][tri] == 1).all()
+    m = np.stack([v[c][tri.ravel()] for c in "xyz"], axis=1)
+    r = rotation(*(math.radians(est[k]) for k in ("roll_deg", "pitch_deg", "yaw_deg")))
+    w = m @ r.T + np.array([0, est["dy_mm"], est["dz_mm"]]) / 1e3
+    on = (w[:, 1] / (est["d_max_mm"] / 2e3)) ** 2 + (w[:, 2] / (est["d_min_mm"] / 2e3)) ** 2
+    np.testing.assert_allclose(np.sqrt(on), 1.0, atol=1e-6)
 
 
 def test_export_fit_in_millimetres_lies_over_the_file(epd_bin, tmp_path):
