@@ -7,8 +7,8 @@
 //! calibration_transfer -- OUT_DIR [FRAMES_PER_SIZE] [PASSES]` writes `frames.csv`,
 //! `summary.csv` and `calibration_transfer.png` to OUT_DIR.
 
+use epd_io::csv::num;
 use std::borrow::Cow;
-use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::Context;
@@ -81,6 +81,17 @@ fn as_cal(v: &[Frame]) -> Vec<CalibrationFrame<'_>> {
         .collect()
 }
 
+/// Append one CSV record and its newline to `text` (quoted as CSV quotes: the rigs' names
+/// hold a `"`).
+fn record<I, T>(text: &mut String, fields: I)
+where
+    I: IntoIterator<Item = T>,
+    T: AsRef<[u8]>,
+{
+    text.push_str(&epd_io::csv::line(fields));
+    text.push('\n');
+}
+
 /// Run the experiment into `out` with `per_size` test frames per pipe size and `passes`
 /// passes of the rigs' pose/table refinement.
 pub fn run(out: &Path, per_size: u64, passes: u32) -> anyhow::Result<()> {
@@ -146,18 +157,25 @@ pub fn run(out: &Path, per_size: u64, passes: u32) -> anyhow::Result<()> {
                     &cfg,
                 );
                 let Ok(e) = r else {
-                    writeln!(rows, "{name},{od},{j},error,,,,,,false,")?;
+                    record(
+                        &mut rows,
+                        [*name, &od.to_string(), &j.to_string(), "error"]
+                            .into_iter()
+                            .chain(["", "", "", "", "", "false", ""]),
+                    );
                     continue;
                 };
                 let est = &e.estimate;
                 let out_frac = e.calibration_outside.unwrap_or(f64::NAN);
                 outside += out_frac;
                 if !est.status.is_converged() {
-                    writeln!(
-                        rows,
-                        "{name},{od},{j},{},,,,,,false,{out_frac}",
-                        est.status.name()
-                    )?;
+                    let (status, outside) = (est.status.name(), num(out_frac));
+                    record(
+                        &mut rows,
+                        [*name, &od.to_string(), &j.to_string(), status]
+                            .into_iter()
+                            .chain(["", "", "", "", "", "false", &outside]),
+                    );
                     continue;
                 }
                 let (ea, eb) = (est.params.d_max - truth.0, est.params.d_min - truth.1);
@@ -167,26 +185,43 @@ pub fn run(out: &Path, per_size: u64, passes: u32) -> anyhow::Result<()> {
                 let em = 0.5 * (ea + eb);
                 errs.push(em * 1e3);
                 sig.push(est.sigma_d_mean().unwrap_or(f64::NAN) * 1e3);
-                writeln!(
-                    rows,
-                    "{name},{od},{j},converged,{:.4},{:.4},{:.4},{:.4},{:.4},{cov},{out_frac:.4}",
-                    em * 1e3,
-                    ea * 1e3,
-                    eb * 1e3,
-                    sa * 1e3,
-                    sb * 1e3
-                )?;
+                let mm = |v: f64| format!("{:.4}", v * 1e3);
+                record(
+                    &mut rows,
+                    [
+                        name.to_string(),
+                        od.to_string(),
+                        j.to_string(),
+                        "converged".into(),
+                        mm(em),
+                        mm(ea),
+                        mm(eb),
+                        mm(sa),
+                        mm(sb),
+                        cov.to_string(),
+                        format!("{out_frac:.4}"),
+                    ],
+                );
             }
             let n = errs.len();
             let mean = errs.iter().sum::<f64>() / n.max(1) as f64;
             let sd = (errs.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (n.max(2) - 1) as f64)
                 .sqrt();
             let ms = sig.iter().sum::<f64>() / n.max(1) as f64;
-            writeln!(
-                summary,
-                "{name},{od},{per_size},{n},{mean:.4},{sd:.4},{ms:.4},{covered},{:.4}",
-                outside / per_size as f64
-            )?;
+            record(
+                &mut summary,
+                [
+                    name.to_string(),
+                    od.to_string(),
+                    per_size.to_string(),
+                    n.to_string(),
+                    format!("{mean:.4}"),
+                    format!("{sd:.4}"),
+                    format!("{ms:.4}"),
+                    covered.to_string(),
+                    format!("{:.4}", outside / per_size as f64),
+                ],
+            );
             if n > 0 {
                 points.push((od + 0.15 * (k as f64 - 0.5), mean, mean - ms, mean + ms));
             }
