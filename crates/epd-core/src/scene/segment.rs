@@ -754,16 +754,23 @@ pub fn survey(
     }
     let beta = s.straight.params;
     let d_mean = 0.5 * (beta.d_max + beta.d_min);
-    let start = crate::bend::start_from(&beta, end, dir, 1.5 * d_mean);
-    let bend = crate::bend::fit_bend(&s.beyond, &beta, &start).ok();
     let straight_sigma = s.straight.rms_residual;
-    let accepted = bend.filter(|b| {
+    let fits = |b: &crate::bend::BendFit| {
         b.status.is_converged()
             && (b.residual_sigma <= 2.0 * straight_sigma.max(1e-4)
                 || b.residual_sigma <= 0.5 * b.straight_sigma)
             && b.geometry.radius > 1.05 * b.geometry.tube_radius
             && b.geometry.radius < 100.0 * d_mean
             && b.angle_seen > 0.0
+    };
+    // The torus is started toward the departure's side, then, when it does not fit from
+    // there, from the three other quarters ([`BEND_START_TURNS`]); the first that fits
+    // is taken.
+    let accepted = BEND_START_TURNS.iter().find_map(|turn| {
+        let start = crate::bend::start_from(&beta, end, dir + turn, 1.5 * d_mean);
+        crate::bend::fit_bend(&s.beyond, &beta, &start)
+            .ok()
+            .filter(fits)
     });
     match accepted {
         Some(b) => {
@@ -784,6 +791,20 @@ pub fn survey(
         ..Survey::plain(s)
     })
 }
+
+/// The turns (rad) from the departure's side at which the bend's torus is started, in
+/// turn until one fits: the side first, then its opposite and the two quarters. Far
+/// ahead a coarse camera's departure is an opening of sparse cells, whose side is that
+/// of a few exceeding points and can be the bend's far side: a numpy elbow 3 m ahead at
+/// 160 × 120 departed at 285° for a bend toward 90°, the torus started there settled on
+/// a radius of the tube's, and the frame read `tee_ahead` (`test_independent_bends.py`).
+/// A tee has no torus to fit from any side; the acceptance is the same for each start.
+const BEND_START_TURNS: [f64; 4] = [
+    0.0,
+    std::f64::consts::PI,
+    std::f64::consts::FRAC_PI_2,
+    -std::f64::consts::FRAC_PI_2,
+];
 
 /// The survey's verdict for a departure at slice `i` that is not a bend: a dent, debris
 /// or an obstacle on the wall when it runs inward ([`inward`]) — the layout stays
