@@ -132,7 +132,7 @@ impl Slice {
 
     /// Whether [`Slice::side`] is the opening's: the slice opens and its bump is not
     /// significant.
-    fn side_is_opening(&self) -> bool {
+    pub(crate) fn side_is_opening(&self) -> bool {
         let bumps = self.n_sectors >= 6
             && self.bump_m > 0.0
             && self.bump_m > self.critical_t * self.bump_se_m;

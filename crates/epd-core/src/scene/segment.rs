@@ -763,10 +763,17 @@ pub fn survey(
             && b.geometry.radius < 100.0 * d_mean
             && b.angle_seen > 0.0
     };
-    // The torus is started toward the departure's side, then, when it does not fit from
-    // there, from the three other quarters ([`BEND_START_TURNS`]); the first that fits
-    // is taken.
-    let accepted = BEND_START_TURNS.iter().find_map(|turn| {
+    // The torus is started toward the departure's side, then, when that side is a sparse
+    // opening's and it does not fit from there, from the three other quarters
+    // ([`BEND_START_TURNS`]); the first that fits is taken.
+    let sparse_side =
+        first_departure(&s.profile, seg).is_some_and(|i| s.profile[i].side_is_opening());
+    let turns = if sparse_side {
+        &BEND_START_TURNS[..]
+    } else {
+        &BEND_START_TURNS[..1]
+    };
+    let accepted = turns.iter().find_map(|turn| {
         let start = crate::bend::start_from(&beta, end, dir + turn, 1.5 * d_mean);
         crate::bend::fit_bend(&s.beyond, &beta, &start)
             .ok()
@@ -799,6 +806,9 @@ pub fn survey(
 /// 160 × 120 departed at 285° for a bend toward 90°, the torus started there settled on
 /// a radius of the tube's, and the frame read `tee_ahead` (`test_independent_bends.py`).
 /// A tee has no torus to fit from any side; the acceptance is the same for each start.
+/// A shift's side is the fitted direction of a slice's medians and is not doubted: with
+/// the other starts tried for every departure, two straight numpy frames under a
+/// multipath band read `bend_ahead` (`test_straight_false_alarms.py`, 320 × 240).
 const BEND_START_TURNS: [f64; 4] = [
     0.0,
     std::f64::consts::PI,
