@@ -1165,6 +1165,34 @@ mod tests {
         assert!(!resumes(&inside[i..], &o, 0.5));
     }
 
+    /// One slice that shifts (10 mm at 0.1 mm standard error) departs alone only when its
+    /// adjusted p-value is below α² and the slice after it has too few sectors to be
+    /// judged; a judged slice after it that does not depart, or a p-value above α², leaves
+    /// the frame straight.
+    #[test]
+    fn a_lone_slice_departs_where_its_next_cannot_confirm_it() {
+        let o = SegmentOptions::default();
+        let mut prof: Vec<Slice> = (0..12).map(|i| slice(0.05 * i as f64, 0.0, 0.0)).collect();
+        prof[6] = slice(0.3, 0.01, 0.0);
+        for (p, next_sectors, departs) in [
+            (1e-7, 4, true),
+            (1e-7, 12, false),
+            (1e-5, 4, false),
+            (1e-5, 12, false),
+        ] {
+            prof[6].departure_p = p;
+            prof[7].n_sectors = next_sectors;
+            assert!(prof[6].departs(&o));
+            let found = first_departure(&prof, &o);
+            assert_eq!(
+                found == Some(6),
+                departs,
+                "p {p}, next {next_sectors} sectors"
+            );
+            assert!(found.is_none() || found == Some(6));
+        }
+    }
+
     #[test]
     fn a_growing_shift_never_resumes() {
         let o = SegmentOptions::default();
