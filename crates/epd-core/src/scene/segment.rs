@@ -18,7 +18,8 @@
 //! false-alarm rate and exceeds `min_shift_m`, or when one sector's median lies that far
 //! *outside* the harmonic fit (a *bump*: the opening's one or two sectors, whose rays
 //! run on to the branch's far wall, are imprecise medians that the weighted harmonic
-//! hardly follows), in `persistence` consecutive slices; the slices, their statistics
+//! hardly follows), in `persistence` consecutive slices (or in one, at α^persistence,
+//! where the slices after it cannot be judged: `first_departure`); the slices, their statistics
 //! and the tests' levels are the departure profile's ([`crate::scene::profile`]). The
 //! departure is then located to the first departing slice's edge refined by the
 //! shift's growth (a bend's centreline leaves the axis as R_b − √(R_b² − s²) at an axial
@@ -172,7 +173,8 @@ pub struct Segmentation {
 /// the first slice whose sparse cells open on their own: the opening test's false-alarm rate is
 /// stated for the whole frame ([`crate::scene::sparse::OPENING_FALSE_ALARM`]) without
 /// persistence, and an opening seen by a coarse camera may fill the cells of a single
-/// ring of pixels.
+/// ring of pixels; or the first slice that departs at α^persistence when the slices after
+/// it cannot be judged (below).
 fn first_departure(profile: &[Slice], o: &SegmentOptions) -> Option<usize> {
     // Persistence asks the slices after a departing one to confirm it. Where they cannot
     // (fewer than six sectors with medians: far ahead a branch takes some of a slice's
