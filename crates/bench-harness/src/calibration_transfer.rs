@@ -7,7 +7,6 @@
 //! calibration_transfer -- OUT_DIR [FRAMES_PER_SIZE] [PASSES]` writes `frames.csv`,
 //! `summary.csv` and `calibration_transfer.png` to OUT_DIR.
 
-use epd_io::csv::num;
 use std::borrow::Cow;
 use std::path::Path;
 
@@ -15,6 +14,7 @@ use anyhow::Context;
 use epd_core::calibration::{CalibrationFrame, RigFrames};
 use epd_frame::rig::{RigSettings, calibrate_rig_sizes};
 use epd_frame::{EstimateConfig, EstimateSettings, FrameInput, measure_frame};
+use epd_io::csv::num;
 use tof_sim::settings::{PoseOverride, SimulateSettings, Simulator};
 
 use crate::plots::{Figure, Panel, Series, render};
