@@ -83,6 +83,15 @@ pub struct Slice {
     pub opening_psi: f64,
 }
 
+/// The sectors with medians a slice needs for its shift and bump to be tested: six, twice
+/// the three coefficients of the harmonic fit c₀ + c₁cos ψ + c₂sin ψ, so that its misfit
+/// keeps ν = 6 − 3 = 3 degrees of freedom, the fewest for which Student's t (the bump's
+/// statistic, and the shift's F(2, ν) denominator) has a finite variance ν/(ν − 2), and
+/// the slice's variance ratio is a median of at least six ratios. With fewer, the critical
+/// values grow without bound (t₀.₉₉₉₉₉(ν = 1) ≈ 3·10⁴) and a slice seen on one side only
+/// carries no test.
+pub const MIN_SECTORS_TESTED: usize = 6;
+
 impl Slice {
     /// The shift's length (m).
     pub fn shift(&self) -> f64 {
@@ -97,14 +106,16 @@ impl Slice {
     /// Whether the shift is significant under `o`.
     pub fn shifts(&self, o: &SegmentOptions) -> bool {
         let s = self.shift();
-        self.n_sectors >= 6 && s > o.min_shift_m && self.shift_f > self.critical_f
+        self.n_sectors >= MIN_SECTORS_TESTED && s > o.min_shift_m && self.shift_f > self.critical_f
     }
 
     /// Whether one sector's outward bump is significant under `o` (same thresholds as
     /// the shift).
     pub fn bumps(&self, o: &SegmentOptions) -> bool {
         let b = self.bump_m;
-        self.n_sectors >= 6 && b > o.min_shift_m && b > self.critical_t * self.bump_se_m
+        self.n_sectors >= MIN_SECTORS_TESTED
+            && b > o.min_shift_m
+            && b > self.critical_t * self.bump_se_m
     }
 
     /// Whether the slice's cells too sparse for the medians show an opening's
@@ -133,7 +144,7 @@ impl Slice {
     /// Whether [`Slice::side`] is the opening's: the slice opens and its bump is not
     /// significant.
     pub(crate) fn side_is_opening(&self) -> bool {
-        let bumps = self.n_sectors >= 6
+        let bumps = self.n_sectors >= MIN_SECTORS_TESTED
             && self.bump_m > 0.0
             && self.bump_m > self.critical_t * self.bump_se_m;
         !bumps && self.opens()
@@ -327,7 +338,7 @@ pub(crate) fn calibrate_tests(
     // (ln n̄, ln r, ν) of each tested slice.
     let tested: Vec<(f64, f64, f64)> = slices
         .iter()
-        .filter(|s| s.n_sectors >= 6 && s.variance_ratio > 0.0 && s.misfit_dof > 0)
+        .filter(|s| s.n_sectors >= MIN_SECTORS_TESTED && s.variance_ratio > 0.0 && s.misfit_dof > 0)
         .map(|s| {
             let per_sector = s.n_points as f64 / s.n_sectors as f64;
             (per_sector.ln(), s.variance_ratio.ln(), s.misfit_dof as f64)
@@ -376,10 +387,10 @@ pub(crate) fn calibrate_tests(
 /// the two tests gets half the false-alarm rate, divided among the `tested` slices, the
 /// bump's also among the `sectors`): min(1, 2n·P(F(2, ν) > F), 2n·K·P(t(ν) > b/se_b)).
 /// It lies below [`SURVEY_FALSE_ALARM`] exactly when the shift's F exceeds `critical_f`
-/// or the bump's t exceeds `critical_t`. NaN for a slice with fewer than six sectors,
+/// or the bump's t exceeds `critical_t`. NaN for a slice with fewer than [`MIN_SECTORS_TESTED`] sectors,
 /// which the survey does not test.
 fn departure_p(s: &Slice, tested: usize, dof: f64, sectors: usize) -> f64 {
-    if s.n_sectors < 6 {
+    if s.n_sectors < MIN_SECTORS_TESTED {
         return f64::NAN;
     }
     let n = 2.0 * tested.max(1) as f64;

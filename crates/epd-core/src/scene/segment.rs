@@ -38,7 +38,7 @@ use crate::params::Params;
 use crate::residual::Geometry;
 
 pub use crate::scene::profile::{
-    AxisSigma, SURVEY_FALSE_ALARM, Slice, departure_evidence, profile,
+    AxisSigma, MIN_SECTORS_TESTED, SURVEY_FALSE_ALARM, Slice, departure_evidence, profile,
 };
 
 /// What the frame shows ahead of the sensor.
@@ -71,7 +71,7 @@ impl Layout {
 pub struct SegmentOptions {
     /// Slice length along the axis (m).
     pub slice_m: f64,
-    /// Angular sectors per slice (≥ 6).
+    /// Angular sectors per slice (≥ [`MIN_SECTORS_TESTED`]).
     pub sectors: usize,
     /// Points a sector needs for its median to count.
     pub min_points: usize,
@@ -113,7 +113,8 @@ impl SegmentOptions {
         if !(self.slice_m > 0.001 && self.slice_m <= 1.0) {
             return bad("slice_m", self.slice_m, "must lie in (0.001, 1] m");
         }
-        if !(6..=360).contains(&self.sectors) {
+        if !(MIN_SECTORS_TESTED..=360).contains(&self.sectors) {
+            // Fewer sectors than a slice needs for its tests would test nothing.
             return bad("sectors", self.sectors as f64, "must lie in [6, 360]");
         }
         if self.min_points < 3 {
@@ -177,7 +178,7 @@ pub struct Segmentation {
 /// it cannot be judged (below).
 fn first_departure(profile: &[Slice], o: &SegmentOptions) -> Option<usize> {
     // Persistence asks the slices after a departing one to confirm it. Where they cannot
-    // (fewer than six sectors with medians: far ahead a branch takes some of a slice's
+    // (fewer than [`MIN_SECTORS_TESTED`] sectors with medians: far ahead a branch takes some of a slice's
     // few points), a slice departs alone when its adjusted p-value is below α^persistence
     // ([`SURVEY_FALSE_ALARM`] to the power `persistence`): the evidence of `persistence`
     // independent slices in a row each at α, with a per-frame false alarm of at most
@@ -199,7 +200,7 @@ fn first_departure(profile: &[Slice], o: &SegmentOptions) -> Option<usize> {
                     && profile[seen[j] + 1..]
                         .iter()
                         .take(o.persistence.saturating_sub(1))
-                        .all(|s| s.n_sectors < 6))
+                        .all(|s| s.n_sectors < MIN_SECTORS_TESTED))
                 || (j + o.persistence <= flags.len()
                     && flags[j..j + o.persistence].iter().all(|&f| f))
         })
@@ -482,7 +483,7 @@ fn opening_slice(profile: &[Slice], i: usize) -> usize {
     let mut j = i;
     while j > 0 && i - j < 2 {
         let p = &profile[j - 1];
-        let weak_bump = p.n_sectors >= 6
+        let weak_bump = p.n_sectors >= MIN_SECTORS_TESTED
             && (p.bump_psi - psi).abs() < 1e-9
             && p.bump_m > EDGE_SIGMAS * p.bump_se_m;
         if !weak_bump {
@@ -658,7 +659,10 @@ fn inward_start(profile: &[Slice], i: usize) -> f64 {
         let p = &profile[j - 1];
         let turn = (p.direction() - dir + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
             - std::f64::consts::PI;
-        if !(p.n_sectors >= 6 && p.shift_f > critical && turn.abs() < std::f64::consts::FRAC_PI_4) {
+        if !(p.n_sectors >= MIN_SECTORS_TESTED
+            && p.shift_f > critical
+            && turn.abs() < std::f64::consts::FRAC_PI_4)
+        {
             break;
         }
         j -= 1;
@@ -940,7 +944,7 @@ fn resumes(run: &[Slice], o: &SegmentOptions, within_m: f64) -> bool {
         }
         let on_wall =
             s.widening_m.abs() <= (2.0 * o.min_shift_m).max(o.threshold_sigmas * s.shift_se_m);
-        if s.departs(o) || s.n_sectors < 6 || !s.shift().is_finite() || !on_wall {
+        if s.departs(o) || s.n_sectors < MIN_SECTORS_TESTED || !s.shift().is_finite() || !on_wall {
             in_row = 0;
             continue;
         }

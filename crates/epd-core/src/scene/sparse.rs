@@ -25,7 +25,7 @@
 //! slice *opens* when its least adjusted p-value is below [`OPENING_FALSE_ALARM`].
 
 use crate::scene::edge::{EXCEEDANCE_SIGMAS, MIN_WALL_POINTS, OPEN_RATE};
-use crate::scene::profile::Slice;
+use crate::scene::profile::{MIN_SECTORS_TESTED, Slice};
 use crate::segment::SegmentOptions;
 
 /// The false-alarm rate of the opening test per frame (a straight pipe's frame has an
@@ -62,15 +62,15 @@ impl DesignEffect {
 }
 
 /// The sectors (of 12, 30° each) a slice must have points in for its sparse cells to be
-/// tested: six, as the medians' tests need medians in. A slice at the edge of the view, where the wall
+/// tested: [`MIN_SECTORS_TESTED`], as many as the medians' tests need medians in. A slice at the edge of the view, where the wall
 /// enters it near the sensor, has points in a few sectors only — many of them, at short
 /// range with a noise there far below the fit's own error (range noise growing as r²: 10
 /// of 120 straight 8" frames read `in_bend` when such slices were tested, their sectors
 /// exceeding by the fitted axis's offset); it is not sparse but partly out of view.
-pub const MIN_SECTORS_IN_VIEW: usize = 6;
+pub const MIN_SECTORS_IN_VIEW: usize = MIN_SECTORS_TESTED;
 
 /// Test the cells the medians could not (those with fewer than `min_points` points, or
-/// every cell of a slice with fewer than six sectors with a median) of the slices with at
+/// every cell of a slice with fewer than [`MIN_SECTORS_TESTED`] sectors with a median) of the slices with at
 /// least [`MIN_SECTORS_IN_VIEW`] sectors in view for an opening, setting the slices'
 /// `opening_p` and `opening_psi` (and `departure_p` to the least of its own and
 /// `opening_p`): `cells` holds each slice's sectors' deviations (slice-major, `sectors` per
@@ -111,7 +111,7 @@ pub(crate) fn test_openings(
                     n_all += d.len();
                     e_all += e;
                     // A cell whose median the medians' tests use is theirs.
-                    if slices[i].n_sectors >= 6 && d.len() >= min_points {
+                    if slices[i].n_sectors >= MIN_SECTORS_TESTED && d.len() >= min_points {
                         return (0, 0);
                     }
                     (d.len(), e)
