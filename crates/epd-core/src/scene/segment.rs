@@ -24,7 +24,11 @@
 //! departure is then located to the first departing slice's edge refined by the
 //! shift's growth (a bend's centreline leaves the axis as R_b − √(R_b² − s²) at an axial
 //! distance s past its start), the straight pipe refitted on the points before it (less
-//! a margin), and the test repeated with the new fit until the end stops moving.
+//! a margin), and the test repeated with the new fit until the end stops moving. When
+//! the refit sees no departure at all, the frame is straight: the departure was the wider
+//! fit's, pulled off the pipe by what lies beyond the cut (numpy frames with multipath, a
+//! band of ranges read long: 18 of 800 straight frames read `tee_ahead` when the wider fit
+//! was kept, 7 with the refit's verdict; docs/bends-and-tees.md).
 //!
 //! A bend and a tee differ on the far side: a bend pulls the opposite wall in (its
 //! sector's median goes negative with the shift), a tee leaves it on the cylinder.
@@ -240,7 +244,7 @@ struct Refined {
 }
 
 /// From the straight fit `fit`: the departure, a refit on the points before it, until
-/// the departure stops moving (at most `max_rounds` refits).
+/// the departure stops moving or vanishes (at most `max_rounds` refits).
 fn refine(
     pts: &[[f64; 3]],
     mut fit: Estimate,
@@ -262,15 +266,24 @@ fn refine(
         if !moved || rounds > seg.max_rounds {
             break;
         }
-        end = found;
-        let Some(x_end) = end else {
-            // The departure vanished with the last refit: fit all points again.
-            fit = estimate(pts, method, options)?;
-            cut = None;
-            rounds += 1;
-            prof = profile(pts, &fit.params, &AxisSigma::of(&fit), seg);
-            continue;
+        if std::env::var_os("EPD_TRACE").is_some() && found.is_none() {
+            let x = end.unwrap_or(f64::NAN);
+            let near: Vec<String> = prof
+                .iter()
+                .filter(|s| (s.start_m - x).abs() < 3.0 * seg.slice_m)
+                .map(|s| format!("{:.3}:{:.1e}/{:.1e}", s.start_m, s.departure_p, s.opening_p))
+                .collect();
+            eprintln!("vanished at {x:.3}: {}", near.join(" "));
+        }
+        let Some(x_end) = found else {
+            // The departure vanished with the last refit: the straight pipe fitted on the
+            // points before it leaves no slice departing, so nothing departs from the
+            // straight section where the survey's reference is the section itself; the
+            // departure was the wider fit's, pulled off the pipe by what lies beyond the
+            // cut (multipath, a range-dependent bias). Keep this fit.
+            break;
         };
+        end = found;
         // Too little straight pipe left to refit: the sensor is in the bend.
         let Some(refit) = refit_before(pts, &fit.params, x_end, method, options, seg) else {
             break;

@@ -1,0 +1,95 @@
+//! The survey on straight pipes whose far points carry a range bias (multipath: every
+//! range within a band read long by a common amount): the fit on every point is pulled off
+//! the pipe by the band and its profile departs where the band begins; the straight pipe
+//! refitted on the points before that departure sees none, and the frame must read
+//! straight (`epd_core::segment`, `refine`).
+
+mod common;
+
+use epd_core::segment::{Layout, SegmentOptions, survey};
+use epd_core::{EstimateOptions, Method};
+use rand::RngExt;
+use rand_distr::{Distribution, Normal};
+
+/// Range noise σ (m) and the band: ranges in [1, 2] m read `BAND_BIAS_SIGMAS`·σ long.
+const SIGMA_M: f64 = 0.02;
+const BAND_M: (f64, f64) = (1.0, 2.0);
+
+/// One straight frame of a 20" pipe at 320 × 240 within 6 m, its band read long by
+/// `bias_m`.
+fn banded_frame(seed: u64, bias_m: f64) -> Vec<[f64; 3]> {
+    let mut rng = common::rng(seed);
+    let truth = common::random_params(&mut rng, common::id_m(20.0), 0.02, 6.0, 0.2);
+    let normal = Normal::new(0.0, SIGMA_M).expect("σ is finite");
+    common::rays(320, 240)
+        .iter()
+        .filter_map(|d| {
+            let t = common::range_to_wall(&truth, d).filter(|&t| t <= 6.0)?;
+            let band = if (BAND_M.0..=BAND_M.1).contains(&t) {
+                bias_m
+            } else {
+                0.0
+            };
+            let r = t + band + normal.sample(&mut rng);
+            Some([d.x * r, d.y * r, d.z * r])
+        })
+        .collect()
+}
+
+/// 100 straight frames (poses as the numpy caster's: tilt within ±6°, offsets within a
+/// fifth of the radius), the band read 2.5σ long (the numpy caster's multipath model): the
+/// count read otherwise is binomial; at the issue's goal of 1 % its mean is 1 and its
+/// standard deviation 0.99, and the test fails above 1 + 4·0.99 ≈ 5, i.e. at 5 or more,
+/// which a true rate of 1 % reaches with probability 0.003. Measured: 0 of 100 (before
+/// the refit's verdict was kept, 0 of 100 too: these frames rarely pull the wider fit; the
+/// next test holds one that does).
+#[test]
+fn a_band_of_long_ranges_is_no_departure() {
+    let frames = 100;
+    let mut misread = Vec::new();
+    let mut pick = common::rng(9);
+    for k in 0..frames {
+        let seed = 5000 + pick.random_range(0..1_000_000u64) + k;
+        let pts = banded_frame(seed, 2.5 * SIGMA_M);
+        let s = survey(
+            &pts,
+            Method::MlEpd,
+            &EstimateOptions::default(),
+            &SegmentOptions::default(),
+        )
+        .expect("the survey runs on a straight frame");
+        if s.segmentation.layout != Layout::Straight {
+            misread.push((
+                seed,
+                s.segmentation.layout.name(),
+                s.segmentation.straight_until,
+            ));
+        }
+    }
+    println!("{} of {frames} read otherwise: {misread:?}", misread.len());
+    assert!(misread.len() < 5, "{misread:?}");
+}
+
+/// One frame (seed 116350, the band read 5σ long) whose fit on every point is pulled off
+/// the pipe by the band: its profile departs at 0.46 m, and the straight pipe refitted
+/// before that sees no departure. It reads straight; it read `tee_ahead` at 0.46 m while
+/// the survey went back to the fit on every point (checked: the test fails then).
+#[test]
+fn a_frame_whose_wide_fit_the_band_pulled_reads_straight() {
+    let pts = banded_frame(116_350, 5.0 * SIGMA_M);
+    let s = survey(
+        &pts,
+        Method::MlEpd,
+        &EstimateOptions::default(),
+        &SegmentOptions::default(),
+    )
+    .expect("the survey runs on a straight frame");
+    let seg = &s.segmentation;
+    assert_eq!(
+        seg.layout,
+        Layout::Straight,
+        "read {} until {:?}",
+        seg.layout.name(),
+        seg.straight_until
+    );
+}
