@@ -242,12 +242,13 @@ fn scenario_text(arg: &Path) -> Result<(PathBuf, String), ExitCode> {
     let text = if arg.as_os_str() == "-" {
         read_source(&path, std::io::stdin().lock())
     } else {
-        std::fs::File::open(&path)
-            .map_err(|source| ScenarioError::Read {
+        // A regular file only: opening a FIFO would wait for a writer.
+        epd_io::read::open_regular(&path)
+            .map_err(|e| ScenarioError::Read {
                 path: path.clone(),
-                source,
+                source: std::io::Error::other(e),
             })
-            .and_then(|f| read_source(&path, f))
+            .and_then(|(f, _)| read_source(&path, f))
     };
     match text {
         Ok(t) => Ok((path, t)),

@@ -134,8 +134,8 @@ pub struct EstimateArgs {
     /// Write the results to FILE (atomically) instead of standard output.
     #[arg(short = 'o', long, value_name = "FILE")]
     pub output: Option<PathBuf>,
-    /// Worker threads (default: all cores).
-    #[arg(long, value_name = "N")]
+    /// Worker threads, 1 ≤ N ≤ 1024 (default: all cores).
+    #[arg(long, value_name = "N", value_parser = parse_threads)]
     pub threads: Option<NonZeroUsize>,
     /// Process only the K-th of N parts of the files (1 ≤ K ≤ N), e.g. one task of a
     /// job array: the files are sorted by the bytes of their paths (as `LC_ALL=C ls`)
@@ -307,8 +307,8 @@ pub struct CalibrateArgs {
     pub passes: u32,
     #[command(flatten)]
     pub input: InputArgs,
-    /// Worker threads (default: all cores).
-    #[arg(long, value_name = "N")]
+    /// Worker threads, 1 ≤ N ≤ 1024 (default: all cores).
+    #[arg(long, value_name = "N", value_parser = parse_threads)]
     pub threads: Option<NonZeroUsize>,
     /// Only errors.
     #[arg(short, long)]
@@ -344,8 +344,8 @@ pub struct ProfileArgs {
     /// gives the whole run's table; each shard draws its own profile.png.
     #[arg(long, value_name = "K/N")]
     pub shard: Option<ShardSpec>,
-    /// Worker threads (default: all cores).
-    #[arg(long, value_name = "N")]
+    /// Worker threads, 1 ≤ N ≤ 1024 (default: all cores).
+    #[arg(long, value_name = "N", value_parser = parse_threads)]
     pub threads: Option<NonZeroUsize>,
     /// No progress bar, no summary.
     #[arg(short, long)]
@@ -505,4 +505,20 @@ fn table_bins(s: &str) -> Result<usize, String> {
             "{n} bins: expected 1 to {MAX_TABLE_BINS} (2²⁰, the most bins a table may have)"
         )),
     }
+}
+
+/// Most worker threads (`--threads`), as bench-harness allows: each worker holds a frame's
+/// buffers (about 25 MB for a full 640 × 480 frame), so 1024 of them already fill a large
+/// node's memory, and beyond the cores more only costs their start (100 000 took minutes).
+pub const MAX_THREADS: usize = 1024;
+
+/// `--threads N`: 1 ≤ N ≤ [`MAX_THREADS`].
+fn parse_threads(s: &str) -> Result<NonZeroUsize, String> {
+    let n: NonZeroUsize = s
+        .parse()
+        .map_err(|e| format!("`{s}` is not a whole number of at least 1 ({e})"))?;
+    if n.get() > MAX_THREADS {
+        return Err(format!("{n} threads: at most {MAX_THREADS}"));
+    }
+    Ok(n)
 }

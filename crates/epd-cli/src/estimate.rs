@@ -278,6 +278,24 @@ impl Iterator for Queue<'_> {
 
 /// `--export-fit OUT.ply`: the one input measured, its report written as usual, and its
 /// fit written to OUT.ply (`epd_frame::export`).
+/// Whether two output paths name the same file: the same folder (links resolved) and the
+/// same name, whether or not the file exists yet (a link at the path itself is replaced by
+/// the output, so it is not followed).
+fn same_place(a: &Path, b: &Path) -> bool {
+    let place = |p: &Path| {
+        let parent = match p.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        (
+            parent.canonicalize().ok(),
+            p.file_name().map(|n| n.to_os_string()),
+        )
+    };
+    let (pa, pb) = (place(a), place(b));
+    a == b || (pa.0.is_some() && pa == pb)
+}
+
 fn run_export(args: &EstimateArgs, out: &Path, cfg: &EstimateConfig) -> anyhow::Result<ExitCode> {
     let [file] = args.files.as_slice() else {
         return Err(usage(format!(
@@ -293,6 +311,13 @@ fn run_export(args: &EstimateArgs, out: &Path, cfg: &EstimateConfig) -> anyhow::
     check_output_path(out, &args.files, "--export-fit")?;
     if let Some(o) = &args.output {
         check_output_path(o, &args.files, "-o")?;
+        if same_place(o, out) {
+            return Err(usage(format!(
+                "-o and --export-fit name the same file ({}): the fitted wall would replace \
+                 the results; give them different names",
+                epd_io::name::shown(out)
+            )));
+        }
     }
     start_threads(args.threads)?;
     let (report, fitted) = epd_frame::export::fit_file(file, cfg);

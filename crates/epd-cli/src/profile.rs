@@ -129,6 +129,11 @@ fn num(f: &Field) -> Option<f64> {
     }
 }
 
+/// The frames without a result whose reason `epd profile` prints on stderr; the others'
+/// are in `profile.csv` (its `reason` column), so that a long run's failures do not flood
+/// the terminal.
+const FAILURES_SHOWN: usize = 5;
+
 /// One frame's row of `profile.csv`, and what the plot keeps of it.
 fn row(frame: u64, r: &FileReport, t0: Option<i64>, x_of: &Abscissa) -> (Vec<Field>, Row) {
     let f = r.fields();
@@ -403,6 +408,14 @@ pub fn run_profile(a: &ProfileArgs) -> anyhow::Result<ExitCode> {
         for (k, r) in &reports {
             let (fields, keep) = row(*k, r, t0, &x_of);
             failed += usize::from(!keep.result);
+            if !keep.result && failed <= FAILURES_SHOWN && !a.quiet {
+                let why = r.failure().unwrap_or_else(|| "no result".into());
+                let shown = match &r.file_bytes {
+                    Some(b) => epd_io::name::shown_bytes(b),
+                    None => epd_io::name::escape_controls(&r.file).into_owned(),
+                };
+                bar.suspend(|| stderr_line!("{shown}: {}", epd_io::name::escape_controls(&why)));
+            }
             let named: Vec<(&str, Field)> = PROFILE_COLUMNS.iter().copied().zip(fields).collect();
             write(&mut csv, &epd_io::csv::fields_line(&named))?;
             rows.push(keep);

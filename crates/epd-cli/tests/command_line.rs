@@ -238,3 +238,44 @@ fn a_closed_standard_output_ends_quietly() {
     assert!(err.trim().is_empty(), "not quiet: {err}");
     assert_eq!(o.status.code(), Some(0), "{err}");
 }
+
+/// `--threads` above 1024 is a usage error naming the limit (100 000 workers had taken
+/// minutes to start for a 10 ms frame), in every command that takes it; and `-o` and
+/// `--export-fit` naming one file (also through another spelling of its folder) is a
+/// usage error, where the fitted wall had silently replaced the results.
+#[test]
+fn threads_are_bounded_and_two_outputs_cannot_share_a_file() {
+    let dir = common::temp_dir("cmdline_limits");
+    let file = csv_file(&dir);
+    for cmd in [
+        vec!["estimate"],
+        vec!["calibrate", "--known-id-mm", "500", "--out", "t.json"],
+        vec!["profile", "--out", "p"],
+    ] {
+        let o = epd()
+            .args(&cmd)
+            .arg(&file)
+            .args(["--threads", "100000"])
+            .current_dir(&dir)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{cmd:?}: {err}");
+        assert!(err.contains("at most 1024"), "{cmd:?}: {err}");
+    }
+    let sub = dir.join("sub");
+    std::fs::create_dir_all(&sub).unwrap();
+    let o = epd()
+        .arg("estimate")
+        .arg(&file)
+        .arg("-o")
+        .arg(sub.join("out"))
+        .arg("--export-fit")
+        .arg(dir.join("sub/../sub/out"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("name the same file"), "{err}");
+    assert!(!sub.join("out").exists());
+}

@@ -185,3 +185,76 @@ fn simulate_out_names_what_is_in_the_way() {
     assert!(stderr(&o).contains("is not a folder"), "{}", stderr(&o));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Run `cmd` and wait for it at most `limit`; `None` (the child killed) when it is still
+/// running then.
+fn output_within(mut cmd: Command, limit: Duration) -> Option<Output> {
+    let mut child = cmd
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    while t0.elapsed() < limit {
+        if child.try_wait().unwrap().is_some() {
+            return Some(child.wait_with_output().unwrap());
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    child.kill().ok();
+    child.wait().ok();
+    None
+}
+
+/// A FIFO given as a frame is refused by name without waiting for a writer (opening it
+/// to sniff a bag's magic bytes had waited forever, the good files after it unread), in
+/// `estimate`, `view` and `profile`; the file after it is still estimated.
+#[test]
+fn a_fifo_among_the_frames_is_refused_not_waited_on() {
+    let dir = common::temp_dir("fifo-frame");
+    let frame = helios_frame(&dir);
+    let fifo = dir.join("pipe.ply");
+    let made = Command::new("mkfifo").arg(&fifo).status().unwrap();
+    assert!(made.success());
+    // A writer never comes: a reader that opens the FIFO blocking would wait forever.
+    let limit = Duration::from_secs(60);
+    let mut estimate = epd();
+    estimate.arg("estimate").arg(&fifo).arg(&frame);
+    let o = output_within(estimate, limit).expect("estimate waited on the FIFO");
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("not a regular file (a FIFO)"),
+        "{}",
+        stderr(&o)
+    );
+    // The frame after it was read and estimated (this uncalibrated Helios2 frame is
+    // refused `lack_of_fit`, on stdout with its estimate).
+    let out = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(out.contains("frame_0000.ply: ml-epd"), "{out}");
+    let mut view = epd();
+    view.arg("view")
+        .arg(&fifo)
+        .arg("--out")
+        .arg(dir.join("v.png"));
+    let o = output_within(view, limit).expect("view waited on the FIFO");
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("not a regular file (a FIFO)"),
+        "{}",
+        stderr(&o)
+    );
+    // `profile` names each frame without a result and why on stderr, not only in its CSV.
+    let mut profile = epd();
+    profile
+        .arg("profile")
+        .arg(&fifo)
+        .arg("--out")
+        .arg(dir.join("prof"));
+    let o = output_within(profile, limit).expect("profile waited on the FIFO");
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("pipe.ply: not a regular file (a FIFO)"),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -171,7 +171,9 @@ impl Scenario {
             path: path.to_path_buf(),
             source,
         };
-        let file = std::fs::File::open(path).map_err(read_err)?;
+        // A regular file only: opening a FIFO would wait for a writer.
+        let (file, _) =
+            epd_io::read::open_regular(path).map_err(|e| read_err(std::io::Error::other(e)))?;
         Self::from_reader(path, file)
     }
 

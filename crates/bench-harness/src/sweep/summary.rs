@@ -40,8 +40,15 @@ pub struct SummaryRow {
 /// missing value). Every number there is in shortest round-trip decimal, so the rows read
 /// back equal the run's, bit for bit: the figures drawn from them are the run's.
 pub fn read_summary(path: &Path) -> anyhow::Result<Vec<SummaryRow>> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    // A regular file only: opening a FIFO would wait for a writer.
+    let text = epd_io::read::open_regular(path)
+        .map_err(anyhow::Error::msg)
+        .and_then(|(mut f, _)| {
+            let mut text = String::new();
+            std::io::Read::read_to_string(&mut f, &mut text)?;
+            Ok(text)
+        })
+        .with_context(|| format!("cannot read {}", path.display()))?;
     let mut lines = text.lines();
     let header: Vec<&str> = lines
         .next()

@@ -155,10 +155,11 @@ pub fn is_bag(path: &Path) -> bool {
     {
         return true;
     }
+    // Sniffed only in a regular file: opening a FIFO would wait for a writer (the
+    // readers then refuse it by name).
     let mut head = [0u8; 8];
-    File::open(path)
-        .and_then(|mut f| f.read_exact(&mut head))
-        .is_ok_and(|()| head == MCAP_MAGIC)
+    crate::read::open_regular(path)
+        .is_ok_and(|(mut f, _)| f.read_exact(&mut head).is_ok() && head == MCAP_MAGIC)
 }
 
 /// The `.mcap` files of a bag, in order: the file itself, or those a rosbag2 folder's
