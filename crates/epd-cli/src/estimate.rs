@@ -245,7 +245,41 @@ impl Work {
 /// taken.
 struct Queue<'a> {
     inputs: std::slice::Iter<'a, Input>,
-    bag: Option<(&'a Path, BagFrames)>,
+    bag: Option<OpenBag<'a>>,
+}
+
+/// The bag being read: its path, topic, the messages its summary lists for the topic, those
+/// read so far, and the reader.
+struct OpenBag<'a> {
+    path: &'a Path,
+    topic: &'a str,
+    listed: u64,
+    read: u64,
+    frames: BagFrames,
+}
+
+impl OpenBag<'_> {
+    /// When the bag ends: a report for the messages its summary lists that were never read
+    /// (none at all: an empty topic, or channel or chunk records the reader could not use),
+    /// so that a bag that gives fewer frames than it holds is not passed over in silence.
+    fn shortfall(&self) -> Option<FileReport> {
+        let why = if self.listed == 0 {
+            format!(
+                "topic `{}` holds no message: nothing to estimate",
+                self.topic
+            )
+        } else if self.read < self.listed {
+            format!(
+                "{} of the {} messages the bag lists for topic `{}` were read: the records \
+                 holding the others are damaged or unreadable (`epd topics` lists what the \
+                 summary says)",
+                self.read, self.listed, self.topic
+            )
+        } else {
+            return None;
+        };
+        Some(FileReport::of_path(self.path, Err(why)))
+    }
 }
 
 impl Iterator for Queue<'_> {
@@ -253,22 +287,43 @@ impl Iterator for Queue<'_> {
 
     fn next(&mut self) -> Option<Work> {
         loop {
-            if let Some((path, frames)) = &mut self.bag {
-                match frames.next() {
-                    Some(Ok(m)) => return Some(Work::Message(Box::new(m))),
+            if let Some(bag) = &mut self.bag {
+                match bag.frames.next() {
+                    Some(Ok(m)) => {
+                        bag.read += 1;
+                        return Some(Work::Message(Box::new(m)));
+                    }
                     Some(Err(e)) => {
-                        let r = damage_report(path, &e);
+                        let r = damage_report(bag.path, &e);
                         self.bag = None;
                         return Some(Work::Done(Box::new(r)));
                     }
-                    None => self.bag = None,
+                    None => {
+                        let short = bag.shortfall();
+                        self.bag = None;
+                        if let Some(r) = short {
+                            return Some(Work::Done(Box::new(r)));
+                        }
+                    }
                 }
             }
             match self.inputs.next()? {
                 Input::File(p) => return Some(Work::File(p.clone())),
                 Input::Failed(r) => return Some(Work::Done(r.clone())),
-                Input::Bag { path, topic, .. } => match BagFrames::open(path, topic) {
-                    Ok(frames) => self.bag = Some((path, frames)),
+                Input::Bag {
+                    path,
+                    topic,
+                    messages,
+                } => match BagFrames::open(path, topic) {
+                    Ok(frames) => {
+                        self.bag = Some(OpenBag {
+                            path,
+                            topic,
+                            listed: *messages,
+                            read: 0,
+                            frames,
+                        })
+                    }
                     Err(e) => return Some(Work::Done(Box::new(damage_report(path, &e)))),
                 },
             }
@@ -276,8 +331,6 @@ impl Iterator for Queue<'_> {
     }
 }
 
-/// `--export-fit OUT.ply`: the one input measured, its report written as usual, and its
-/// fit written to OUT.ply (`epd_frame::export`).
 /// Whether two output paths name the same file: the same folder (links resolved) and the
 /// same name, whether or not the file exists yet (a link at the path itself is replaced by
 /// the output, so it is not followed).
@@ -296,6 +349,8 @@ fn same_place(a: &Path, b: &Path) -> bool {
     a == b || (pa.0.is_some() && pa == pb)
 }
 
+/// `--export-fit OUT.ply`: the one input measured, its report written as usual, and its
+/// fit written to OUT.ply (`epd_frame::export`).
 fn run_export(args: &EstimateArgs, out: &Path, cfg: &EstimateConfig) -> anyhow::Result<ExitCode> {
     let [file] = args.files.as_slice() else {
         return Err(usage(format!(

@@ -202,7 +202,9 @@ struct Frames<'a> {
     /// The run's frame number of the next input's first frame.
     next_frame: u64,
     keep: std::ops::Range<u64>,
-    bag: Option<(&'a Path, u64, BagFrames)>,
+    /// The bag being read: its path, the run's frame number of its first message, the
+    /// reader, and the messages of the block its summary lists and those read so far.
+    bag: Option<(&'a Path, u64, BagFrames, u64, u64)>,
     /// The frame number after the last message of the current bag.
     after: u64,
 }
@@ -212,9 +214,10 @@ impl Iterator for Frames<'_> {
 
     fn next(&mut self) -> Option<(u64, Work)> {
         loop {
-            if let Some((path, at, frames)) = &mut self.bag {
+            if let Some((path, at, frames, listed, read)) = &mut self.bag {
                 match frames.next() {
                     Some(Ok(m)) => {
+                        *read += 1;
                         let k = *at + m.message.index;
                         self.after = k + 1;
                         return Some((k, Work::Message(Box::new(m))));
@@ -226,7 +229,21 @@ impl Iterator for Frames<'_> {
                         self.bag = None;
                         return Some((k, Work::Done(Box::new(r))));
                     }
-                    None => self.bag = None,
+                    None => {
+                        // Fewer messages than the summary lists for the block: a row saying
+                        // so, after the last one read, rather than a silent gap.
+                        let short = (*read < *listed).then(|| {
+                            let why = format!(
+                                "{read} of the {listed} messages the bag lists here were read: \
+                                 the records holding the others are damaged or unreadable"
+                            );
+                            FileReport::of_path(path, Err(why))
+                        });
+                        self.bag = None;
+                        if let Some(r) = short {
+                            return Some((self.after, Work::Done(Box::new(r))));
+                        }
+                    }
                 }
             }
             if self.next_frame >= self.keep.end {
@@ -254,7 +271,10 @@ impl Iterator for Frames<'_> {
                     }
                     self.after = first + lo;
                     match BagFrames::open(path, topic) {
-                        Ok(f) => self.bag = Some((path, first, f.only(lo..hi))),
+                        Ok(f) => {
+                            let listed = hi.min(*messages).saturating_sub(lo);
+                            self.bag = Some((path, first, f.only(lo..hi), listed, 0));
+                        }
                         Err(e) => {
                             return Some((first, Work::Done(Box::new(damage_report(path, &e)))));
                         }
@@ -445,12 +465,19 @@ pub fn run_profile(a: &ProfileArgs) -> anyhow::Result<ExitCode> {
             "{} frames: profile.csv and profile.png written to {} ({failed} without a result{})",
             rows.len(),
             epd_io::name::shown(&a.out),
-            if unplaced > 0 {
-                format!(", {unplaced} outside the odometry's time span: not drawn")
-            } else {
-                String::new()
+            match (unplaced, &x_of) {
+                (0, _) => String::new(),
+                (n, Abscissa::Odometry(_)) => {
+                    format!(", {n} outside the odometry's time span or without a time: not drawn")
+                }
+                (n, _) => format!(", {n} without a time: not drawn"),
             }
         );
+    }
+    if rows.is_empty() && a.shard.is_none() {
+        // Nothing at all to profile (a bag whose topic holds no message): not a success.
+        stderr_line!("error: no frame to profile: the inputs hold no point cloud");
+        return Ok(ExitCode::FAILURE);
     }
     Ok(if failed > 0 {
         ExitCode::FAILURE

@@ -202,6 +202,38 @@ fn the_topic_is_chosen_or_asked_for() {
     assert!(err.contains("no input is one"), "{err}");
 }
 
+/// A topic that holds no message is a failure that says so, in `estimate` and `profile`
+/// (they had exited 0 with nothing written and nothing said).
+#[test]
+fn an_empty_topic_is_a_failure_that_says_so() {
+    let dir = common::temp_dir("bag-empty-topic");
+    let pts = common::frame(1, 2000).measured;
+    let bag = dir.as_path().join("two.mcap");
+    write_bag(&bag, &[(pts, 1, "base_link")], &["/lidar/points"]);
+    let out = epd()
+        .arg("estimate")
+        .arg(&bag)
+        .args(["--topic", "/lidar/points"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("topic `/lidar/points` holds no message"),
+        "{err}"
+    );
+    let out = epd()
+        .arg("profile")
+        .arg(&bag)
+        .args(["--topic", "/lidar/points", "--out"])
+        .arg(dir.as_path().join("profile"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("no frame to profile"), "{err}");
+}
+
 /// `--frame flu` is `--frame body`: a cloud in the ROS body frame gives the pose of the
 /// same cloud in the sensor frame; read as the sensor frame, yaw and δy change sign.
 #[test]
