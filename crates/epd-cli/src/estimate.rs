@@ -198,9 +198,18 @@ pub(crate) fn resolve_inputs(
                 continue;
             }
         };
-        let chosen = found
-            .choose(topic)
-            .map_err(|e| usage(format!("{}: {e}", epd_io::name::shown(&path))))?;
+        let chosen = match (found.choose(topic), &found.damaged) {
+            (Ok(c), _) => c,
+            // The topic is not among those read before the damage: the damage is what is
+            // wrong (the bag is cut or broken before its point clouds), not the command.
+            (Err(_), Some(damage)) => {
+                inputs.push(Input::Failed(Box::new(damage_report(&path, damage))));
+                continue;
+            }
+            (Err(e), None) => {
+                return Err(usage(format!("{}: {e}", epd_io::name::shown(&path))));
+            }
+        };
         let messages = found
             .topics
             .iter()

@@ -203,7 +203,8 @@ fn the_topic_is_chosen_or_asked_for() {
 }
 
 /// A topic that holds no message is a failure that says so, in `estimate` and `profile`
-/// (they had exited 0 with nothing written and nothing said).
+/// (they had exited 0 with nothing written and nothing said); a bag cut short is named
+/// as such.
 #[test]
 fn an_empty_topic_is_a_failure_that_says_so() {
     let dir = common::temp_dir("bag-empty-topic");
@@ -232,6 +233,15 @@ fn an_empty_topic_is_a_failure_that_says_so() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("no frame to profile"), "{err}");
+    // A bag cut before its first chunk ends: the damage is named (exit 1), not a usage
+    // error saying the bag has no point-cloud topic (exit 2).
+    let bytes = std::fs::read(&bag).unwrap();
+    let cut = dir.as_path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let out = epd().arg("estimate").arg(&cut).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("truncated"), "{err}");
 }
 
 /// `--frame flu` is `--frame body`: a cloud in the ROS body frame gives the pose of the
