@@ -117,12 +117,23 @@ pub(crate) fn key_err(key: &str, msg: String) -> KeyError {
     (key.to_string(), msg)
 }
 
-/// `name` becomes a folder: not empty, no path separator, not `.` or `..`.
+/// `name` becomes a folder and is printed: not empty, no path separator, not `.` or `..`,
+/// no control character (a newline or an escape sequence would rewrite the terminal that
+/// shows the run's progress; the message shows them escaped).
 pub(crate) fn check_name(name: &str) -> Result<(), KeyError> {
-    if name.is_empty() || name.contains(['/', '\\']) || name == "." || name == ".." {
+    if name.is_empty()
+        || name.contains(['/', '\\'])
+        || name == "."
+        || name == ".."
+        || name.chars().any(char::is_control)
+    {
         return Err(key_err(
             "name",
-            format!("= \"{name}\": must be a plain folder name"),
+            format!(
+                "= \"{}\": must be a plain folder name (no path separator, no control \
+                 character)",
+                epd_io::name::escape_controls(name)
+            ),
         ));
     }
     Ok(())
@@ -131,6 +142,17 @@ pub(crate) fn check_name(name: &str) -> Result<(), KeyError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A name with a newline or an escape sequence is refused, shown escaped.
+    #[test]
+    fn control_characters_are_no_folder_name() {
+        for name in ["a\nb", "a\u{1b}[31mb", "tab\there"] {
+            let (key, msg) = check_name(name).expect_err(name);
+            assert_eq!(key, "name");
+            assert!(!msg.chars().any(char::is_control), "{msg:?}");
+        }
+        assert!(check_name("sigma_sweep-2").is_ok());
+    }
 
     #[test]
     fn long_lines_and_many_lines_are_cut() {

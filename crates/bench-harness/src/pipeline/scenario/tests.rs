@@ -55,7 +55,7 @@ fn parse_refuses_the_run_keys_naming_key_and_reason() {
         (
             set("\"p\"", "\"a/b\""),
             "name",
-            "= \"a/b\": must be a plain folder name",
+            "= \"a/b\": must be a plain folder name (no path separator, no control character)",
         ),
         (
             set("frames_per_section = 2", "frames_per_section = 0"),
