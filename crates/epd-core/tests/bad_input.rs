@@ -202,3 +202,49 @@ proptest! {
         }
     }
 }
+
+/// A loss scale outside `loss::SCALE_RANGE` is refused naming the range (1e200 m had
+/// overflowed c² and "converged after 0 iterations" off the truth); at the range's top the
+/// Cauchy and Huber fits are least squares' (to 1e-9 relative), as a scale far above every
+/// residual should make them.
+#[test]
+fn loss_scales_beyond_their_range_are_refused_and_its_top_is_least_squares() {
+    use epd_core::Loss;
+    let (lo, hi) = epd_core::loss::SCALE_RANGE;
+    for scale in [1e200, f64::MAX, lo / 10.0, 0.0, -1.0, f64::NAN] {
+        for loss in [Loss::Cauchy { scale }, Loss::Huber { scale }] {
+            match opts().with_loss(loss) {
+                Err(EpdError::InvalidOption(m)) => assert!(m.contains("must lie in"), "{m}"),
+                other => panic!("{scale}: {other:?}"),
+            }
+        }
+    }
+    let truth = epd_core::Params {
+        d_max: 0.49,
+        d_min: 0.48,
+        roll: 0.3,
+        pitch: 0.02,
+        yaw: -0.03,
+        dy: 0.02,
+        dz: -0.01,
+    };
+    let pts = common::cloud(&truth, 160, 120, 6.0, 0.02, 0, 3);
+    for m in [Method::MlEpd, Method::CEpd] {
+        let ls = estimate(&pts, m, &opts()).unwrap();
+        for loss in [Loss::Cauchy { scale: hi }, Loss::Huber { scale: hi }] {
+            let robust = estimate(&pts, m, &opts().with_loss(loss).unwrap()).unwrap();
+            assert!(
+                robust.status.is_converged(),
+                "{m:?} {loss:?}: {:?}",
+                robust.status
+            );
+            let (a, b) = (ls.params.to_array(), robust.params.to_array());
+            for (x, y) in a.iter().zip(b) {
+                assert!(
+                    (x - y).abs() <= 1e-9 * x.abs().max(1.0),
+                    "{m:?} {loss:?}: {a:?} vs {b:?}"
+                );
+            }
+        }
+    }
+}

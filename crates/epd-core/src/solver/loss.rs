@@ -61,6 +61,14 @@ pub enum Loss {
     },
 }
 
+/// The scales a robust loss accepts (m): the losses compute r²/c², c²·ρ(r/c) and sums of
+/// such terms over up to 2³² points, and after the conversion to C-EPD's residual units
+/// (a factor 2/R) c² must stay a normal f64 with that much room: within [1e-100, 1e100]
+/// m, c² lies in [1e-200, 1e200] and N·c² below 1e210, far from f64's limits (2.2e-308,
+/// 1.8e308). A scale of 1e200 m had overflowed c² and stopped the solver at its start with
+/// "converged after 0 iterations".
+pub const SCALE_RANGE: (f64, f64) = (1e-100, 1e100);
+
 impl Loss {
     /// A loss by name (`none`, `huber`, `cauchy`) with a scale (m), checked.
     pub fn from_name(name: &str, scale: f64) -> Result<Self, EpdError> {
@@ -87,16 +95,18 @@ impl Loss {
         }
     }
 
-    /// An error when the scale is not a finite number > 0.
+    /// An error when the scale lies outside [`SCALE_RANGE`].
     pub fn validate(&self) -> Result<(), EpdError> {
         match self {
             Loss::Squared => Ok(()),
             Loss::Huber { scale } | Loss::Cauchy { scale } => {
-                if *scale > 0.0 && scale.is_finite() {
+                let (lo, hi) = SCALE_RANGE;
+                if (lo..=hi).contains(scale) {
                     Ok(())
                 } else {
                     Err(EpdError::InvalidOption(format!(
-                        "loss scale = {scale}: must be a finite number > 0 (m)"
+                        "loss scale = {scale}: must lie in [{lo:e}, {hi:e}] (m); a scale far \
+                         above the range errors is least squares (`none`)"
                     )))
                 }
             }
