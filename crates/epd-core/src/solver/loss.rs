@@ -105,7 +105,7 @@ impl Loss {
                     Ok(())
                 } else {
                     Err(EpdError::InvalidOption(format!(
-                        "loss scale = {scale}: must lie in [{lo:e}, {hi:e}] (m); a scale far \
+                        "loss scale = {scale:e}: must lie in [{lo:e}, {hi:e}] (m); a scale far \
                          above the range errors is least squares (`none`)"
                     )))
                 }
