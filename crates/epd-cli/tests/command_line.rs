@@ -279,3 +279,28 @@ fn threads_are_bounded_and_two_outputs_cannot_share_a_file() {
     assert!(err.contains("name the same file"), "{err}");
     assert!(!sub.join("out").exists());
 }
+
+/// A nominal OD below the measured inner diameter names the option to check instead of a
+/// negative wall thickness; one that is not finite in millimetres is a usage error.
+#[test]
+fn a_nominal_od_that_cannot_be_is_named() {
+    let dir = common::temp_dir("cmdline_od");
+    let file = csv_file(&dir);
+    let o = epd()
+        .arg("estimate")
+        .arg(&file)
+        .args(["--nominal-od-in", "1"])
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("check --nominal-od-in"), "{out}");
+    assert!(!out.contains("wall thickness ≈ -"), "{out}");
+    let o = epd()
+        .arg("estimate")
+        .arg(&file)
+        .args(["--nominal-od-in", "1e308"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("finite in millimetres"));
+}

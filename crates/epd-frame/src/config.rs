@@ -180,10 +180,12 @@ impl EstimateConfig {
         }
         let nominal_od_mm = match a.nominal_od_in {
             None => None,
-            Some(x) if x > 0.0 && x.is_finite() => Some(x * 25.4),
+            // Finite in millimetres too (1e308 in is not).
+            Some(x) if x > 0.0 && (x * 25.4).is_finite() => Some(x * 25.4),
             Some(x) => {
                 return Err(usage(format!(
-                    "--nominal-od-in {x}: expected a diameter in inches > 0"
+                    "--nominal-od-in {x:e}: expected a diameter in inches > 0 (and finite in \
+                     millimetres)"
                 )));
             }
         };

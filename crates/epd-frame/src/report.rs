@@ -453,10 +453,19 @@ impl FileEstimate {
             self.applied(),
         );
         if let Some(od) = self.nominal_od_mm {
-            t.push_str(&format!(
-                "\n  wall thickness ≈ {:.2} mm (nominal OD {od:.1} mm − mean ID)/2",
-                (od - 0.5 * (p.d_max + p.d_min) * 1e3) / 2.0
-            ));
+            let id = 0.5 * (p.d_max + p.d_min) * 1e3;
+            if id < od {
+                t.push_str(&format!(
+                    "\n  wall thickness ≈ {:.2} mm (nominal OD {od:.1} mm − mean ID)/2",
+                    (od - id) / 2.0
+                ));
+            } else {
+                t.push_str(&format!(
+                    "\n  wall thickness: none, the mean inner diameter {id:.1} mm is not below \
+                     the nominal OD {od:.1} mm: check --nominal-od-in (the outer diameter in \
+                     inches)"
+                ));
+            }
         }
         if let Some(g) = &self.geometry {
             t.push_str(&g.text());
