@@ -27,10 +27,11 @@ pub const DRAWN_QUANTILES: (f64, f64) = (0.005, 0.99);
 pub fn run_view(a: &ViewArgs) -> anyhow::Result<ExitCode> {
     let cfg = fit_config(&a.fit)?;
     if let Some(l) = a.limit_mm
-        && !(l.is_finite() && l > 0.0)
+        && !(l > 0.0 && l <= epd_io::plot::MAX_VALUE_LIMIT)
     {
         return Err(usage(format!(
-            "--limit-mm {l}: expected a length in mm above 0"
+            "--limit-mm {l:e}: expected a length in mm above 0 and at most {:e}",
+            epd_io::plot::MAX_VALUE_LIMIT
         )));
     }
     if a.file.as_os_str() == "-" || epd_frame::bag::is_bag(&a.file) {
@@ -47,7 +48,10 @@ pub fn run_view(a: &ViewArgs) -> anyhow::Result<ExitCode> {
         .ok()
         .and_then(|e| e.rms_residual_mm)
         .unwrap_or(1.0);
-    let limit = a.limit_mm.unwrap_or(DEFAULT_LIMIT_RMS * rms);
+    // A noise-free frame's rms may be 0: the scale then spans the smallest positive length.
+    let limit = a.limit_mm.unwrap_or(
+        (DEFAULT_LIMIT_RMS * rms).clamp(f64::MIN_POSITIVE, epd_io::plot::MAX_VALUE_LIMIT),
+    );
     let stride = f.points.len().div_ceil(MAX_DRAWN).max(1);
     // Along the axis: the stretch where most points meet the wall (past a bend, the
     // straight wall's extension is met by grazing rays tens of metres on).

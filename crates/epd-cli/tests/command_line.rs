@@ -304,3 +304,46 @@ fn a_nominal_od_that_cannot_be_is_named() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("finite in millimetres"));
 }
+
+/// `view --limit-mm 1e308` is a usage error naming the largest limit; it had overflowed
+/// the colour scale's span and never ended. A limit within it draws.
+#[test]
+fn view_limits_beyond_the_colour_scale_are_refused() {
+    let dir = common::temp_dir("cmdline_view");
+    let file = csv_file(&dir);
+    let mut child = epd()
+        .arg("view")
+        .arg(&file)
+        .arg("--out")
+        .arg(dir.join("v.png"))
+        .args(["--limit-mm", "1e308"])
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if t0.elapsed() > std::time::Duration::from_secs(60) {
+            child.kill().ok();
+            panic!("view --limit-mm 1e308 still ran after 60 s");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("at most 1e300"), "{err}");
+    let o = epd()
+        .arg("view")
+        .arg(&file)
+        .arg("--out")
+        .arg(dir.join("v.png"))
+        .args(["--limit-mm", "1e300"])
+        .output()
+        .unwrap();
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}

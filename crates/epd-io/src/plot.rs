@@ -753,6 +753,11 @@ pub struct ValueMap<'a> {
     pub value_label: &'a str,
 }
 
+/// The largest colour-scale limit [`value_map`] draws: the scale spans 2·limit and its
+/// ticks are cut from that span, which must stay finite with room (1.8e308 is f64's
+/// largest; a limit of 1e308 overflowed the span and the tick search never ended).
+pub const MAX_VALUE_LIMIT: f64 = 1e300;
+
 /// Draw a [`ValueMap`] as a PNG (1400 × 800 px).
 pub fn value_map(m: &ValueMap<'_>) -> Result<Png, WriteError> {
     register_font()?;
@@ -766,11 +771,13 @@ pub fn value_map(m: &ValueMap<'_>) -> Result<Png, WriteError> {
     if !(x1 > x0) {
         (x0, x1) = (0.0, 1.0);
     }
-    let limit = if m.limit > 0.0 && m.limit.is_finite() {
-        m.limit
-    } else {
-        1.0
-    };
+    if !(m.limit > 0.0 && m.limit <= MAX_VALUE_LIMIT) {
+        return Err(e(format!(
+            "the colour scale's limit {:e} must lie in (0, {MAX_VALUE_LIMIT:e}]",
+            m.limit
+        )));
+    }
+    let limit = m.limit;
     let mut buf = vec![0u8; (size.0 * size.1 * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
