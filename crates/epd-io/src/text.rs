@@ -107,7 +107,10 @@ fn header_names(f: &[&str], line_no: usize) -> Result<Vec<String>, ReadError> {
 pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
     let text = decode(bytes)?;
     let mut r = Reader::default();
-    for (i, raw) in text.lines().enumerate() {
+    // Lines end in LF (or CR LF: the CR is trimmed with the line's spaces), or in CR alone
+    // when the text holds no LF (classic Mac OS text, some instruments' exports).
+    let end = if text.contains('\n') { '\n' } else { '\r' };
+    for (i, raw) in text.split(end).enumerate() {
         let line = raw.trim();
         if line.is_empty() || line.starts_with('#') {
             continue;
@@ -140,6 +143,19 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
                 ));
             }
         }
+    }
+    if let Some((count, rows)) = r.scan
+        && rows != count
+    {
+        // The point count of a PTS or ASC file (or of its last scan) is the writer's
+        // word for what follows it: fewer rows is a file cut short, more a damaged count.
+        return Err(err(
+            F,
+            format!(
+                "the point-count line says {count} points, {rows} rows follow it{}",
+                if rows < count { " (truncated?)" } else { "" }
+            ),
+        ));
     }
     Ok(r.cloud)
 }
@@ -311,6 +327,29 @@ mod tests {
         assert!(e.contains("line 3: 1 values"), "{e}");
         let e = read(b"1\n2\n3\n").unwrap_err().to_string();
         assert!(e.contains("line 2: 1 values"), "{e}");
+    }
+
+    /// A count line that the rows after it do not match is an error naming both (a PTS
+    /// file cut short had been read as complete).
+    #[test]
+    fn a_count_the_rows_do_not_match_is_an_error() {
+        let e = read(b"3\n1 2 3\n4 5 6\n").unwrap_err().to_string();
+        assert!(
+            e.contains("says 3 points, 2 rows follow it (truncated?)"),
+            "{e}"
+        );
+        let e = read(b"2\n1 2 3\n4 5 6\n1\n").unwrap_err().to_string();
+        assert!(e.contains("says 1 points, 0 rows"), "{e}");
+        assert_eq!(read(b"2\n1 2 3\n4 5 6\n").unwrap().points.len(), 2);
+    }
+
+    /// Lines ending in CR alone are lines (they had been read as one line).
+    #[test]
+    fn carriage_returns_alone_end_lines() {
+        let c = read(b"x,y,z\r1,2,3\r4,5,6\r").unwrap();
+        assert_eq!(c.points, [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
+        let c = read(b"1 2 3\r\n4 5 6\r\n").unwrap();
+        assert_eq!(c.points.len(), 2);
     }
 
     #[test]
