@@ -288,6 +288,13 @@ pub const ODOMETRY: &str = "nav_msgs/msg/Odometry";
 /// The format named in odometry errors.
 const ODOMETRY_F: &str = "Odometry";
 
+/// The largest odometry coordinate taken (m): the path length sums √(Δx² + Δy² + Δz²)
+/// over the messages, and with every coordinate within ±1e150 each Δ² stays below 4e300
+/// and their sum over 2³² messages finite, where positions of ±1e308 had made every
+/// distance 0 or infinite. A NaN or infinite coordinate is refused too (it had silently
+/// stalled the distance).
+pub const MAX_ODOMETRY_COORDINATE_M: f64 = 1e150;
+
 /// The position of a `nav_msgs/msg/Odometry` message at its header stamp.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct OdometryPosition {
@@ -312,6 +319,18 @@ pub fn decode_odometry(bytes: &[u8]) -> Result<OdometryPosition, ReadError> {
         c.f64("pose.pose.position.y")?,
         c.f64("pose.pose.position.z")?,
     ];
+    if let Some(v) = position
+        .iter()
+        .find(|v| !(v.abs() <= MAX_ODOMETRY_COORDINATE_M))
+    {
+        return Err(err(
+            ODOMETRY_F,
+            format!(
+                "pose.pose.position holds {v:e} m: a coordinate must be a finite number of at \
+                 most {MAX_ODOMETRY_COORDINATE_M:e} m in size"
+            ),
+        ));
+    }
     Ok(OdometryPosition {
         stamp_ns: i64::from(sec) * 1_000_000_000 + i64::from(nanosec),
         position,
@@ -781,6 +800,31 @@ pub(super) mod tests {
             let cut = &w.out[..w.out.len() - 64 - 4];
             let e = decode_odometry(cut).unwrap_err().to_string();
             assert!(e.contains("Odometry") && e.contains("position.z"), "{e}");
+        }
+    }
+
+    /// A position that is not finite, or too large for a path length, is refused with
+    /// what it holds.
+    #[test]
+    fn an_odometry_position_beyond_its_bound_is_refused() {
+        for bad in [
+            f64::NAN,
+            f64::INFINITY,
+            -1e308,
+            2.0 * MAX_ODOMETRY_COORDINATE_M,
+        ] {
+            let mut w = W::new(true);
+            w.u32(1);
+            w.u32(0);
+            w.string("odom");
+            w.string("base_link");
+            w.align(8);
+            for v in [1.0f64, bad, 0.0] {
+                w.out.extend_from_slice(&v.to_le_bytes());
+            }
+            w.out.extend_from_slice(&[0u8; 64]);
+            let e = decode_odometry(&w.out).unwrap_err().to_string();
+            assert!(e.contains("pose.pose.position holds"), "{bad}: {e}");
         }
     }
 }
