@@ -52,6 +52,23 @@ pub fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
     let bar = ProgressBar::new(frames);
     for k in 0..frames {
         sim.frame(k, &mut frame)?;
+        if frame.is_empty() {
+            // Settings whose rays all miss the wall or leave the range (a noise or a pipe
+            // far beyond any camera's): a frame of no point is nothing to write.
+            let short = |v: f64| {
+                if (1e-3..1e6).contains(&v.abs()) {
+                    format!("{v}")
+                } else {
+                    format!("{v:e}")
+                }
+            };
+            return Err(usage(format!(
+                "frame {k}: no point (no ray meets the wall within the camera's range with \
+                 these settings: --od-in {} in, --sigma {} m); check them",
+                short(a.od_in),
+                short(a.sigma)
+            )));
+        }
         let stem = format!("frame_{k:04}");
         epd_io::ply::save(
             &out.join(format!("{stem}.ply")),

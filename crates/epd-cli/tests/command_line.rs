@@ -347,3 +347,22 @@ fn view_limits_beyond_the_colour_scale_are_refused() {
         String::from_utf8_lossy(&o.stderr)
     );
 }
+
+/// `simulate` with settings whose frames hold no point (a noise of 1e308 m, a pipe of
+/// 1e308 in) is a usage error naming them, not "1 frames written" of empty files.
+#[test]
+fn simulate_settings_that_give_no_point_are_refused() {
+    let dir = common::temp_dir("cmdline_sim");
+    for extra in [["--sigma", "1e308"], ["--od-in", "1e308"]] {
+        let o = epd()
+            .args(["simulate", "--frames", "1", "--out"])
+            .arg(dir.join("sim"))
+            .args(extra)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{extra:?}: {err}");
+        assert!(err.contains("no point"), "{extra:?}: {err}");
+        assert!(!dir.join("sim/frame_0000.ply").exists());
+    }
+}
