@@ -210,6 +210,27 @@ pub fn parse_rigs(text: &str, base: &std::path::Path) -> Result<Vec<RigSpec>, Co
             f.rig.len()
         )));
     }
+    // A frame listed twice would count twice in the table (and be held twice in memory: a
+    // 60 kB file listing one frame 5000 times had grown to 6.6 GB).
+    let mut seen: std::collections::HashMap<std::path::PathBuf, usize> =
+        std::collections::HashMap::new();
+    for (k, r) in f.rig.iter().enumerate() {
+        for p in &r.files {
+            let p = if p.is_absolute() {
+                p.clone()
+            } else {
+                base.join(p)
+            };
+            let key = p.canonicalize().unwrap_or(p);
+            if let Some(first) = seen.insert(key.clone(), k + 1) {
+                return Err(bad(format!(
+                    "rig {}: `{}` is listed twice (also in rig {first}): list each frame once",
+                    k + 1,
+                    epd_io::name::shown(&key)
+                )));
+            }
+        }
+    }
     f.rig
         .into_iter()
         .enumerate()
@@ -292,6 +313,10 @@ mod tests {
                 "colour",
             ),
             ("rig = []\n", "0 rigs"),
+            (
+                "[[rig]]\nknown_id_mm = 400\nfiles = [\"a\"]\n[[rig]]\nknown_id_mm = 500\nfiles = [\"./b\", \"a\"]\n",
+                "rig 2: `./a` is listed twice (also in rig 1)",
+            ),
         ] {
             let e = parse_rigs(text, base).unwrap_err().to_string();
             assert!(e.contains(says), "{text:?}: {e}");
