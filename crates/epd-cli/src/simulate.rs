@@ -78,6 +78,9 @@ pub fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         )?;
         let json = format!("{}\n", epd_io::json::object(&sim.truth(k, &frame)));
         epd_io::atomic::write_bytes_atomic(&out.join(format!("{stem}.json")), json.as_bytes())?;
+        if k == 0 && frames > 1 {
+            check_room(&out, frames, &stem)?;
+        }
         bar.inc(1);
     }
     bar.finish_and_clear();
@@ -86,6 +89,48 @@ pub fn run_simulate(a: &SimulateArgs) -> anyhow::Result<ExitCode> {
         epd_io::name::shown(&out)
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// After the first frame: the frames asked for fit in the free space of `out`'s disk, each
+/// the size of the first (its PLY and JSON), else a usage error naming both before the
+/// disk fills (`--frames 10^12` had written until it did).
+fn check_room(out: &std::path::Path, frames: u64, stem: &str) -> anyhow::Result<()> {
+    let size = |ext: &str| {
+        std::fs::metadata(out.join(format!("{stem}.{ext}")))
+            .map(|m| m.len())
+            .unwrap_or(0)
+    };
+    let per_frame = size("ply") + size("json");
+    let Some(free) = free_bytes(out) else {
+        return Ok(());
+    };
+    let need = u128::from(per_frame) * u128::from(frames - 1);
+    if need > u128::from(free) {
+        return Err(usage(format!(
+            "--frames {frames}: about {:.3e} bytes more ({per_frame} per frame), and {} has \
+             {free} bytes free; ask for fewer frames or another --out",
+            need as f64,
+            epd_io::name::shown(out)
+        )));
+    }
+    Ok(())
+}
+
+/// The bytes an unprivileged user may still write on the disk of `dir` (statvfs);
+/// `None` when the system does not say.
+#[cfg(unix)]
+fn free_bytes(dir: &std::path::Path) -> Option<u64> {
+    use std::os::unix::ffi::OsStrExt;
+    let c = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
+    let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
+    // SAFETY: `c` is a NUL-terminated path and `st` a writable statvfs.
+    let rc = unsafe { libc::statvfs(c.as_ptr(), &mut st) };
+    (rc == 0).then(|| (st.f_bavail as u64).saturating_mul(st.f_frsize as u64))
+}
+
+#[cfg(not(unix))]
+fn free_bytes(_: &std::path::Path) -> Option<u64> {
+    None
 }
 
 /// `--out` names a folder, or nothing yet (it is created): a usage error (exit 2) naming

@@ -366,3 +366,26 @@ fn simulate_settings_that_give_no_point_are_refused() {
         assert!(!dir.join("sim/frame_0000.ply").exists());
     }
 }
+
+/// `simulate --frames 10^15` stops after the first frame with a usage error naming the
+/// room it needs and the room there is (it had written until the disk filled).
+#[test]
+fn simulate_frames_beyond_the_disk_are_refused() {
+    let dir = common::temp_dir("cmdline_room");
+    let o = epd()
+        .args([
+            "simulate",
+            "--points",
+            "2000",
+            "--frames",
+            "1000000000000000",
+            "--out",
+        ])
+        .arg(dir.join("sim"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("bytes free"), "{err}");
+    assert!(!dir.join("sim/frame_0001.ply").exists());
+}
