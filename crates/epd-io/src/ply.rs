@@ -244,6 +244,9 @@ struct Body<'a> {
     bytes: &'a [u8],
     pos: usize,
     encoding: Encoding,
+    /// ASCII: whether the next value is a record's first, which may start on a new line;
+    /// the others must be on its line (one record per line).
+    at_record_start: bool,
 }
 
 impl Body<'_> {
@@ -274,9 +277,54 @@ impl Body<'_> {
         b.get(start..self.pos).filter(|t| !t.is_empty())
     }
 
+    /// ASCII: skip the blanks of the current line (not its end).
+    fn skip_blanks(&mut self) {
+        while self
+            .bytes
+            .get(self.pos)
+            .is_some_and(|c| matches!(c, b' ' | b'\t' | b'\r'))
+        {
+            self.pos += 1;
+        }
+    }
+
+    /// After a record: ASCII, the rest of its line must be blank (more values there than
+    /// the header declares would shift every record after it).
+    fn end_record(&mut self, what: &dyn Fn() -> String) -> Result<(), ReadError> {
+        if let Encoding::Ascii = self.encoding {
+            self.skip_blanks();
+            if self.bytes.get(self.pos).is_some_and(|&c| c != b'\n') {
+                return Err(err(
+                    F,
+                    format!(
+                        "{}: its line holds more values than the header's properties \
+                         (one record per line)",
+                        what()
+                    ),
+                ));
+            }
+            self.at_record_start = true;
+        }
+        Ok(())
+    }
+
     fn value(&mut self, ty: Scalar, what: &dyn Fn() -> String) -> Result<f64, ReadError> {
         match self.encoding {
             Encoding::Ascii => {
+                if !self.at_record_start {
+                    self.skip_blanks();
+                    if self.bytes.get(self.pos) == Some(&b'\n') {
+                        return Err(err(
+                            F,
+                            format!(
+                                "{}: its line ends before the header's properties do (one \
+                                 record per line)",
+                                what()
+                            ),
+                        ));
+                    }
+                }
+                self.at_record_start = false;
                 let t = self.token().ok_or_else(|| {
                     err(F, format!("the file ends inside {} (truncated?)", what()))
                 })?;
@@ -371,6 +419,7 @@ impl Body<'_> {
                     Property::List { count, item, .. } => self.skip_list(*count, *item, &what)?,
                 }
             }
+            self.end_record(&what)?;
         }
         Ok(())
     }
@@ -390,6 +439,7 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
         bytes: body,
         pos: 0,
         encoding: header.encoding,
+        at_record_start: true,
     };
     for el in &header.elements[..header.vi] {
         cur.skip_element(el)?;
@@ -435,6 +485,7 @@ pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
                 Property::List { count, item, .. } => cur.skip_list(*count, *item, &what)?,
             }
         }
+        cur.end_record(&what)?;
         cloud.points.push(xyz);
     }
     Ok(cloud)

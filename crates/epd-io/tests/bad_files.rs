@@ -181,6 +181,31 @@ fn ply_ascii_vertex_count_beyond_the_lines() {
     );
 }
 
+/// An ASCII record per line: a line with a column more or less than the header's
+/// properties is an error naming the record (the values had been read as one stream, every
+/// record after it shifted, and the fit "settled in a wrong pose"); CR LF line ends and
+/// blank lines between records are fine.
+#[test]
+fn ply_ascii_lines_must_hold_one_record() {
+    let head = format!("ply\nformat ascii 1.0\nelement vertex 2\n{PLY_XYZ_F32}end_header\n");
+    for (body, says) in [
+        ("1 2 3 9\n4 5 6 9\n", "more values"),
+        ("1 2\n3 4 5\n6\n", "its line ends before"),
+    ] {
+        expect_error(
+            "lines.ply",
+            format!("{head}{body}").as_bytes(),
+            Some(Format::Ply),
+            &["`vertex` record 1", says],
+        );
+    }
+    expect_points(
+        "crlf.ply",
+        format!("{head}1 2 3\r\n\r\n4 5 6 \r\n").as_bytes(),
+        &[[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]],
+    );
+}
+
 #[test]
 fn ply_element_without_properties_and_a_count_of_2_pow_63_is_skipped() {
     for (enc, body) in [
