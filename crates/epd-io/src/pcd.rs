@@ -94,7 +94,13 @@ pub fn lzf_decompress(input: &[u8], out_len: usize) -> Result<Vec<u8>, ReadError
 
 /// Read a PCD file.
 pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
-    let (lines, body) = split_header(bytes, |l| l.starts_with("DATA"), F)?;
+    // The header ends at its DATA line; `data` in lower case ends it too, so that the
+    // header's parser names the key's case rather than the binary body as not text.
+    let (lines, body) = split_header(
+        bytes,
+        |l| l.get(..4).is_some_and(|k| k.eq_ignore_ascii_case("DATA")),
+        F,
+    )?;
     let header = parse_header(&lines)?;
     let layout = Layout::new(&header)?;
     let mut cloud = layout.empty_cloud();
@@ -132,8 +138,24 @@ struct Header {
 
 /// Parse the header lines; blank lines and `#` comments are skipped, `VERSION` and
 /// `VIEWPOINT` ignored, any other unknown key refused.
+/// The header keys of PCD v0.7.
+const PCD_KEYS: [&str; 10] = [
+    "VERSION",
+    "FIELDS",
+    "SIZE",
+    "TYPE",
+    "COUNT",
+    "WIDTH",
+    "HEIGHT",
+    "VIEWPOINT",
+    "POINTS",
+    "DATA",
+];
+
 fn parse_header(lines: &[String]) -> Result<Header, ReadError> {
     let mut h = Header::default();
+    // Each key once: a second FIELDS or POINTS line would silently replace the first.
+    let mut first_line: Vec<(String, usize)> = Vec::new();
     for (i, line) in lines.iter().enumerate() {
         let line = line.trim();
         if line.is_empty() || line.starts_with('#') {
@@ -156,6 +178,10 @@ fn parse_header(lines: &[String]) -> Result<Header, ReadError> {
                 })
                 .collect()
         };
+        if let Some((_, at)) = first_line.iter().find(|(k, _)| k == key) {
+            return Err(bad(&format!("`{key}` again (first on header line {at})")));
+        }
+        first_line.push((key.to_string(), i + 1));
         match key {
             "VERSION" | "VIEWPOINT" => {}
             "FIELDS" => h.names = rest.iter().map(|s| s.to_string()).collect(),
@@ -174,6 +200,9 @@ fn parse_header(lines: &[String]) -> Result<Header, ReadError> {
             "HEIGHT" => h.height = nums(&rest)?.first().copied(),
             "POINTS" => h.points = nums(&rest)?.first().copied(),
             "DATA" => h.data = rest.first().unwrap_or(&"").to_string(),
+            _ if PCD_KEYS.iter().any(|k| k.eq_ignore_ascii_case(key)) => {
+                return Err(bad("header keys are upper case (PCL's)"));
+            }
             _ => return Err(bad("unknown header key")),
         }
     }

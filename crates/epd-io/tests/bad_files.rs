@@ -271,6 +271,27 @@ fn pcd(count: &str, points: usize, data: &str, body: &[u8]) -> Vec<u8> {
 
 /// POINTS must be WIDTH × HEIGHT (PCL's rule): a file where they disagree is refused
 /// rather than read by one of them without a word.
+/// A header key given twice is an error naming both lines (a second FIELDS or POINTS
+/// had replaced the first); a key in lower case is named as such.
+#[test]
+fn pcd_header_keys_once_and_in_upper_case() {
+    let head =
+        "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\nHEIGHT 1\n";
+    for (text, says) in [
+        (
+            format!("{head}FIELDS a b c\nPOINTS 1\nDATA ascii\n1 2 3\n"),
+            "`FIELDS` again (first on header line 2)",
+        ),
+        (
+            format!("{head}POINTS 1\nPOINTS 5\nDATA ascii\n1 2 3\n"),
+            "`POINTS` again",
+        ),
+        (format!("{head}POINTS 1\ndata ascii\n1 2 3\n"), "upper case"),
+    ] {
+        expect_error("keys.pcd", text.as_bytes(), Some(Format::Pcd), &[says]);
+    }
+}
+
 #[test]
 fn pcd_points_that_are_not_width_times_height() {
     let b = with_width(&pcd("1 1 1", 2, "binary", &[0; 24]), 3);
