@@ -184,7 +184,7 @@ fn ply_ascii_vertex_count_beyond_the_lines() {
 /// An ASCII record per line: a line with a column more or less than the header's
 /// properties is an error naming the record (the values had been read as one stream, every
 /// record after it shifted, and the fit "settled in a wrong pose"); CR LF line ends and
-/// blank lines between records are fine.
+/// blank lines between records are fine. A second `format` line is an error.
 #[test]
 fn ply_ascii_lines_must_hold_one_record() {
     let head = format!("ply\nformat ascii 1.0\nelement vertex 2\n{PLY_XYZ_F32}end_header\n");
@@ -199,6 +199,12 @@ fn ply_ascii_lines_must_hold_one_record() {
             &["`vertex` record 1", says],
         );
     }
+    expect_error(
+        "format.ply",
+        format!("ply\nformat ascii 1.0\nformat binary_little_endian 1.0\nelement vertex 2\n{PLY_XYZ_F32}end_header\n1 2 3\n4 5 6\n").as_bytes(),
+        Some(Format::Ply),
+        &["header line 3", "a second `format` line"],
+    );
     expect_points(
         "crlf.ply",
         format!("{head}1 2 3\r\n\r\n4 5 6 \r\n").as_bytes(),
