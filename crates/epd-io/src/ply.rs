@@ -208,7 +208,7 @@ impl Header {
                     format!("header line {}: {what}: `{}`", i + 1, quote(line)),
                 )
             };
-            if let Some(e) = header_line(&words, &mut elements, &bad)? {
+            if let Some(e) = header_line(&words, &mut elements, bad)? {
                 // A second format line would change how the body reads.
                 if encoding.is_some() {
                     return Err(bad("a second `format` line"));
