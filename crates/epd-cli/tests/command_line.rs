@@ -19,6 +19,13 @@ fn csv_file(dir: &std::path::Path) -> std::path::PathBuf {
     path
 }
 
+/// `o` is a usage error (exit 2) whose standard error says `says`.
+fn expect_usage_error(o: &std::process::Output, says: &str) {
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains(says), "{err}");
+}
+
 fn without_timings(json: &str) -> serde_json::Value {
     let mut v: serde_json::Value = serde_json::from_str(json).unwrap();
     for k in ["elapsed_ms", "read_ms"] {
@@ -259,9 +266,7 @@ fn threads_are_bounded_and_two_outputs_cannot_share_a_file() {
             .current_dir(&dir)
             .output()
             .unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{cmd:?}: {err}");
-        assert!(err.contains("at most 1024"), "{cmd:?}: {err}");
+        expect_usage_error(&o, "at most 1024");
     }
     let sub = dir.join("sub");
     std::fs::create_dir_all(&sub).unwrap();
@@ -274,9 +279,7 @@ fn threads_are_bounded_and_two_outputs_cannot_share_a_file() {
         .arg(dir.join("sub/../sub/out"))
         .output()
         .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
-    assert!(err.contains("name the same file"), "{err}");
+    expect_usage_error(&o, "name the same file");
     assert!(!sub.join("out").exists());
 }
 
@@ -301,8 +304,7 @@ fn a_nominal_od_that_cannot_be_is_named() {
         .args(["--nominal-od-in", "1e308"])
         .output()
         .unwrap();
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("finite in millimetres"));
+    expect_usage_error(&o, "finite in millimetres");
 }
 
 /// `view --limit-mm 1e308` is a usage error naming the largest limit; it had overflowed
@@ -329,9 +331,7 @@ fn view_limits_beyond_the_colour_scale_are_refused() {
         std::thread::sleep(std::time::Duration::from_millis(50));
     }
     let o = child.wait_with_output().unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
-    assert!(err.contains("at most 1e300"), "{err}");
+    expect_usage_error(&o, "at most 1e300");
     let o = epd()
         .arg("view")
         .arg(&file)
@@ -360,9 +360,7 @@ fn simulate_settings_that_give_no_point_are_refused() {
             .args(extra)
             .output()
             .unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{extra:?}: {err}");
-        assert!(err.contains("no point"), "{extra:?}: {err}");
+        expect_usage_error(&o, "no point");
         assert!(!dir.join("sim/frame_0000.ply").exists());
     }
 }
@@ -384,8 +382,6 @@ fn simulate_frames_beyond_the_disk_are_refused() {
         .arg(dir.join("sim"))
         .output()
         .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
-    assert!(err.contains("bytes free"), "{err}");
+    expect_usage_error(&o, "bytes free");
     assert!(!dir.join("sim/frame_0001.ply").exists());
 }

@@ -36,6 +36,17 @@ fn banded_frame(seed: u64, bias_m: f64) -> Vec<[f64; 3]> {
         .collect()
 }
 
+/// The survey of a straight frame with the defaults (ML-EPD).
+fn survey_of(pts: &[[f64; 3]]) -> epd_core::segment::Survey {
+    survey(
+        pts,
+        Method::MlEpd,
+        &EstimateOptions::default(),
+        &SegmentOptions::default(),
+    )
+    .expect("the survey runs on a straight frame")
+}
+
 /// 100 straight frames (poses as the numpy caster's: tilt within ±6°, offsets within a
 /// fifth of the radius), the band read 2.5σ long (the numpy caster's multipath model): the
 /// count read otherwise is binomial; at the goal of 1 % its mean is 1 and its
@@ -51,13 +62,7 @@ fn a_band_of_long_ranges_is_no_departure() {
     for k in 0..frames {
         let seed = 5000 + pick.random_range(0..1_000_000u64) + k;
         let pts = banded_frame(seed, 2.5 * SIGMA_M);
-        let s = survey(
-            &pts,
-            Method::MlEpd,
-            &EstimateOptions::default(),
-            &SegmentOptions::default(),
-        )
-        .expect("the survey runs on a straight frame");
+        let s = survey_of(&pts);
         if s.segmentation.layout != Layout::Straight {
             misread.push((
                 seed,
@@ -76,14 +81,7 @@ fn a_band_of_long_ranges_is_no_departure() {
 /// the survey went back to the fit on every point (checked: the test fails then).
 #[test]
 fn a_frame_whose_wide_fit_the_band_pulled_reads_straight() {
-    let pts = banded_frame(116_350, 5.0 * SIGMA_M);
-    let s = survey(
-        &pts,
-        Method::MlEpd,
-        &EstimateOptions::default(),
-        &SegmentOptions::default(),
-    )
-    .expect("the survey runs on a straight frame");
+    let s = survey_of(&banded_frame(116_350, 5.0 * SIGMA_M));
     let seg = &s.segmentation;
     assert_eq!(
         seg.layout,
