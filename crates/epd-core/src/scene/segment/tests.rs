@@ -1,0 +1,264 @@
+//! The survey's tests (`segment`): the departure rules on crafted profiles (a bump, a
+//! lone slice, a growing shift), the tests' level and evidence under clustered noise, and
+//! an invalid cloud's dropped points.
+
+use super::*;
+use crate::scene::profile::{ROBUST_DOF_SHARE, calibrate_tests, critical_values, slice_stats};
+use crate::scene::uniforms;
+
+/// A slice at `x` with a shift (m) toward +Y and a bump (m), standard errors 0.1 mm,
+/// tested as one of 12 slices of 12 sectors.
+fn slice(x: f64, shift: f64, bump: f64) -> Slice {
+    let (critical_f, critical_t) = critical_values(12, 12.0 * 9.0 * ROBUST_DOF_SHARE - 2.0, 12);
+    Slice {
+        start_m: x,
+        n_points: 1000,
+        n_sectors: 12,
+        widening_m: 0.0,
+        shift_m: [shift, 0.0],
+        shift_se_m: 1e-4,
+        opposite_m: -shift,
+        bump_m: bump,
+        bump_se_m: 1e-4,
+        bump_psi: 0.5,
+        bump_follows_wall: true,
+        variance_ratio: 1.0,
+        shift_cov_m2: [1e-8, 0.0, 1e-8],
+        misfit_dof: 9,
+        variance_scale: 1.0,
+        departure_p: f64::NAN,
+        shift_f: 0.5 * (shift / 1e-4).powi(2),
+        critical_f,
+        critical_t,
+        ..Slice::empty(x)
+    }
+}
+
+/// Slices of a straight pipe whose points share one error per (slice, sector) cell
+/// (a cluster: what correlated range noise does to a sector's median) of standard
+/// deviation `tau` (m) beside independent noise σ = 20 mm, plus a lateral `shift` (m)
+/// toward +Y in slice 7. Points: 60 per sector.
+fn clustered_profile(rng: &mut impl FnMut() -> f64, tau: f64, shift: f64) -> Vec<Slice> {
+    let (ns, n, sigma) = (12, 60, 0.02);
+    let normal = |rng: &mut dyn FnMut() -> f64| {
+        // Box–Muller from two uniforms.
+        let (u, v) = (rng().max(1e-300), rng());
+        (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+    };
+    let o = SegmentOptions::default();
+    let mut slices: Vec<Slice> = (0..16)
+        .map(|i| {
+            let mut cells: Vec<Vec<f64>> = (0..ns)
+                .map(|k| {
+                    let psi = (k as f64 + 0.5) / ns as f64 * std::f64::consts::TAU;
+                    let lateral = if i == 7 { shift * psi.cos() } else { 0.0 };
+                    let shared = tau * normal(rng) + lateral;
+                    (0..n).map(|_| shared + sigma * normal(rng)).collect()
+                })
+                .collect();
+            slice_stats(&mut cells, 0.05 * i as f64, &o)
+        })
+        .collect();
+    calibrate_tests(&mut slices, ns, &AxisSigma::default(), 0.05);
+    slices
+}
+
+/// The level of the departure tests under clustered noise whose shared part is 3× the
+/// median's independent standard error (a variance scale κ ≈ 10): over 2000 straight
+/// profiles at most [`SURVEY_FALSE_ALARM`] + 4 binomial standard errors depart
+/// (≤ 0.0038, i.e. ≤ 7 frames); the medians' independent variances alone would flag
+/// most of them (checked: the unscaled shift F exceeds its critical value in most
+/// frames), so the test can fail.
+#[test]
+fn clustered_noise_keeps_the_false_alarm_rate() {
+    let o = SegmentOptions::default();
+    let mut rng = uniforms(23);
+    let se_median = (std::f64::consts::FRAC_PI_2 * 0.02f64.powi(2) / 60.0).sqrt();
+    let tau = 3.0 * se_median;
+    let frames = 2000;
+    let (mut departed, mut naive) = (0, 0);
+    for _ in 0..frames {
+        let prof = clustered_profile(&mut rng, tau, 0.0);
+        departed += prof.iter().any(|s| {
+            s.departs(&SegmentOptions {
+                min_shift_m: 0.0,
+                ..o
+            })
+        }) as usize;
+        // The same slices judged with the independent-point variances.
+        naive += prof
+            .iter()
+            .any(|s| s.shift_f * s.variance_scale > s.critical_f) as usize;
+    }
+    let bound = SURVEY_FALSE_ALARM
+        + 4.0 * (SURVEY_FALSE_ALARM * (1.0 - SURVEY_FALSE_ALARM) / frames as f64).sqrt();
+    assert!(
+        (departed as f64) <= bound * frames as f64,
+        "{departed} of {frames} straight profiles departed (bound {bound})"
+    );
+    assert!(naive > frames / 2, "unscaled: {naive} of {frames}");
+}
+
+/// The departure p-value is the tests' statistic on another scale: in every tested
+/// slice of 500 straight profiles and 200 with a shift of 8 scaled standard errors
+/// (clustered noise as above), it falls below [`SURVEY_FALSE_ALARM`] exactly when the
+/// shift's F or the bump's t exceeds its critical value; the straight frames' evidence
+/// reaches 3 no more often than the false-alarm bound above allows, the shifted ones'
+/// in most frames.
+#[test]
+fn the_departure_evidence_is_the_tests_p_value() {
+    let mut rng = uniforms(31);
+    let se_median = (std::f64::consts::FRAC_PI_2 * 0.02f64.powi(2) / 60.0).sqrt();
+    let tau = 3.0 * se_median;
+    let se_shift = ((se_median.powi(2) + tau * tau) / 6.0).sqrt();
+    let level = -SURVEY_FALSE_ALARM.log10();
+    let (mut straight_alarms, mut shifted_found, mut checked) = (0, 0, 0);
+    for k in 0..700 {
+        let shift = if k < 500 { 0.0 } else { 8.0 * se_shift };
+        let prof = clustered_profile(&mut rng, tau, shift);
+        for s in prof.iter().filter(|s| !s.departure_p.is_nan()) {
+            let by_stat = s.shift_f > s.critical_f || s.bump_m > s.critical_t * s.bump_se_m;
+            // Away from the boundary, where rounding of the two routes could differ.
+            let near = (s.departure_p / SURVEY_FALSE_ALARM - 1.0).abs() < 1e-6;
+            if !near {
+                assert_eq!(s.departure_p < SURVEY_FALSE_ALARM, by_stat, "{s:?}");
+                checked += 1;
+            }
+        }
+        let evidence = departure_evidence(&prof);
+        assert!(evidence >= 0.0 && evidence.is_finite());
+        if k < 500 {
+            straight_alarms += usize::from(evidence >= level);
+        } else {
+            shifted_found += usize::from(evidence >= level);
+        }
+    }
+    assert!(checked > 700 * 12, "{checked} slices checked");
+    let bound = SURVEY_FALSE_ALARM + 4.0 * (SURVEY_FALSE_ALARM / 500.0).sqrt();
+    assert!(
+        (straight_alarms as f64) <= bound * 500.0,
+        "{straight_alarms} of 500"
+    );
+    assert!(shifted_found > 100, "{shifted_found} of 200");
+}
+
+/// Power: a lateral shift of 10 scaled standard errors in one slice (under the same
+/// clustered noise) departs in at least 99 % of 500 profiles, at that slice.
+#[test]
+fn a_clear_shift_departs_under_clustered_noise() {
+    let o = SegmentOptions {
+        min_shift_m: 0.0,
+        ..SegmentOptions::default()
+    };
+    let mut rng = uniforms(29);
+    let se_median = (std::f64::consts::FRAC_PI_2 * 0.02f64.powi(2) / 60.0).sqrt();
+    let tau = 3.0 * se_median;
+    // The shift's standard error: the harmonic fit of 12 equal-variance medians gives
+    // Var(c₁) = 2·v/12, v the median's total variance.
+    let se_shift = ((se_median.powi(2) + tau * tau) / 6.0).sqrt();
+    let frames = 500;
+    let found = (0..frames)
+        .filter(|_| {
+            let prof = clustered_profile(&mut rng, tau, 10.0 * se_shift);
+            prof[7].departs(&o)
+        })
+        .count();
+    assert!(found * 100 >= 99 * frames, "{found} of {frames}");
+}
+
+#[test]
+fn a_bump_departs_and_is_a_tee_that_resumes() {
+    let o = SegmentOptions::default();
+    // Wall, an opening (bumps of 30 mm) over three slices, wall again.
+    let mut prof: Vec<Slice> = (0..12).map(|i| slice(0.05 * i as f64, 0.0, 0.0)).collect();
+    for s in &mut prof[4..7] {
+        s.bump_m = 0.03;
+    }
+    // The slice before the opening: a weak bump (5σ, under min_shift) on its side.
+    prof[3].bump_m = 5e-4;
+    let i = first_departure(&prof, &o).unwrap();
+    assert_eq!(i, 4);
+    assert!(!prof[i].shifts(&o) && prof[i].bumps(&o));
+    assert_eq!(opening_slice(&prof, i), 3);
+    assert_eq!(locate_end(&prof, i, &o), prof[3].start_m);
+    assert_eq!(classify(&prof[i..], &o), Layout::TeeAhead);
+    assert!(resumes(&prof[i..], &o, 0.5));
+    // Three slices of wall after it are not enough to say it resumes, nor is a wall
+    // farther than `within` from the departure.
+    assert!(!resumes(&prof[i..10], &o, 0.5));
+    assert!(!resumes(&prof[i..], &o, 0.1));
+    // Nor a wall well inside the straight one (a bend's tube, turned away).
+    let mut inside = prof.clone();
+    for s in &mut inside[7..] {
+        s.widening_m = -0.05;
+    }
+    assert!(!resumes(&inside[i..], &o, 0.5));
+}
+
+/// One slice that shifts (10 mm at 0.1 mm standard error) departs alone only when its
+/// adjusted p-value is below α² and the slice after it has too few sectors to be
+/// judged; a judged slice after it that does not depart, or a p-value above α², leaves
+/// the frame straight.
+#[test]
+fn a_lone_slice_departs_where_its_next_cannot_confirm_it() {
+    let o = SegmentOptions::default();
+    let mut prof: Vec<Slice> = (0..12).map(|i| slice(0.05 * i as f64, 0.0, 0.0)).collect();
+    prof[6] = slice(0.3, 0.01, 0.0);
+    for (p, next_sectors, departs) in [
+        (1e-7, 4, true),
+        (1e-7, 12, false),
+        (1e-5, 4, false),
+        (1e-5, 12, false),
+    ] {
+        prof[6].departure_p = p;
+        prof[7].n_sectors = next_sectors;
+        assert!(prof[6].departs(&o));
+        let found = first_departure(&prof, &o);
+        assert_eq!(
+            found == Some(6),
+            departs,
+            "p {p}, next {next_sectors} sectors"
+        );
+        assert!(found.is_none() || found == Some(6));
+    }
+}
+
+#[test]
+fn a_growing_shift_never_resumes() {
+    let o = SegmentOptions::default();
+    // A bend: the shift grows as (x − x₀)²/(2R) past x₀ = 0.2 m, R = 0.76 m.
+    let prof: Vec<Slice> = (0..20)
+        .map(|i| {
+            let x = 0.05 * i as f64;
+            slice(x, (x - 0.2).max(0.0).powi(2) / 1.52, 0.0)
+        })
+        .collect();
+    let i = first_departure(&prof, &o).unwrap();
+    assert!(prof[i].shifts(&o));
+    assert!(!resumes(&prof[i..], &o, 1.0));
+    assert_eq!(classify(&prof[i..], &o), Layout::BendAhead);
+}
+
+/// A cloud of invalid points only (NaN, ±inf, the origin) is refused as `estimate`
+/// refuses it: every point counted as dropped.
+#[test]
+fn an_invalid_cloud_counts_its_points_as_dropped() {
+    let mut pts = vec![[f64::NAN, 0.0, 0.0]; 50];
+    pts.extend(vec![[f64::INFINITY, 1.0, 0.0]; 30]);
+    pts.extend(vec![[0.0; 3]; 20]);
+    let o = EstimateOptions::default();
+    let seg = segment(&pts, Method::MlEpd, &o, &SegmentOptions::default()).unwrap_err();
+    let plain = estimate(&pts, Method::MlEpd, &o).unwrap_err();
+    assert!(
+        matches!(
+            seg,
+            EpdError::TooFewPoints {
+                usable: 0,
+                dropped: 100,
+                ..
+            }
+        ),
+        "{seg:?}"
+    );
+    assert_eq!(seg.to_string(), plain.to_string());
+}
