@@ -267,7 +267,12 @@ fn open_messages(file: &Path) -> Result<(Messages, Arc<AtomicU64>), BagError> {
         count: Arc::clone(&count),
     };
     let limit = usize::try_from(MAX_RECORD_BYTES).unwrap_or(usize::MAX);
-    let options = mcap::sans_io::LinearReaderOptions::default().with_record_length_limit(limit);
+    // The chunks' CRCs are checked before any of their messages is given out, and the data
+    // section's at its end: a flipped bit in a recorded cloud is damage, not a wrong pose.
+    let options = mcap::sans_io::LinearReaderOptions::default()
+        .with_record_length_limit(limit)
+        .with_prevalidate_chunk_crcs(true)
+        .with_validate_data_section_crc(true);
     Ok((
         mcap::io::MessageReader::new_with_options(source, options),
         count,
@@ -726,6 +731,32 @@ mod tests {
                 last_n, 6,
                 "chunked {chunked}: every cloud before the summary read"
             );
+        }
+    }
+
+    /// One bit flipped in a cloud's coordinates is damage the CRCs catch: a chunked bag's
+    /// chunk fails before any of its messages is given out, an unchunked bag's data
+    /// section at its end (a flipped bit had changed a point and gone unnoticed).
+    #[test]
+    fn a_flipped_bit_fails_the_crc() {
+        let dir = tempfile::tempdir().unwrap();
+        for chunked in [true, false] {
+            let mut b = bag(chunked);
+            // The y coordinate 0.5f32 of the first cloud's first point.
+            let half = 0.5f32.to_le_bytes();
+            let at = b.windows(4).position(|w| w == half).unwrap();
+            b[at] ^= 1;
+            let p = write(dir.path(), "flip.mcap", &b);
+            let items: Vec<_> = BagClouds::open(&p, "/points").unwrap().collect();
+            let damage = items
+                .iter()
+                .find_map(|m| m.as_ref().err())
+                .map(|e| e.to_string());
+            let damage = damage.unwrap_or_else(|| panic!("chunked {chunked}: no damage seen"));
+            assert!(damage.contains("CRC"), "chunked {chunked}: {damage}");
+            if chunked {
+                assert!(items[0].is_err(), "the chunk's messages were given out");
+            }
         }
     }
 
