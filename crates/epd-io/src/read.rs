@@ -427,6 +427,11 @@ fn read_stream<R: Read>(
     // A format the readers do not read is refused even when a format is given.
     let detected = detect_format(name, &head).map_err(|e| e.to_string())?;
     let format = hint.unwrap_or(detected);
+    if format == Format::Text
+        && let Some(e) = text::early_not_text(&head)
+    {
+        return Err(e.to_string());
+    }
     let mut stream = Cursor::new(head).chain(reader);
     let start = if format == Format::Ply {
         match ply::read_stream(&mut stream, limit.bytes(), matches!(limit, Limit::File(_)))? {

@@ -103,6 +103,30 @@ fn header_names(f: &[&str], line_no: usize) -> Result<Vec<String>, ReadError> {
     Ok(names)
 }
 
+/// The error [`read`] would give for the text's first bytes `head`, when they already hold
+/// a byte that is not text (a control code, NUL): found before the rest of a stream is read
+/// (`epd estimate - < /dev/zero` had read 4 GiB to say so). `None` for UTF-16 text (its
+/// units are checked whole) and when the head is text; a DOS end-of-file mark is left to
+/// [`read`], as it may end the file.
+pub(crate) fn early_not_text(head: &[u8]) -> Option<ReadError> {
+    if head.starts_with(b"\xff\xfe") || head.starts_with(b"\xfe\xff") {
+        return None;
+    }
+    let (skip, body) = match head.strip_prefix(b"\xef\xbb\xbf") {
+        Some(rest) => (3, rest),
+        None => (0, head),
+    };
+    let k = body.iter().position(|&c| !is_text(c as u32) && c != 0x1a)?;
+    Some(err(
+        F,
+        format!(
+            "not text: byte 0x{:02x} at offset {} (a binary file?)",
+            body[k],
+            skip + k
+        ),
+    ))
+}
+
 /// Read delimited text.
 pub fn read(bytes: &[u8]) -> Result<PointCloud, ReadError> {
     let text = decode(bytes)?;

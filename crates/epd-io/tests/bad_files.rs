@@ -406,6 +406,19 @@ fn dev_zero() {
     assert!(e.contains("device"), "{e}");
 }
 
+/// A stream of zeros (`epd estimate - < /dev/zero`) is refused as not text from its first
+/// bytes, within the readers' time and memory bounds (it had been read to the 4 GiB cap).
+#[test]
+fn a_stream_of_zeros_is_not_text_from_its_first_bytes() {
+    let (r, cost) = peak_alloc::bounded(Duration::from_secs(10), || {
+        epd_io::read::read_from(std::io::repeat(0), None, epd_io::read::MAX_INPUT_BYTES)
+            .map(|c| c.points.len())
+    });
+    check_cost("zeros", &cost);
+    let e = r.unwrap_err();
+    assert!(e.contains("not text: byte 0x00 at offset 0"), "{e}");
+}
+
 #[cfg(unix)]
 #[test]
 fn dev_zero_through_a_ply_symlink() {
