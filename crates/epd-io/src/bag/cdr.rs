@@ -245,6 +245,16 @@ pub fn decode_point_cloud2(bytes: &[u8]) -> Result<PointCloud2, ReadError> {
         let code = c.u8("a field's datatype")?;
         let count = c.u32("a field's count")?;
         let ty = datatype(code, &name)?;
+        // As the file readers: a name twice leaves which column is meant to chance.
+        if fields.iter().any(|f: &Field| f.name == name) {
+            return Err(err(
+                F,
+                format!(
+                    "the field `{}` is declared twice",
+                    crate::read::quote(&name)
+                ),
+            ));
+        }
         fields.push(Field {
             name,
             offset,
@@ -620,6 +630,26 @@ pub(super) mod tests {
             decode_point_cloud2(&message(true, "", (1, 1), &fields, false, 12, 12, &data)).unwrap();
         let p = d.cloud.points[0];
         assert!(p[0].is_nan() && p[1] == 1.0 && p[2] == f64::INFINITY);
+    }
+
+    /// A field declared twice is an error naming it, as in the file readers (the first of
+    /// two `x` fields had been taken).
+    #[test]
+    fn a_field_declared_twice_is_refused() {
+        let fields: Vec<F> = vec![
+            ("x", 0, 7, 1),
+            ("y", 4, 7, 1),
+            ("z", 8, 7, 1),
+            ("x", 12, 7, 1),
+        ];
+        let data: Vec<u8> = [1.0f32, 2.0, 3.0, 4.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        let e = decode_point_cloud2(&message(true, "", (1, 1), &fields, false, 16, 16, &data))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("the field `x` is declared twice"), "{e}");
     }
 
     /// An organised cloud with padding in each point (point_step 32 for 16 bytes of fields,
