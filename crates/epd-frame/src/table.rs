@@ -84,6 +84,25 @@ struct SpansFile {
     cos_incidence: [f64; 2],
 }
 
+/// The support a version-2 table observed, checked: each span finite with lo ≤ hi, the
+/// ranges and intensities ≥ 0 and the incidence cosines within [0, 1] (a reversed span had
+/// been read as is, every point then outside it).
+fn check_spans(s: SpansFile) -> Result<[(f64, f64); 3], String> {
+    let spans = [
+        ("range_m", s.range_m, (0.0, f64::INFINITY)),
+        ("intensity", s.intensity, (0.0, f64::INFINITY)),
+        ("cos_incidence", s.cos_incidence, (0.0, 1.0)),
+    ];
+    for (name, [lo, hi], (min, max)) in spans {
+        if !(lo.is_finite() && hi.is_finite() && min <= lo && lo <= hi && hi <= max) {
+            return Err(format!(
+                "depth table: support.{name} = [{lo}, {hi}]: need finite {min} ≤ lo ≤ hi ≤ {max}"
+            ));
+        }
+    }
+    Ok(spans.map(|(_, [lo, hi], _)| (lo, hi)))
+}
+
 /// The incidence table as written.
 #[derive(Clone, Debug, Serialize)]
 struct IncidenceFile {
@@ -587,13 +606,7 @@ impl CalibrationTable {
             n_observations: f.n_observations,
             incidence,
             rigs,
-            spans: f.support.map(|s| {
-                [
-                    (s.range_m[0], s.range_m[1]),
-                    (s.intensity[0], s.intensity[1]),
-                    (s.cos_incidence[0], s.cos_incidence[1]),
-                ]
-            }),
+            spans: f.support.map(check_spans).transpose()?,
         })
     }
 
@@ -656,6 +669,34 @@ mod tests {
         assert_eq!(back.frames, 3);
         for (a, b) in back.table.offset_m.iter().zip(&t.table.offset_m) {
             assert!((a - b).abs() < 1e-15);
+        }
+    }
+
+    /// A version-2 table's support is read back as written; a reversed span, or cosines
+    /// outside [0, 1], are refused naming the span.
+    #[test]
+    fn the_support_must_be_spans() {
+        let mut t = table();
+        t.spans = Some([(0.5, 2.0), (1.0, 40.0), (0.25, 1.0)]);
+        let text = t.to_json();
+        assert_eq!(CalibrationTable::from_json(&text).unwrap().spans, t.spans);
+        // The spans as written (pretty-printed: one number per line).
+        let span = |a: &str, b: &str| format!("[\n      {a},\n      {b}\n    ]");
+        for (from, to, says) in [
+            (
+                span("0.5", "2.0"),
+                span("2.0", "0.5"),
+                "support.range_m = [2, 0.5]",
+            ),
+            (
+                span("0.25", "1.0"),
+                span("-0.5", "1.0"),
+                "support.cos_incidence = [-0.5, 1]",
+            ),
+        ] {
+            assert!(text.contains(&from), "{text}");
+            let e = CalibrationTable::from_json(&text.replacen(&from, &to, 1)).unwrap_err();
+            assert!(e.contains(says), "{e}");
         }
     }
 
