@@ -552,10 +552,19 @@ fn limits_are_checked_before_anything_is_written() {
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("sweep.values") && stderr(&o).contains("10001"));
     assert!(!dir.join("outm").exists());
-    // An endless file is read no further than the limit.
+    // A device is refused before anything is read from it (a FIFO would never end).
     let o = bin()
         .args(["/dev/zero", "--out"])
         .arg(dir.join("outz"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("not a regular file"), "{}", stderr(&o));
+    // An endless standard input is read no further than the limit.
+    let o = bin()
+        .args(["-", "--out"])
+        .arg(dir.join("outz"))
+        .stdin(std::fs::File::open("/dev/zero").unwrap())
         .output()
         .unwrap();
     assert_eq!(o.status.code(), Some(2));
