@@ -56,18 +56,11 @@ fn decode(bytes: &[u8]) -> Result<std::borrow::Cow<'_, str>, ReadError> {
                 .map_err(|_| not_text("invalid UTF-16 (unpaired surrogate)".into()));
         }
     }
-    let (skip, body) = match bytes.strip_prefix(b"\xef\xbb\xbf") {
-        Some(rest) => (3, rest),
-        None => (0, bytes),
-    };
+    let (skip, body) = without_bom(bytes);
     // A DOS end-of-file mark (Ctrl-Z) may end the file.
     let body = body.strip_suffix(b"\x1a").unwrap_or(body);
-    if let Some(k) = body.iter().position(|&c| !is_text(c as u32)) {
-        return Err(not_text(format!(
-            "byte 0x{:02x} at offset {} (a binary file?)",
-            body[k],
-            skip + k
-        )));
+    if let Some(m) = binary_byte(body, skip, None) {
+        return Err(not_text(m));
     }
     std::str::from_utf8(body)
         .map(std::borrow::Cow::Borrowed)
@@ -112,18 +105,28 @@ pub(crate) fn early_not_text(head: &[u8]) -> Option<ReadError> {
     if head.starts_with(b"\xff\xfe") || head.starts_with(b"\xfe\xff") {
         return None;
     }
-    let (skip, body) = match head.strip_prefix(b"\xef\xbb\xbf") {
+    let (skip, body) = without_bom(head);
+    binary_byte(body, skip, Some(0x1a)).map(|m| err(F, format!("not text: {m}")))
+}
+
+/// UTF-8 text after its optional byte-order mark, and the mark's length.
+fn without_bom(bytes: &[u8]) -> (usize, &[u8]) {
+    match bytes.strip_prefix(b"\xef\xbb\xbf") {
         Some(rest) => (3, rest),
-        None => (0, head),
-    };
-    let k = body.iter().position(|&c| !is_text(c as u32) && c != 0x1a)?;
-    Some(err(
-        F,
-        format!(
-            "not text: byte 0x{:02x} at offset {} (a binary file?)",
-            body[k],
-            skip + k
-        ),
+        None => (0, bytes),
+    }
+}
+
+/// The first byte of `body` (which starts at offset `skip` of the file) that is not text
+/// nor `allowed`, as "byte 0x.. at offset N (a binary file?)".
+fn binary_byte(body: &[u8], skip: usize, allowed: Option<u8>) -> Option<String> {
+    let k = body
+        .iter()
+        .position(|&c| !is_text(c as u32) && Some(c) != allowed)?;
+    Some(format!(
+        "byte 0x{:02x} at offset {} (a binary file?)",
+        body[k],
+        skip + k
     ))
 }
 
