@@ -313,24 +313,14 @@ fn a_nominal_od_that_cannot_be_is_named() {
 fn view_limits_beyond_the_colour_scale_are_refused() {
     let dir = common::temp_dir("cmdline_view");
     let file = csv_file(&dir);
-    let mut child = epd()
-        .arg("view")
+    let mut view = epd();
+    view.arg("view")
         .arg(&file)
         .arg("--out")
         .arg(dir.join("v.png"))
-        .args(["--limit-mm", "1e308"])
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let t0 = std::time::Instant::now();
-    while child.try_wait().unwrap().is_none() {
-        if t0.elapsed() > std::time::Duration::from_secs(60) {
-            child.kill().ok();
-            panic!("view --limit-mm 1e308 still ran after 60 s");
-        }
-        std::thread::sleep(std::time::Duration::from_millis(50));
-    }
-    let o = child.wait_with_output().unwrap();
+        .args(["--limit-mm", "1e308"]);
+    let o = common::output_within(view, std::time::Duration::from_secs(60))
+        .expect("view --limit-mm 1e308 still ran after 60 s");
     expect_usage_error(&o, "at most 1e300");
     let o = epd()
         .arg("view")

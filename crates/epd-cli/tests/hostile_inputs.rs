@@ -186,26 +186,6 @@ fn simulate_out_names_what_is_in_the_way() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Run `cmd` and wait for it at most `limit`; `None` (the child killed) when it is still
-/// running then.
-fn output_within(mut cmd: Command, limit: Duration) -> Option<Output> {
-    let mut child = cmd
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let t0 = Instant::now();
-    while t0.elapsed() < limit {
-        if child.try_wait().unwrap().is_some() {
-            return Some(child.wait_with_output().unwrap());
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    child.kill().ok();
-    child.wait().ok();
-    None
-}
-
 /// A FIFO given as a frame is refused by name without waiting for a writer (opening it
 /// to sniff a bag's magic bytes had waited forever, the good files after it unread), in
 /// `estimate`, `view` and `profile`; the file after it is still estimated.
@@ -220,7 +200,7 @@ fn a_fifo_among_the_frames_is_refused_not_waited_on() {
     let limit = Duration::from_secs(60);
     let mut estimate = epd();
     estimate.arg("estimate").arg(&fifo).arg(&frame);
-    let o = output_within(estimate, limit).expect("estimate waited on the FIFO");
+    let o = common::output_within(estimate, limit).expect("estimate waited on the FIFO");
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(
         stderr(&o).contains("not a regular file (a FIFO)"),
@@ -236,7 +216,7 @@ fn a_fifo_among_the_frames_is_refused_not_waited_on() {
         .arg(&fifo)
         .arg("--out")
         .arg(dir.join("v.png"));
-    let o = output_within(view, limit).expect("view waited on the FIFO");
+    let o = common::output_within(view, limit).expect("view waited on the FIFO");
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(
         stderr(&o).contains("not a regular file (a FIFO)"),
@@ -250,7 +230,7 @@ fn a_fifo_among_the_frames_is_refused_not_waited_on() {
         .arg(&fifo)
         .arg("--out")
         .arg(dir.join("prof"));
-    let o = output_within(profile, limit).expect("profile waited on the FIFO");
+    let o = common::output_within(profile, limit).expect("profile waited on the FIFO");
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(
         stderr(&o).contains("pipe.ply: not a regular file (a FIFO)"),
