@@ -7,7 +7,7 @@ use std::borrow::Cow;
 use std::path::Path;
 use std::time::Instant;
 
-use epd_core::{Method, estimate, estimate_weighted, rms_range_residual};
+use epd_core::{EstimateOptions, Method, estimate, estimate_weighted, rms_range_residual};
 
 use crate::config::EstimateConfig;
 use crate::input::{
@@ -125,6 +125,7 @@ pub fn measure_records(
         n: cloud.points.len(),
         method: chosen.method,
         ms: choice.as_secs_f64() * 1e3,
+        pilot: chosen.pilot,
     };
     measure_cloud_as(cloud, read_ms, cfg, Some(sampled)).map(Some)
 }
@@ -142,6 +143,8 @@ struct Presampled {
     method: crate::sampling::SamplingMethod,
     /// The choice's time besides reading (ms).
     ms: f64,
+    /// The informed choice's pilot fit ([`crate::sampling::Chosen::pilot`]).
+    pilot: Option<epd_core::Params>,
 }
 
 /// Measure a cloud read from a file or a bag (its points in metres in the sensor frame;
@@ -244,6 +247,17 @@ fn measure_frame_as(
         }
     };
     let sampling_ms = t0.elapsed().as_secs_f64() * 1e3 + pre.map_or(0.0, |p| p.ms);
+    // The fits of every chosen point (the survey's first, or the straight-only fit) start
+    // from the informed choice's pilot, a fit of the same frame: that saves the subsample
+    // stage. Not with a depth table, which moves the points after the pilot saw them.
+    let pilot = pre
+        .and_then(|p| p.pilot)
+        .or_else(|| chosen.as_ref().and_then(|c| c.pilot))
+        .filter(|_| cfg.calibration.is_none());
+    let whole = match pilot {
+        Some(beta) => cfg.options.with_start(beta).unwrap_or(cfg.options),
+        None => cfg.options,
+    };
     if cfg.calibration.is_some() {
         // The table moves the points: a copy of borrowed ones, before the clock starts.
         points = Cow::Owned(points.into_owned());
@@ -339,7 +353,7 @@ fn measure_frame_as(
             (Some(cal), Some(r), Some(i)) => Some((&cal.table, r, i)),
             _ => None,
         };
-        Some(FrameScene::survey(kept, cfg.method, &cfg.options, table).map_err(failed)?)
+        Some(FrameScene::survey(kept, cfg.method, &whole, table).map_err(failed)?)
     } else {
         None
     };
@@ -349,6 +363,7 @@ fn measure_frame_as(
         sigmas.as_deref(),
         scene.as_ref(),
         !surveyed_apart,
+        &whole,
         cfg,
     )
     .map_err(failed)?;
@@ -668,12 +683,14 @@ fn add_table_uncertainty(
 /// The estimate on the straight section's points (those the scene keeps; all of them
 /// when nothing lies ahead): unweighted, the survey's own straight estimate when the
 /// scene was surveyed on these `points` (`surveyed_here`); weighted by `sigmas` when
-/// given.
+/// given. A fit of every point takes the `whole` frame's options (with the pilot's start,
+/// if any); a fit of the straight section's alone, the configuration's.
 fn fit_straight(
     points: &[[f64; 3]],
     sigmas: Option<&[f64]>,
     scene: Option<&FrameScene>,
     surveyed_here: bool,
+    whole: &EstimateOptions,
     cfg: &EstimateConfig,
 ) -> Result<epd_core::Estimate, epd_core::EpdError> {
     let survey = scene.map(|s| &s.survey);
@@ -685,7 +702,7 @@ fn fit_straight(
         // The survey's straight estimate is the (unweighted) estimate on the straight
         // section's points: all of them when nothing lies ahead.
         (None, Some(s), _) if surveyed_here => Ok(s.segmentation.straight),
-        (None, _, None) => estimate(points, cfg.method, &cfg.options),
+        (None, _, None) => estimate(points, cfg.method, whole),
         (None, _, Some(keep)) => {
             let p: Vec<[f64; 3]> = points
                 .iter()
@@ -705,7 +722,7 @@ fn fit_straight(
                 .unzip();
             estimate_weighted(&p, &w, cfg.method, &cfg.options)
         }
-        (Some(sig), _, None) => estimate_weighted(points, sig, cfg.method, &cfg.options),
+        (Some(sig), _, None) => estimate_weighted(points, sig, cfg.method, whole),
     }
 }
 

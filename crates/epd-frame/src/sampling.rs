@@ -41,7 +41,7 @@ use std::fmt;
 use std::str::FromStr;
 
 use epd_core::residual::{Geometry, Residual};
-use epd_core::{EstimateOptions, Method, N_PARAMS, estimate};
+use epd_core::{EstimateOptions, Method, N_PARAMS, Params, estimate};
 use nalgebra::{SMatrix, SVector};
 
 /// How the points are chosen.
@@ -186,6 +186,10 @@ pub struct Chosen {
     /// The method that chose them: the one asked for, or `stratified` when the informed
     /// choice's pilot fit failed (a frame the straight model does not fit).
     pub method: SamplingMethod,
+    /// The informed choice's pilot fit (β of [`PILOT_POINTS`] of the frame's points),
+    /// a start for the fit of the chosen points
+    /// (`epd_core::EstimateOptions::with_start`); `None` for the other methods.
+    pub pilot: Option<Params>,
 }
 
 /// Choose the points of `points` (SCS, m) to fit. `None` when every valid point is kept
@@ -262,23 +266,29 @@ pub fn choose_from<R: Records + ?Sized>(
         return Ok(None);
     }
     let mut rng = SplitMix(sampling.seed);
-    let (chosen, used) = match sampling.method {
+    let (chosen, used, pilot) = match sampling.method {
         SamplingMethod::Uniform => (
             uniform_records(records, k, &mut rng)?,
             SamplingMethod::Uniform,
+            None,
         ),
         how => {
             let heads = Heads::read(records)?;
-            let pilot = if how == SamplingMethod::Informed {
+            let informed = if how == SamplingMethod::Informed {
                 informed(&heads, k, method, options, &mut rng)
             } else {
                 None
             };
-            match pilot {
-                Some(order) => (fill(records, &heads, order, k)?, SamplingMethod::Informed),
+            match informed {
+                Some((order, pilot)) => (
+                    fill(records, &heads, order, k)?,
+                    SamplingMethod::Informed,
+                    Some(pilot),
+                ),
                 None => (
                     fill(records, &heads, stratified(&heads, k, &mut rng), k)?,
                     SamplingMethod::Stratified,
+                    None,
                 ),
             }
         }
@@ -290,6 +300,7 @@ pub fn choose_from<R: Records + ?Sized>(
     Ok(Some(Chosen {
         indices: chosen.into_iter().map(|i| i as usize).collect(),
         method: used,
+        pilot,
     }))
 }
 
@@ -589,15 +600,15 @@ fn gradients(geom: &Geometry, pts: &[[f64; 3]]) -> Vec<[f64; N_PARAMS]> {
 /// The mean diameter's gradient over β: c = (½, ½, 0, …).
 const D_MEAN: [f64; N_PARAMS] = [0.5, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0];
 
-/// The informed choice ([`SamplingMethod::Informed`]) of the blocks, or `None` when the
-/// pilot fit does not converge or leaves the model.
+/// The informed choice ([`SamplingMethod::Informed`]) of the blocks with the pilot
+/// fit's β, or `None` when the pilot fit does not converge or leaves the model.
 fn informed<'a>(
     heads: &'a Heads,
     k: usize,
     method: Method,
     options: &EstimateOptions,
     rng: &mut SplitMix,
-) -> Option<Order<'a>> {
+) -> Option<(Order<'a>, Params)> {
     let all: Vec<u32> = (0..heads.pts.len() as u32).collect();
     let pilot_idx = uniform(&all, PILOT_POINTS, rng);
     let pilot_pts: Vec<[f64; 3]> = pilot_idx.iter().map(|&i| heads.pts[i as usize]).collect();
@@ -620,10 +631,13 @@ fn informed<'a>(
         rest.sort_by(|x, y| scores[*y].total_cmp(&scores[*x]));
         rest
     };
-    Some(Order {
-        first,
-        rest: Box::new(rest),
-    })
+    Some((
+        Order {
+            first,
+            rest: Box::new(rest),
+        },
+        pilot.params,
+    ))
 }
 
 /// The influence (gᵢ·M⁻¹c)² of each row gᵢ of `grads` on the mean diameter, for the

@@ -89,6 +89,7 @@ pub struct EstimateOptions {
     loss_scale: LossScale,
     range_gate: Option<(f64, f64)>,
     fixed_diameters: Option<(f64, f64)>,
+    start: Option<Params>,
 }
 
 /// How the scale of a robust loss is set.
@@ -117,6 +118,7 @@ impl Default for EstimateOptions {
             loss_scale: LossScale::Fixed,
             range_gate: None,
             fixed_diameters: None,
+            start: None,
         }
     }
 }
@@ -191,6 +193,49 @@ impl EstimateOptions {
         self.fixed_diameters
     }
 
+    /// Start the solver at `beta`, a fit of the same points or of a sample of them (the
+    /// pilot fit of `--max-points`' informed choice), instead of the data-only start: the
+    /// subsample stage and the robust loss's refit there are skipped, the loss's data scale
+    /// is taken at `beta`, and the solver iterates on all points from it. The estimate is
+    /// the same minimum of the same cost wherever the start lies in its basin; the loss's
+    /// data scale is then measured at another point near it (1.4826·median|rᵢ| moves by
+    /// the start's error, a few of its standard deviations). With held diameters the held
+    /// values replace `beta`'s. `beta` must be finite and describe a pipe (positive
+    /// diameters).
+    pub fn with_start(mut self, beta: Params) -> Result<Self, EpdError> {
+        let finite = beta.to_array().iter().all(|v| v.is_finite());
+        if !finite || Geometry::new(&beta).is_none() {
+            return Err(EpdError::InvalidOption(format!(
+                "start β {:?}: need finite parameters with Dmax, Dmin > 0",
+                beta.to_array()
+            )));
+        }
+        self.start = Some(beta);
+        Ok(self)
+    }
+
+    /// The solver's start ([`with_start`](Self::with_start)), if any.
+    pub fn start(&self) -> Option<Params> {
+        self.start
+    }
+
+    /// These options with the data-only start: for a fit of other points than those the
+    /// start was fitted to (a section of the frame, after a survey's first fit).
+    pub fn without_start(mut self) -> Self {
+        self.start = None;
+        self
+    }
+
+    /// The start of a fit of `self`: [`with_start`](Self::with_start)'s β with the held
+    /// diameters, if any.
+    fn held_start(&self) -> Option<Params> {
+        let mut beta = self.start?;
+        if let Some((d_max, d_min)) = self.fixed_diameters {
+            (beta.d_max, beta.d_min) = (d_max, d_min);
+        }
+        Some(beta)
+    }
+
     /// Which parameters of eq. (2) the solver holds.
     fn fixed_mask(&self) -> [bool; N_PARAMS] {
         let held = self.fixed_diameters.is_some();
@@ -223,7 +268,8 @@ pub struct Estimate {
     /// The estimated β in canonical form (README, Conventions: Dmax ≥ Dmin, roll in
     /// [−90°, 90°)).
     pub params: Params,
-    /// The data-only starting point of the solver.
+    /// The solver's starting point: the data-only start, or the one given
+    /// ([`EstimateOptions::with_start`]).
     pub initial: Params,
     /// Why the final solver stage stopped, overruled by `implausible` when the result
     /// disagrees with the data (see [`crate::check`]).
@@ -311,7 +357,8 @@ impl Estimate {
 /// Non-finite points and points at the origin are dropped and counted; points farther
 /// than [`MAX_POINT_RANGE_M`](crate::cloud::MAX_POINT_RANGE_M) from the sensor are an
 /// error ([`EpdError::FarPoints`]). The fit starts
-/// from [`initial_guess`]; with more than `stage_points` points it first converges on a
+/// from [`initial_guess`] (or from [`EstimateOptions::with_start`]'s β, without the
+/// subsample stage); with more than `stage_points` points it first converges on a
 /// strided subsample, then iterates on all points. ML-EPD starts from the RU-EPD
 /// estimate: its cost has poles where the model axis crosses a measured ray, and started
 /// cold it can settle in a wrong basin. With a range gate
@@ -459,7 +506,7 @@ fn estimate_view(
     options: &EstimateOptions,
 ) -> Result<Estimate, EpdError> {
     let Some((lo, hi)) = options.range_gate else {
-        return fit_cloud(cloud, n_dropped, 0, method, options, None);
+        return fit_cloud(cloud, n_dropped, 0, method, options, options.held_start());
     };
     let range = |p: &[f64; 3]| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
     // The first fit only chooses the points and the start of the final one: the points
@@ -473,7 +520,14 @@ fn estimate_view(
     } else {
         cloud.select(in_gate)
     };
-    let first = fit_cloud(probe.view(), n_dropped, 0, method, options, None)?;
+    let first = fit_cloud(
+        probe.view(),
+        n_dropped,
+        0,
+        method,
+        options,
+        options.held_start(),
+    )?;
     let geom = Geometry::new(&first.params).ok_or_else(|| {
         EpdError::Degenerate("the first fit of the range gate left the model".into())
     })?;

@@ -366,6 +366,9 @@ pub fn segment(
         },
         other => other,
     })?;
+    // Every later fit is of a part of the frame: it starts from its own points, not from
+    // a start given for the whole frame ([`EstimateOptions::with_start`]).
+    let options = &options.without_start();
     let Refined {
         mut fit,
         profile: mut prof,
@@ -754,6 +757,8 @@ pub fn survey(
     seg: &SegmentOptions,
 ) -> Result<Survey, EpdError> {
     let mut s = segment(points, method, options, seg)?;
+    // The fits after the first are of parts of the frame (see [`segment`]).
+    let options = &options.without_start();
     let (Some(end), Some(dir), Layout::BendAhead | Layout::TeeAhead) =
         (s.straight_until, s.direction, s.layout)
     else {
