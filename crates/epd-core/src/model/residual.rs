@@ -253,6 +253,24 @@ impl Geometry {
         1.0 - self.residual(Residual::ErrorBased, p) / rho
     }
 
+    /// Where the sensing line of a measured point `p` (SCS) meets the model wall, and how
+    /// far `p` lies off it along the wall's normal: (x, Y, Z, d) with (x, Y, Z) the wall
+    /// point (t·qx, y0 + t·u, z0 + t·v) in the PCS, q = R·p = (qx, u, v) and t the
+    /// positive root of eq. (22), and d = (1 − t)·‖p‖·|n·p̂| the range error along the ray
+    /// (ML-EPD's residual) times the cosine of the incidence, n the wall's unit normal
+    /// (0, αY, γZ)/‖·‖. As ‖p‖·p̂ = p, d = (1 − t)·|αY·u + γZ·v| / ‖(αY, γZ)‖. A line along
+    /// the model axis never meets the wall; it is given t = 1 (d = 0), as in
+    /// [`wall_points`](Self::wall_points).
+    #[inline(always)]
+    pub fn wall_deviation(&self, p: &[f64; 3]) -> [f64; 4] {
+        let (qx, u, v) = (dot(&self.r_x, p), dot(&self.r_y, p), dot(&self.r_z, p));
+        let t = self.wall_root(u, v).unwrap_or(1.0);
+        let (y, z) = (self.y0 + t * u, self.z0 + t * v);
+        let (ny, nz) = (self.alpha * y, self.gamma * z);
+        let d = (1.0 - t) * (ny * u + nz * v).abs() / (ny * ny + nz * nz).sqrt();
+        [t * qx, y, z, d]
+    }
+
     /// The cosine of the incidence angle where the sensing line of a measured point `p`
     /// (SCS) meets the model wall: |d·n| with d the unit ray and n the wall's unit normal
     /// there, (0, αY, γZ)/‖·‖ in the PCS. `None` for a line along the model axis or an
@@ -328,7 +346,7 @@ mod tests {
             }
         }
     }
-    use nalgebra::Point3;
+    use nalgebra::{Point3, Vector3};
 
     fn beta() -> Params {
         Params {
@@ -339,6 +357,50 @@ mod tests {
             yaw: -0.09,
             dy: 0.04,
             dz: -0.03,
+        }
+    }
+
+    /// `wall_deviation` against its definition, computed another way: the wall point by
+    /// bisection on the ellipse equation along the ray in the PCS (`Params::scs_to_pcs`),
+    /// the normal and the ray's direction as vectors. 50 points × 40 random β; the
+    /// bisection runs to the last bit, so the two agree to rounding (1e-12 m).
+    #[test]
+    fn wall_deviation_matches_its_definition() {
+        for b in random_betas(40) {
+            let g = Geometry::new(&b).unwrap();
+            let (a2, b2) = ((0.5 * b.d_max).powi(2), (0.5 * b.d_min).powi(2));
+            let at =
+                |p: &[f64; 3], t: f64| b.scs_to_pcs(&Point3::new(t * p[0], t * p[1], t * p[2]));
+            let f = |w: &Point3<f64>| w.y * w.y / a2 + w.z * w.z / b2 - 1.0;
+            for p in points() {
+                // The sensor is inside (f < 0 at t = 0); far enough out, the ray is outside.
+                let (mut lo, mut hi) = (0.0, 1.0);
+                while f(&at(&p, hi)) < 0.0 {
+                    hi *= 2.0;
+                }
+                for _ in 0..200 {
+                    let mid = 0.5 * (lo + hi);
+                    if f(&at(&p, mid)) < 0.0 {
+                        lo = mid
+                    } else {
+                        hi = mid
+                    }
+                }
+                let t = 0.5 * (lo + hi);
+                let w = at(&p, t);
+                let n = Vector3::new(0.0, w.y / a2, w.z / b2).normalize();
+                let dir = (at(&p, 1.0) - at(&p, 0.0)).normalize();
+                let range = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                let d = (1.0 - t) * range * n.dot(&dir).abs();
+                let got = g.wall_deviation(&p);
+                for (k, want) in [w.x, w.y, w.z, d].into_iter().enumerate() {
+                    assert!(
+                        (got[k] - want).abs() < 1e-12,
+                        "{b:?} {p:?} [{k}]: {} vs {want}",
+                        got[k]
+                    );
+                }
+            }
         }
     }
 

@@ -72,13 +72,12 @@ pub fn opening_edge(
     (from_m, wall_until_m, to_m): (f64, f64, f64),
 ) -> Option<Edge> {
     let geom = Geometry::new(beta)?;
-    let m = *beta.rotation().matrix();
     let off = |a: f64, c: f64| {
         (a - c + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
     };
     let window: Vec<(f64, f64, f64)> = points
         .iter()
-        .filter_map(|p| deviation(&geom, &m, beta, p))
+        .filter_map(|p| deviation(&geom, p))
         .filter(|&(x, _, _)| x >= from_m && x < to_m)
         .collect();
     let mut side: Vec<(f64, f64, f64)> = window

@@ -3,7 +3,7 @@
 //! false-alarm rate ([`SURVEY_FALSE_ALARM`]). [`crate::segment`] reads it to find where
 //! the straight pipe ends and what lies beyond.
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Vector3;
 use rayon::prelude::*;
 
 use crate::estimate::Estimate;
@@ -188,21 +188,9 @@ impl Slice {
 /// out of the binning: a measured point moves along its ray, toward the sensor when its
 /// noise is negative, and near the edge of the view the first slices would collect the
 /// short ones.
-pub(crate) fn deviation(
-    geom: &Geometry,
-    m: &Matrix3<f64>,
-    beta: &Params,
-    p: &[f64; 3],
-) -> Option<(f64, f64, f64)> {
-    let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-    let u = m * Vector3::new(p[0] / r, p[1] / r, p[2] / r);
-    let t = geom.line_parameter(p);
-    let q = m * Vector3::new(t * p[0], t * p[1], t * p[2]);
-    let (qx, qy, qz) = (q.x, q.y + beta.dy, q.z + beta.dz);
-    let (a, b) = (0.5 * beta.d_max, 0.5 * beta.d_min);
-    let n = Vector3::new(0.0, qy / (a * a), qz / (b * b)).normalize();
-    let d = (1.0 - t) * r * n.dot(&u).abs();
-    let out = (qx, d, qz.atan2(qy));
+pub(crate) fn deviation(geom: &Geometry, p: &[f64; 3]) -> Option<(f64, f64, f64)> {
+    let [x, y, z, d] = geom.wall_deviation(p);
+    let out = (x, d, z.atan2(y));
     (out.0.is_finite() && out.1.is_finite() && out.2.is_finite()).then_some(out)
 }
 
@@ -217,7 +205,6 @@ pub fn profile(
     let Some(geom) = Geometry::new(beta) else {
         return Vec::new();
     };
-    let m = *beta.rotation().matrix();
     // On all cores, in the points' order (rayon's collect keeps it), so the profile is
     // the same whatever the thread count; a stop request skips the remaining chunks and
     // the checkpoint after the pass unwinds (`crate::cancel`).
@@ -226,7 +213,7 @@ pub fn profile(
         .par_chunks(PROFILE_CHUNK)
         .flat_map_iter(|chunk| {
             let live = if watch.stopped() { &[][..] } else { chunk };
-            live.iter().filter_map(|p| deviation(&geom, &m, beta, p))
+            live.iter().filter_map(|p| deviation(&geom, p))
         })
         .collect();
     crate::cancel::checkpoint();
