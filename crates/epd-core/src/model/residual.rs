@@ -135,13 +135,86 @@ impl Geometry {
         kind: Residual,
         p: &[[f64; 3]; L],
     ) -> ([f64; L], [[f64; L]; N_PARAMS]) {
+        let (u, v, du, dv) = self.projections(p);
+        let (r, g_prim) = self.primitives(kind, p, &u, &v);
+        self.chain(r, g_prim, &du, &dv)
+    }
+
+    /// [`residuals_and_gradients`](Self::residuals_and_gradients) of 4 points with the
+    /// wall's root, its divisions and square roots in AVX2 registers (the compiler leaves
+    /// them scalar, lane by lane, in the generic code), the same operations in the same
+    /// order, so the same bits.
+    ///
+    /// # Safety
+    /// Only where the CPU has AVX2. Its intrinsics are inlined where it is inlined into
+    /// a function compiled for AVX2 (`problem`'s `accumulate_avx2`, its only caller).
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    pub(crate) unsafe fn residuals_and_gradients_avx2(
+        &self,
+        kind: Residual,
+        p: &[[f64; 3]; 4],
+    ) -> ([f64; 4], [[f64; 4]; N_PARAMS]) {
+        let (u, v, du, dv) = self.projections(p);
+        let (r, g_prim) = match kind {
+            Residual::Canonical => self.primitives(kind, p, &u, &v),
+            Residual::ErrorBased | Residual::Range => {
+                // SAFETY: the caller runs only where the CPU has AVX2.
+                unsafe { self.wall_primitives_avx2(kind, p, &u, &v) }
+            }
+        };
+        self.chain(r, g_prim, &du, &dv)
+    }
+
+    /// The rotated coordinates (u, v) = (R_y·p, R_z·p) of `L` points and their
+    /// derivatives over the three angles.
+    #[inline(always)]
+    #[allow(clippy::type_complexity)]
+    fn projections<const L: usize>(
+        &self,
+        p: &[[f64; 3]; L],
+    ) -> ([f64; L], [f64; L], [[f64; L]; 3], [[f64; L]; 3]) {
         let u: [f64; L] = std::array::from_fn(|l| dot(&self.r_y, &p[l]));
         let v: [f64; L] = std::array::from_fn(|l| dot(&self.r_z, &p[l]));
         let du: [[f64; L]; 3] =
             std::array::from_fn(|k| std::array::from_fn(|l| dot(&self.dr_y[k], &p[l])));
         let dv: [[f64; L]; 3] =
             std::array::from_fn(|k| std::array::from_fn(|l| dot(&self.dr_z[k], &p[l])));
-        // Residual and gradient over the primitives (α, γ, y0, z0, u, v).
+        (u, v, du, dv)
+    }
+
+    /// The gradients over β from those over the primitives (α, γ, y0, z0, u, v), by the
+    /// chain rule through α(Dmax), γ(Dmin) and (u, v)(angles).
+    #[inline(always)]
+    fn chain<const L: usize>(
+        &self,
+        r: [f64; L],
+        g_prim: [[f64; L]; 6],
+        du: &[[f64; L]; 3],
+        dv: &[[f64; L]; 3],
+    ) -> ([f64; L], [[f64; L]; N_PARAMS]) {
+        let [g_alpha, g_gamma, g_y0, g_z0, g_u, g_v] = g_prim;
+        let g: [[f64; L]; N_PARAMS] = [
+            std::array::from_fn(|l| g_alpha[l] * self.dalpha),
+            std::array::from_fn(|l| g_gamma[l] * self.dgamma),
+            std::array::from_fn(|l| g_u[l] * du[0][l] + g_v[l] * dv[0][l]),
+            std::array::from_fn(|l| g_u[l] * du[1][l] + g_v[l] * dv[1][l]),
+            std::array::from_fn(|l| g_u[l] * du[2][l] + g_v[l] * dv[2][l]),
+            g_y0,
+            g_z0,
+        ];
+        (r, g)
+    }
+    /// The residuals of `L` points with rotated coordinates (u, v) and their gradients
+    /// over the primitives (α, γ, y0, z0, u, v).
+    #[inline(always)]
+    fn primitives<const L: usize>(
+        &self,
+        kind: Residual,
+        p: &[[f64; 3]; L],
+        u: &[f64; L],
+        v: &[f64; L],
+    ) -> ([f64; L], [[f64; L]; 6]) {
         let mut r = [0.0; L];
         let mut g_prim = [[0.0; L]; 6];
         match kind {
@@ -210,17 +283,93 @@ impl Geometry {
                 }
             }
         }
-        let [g_alpha, g_gamma, g_y0, g_z0, g_u, g_v] = g_prim;
-        let g: [[f64; L]; N_PARAMS] = [
-            std::array::from_fn(|l| g_alpha[l] * self.dalpha),
-            std::array::from_fn(|l| g_gamma[l] * self.dgamma),
-            std::array::from_fn(|l| g_u[l] * du[0][l] + g_v[l] * dv[0][l]),
-            std::array::from_fn(|l| g_u[l] * du[1][l] + g_v[l] * dv[1][l]),
-            std::array::from_fn(|l| g_u[l] * du[2][l] + g_v[l] * dv[2][l]),
-            g_y0,
-            g_z0,
-        ];
-        (r, g)
+        (r, g_prim)
+    }
+
+    /// [`primitives`](Self::primitives) of the wall's range residuals (ML-EPD's and the
+    /// range's) for 4 points in AVX2 registers: each line is the scalar code's operation
+    /// on four lanes, in its order (no fused multiply-adds), so each lane's result is the
+    /// scalar code's to the bit (tested: `problem`'s kernels agree bit for bit).
+    ///
+    /// # Safety
+    /// Only where the CPU has AVX2 (see [`residuals_and_gradients_avx2`](Self::residuals_and_gradients_avx2)).
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn wall_primitives_avx2(
+        &self,
+        kind: Residual,
+        p: &[[f64; 3]; 4],
+        u: &[f64; 4],
+        v: &[f64; 4],
+    ) -> ([f64; 4], [[f64; 4]; 6]) {
+        // SAFETY: the CPU has AVX2 (the caller's contract); every load and store is of
+        // an array of 4 f64.
+        unsafe {
+            use std::arch::x86_64::*;
+            use {
+                _mm256_add_pd as add, _mm256_div_pd as div, _mm256_mul_pd as mul,
+                _mm256_set1_pd as splat, _mm256_sub_pd as sub,
+            };
+            // u and v hold 4 f64 each.
+            let (uu, vv) = (_mm256_loadu_pd(u.as_ptr()), _mm256_loadu_pd(v.as_ptr()));
+            let (alpha, gamma, c) = (splat(self.alpha), splat(self.gamma), splat(self.c));
+            let zero = _mm256_setzero_pd();
+            let one = splat(1.0);
+            // A t² + 2B t + C = 0 (see `primitives`).
+            let a_raw = add(mul(mul(alpha, uu), uu), mul(mul(gamma, vv), vv));
+            let valid = _mm256_cmp_pd::<_CMP_GT_OQ>(a_raw, splat(1e-300));
+            let a = _mm256_blendv_pd(one, a_raw, valid);
+            let b = add(
+                mul(splat(self.alpha * self.y0), uu),
+                mul(splat(self.gamma * self.z0), vv),
+            );
+            // max(x, 0) as f64::max: 0 for NaN (the second operand is returned then).
+            let sq = _mm256_sqrt_pd(_mm256_max_pd(sub(mul(b, b), mul(a, c)), zero));
+            let pos = _mm256_cmp_pd::<_CMP_GT_OQ>(b, zero);
+            let num = _mm256_blendv_pd(sub(sq, b), splat(-self.c), pos);
+            let den = _mm256_blendv_pd(a, add(b, sq), pos);
+            let t = div(num, den);
+            let inv_s = div(one, sq);
+            let wy = add(splat(self.y0), mul(t, uu));
+            let wz = add(splat(self.z0), mul(t, vv));
+            let t_y0 = mul(mul(splat(-self.alpha), wy), inv_s);
+            let t_z0 = mul(mul(splat(-self.gamma), wz), inv_s);
+            let half = splat(-0.5);
+            let dt = [
+                mul(mul(mul(half, wy), wy), inv_s),
+                mul(mul(mul(half, wz), wz), inv_s),
+                t_y0,
+                t_z0,
+                mul(t, t_y0),
+                mul(t, t_z0),
+            ];
+            let one_t = sub(one, t);
+            let scale = if kind == Residual::ErrorBased {
+                _mm256_sqrt_pd(add(mul(uu, uu), mul(vv, vv)))
+            } else {
+                let range: [f64; 4] = std::array::from_fn(|l| dot(&p[l], &p[l]));
+                _mm256_sqrt_pd(_mm256_loadu_pd(range.as_ptr()))
+            };
+            // −x as the scalar code negates: the sign bit flipped.
+            let neg_scale = _mm256_xor_pd(scale, splat(-0.0));
+            let mut gp = [zero; 6];
+            for k in 0..6 {
+                gp[k] = mul(neg_scale, dt[k]);
+            }
+            if kind == Residual::ErrorBased {
+                let w = div(one_t, scale);
+                gp[4] = add(gp[4], mul(w, uu));
+                gp[5] = add(gp[5], mul(w, vv));
+            }
+            // Invalid lanes give 0 (+0.0, as the scalar code), then out of the registers.
+            let mut r = [0.0; 4];
+            let mut g = [[0.0; 4]; 6];
+            _mm256_storeu_pd(r.as_mut_ptr(), _mm256_and_pd(mul(one_t, scale), valid));
+            for k in 0..6 {
+                _mm256_storeu_pd(g[k].as_mut_ptr(), _mm256_and_pd(gp[k], valid));
+            }
+            (r, g)
+        }
     }
 
     /// The residual of one measured point `p` (SCS, m), without the gradient (the same

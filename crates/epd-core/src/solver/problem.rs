@@ -501,7 +501,8 @@ const LANES: usize = 4;
 /// points at a time with one accumulator per lane (summed in a fixed order at the end).
 /// `WEIGHTED`: each point's residual and gradient are multiplied by its scale sᵢ from
 /// `scales` (one per point); otherwise `scales` is ignored and no multiplication is
-/// compiled in.
+/// compiled in. With `avx2` (only from [`accumulate_avx2`], on a CPU with AVX2) the
+/// residuals and gradients come from [`Geometry::residuals_and_gradients_avx2`].
 #[inline(always)]
 fn accumulate_lanes<const WEIGHTED: bool>(
     geom: &Geometry,
@@ -509,6 +510,7 @@ fn accumulate_lanes<const WEIGHTED: bool>(
     loss: Loss,
     chunk: &[[f64; 3]],
     scales: &[f64],
+    avx2: bool,
 ) -> Sums {
     const NT: usize = N_PARAMS * (N_PARAMS + 1) / 2;
     let mut cost = [0.0; LANES];
@@ -519,7 +521,19 @@ fn accumulate_lanes<const WEIGHTED: bool>(
     let mut scale_blocks = scales.chunks_exact(LANES);
     for block in &mut blocks {
         let pts: &[[f64; 3]; LANES] = block.try_into().expect("chunks_exact yields LANES points");
-        let (mut r, mut g) = geom.residuals_and_gradients::<LANES>(kind, pts);
+        #[cfg(target_arch = "x86_64")]
+        let (mut r, mut g) = if avx2 {
+            // SAFETY: `avx2` is set only by `accumulate_avx2`, run where the CPU has AVX2
+            // and FMA.
+            unsafe { geom.residuals_and_gradients_avx2(kind, pts) }
+        } else {
+            geom.residuals_and_gradients::<LANES>(kind, pts)
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        let (mut r, mut g) = {
+            let _ = avx2;
+            geom.residuals_and_gradients::<LANES>(kind, pts)
+        };
         if WEIGHTED {
             let s: &[f64; LANES] = scale_blocks
                 .next()
@@ -609,7 +623,7 @@ fn accumulate_avx2<const WEIGHTED: bool>(
     chunk: &[[f64; 3]],
     scales: &[f64],
 ) -> Sums {
-    accumulate_lanes::<WEIGHTED>(geom, kind, loss, chunk, scales)
+    accumulate_lanes::<WEIGHTED>(geom, kind, loss, chunk, scales, true)
 }
 
 /// [`accumulate_lanes`] compiled for AVX2 + FMA when the CPU has them; weighted when
@@ -635,9 +649,9 @@ fn accumulate_chunk(
         };
     }
     if weighted {
-        accumulate_lanes::<true>(geom, kind, loss, chunk, scales)
+        accumulate_lanes::<true>(geom, kind, loss, chunk, scales, false)
     } else {
-        accumulate_lanes::<false>(geom, kind, loss, chunk, scales)
+        accumulate_lanes::<false>(geom, kind, loss, chunk, scales, false)
     }
 }
 
@@ -703,6 +717,78 @@ mod tests {
 
     /// The wall point of each sensing line against its definition through the line
     /// parameter of eq. (21) ([`Geometry::line_parameter`]) and the rotation of eq. (3).
+    /// The AVX2 kernel ([`accumulate_avx2`]) against the portable one: the same sums to
+    /// the bit, for every residual, loss and weighting, on points that take both forms of
+    /// the root (B > 0 and B ≤ 0), rays along the axis (no information: zero) and a
+    /// remainder shorter than the lanes. Skipped on a CPU without AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn the_avx2_kernel_gives_the_portable_sums_to_the_bit() {
+        if !(std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("fma"))
+        {
+            return;
+        }
+        let mut r = numbers(11);
+        for trial in 0..20 {
+            let beta = Params {
+                d_max: 0.5 + 0.05 * r(),
+                d_min: 0.45 + 0.04 * r(),
+                roll: 3.0 * r(),
+                pitch: 0.2 * r(),
+                yaw: 0.2 * r(),
+                dy: 0.05 * r(),
+                dz: 0.05 * r(),
+            };
+            let geom = Geometry::new(&beta).expect("inside");
+            let mut pts: Vec<[f64; 3]> = (0..1003)
+                .map(|_| [3.0 * (r() + 1.0) + 0.1, 0.3 * r(), 0.3 * r()])
+                .collect();
+            // Rays along the model axis: the sensor's position along R's X row.
+            let axis = beta.rotation().matrix().row(0).transpose();
+            pts[5] = [axis.x, axis.y, axis.z];
+            pts[6] = [2.0 * axis.x, 2.0 * axis.y, 2.0 * axis.z];
+            let scales: Vec<f64> = (0..pts.len()).map(|_| 1.0 + 0.5 * r()).collect();
+            for kind in [Residual::Canonical, Residual::ErrorBased, Residual::Range] {
+                for loss in [
+                    Loss::Squared,
+                    Loss::Huber { scale: 0.02 },
+                    Loss::Cauchy { scale: 0.02 },
+                ] {
+                    for sc in [&[][..], &scales[..]] {
+                        // SAFETY: the CPU has AVX2 and FMA (checked above).
+                        let (fast, plain) = unsafe {
+                            if sc.is_empty() {
+                                (
+                                    accumulate_avx2::<false>(&geom, kind, loss, &pts, sc),
+                                    accumulate_lanes::<false>(&geom, kind, loss, &pts, sc, false),
+                                )
+                            } else {
+                                (
+                                    accumulate_avx2::<true>(&geom, kind, loss, &pts, sc),
+                                    accumulate_lanes::<true>(&geom, kind, loss, &pts, sc, false),
+                                )
+                            }
+                        };
+                        let bits = |s: &Sums| -> Vec<u64> {
+                            let mut v: Vec<u64> = s.eq.jtj.iter().map(|x| x.to_bits()).collect();
+                            v.extend(s.eq.jtr.iter().map(|x| x.to_bits()));
+                            v.push(s.eq.cost.to_bits());
+                            v.push(s.raw_cost.to_bits());
+                            v
+                        };
+                        assert_eq!(
+                            bits(&fast),
+                            bits(&plain),
+                            "trial {trial} {kind:?} {loss:?} weighted {}",
+                            !sc.is_empty()
+                        );
+                    }
+                }
+            }
+        }
+    }
+
     #[test]
     fn wall_points_match_the_line_parameter() {
         let beta = Params {
