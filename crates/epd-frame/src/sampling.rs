@@ -579,22 +579,9 @@ fn round_robin(groups: Vec<Vec<usize>>) -> Vec<usize> {
         .collect()
 }
 
-/// Lanes of the gradient evaluation (SIMD in [`Geometry::residuals_and_gradients`]).
-const LANES: usize = 8;
-
 /// The gradient of the range residual over β of each point (SCS, m) at `geom`.
 fn gradients(geom: &Geometry, pts: &[[f64; 3]]) -> Vec<[f64; N_PARAMS]> {
-    let mut out = Vec::with_capacity(pts.len());
-    let mut chunks = pts.chunks_exact(LANES);
-    for c in &mut chunks {
-        let arr: [[f64; 3]; LANES] = std::array::from_fn(|l| c[l]);
-        let (_, g) = geom.residuals_and_gradients::<LANES>(Residual::Range, &arr);
-        out.extend((0..LANES).map(|l| std::array::from_fn(|k| g[k][l])));
-    }
-    for p in chunks.remainder() {
-        out.push(geom.residual_and_gradient(Residual::Range, p).1);
-    }
-    out
+    geom.gradients(Residual::Range, pts)
 }
 
 /// The mean diameter's gradient over β: c = (½, ½, 0, …).

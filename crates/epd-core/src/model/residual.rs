@@ -402,6 +402,64 @@ impl Geometry {
         1.0 - self.residual(Residual::ErrorBased, p) / rho
     }
 
+    /// The gradient over β of the residual `kind` of each of `points` (SCS, m), as
+    /// [`residual_and_gradient`](Self::residual_and_gradient) gives it, four points at a
+    /// time in AVX2 registers on a CPU that has them (the same bits either way).
+    pub fn gradients(&self, kind: Residual, points: &[[f64; 3]]) -> Vec<[f64; N_PARAMS]> {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU has AVX2 and FMA.
+            return unsafe { self.gradients_avx2(kind, points) };
+        }
+        self.gradients_with(kind, points, |p| self.residuals_and_gradients::<4>(kind, p))
+    }
+
+    /// [`gradients`](Self::gradients) compiled for AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn gradients_avx2(&self, kind: Residual, points: &[[f64; 3]]) -> Vec<[f64; N_PARAMS]> {
+        let mut out = Vec::with_capacity(points.len());
+        let mut blocks = points.chunks_exact(4);
+        for b in &mut blocks {
+            let arr: &[[f64; 3]; 4] = b.try_into().expect("chunks_exact yields 4 points");
+            // SAFETY: this function runs only where the CPU has AVX2.
+            let (_, g) = unsafe { self.residuals_and_gradients_avx2(kind, arr) };
+            for l in 0..4 {
+                out.push([
+                    g[0][l], g[1][l], g[2][l], g[3][l], g[4][l], g[5][l], g[6][l],
+                ]);
+            }
+        }
+        for p in blocks.remainder() {
+            out.push(self.residual_and_gradient(kind, p).1);
+        }
+        out
+    }
+
+    /// [`gradients`](Self::gradients) with `lanes` giving 4 points' residuals and gradients.
+    #[inline(always)]
+    fn gradients_with(
+        &self,
+        kind: Residual,
+        points: &[[f64; 3]],
+        lanes: impl Fn(&[[f64; 3]; 4]) -> ([f64; 4], [[f64; 4]; N_PARAMS]),
+    ) -> Vec<[f64; N_PARAMS]> {
+        let mut out = Vec::with_capacity(points.len());
+        let mut blocks = points.chunks_exact(4);
+        for b in &mut blocks {
+            let arr: &[[f64; 3]; 4] = b.try_into().expect("chunks_exact yields 4 points");
+            let (_, g) = lanes(arr);
+            for l in 0..4 {
+                out.push(std::array::from_fn(|k| g[k][l]));
+            }
+        }
+        for p in blocks.remainder() {
+            out.push(self.residual_and_gradient(kind, p).1);
+        }
+        out
+    }
+
     /// Where the sensing line of a measured point `p` (SCS) meets the model wall, and how
     /// far `p` lies off it along the wall's normal: (x, Y, Z, d) with (x, Y, Z) the wall
     /// point (t·qx, y0 + t·u, z0 + t·v) in the PCS, q = R·p = (qx, u, v) and t the
@@ -506,6 +564,28 @@ mod tests {
             yaw: -0.09,
             dy: 0.04,
             dz: -0.03,
+        }
+    }
+
+    /// `gradients` (AVX2 where the CPU has it, and the portable lanes) gives each point's
+    /// `residual_and_gradient` to the bit, for each residual, over a count that leaves a
+    /// remainder.
+    #[test]
+    fn gradients_are_the_single_points_to_the_bit() {
+        let pts = points();
+        assert_eq!(pts.len() % 4, 2);
+        for b in random_betas(20) {
+            let g = Geometry::new(&b).unwrap();
+            for kind in [Residual::Canonical, Residual::ErrorBased, Residual::Range] {
+                let fast = g.gradients(kind, &pts);
+                let plain =
+                    g.gradients_with(kind, &pts, |p| g.residuals_and_gradients::<4>(kind, p));
+                for (i, p) in pts.iter().enumerate() {
+                    let one = g.residual_and_gradient(kind, p).1.map(f64::to_bits);
+                    assert_eq!(fast[i].map(f64::to_bits), one, "{kind:?} point {i}");
+                    assert_eq!(plain[i].map(f64::to_bits), one, "{kind:?} point {i}");
+                }
+            }
         }
     }
 
