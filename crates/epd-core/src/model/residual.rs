@@ -472,10 +472,7 @@ impl Geometry {
     pub fn wall_deviation(&self, p: &[f64; 3]) -> [f64; 4] {
         let (qx, u, v) = (dot(&self.r_x, p), dot(&self.r_y, p), dot(&self.r_z, p));
         let t = self.wall_root(u, v).unwrap_or(1.0);
-        let (y, z) = (self.y0 + t * u, self.z0 + t * v);
-        let (ny, nz) = (self.alpha * y, self.gamma * z);
-        let d = (1.0 - t) * (ny * u + nz * v).abs() / (ny * ny + nz * nz).sqrt();
-        [t * qx, y, z, d]
+        self.deviation_at(t * qx, self.y0 + t * u, self.z0 + t * v, t, u, v)
     }
 
     /// The cosine of the incidence angle where the sensing line of a measured point `p`
@@ -534,6 +531,99 @@ impl Geometry {
         }
         w
     }
+
+    /// [`wall_points`](Self::wall_points) of 4 points in AVX2 registers, with the line
+    /// parameter t and the rotated coordinates (u, v) beside them: each operation the
+    /// scalar code's, in its order, so the same bits (tested).
+    ///
+    /// # Safety
+    /// Only where the CPU has AVX2; inlined into a function compiled for it.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    #[allow(clippy::type_complexity)]
+    pub(crate) unsafe fn wall_points_avx2(
+        &self,
+        p: &[[f64; 3]; 4],
+    ) -> ([[f64; 4]; 3], [f64; 4], [f64; 4], [f64; 4]) {
+        use std::arch::x86_64::*;
+        let qx: [f64; 4] = std::array::from_fn(|l| dot(&self.r_x, &p[l]));
+        let u: [f64; 4] = std::array::from_fn(|l| dot(&self.r_y, &p[l]));
+        let v: [f64; 4] = std::array::from_fn(|l| dot(&self.r_z, &p[l]));
+        let mut w = [[0.0; 4]; 3];
+        let mut ts = [0.0; 4];
+        // SAFETY: the CPU has AVX2 (the caller's contract); every load and store is of
+        // an array of 4 f64.
+        unsafe {
+            use {
+                _mm256_add_pd as add, _mm256_div_pd as div, _mm256_mul_pd as mul,
+                _mm256_set1_pd as splat, _mm256_sub_pd as sub,
+            };
+            let (uu, vv) = (_mm256_loadu_pd(u.as_ptr()), _mm256_loadu_pd(v.as_ptr()));
+            let zero = _mm256_setzero_pd();
+            // `wall_root`: A, B, S and the cancellation-free root; t = 1 off the wall.
+            let a = add(
+                mul(mul(splat(self.alpha), uu), uu),
+                mul(mul(splat(self.gamma), vv), vv),
+            );
+            let valid = _mm256_cmp_pd::<_CMP_GT_OQ>(a, splat(1e-300));
+            let b = add(
+                mul(splat(self.alpha * self.y0), uu),
+                mul(splat(self.gamma * self.z0), vv),
+            );
+            let sq = _mm256_sqrt_pd(_mm256_max_pd(sub(mul(b, b), mul(a, splat(self.c))), zero));
+            let pos = _mm256_cmp_pd::<_CMP_GT_OQ>(b, zero);
+            let root = _mm256_blendv_pd(div(sub(sq, b), a), div(splat(-self.c), add(b, sq)), pos);
+            let t = _mm256_blendv_pd(splat(1.0), root, valid);
+            _mm256_storeu_pd(ts.as_mut_ptr(), t);
+            _mm256_storeu_pd(w[0].as_mut_ptr(), mul(t, _mm256_loadu_pd(qx.as_ptr())));
+            _mm256_storeu_pd(w[1].as_mut_ptr(), add(splat(self.y0), mul(t, uu)));
+            _mm256_storeu_pd(w[2].as_mut_ptr(), add(splat(self.z0), mul(t, vv)));
+        }
+        (w, ts, u, v)
+    }
+
+    /// [`wall_deviation`](Self::wall_deviation) of each of `points` (SCS, m) into `out`
+    /// (cleared first), four at a time in AVX2 registers on a CPU that has them (the same
+    /// bits either way).
+    pub fn wall_deviations(&self, points: &[[f64; 3]], out: &mut Vec<[f64; 4]>) {
+        out.clear();
+        out.reserve(points.len());
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU has AVX2 and FMA.
+            return unsafe { self.wall_deviations_avx2(points, out) };
+        }
+        out.extend(points.iter().map(|p| self.wall_deviation(p)));
+    }
+
+    /// [`wall_deviations`](Self::wall_deviations) compiled for AVX2: the wall points by
+    /// [`wall_points_avx2`](Self::wall_points_avx2), then d as in
+    /// [`wall_deviation`](Self::wall_deviation).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn wall_deviations_avx2(&self, points: &[[f64; 3]], out: &mut Vec<[f64; 4]>) {
+        let mut blocks = points.chunks_exact(4);
+        for b in &mut blocks {
+            let arr: &[[f64; 3]; 4] = b.try_into().expect("chunks_exact yields 4 points");
+            // SAFETY: this function runs only where the CPU has AVX2.
+            let ([x, y, z], t, u, v) = unsafe { self.wall_points_avx2(arr) };
+            for l in 0..4 {
+                out.push(self.deviation_at(x[l], y[l], z[l], t[l], u[l], v[l]));
+            }
+        }
+        out.extend(blocks.remainder().iter().map(|p| self.wall_deviation(p)));
+    }
+
+    /// (x, Y, Z, d) of [`wall_deviation`](Self::wall_deviation) from the wall point
+    /// (x, Y, Z), its line parameter t and the rotated coordinates (u, v) of the measured
+    /// point.
+    #[inline(always)]
+    fn deviation_at(&self, x: f64, y: f64, z: f64, t: f64, u: f64, v: f64) -> [f64; 4] {
+        let (ny, nz) = (self.alpha * y, self.gamma * z);
+        let d = (1.0 - t) * (ny * u + nz * v).abs() / (ny * ny + nz * nz).sqrt();
+        [x, y, z, d]
+    }
 }
 
 #[cfg(test)]
@@ -584,6 +674,39 @@ mod tests {
                     let one = g.residual_and_gradient(kind, p).1.map(f64::to_bits);
                     assert_eq!(fast[i].map(f64::to_bits), one, "{kind:?} point {i}");
                     assert_eq!(plain[i].map(f64::to_bits), one, "{kind:?} point {i}");
+                }
+            }
+        }
+    }
+
+    /// The wall points and deviations of the AVX2 kernels equal the scalar code's to the
+    /// bit, rays along the axis included (t = 1).
+    #[test]
+    fn wall_kernels_match_the_scalar_code_to_the_bit() {
+        let mut pts = points();
+        for b in random_betas(20) {
+            let g = Geometry::new(&b).unwrap();
+            let axis = b.rotation().matrix().row(0).transpose();
+            pts[3] = [axis.x, axis.y, axis.z];
+            let mut all = Vec::new();
+            g.wall_deviations(&pts, &mut all);
+            for (i, p) in pts.iter().enumerate() {
+                assert_eq!(
+                    all[i].map(f64::to_bits),
+                    g.wall_deviation(p).map(f64::to_bits),
+                    "{i}"
+                );
+            }
+            #[cfg(target_arch = "x86_64")]
+            if std::arch::is_x86_feature_detected!("avx2") {
+                for c in pts.chunks_exact(4) {
+                    let arr: &[[f64; 3]; 4] = c.try_into().unwrap();
+                    // SAFETY: the CPU has AVX2 (checked above).
+                    let (w, _, _, _) = unsafe { g.wall_points_avx2(arr) };
+                    assert_eq!(
+                        w.map(|r| r.map(f64::to_bits)),
+                        g.wall_points::<4>(arr).map(|r| r.map(f64::to_bits))
+                    );
                 }
             }
         }

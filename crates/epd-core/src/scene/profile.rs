@@ -189,7 +189,11 @@ impl Slice {
 /// noise is negative, and near the edge of the view the first slices would collect the
 /// short ones.
 pub(crate) fn deviation(geom: &Geometry, p: &[f64; 3]) -> Option<(f64, f64, f64)> {
-    let [x, y, z, d] = geom.wall_deviation(p);
+    axial_deviation(geom.wall_deviation(p))
+}
+
+/// (x, d, ψ) of [`deviation`] from [`Geometry::wall_deviation`]'s (x, Y, Z, d), if finite.
+fn axial_deviation([x, y, z, d]: [f64; 4]) -> Option<(f64, f64, f64)> {
     let out = (x, d, z.atan2(y));
     (out.0.is_finite() && out.1.is_finite() && out.2.is_finite()).then_some(out)
 }
@@ -213,7 +217,9 @@ pub fn profile(
         .par_chunks(PROFILE_CHUNK)
         .flat_map_iter(|chunk| {
             let live = if watch.stopped() { &[][..] } else { chunk };
-            live.iter().filter_map(|p| deviation(&geom, p))
+            let mut walls = Vec::new();
+            geom.wall_deviations(live, &mut walls);
+            walls.into_iter().filter_map(axial_deviation)
         })
         .collect();
     crate::cancel::checkpoint();

@@ -296,28 +296,41 @@ fn cells_of(geom: &Geometry, indexer: &CellIndexer<'_>, points: &[[f64; 3]], out
         // SAFETY: the CPU supports the features the function is compiled for.
         return unsafe { cells_of_avx2(geom, indexer, points, out) };
     }
-    cells_of_lanes(geom, indexer, points, out)
+    cells_of_lanes(geom, indexer, points, out, false)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn cells_of_avx2(geom: &Geometry, indexer: &CellIndexer<'_>, points: &[[f64; 3]], out: &mut [u32]) {
-    cells_of_lanes(geom, indexer, points, out)
+    cells_of_lanes(geom, indexer, points, out, true)
 }
 
-/// [`cells_of`], [`LANES`] points at a time.
+/// [`cells_of`], [`LANES`] points at a time; with `avx2` (only from [`cells_of_avx2`])
+/// the wall points from [`Geometry::wall_points_avx2`].
 #[inline(always)]
 fn cells_of_lanes(
     geom: &Geometry,
     indexer: &CellIndexer<'_>,
     points: &[[f64; 3]],
     out: &mut [u32],
+    avx2: bool,
 ) {
     let mut blocks = points.chunks_exact(LANES);
     let mut outs = out.chunks_exact_mut(LANES);
     for (block, o) in (&mut blocks).zip(&mut outs) {
         let pts: &[[f64; 3]; LANES] = block.try_into().expect("chunks_exact yields LANES points");
-        let [x, y, z] = geom.wall_points::<LANES>(pts);
+        #[cfg(target_arch = "x86_64")]
+        let [x, y, z] = if avx2 {
+            // SAFETY: `avx2` is set only by `cells_of_avx2`, run where the CPU has AVX2.
+            unsafe { geom.wall_points_avx2(pts).0 }
+        } else {
+            geom.wall_points::<LANES>(pts)
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        let [x, y, z] = {
+            let _ = avx2;
+            geom.wall_points::<LANES>(pts)
+        };
         for l in 0..LANES {
             o[l] = indexer.index(x[l], y[l], z[l]) as u32;
         }
