@@ -216,7 +216,11 @@ struct ClockSectors {
 
 impl ClockSectors {
     fn new(sectors: usize) -> Self {
-        let per_quadrant = if sectors.is_multiple_of(4) { sectors / 4 } else { 0 };
+        let per_quadrant = if sectors.is_multiple_of(4) {
+            sectors / 4
+        } else {
+            0
+        };
         let bounds = (1..per_quadrant)
             .map(|j| {
                 let a = j as f64 * std::f64::consts::TAU / sectors as f64;
