@@ -9,10 +9,12 @@ in the camera's optical frame, `frame_id` helios_optical_frame, cycled), then ru
         --threads THREADS
 
 and prints messages per second (wall time) and the peak resident memory, with the bag's
-size for scale. Needs the `epd` Python package (for the frames) and `rosbags`.
+size for scale. Needs `rosbags`, and the `epd` Python package for the frames, or
+`--ply-dir DIR`: the frames of `epd simulate --out DIR --sensor helios2 --precision f32`
+(binary PLY, x y z in the sensor frame and intensity; read with `plyfile`).
 
     python3 scripts/bag-throughput.py EPD_BIN [--messages 300] [--distinct 10]
-        [--threads 2] [--points N] [--dir DIR]
+        [--threads 2] [--points N] [--dir DIR] [--ply-dir DIR]
 """
 
 import argparse
@@ -25,9 +27,26 @@ from pathlib import Path
 
 import numpy as np
 
-import epd
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
+
+
+def frame(a, k):
+    """Frame k: its points (N × 3, sensor frame: X forward, Y right, Z up) and intensity."""
+    if a.ply_dir is None:
+        import epd
+        pts, _, props = epd.simulate(seed=5, trial=k, sensor="helios2", points=a.points,
+                                     return_properties=True)
+        return pts, props
+    from plyfile import PlyData
+    files = sorted(Path(a.ply_dir).glob("*.ply"))
+    v = PlyData.read(str(files[k % len(files)]))["vertex"]
+    pts = np.column_stack([v["x"], v["y"], v["z"]]).astype(np.float64)
+    idx = np.flatnonzero(np.isfinite(pts).all(axis=1) & (np.abs(pts).sum(axis=1) > 0))
+    if a.points is not None and a.points < len(idx):
+        # An even subsample over the whole image.
+        idx = idx[np.linspace(0, len(idx) - 1, a.points).astype(int)]
+    return pts[idx], {"intensity": np.asarray(v["intensity"])[idx]}
 
 
 def main():
@@ -38,6 +57,7 @@ def main():
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--points", type=int, default=None, help="subsample (default: all)")
     ap.add_argument("--dir", default=None)
+    ap.add_argument("--ply-dir", default=None, help="frames from `epd simulate` PLY files")
     a = ap.parse_args()
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
@@ -48,8 +68,7 @@ def main():
 
     blobs = []
     for k in range(a.distinct):
-        pts, _, props = epd.simulate(seed=5, trial=k, sensor="helios2", points=a.points,
-                                     return_properties=True)
+        pts, props = frame(a, k)
         rec = np.zeros(len(pts), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
                                         ("intensity", "<f4")])
         # Optical frame: X right, Y down, Z forward.
