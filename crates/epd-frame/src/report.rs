@@ -374,9 +374,33 @@ impl FileReport {
         }
     }
 
-    /// One CSV row (no final newline), in the order of [`columns`].
+    /// One CSV row (no final newline), in the order of [`columns`]. A CSV file is read by
+    /// people as well as programs, and printed to a terminal: every text cell shows its
+    /// control characters escaped as text output does (`epd_io::name::escape_controls`),
+    /// so a name cannot rewrite the screen or fake a row. A file name that this changes
+    /// keeps its exact bytes in `file_bytes_hex`, as a name that is not UTF-8 does. (JSON
+    /// escapes control characters by its own rules and keeps every string exactly.)
     pub fn csv(&self) -> String {
-        epd_io::csv::fields_line(&self.fields())
+        let mut f = self.fields();
+        let renamed = self.file_bytes.is_none()
+            && matches!(
+                epd_io::name::escape_controls(&self.file),
+                std::borrow::Cow::Owned(_)
+            );
+        for (k, v) in &mut f {
+            match (*k, &*v) {
+                ("file_bytes_hex", Field::Null) if renamed => {
+                    *v = Field::Text(epd_io::name::hex(self.file.as_bytes()));
+                }
+                (_, Field::Text(t)) => {
+                    if let std::borrow::Cow::Owned(e) = epd_io::name::escape_controls(t) {
+                        *v = Field::Text(e);
+                    }
+                }
+                _ => {}
+            }
+        }
+        epd_io::csv::fields_line(&f)
     }
 
     /// A few readable lines (the name and the messages with their control characters
@@ -595,6 +619,55 @@ mod tests {
                 bend_fit: None,
             }),
         }
+    }
+
+    /// A name with control characters (an escape sequence, a newline that would fake a
+    /// row) is shown escaped in CSV, every character of the row printable, and its exact
+    /// bytes are in `file_bytes_hex`; a plain name leaves that column empty; JSON keeps the
+    /// name exactly (escaped by JSON's rules).
+    #[test]
+    fn csv_shows_control_characters_escaped_and_keeps_the_bytes() {
+        let mut r = ok_report();
+        let raw = "x\u{1b}[2Jy.ply\ngood.ply,converged";
+        r.file = raw.into();
+        let line = r.csv();
+        assert!(line.chars().all(|c| !c.is_control()), "{line:?}");
+        let cols = columns();
+        let row = csv_cells(&line);
+        assert_eq!(row.len(), cols.len(), "{line}");
+        let cell = |k: &str| row[cols.iter().position(|c| *c == k).unwrap()].clone();
+        assert_eq!(cell("file"), epd_io::name::escape_controls(raw));
+        assert_eq!(cell("file_bytes_hex"), epd_io::name::hex(raw.as_bytes()));
+        assert!(
+            r.json().contains("\\u001b[2Jy.ply\\ngood.ply"),
+            "{}",
+            r.json()
+        );
+        let plain = ok_report();
+        let row = csv_cells(&plain.csv());
+        assert_eq!(
+            row[cols.iter().position(|c| *c == "file_bytes_hex").unwrap()],
+            ""
+        );
+    }
+
+    /// The cells of one CSV line (quotes as `epd_io::csv` writes them).
+    fn csv_cells(line: &str) -> Vec<String> {
+        let mut cells = vec![String::new()];
+        let mut quoted = false;
+        let mut chars = line.chars().peekable();
+        while let Some(c) = chars.next() {
+            match c {
+                '"' if quoted && chars.peek() == Some(&'"') => {
+                    chars.next();
+                    cells.last_mut().unwrap().push('"');
+                }
+                '"' => quoted = !quoted,
+                ',' if !quoted => cells.push(String::new()),
+                c => cells.last_mut().unwrap().push(c),
+            }
+        }
+        cells
     }
 
     /// The text says what ± means and what was applied to the points; a bag message is
