@@ -7,5 +7,6 @@ pub mod cloud;
 pub mod estimate;
 pub mod form;
 pub mod init;
+pub mod options;
 pub mod student;
 pub mod uncertainty;
