@@ -115,19 +115,59 @@ pub fn measure_records(
         return Ok(None);
     };
     let choice = t1.elapsed().saturating_sub(src.read);
-    let t2 = Instant::now();
-    let idx: Vec<u32> = chosen.indices.iter().map(|&i| i as u32).collect();
-    let mut cloud = file.cloud(&idx)?;
-    convert_to_sensor_metres(&mut cloud.points, cfg.input.units, cfg.input.frame);
-    let read_ms = (opened + src.read + t2.elapsed()).as_secs_f64() * 1e3;
-    let sampled = Presampled {
-        n_read: file.len(),
-        n: cloud.points.len(),
-        method: chosen.method,
-        ms: choice.as_secs_f64() * 1e3,
-        pilot: chosen.pilot,
+    let measure = |chosen: &crate::sampling::Chosen, read: std::time::Duration, ms: f64| {
+        let t2 = Instant::now();
+        let idx: Vec<u32> = chosen.indices.iter().map(|&i| i as u32).collect();
+        let mut cloud = file.cloud(&idx)?;
+        convert_to_sensor_metres(&mut cloud.points, cfg.input.units, cfg.input.frame);
+        let read_ms = (read + t2.elapsed()).as_secs_f64() * 1e3;
+        let sampled = Presampled {
+            n_read: file.len(),
+            n: cloud.points.len(),
+            method: chosen.method,
+            ms,
+            pilot: chosen.pilot,
+        };
+        measure_cloud_as(cloud, read_ms, cfg, Some(sampled))
     };
-    measure_cloud_as(cloud, read_ms, cfg, Some(sampled)).map(Some)
+    let first = measure(&chosen, opened + src.read, choice.as_secs_f64() * 1e3)?;
+    if !disagrees_with_pilot(&chosen, &first, cfg) {
+        return Ok(Some(first));
+    }
+    // The informed choice disagrees with its pilot: the frame again, on a uniform sample.
+    let t3 = Instant::now();
+    src.read = std::time::Duration::ZERO;
+    let uniform = uniform_instead(sampling);
+    let again = crate::sampling::choose_from(&mut src, &uniform, cfg.method, &cfg.options)?;
+    let Some(again) = again else {
+        return Ok(Some(first));
+    };
+    let spent = first.elapsed_ms + t3.elapsed().saturating_sub(src.read).as_secs_f64() * 1e3;
+    let mut second = measure(&again, src.read, spent)?;
+    second.read_ms += first.read_ms;
+    Ok(Some(second))
+}
+
+/// Whether the fit of the informed choice's points disagrees with the choice's pilot
+/// ([`crate::sampling::Witness::disagrees`]). Not with a depth table: the pilot saw the
+/// points before the table moved them, so its diameters differ by the correction.
+fn disagrees_with_pilot(
+    chosen: &crate::sampling::Chosen,
+    fit: &FileEstimate,
+    cfg: &EstimateConfig,
+) -> bool {
+    cfg.calibration.is_none() && chosen.witness.is_some_and(|w| w.disagrees(&fit.estimate))
+}
+
+/// The same sampling, uniform: the choice of a frame whose informed choice disagreed
+/// with its pilot ([`crate::sampling::Witness`]). A uniform sample holds the frame's
+/// parts of the wall in the frame's own proportions, so its fit targets what the full
+/// frame's does, whatever part of the wall the model does not fit.
+fn uniform_instead(sampling: &crate::sampling::Sampling) -> crate::sampling::Sampling {
+    crate::sampling::Sampling {
+        method: crate::sampling::SamplingMethod::Uniform,
+        ..*sampling
+    }
 }
 
 /// Points already chosen by [`crate::sampling`] before they were read
@@ -203,8 +243,65 @@ pub fn measure_frame(input: FrameInput<'_>, cfg: &EstimateConfig) -> Result<File
     measure_frame_as(input, cfg, None)
 }
 
-/// [`measure_frame`] of points already chosen (`pre`: step 0 done) or not.
+/// [`measure_frame`] of points already chosen (`pre`: step 0 done) or not: with
+/// `--max-points`, step 0 here, then the chosen points measured
+/// ([`measure_chosen`]); an informed choice that disagrees with its pilot
+/// ([`crate::sampling::Witness`]) is replaced by a uniform one.
 fn measure_frame_as(
+    input: FrameInput<'_>,
+    cfg: &EstimateConfig,
+    pre: Option<Presampled>,
+) -> Result<FileEstimate, String> {
+    let Some(sampling) = cfg.sampling.as_ref().filter(|_| pre.is_none()) else {
+        return measure_chosen(input, cfg, pre);
+    };
+    let t0 = Instant::now();
+    let Some(chosen) = crate::sampling::choose(&input.points, sampling, cfg.method, &cfg.options)
+    else {
+        return measure_chosen(input, cfg, None);
+    };
+    let n_read = input.points.len();
+    // The time of the choice, and of a first measurement replaced, counts in
+    // `elapsed_ms`.
+    let measure = |chosen: &crate::sampling::Chosen| {
+        // Values of another length than the points are kept whole: the step that uses
+        // them names the mismatch.
+        let pick = |v: &[f64]| -> Vec<f64> {
+            if v.len() != n_read {
+                return v.to_vec();
+            }
+            chosen.indices.iter().map(|&i| v[i]).collect()
+        };
+        let (intensity, sigma) = (input.intensity.map(pick), input.sigma.map(pick));
+        let picked = FrameInput {
+            points: Cow::Owned(chosen.indices.iter().map(|&i| input.points[i]).collect()),
+            intensity: intensity.as_deref(),
+            sigma: sigma.as_deref(),
+            read_ms: input.read_ms,
+        };
+        let sampled = Presampled {
+            n_read,
+            n: chosen.indices.len(),
+            method: chosen.method,
+            ms: t0.elapsed().as_secs_f64() * 1e3,
+            pilot: chosen.pilot,
+        };
+        measure_chosen(picked, cfg, Some(sampled))
+    };
+    let first = measure(&chosen)?;
+    if !disagrees_with_pilot(&chosen, &first, cfg) {
+        return Ok(first);
+    }
+    // The informed choice disagrees with its pilot: the frame again, on a uniform sample.
+    let uniform = uniform_instead(sampling);
+    match crate::sampling::choose(&input.points, &uniform, cfg.method, &cfg.options) {
+        Some(again) => measure(&again),
+        None => Ok(first),
+    }
+}
+
+/// [`measure_frame`] of the points chosen (`pre`) or of every point.
+fn measure_chosen(
     input: FrameInput<'_>,
     cfg: &EstimateConfig,
     pre: Option<Presampled>,
@@ -217,42 +314,13 @@ fn measure_frame_as(
     } = input;
     let n_read = pre.map_or(points.len(), |p| p.n_read);
     let t0 = Instant::now();
-    let chosen = match pre {
-        Some(_) => None,
-        None => cfg
-            .sampling
-            .as_ref()
-            .and_then(|s| crate::sampling::choose(&points, s, cfg.method, &cfg.options)),
-    };
-    let sampled = match pre {
-        Some(p) => Some((p.n, p.method)),
-        None => chosen.as_ref().map(|c| (c.indices.len(), c.method)),
-    };
-    let (intensity_kept, sigma_kept);
-    let (intensity, sigma) = match &chosen {
-        None => (intensity, sigma),
-        Some(c) => {
-            // Values of another length than the points are kept whole: the step that uses
-            // them names the mismatch.
-            let pick = |v: &[f64]| -> Vec<f64> {
-                if v.len() != n_read {
-                    return v.to_vec();
-                }
-                c.indices.iter().map(|&i| v[i]).collect()
-            };
-            points = Cow::Owned(c.indices.iter().map(|&i| points[i]).collect());
-            intensity_kept = intensity.map(pick);
-            sigma_kept = sigma.map(pick);
-            (intensity_kept.as_deref(), sigma_kept.as_deref())
-        }
-    };
+    let sampled = pre.map(|p| (p.n, p.method));
     let sampling_ms = t0.elapsed().as_secs_f64() * 1e3 + pre.map_or(0.0, |p| p.ms);
     // The fits of every chosen point (the survey's first, or the straight-only fit) start
     // from the informed choice's pilot, a fit of the same frame: that saves the subsample
     // stage. Not with a depth table, which moves the points after the pilot saw them.
     let pilot = pre
         .and_then(|p| p.pilot)
-        .or_else(|| chosen.as_ref().and_then(|c| c.pilot))
         .filter(|_| cfg.calibration.is_none());
     let whole = match pilot {
         Some(beta) => cfg.options.with_start(beta).unwrap_or(cfg.options),
