@@ -212,9 +212,8 @@ fn mutated_scenarios_1e5() {
 /// checks that the shards are its own code).
 const TINY: &str = "name = \"fz\"\nseed = 5\ntrials = 4\nmethods = [\"ru-epd\"]\npoints = 400\n";
 
-/// The pair of shards, made once: their folder and each file's bytes.
+/// The pair of shards, made once: each file's bytes.
 struct Shards {
-    dir: PathBuf,
     files: Vec<(usize, &'static str, Vec<u8>)>,
 }
 
@@ -238,7 +237,7 @@ fn shards() -> &'static Shards {
                 files.push((k as usize - 1, f, std::fs::read(out.join(f)).unwrap()));
             }
         }
-        Shards { dir, files }
+        Shards { files }
     })
 }
 
@@ -270,6 +269,7 @@ fn damage() -> impl Strategy<Value = Damage> {
 
 fn run_shards(n: u32) {
     let s = shards();
+    let cases = common::temp_dir("fuzz-shard-cases");
     let mut runner = TestRunner::new(Config {
         cases: n,
         failure_persistence: None,
@@ -277,7 +277,7 @@ fn run_shards(n: u32) {
     });
     // The merge's output goes below a regular file: a merge that passes every check
     // fails at once creating it, so that a case costs no plots.
-    let blocker = s.dir.join("blocker");
+    let blocker = cases.join("blocker");
     std::fs::write(&blocker, b"").unwrap();
     let t0 = Instant::now();
     let case = std::sync::atomic::AtomicU64::new(0);
@@ -285,7 +285,7 @@ fn run_shards(n: u32) {
     runner
         .run(&strategy, |(f, how)| {
             let n = case.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-            let d = s.dir.join(format!("case{n}"));
+            let d = cases.join(format!("case{n}"));
             let parts: Vec<PathBuf> = (0..2).map(|k| d.join(format!("s{}", k + 1))).collect();
             for (k, name, bytes) in &s.files {
                 std::fs::create_dir_all(&parts[*k]).unwrap();

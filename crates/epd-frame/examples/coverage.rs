@@ -11,7 +11,9 @@
 //! the statuses, the coverage of the ±1.96σ̂ interval for Dmax, Dmin and the mean diameter
 //! over the converged frames (with its binomial standard error), the spread of err/σ̂, and
 //! how many converged frames are more than max(5σ̂, 0.5 mm) off. With `EPD_DUMP_DIR=DIR`
-//! every frame is also written there (see `dump`).
+//! every frame is also written there (see `dump`); with `EPD_STRAIGHT_ONLY=1` the frames
+//! are fitted as `--straight-only` does, with `EPD_MAX_POINTS=N` as `--max-points N`
+//! does (the informed choice).
 
 use std::borrow::Cow;
 use std::collections::BTreeMap;
@@ -135,6 +137,9 @@ fn cases() -> Vec<Case> {
 fn config() -> EstimateConfig {
     let settings = EstimateSettings {
         geometry: std::env::var_os("EPD_STRAIGHT_ONLY").is_none(),
+        max_points: std::env::var("EPD_MAX_POINTS")
+            .ok()
+            .map(|v| v.parse().expect("EPD_MAX_POINTS: a number of points")),
         ..EstimateSettings::default()
     };
     EstimateConfig::new(&settings).expect("the defaults are valid")

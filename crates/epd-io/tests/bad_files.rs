@@ -12,8 +12,8 @@ use std::time::Duration;
 #[global_allocator]
 static ALLOC: peak_alloc::PeakAlloc = peak_alloc::PeakAlloc;
 
-/// A temporary directory removed when dropped.
-struct Dir(PathBuf);
+/// A temporary directory removed when dropped (`common::TempDir`).
+struct Dir(common::TempDir);
 
 impl Dir {
     fn new(tag: &str) -> Self {
@@ -24,12 +24,6 @@ impl Dir {
         let p = self.0.join(name);
         std::fs::write(&p, bytes).unwrap();
         p
-    }
-}
-
-impl Drop for Dir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
     }
 }
 

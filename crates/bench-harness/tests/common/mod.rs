@@ -14,16 +14,10 @@ pub fn workspace() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
-/// A new, empty folder under the system's temporary folder.
-pub fn temp_dir(tag: &str) -> PathBuf {
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_nanos())
-        .unwrap_or(0);
-    let d = std::env::temp_dir().join(format!("epd-{tag}-{}-{nanos}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
+#[path = "../../../epd-io/tests/common/temp_dir.rs"]
+mod temp;
+#[allow(unused_imports)]
+pub use temp::{TempDir, temp_dir};
 
 /// A CSV file read with the `csv` crate (quoted fields as written): the header and the
 /// rows.

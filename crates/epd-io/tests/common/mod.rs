@@ -89,18 +89,7 @@ pub fn xyz(points: &[[f64; 3]]) -> Vec<u8> {
     s.into_bytes()
 }
 
-/// A fresh folder under the system's temporary folder, named after the crate under
-/// test, `tag`, the process and the time.
-pub fn temp_dir(tag: &str) -> std::path::PathBuf {
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_nanos())
-        .unwrap_or(0);
-    let d = std::env::temp_dir().join(format!(
-        "{}-{tag}-{}-{nanos}",
-        env!("CARGO_PKG_NAME"),
-        std::process::id()
-    ));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
+#[path = "temp_dir.rs"]
+mod temp;
+#[allow(unused_imports)]
+pub use temp::{TempDir, temp_dir};
