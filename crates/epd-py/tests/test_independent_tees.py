@@ -136,14 +136,17 @@ def test_the_caster_is_exact():
 
 # Measured (`pytest -s test_independent_tees.py`, 8 frames per distance, 160 × 120
 # pixels, D_b ∈ [0.5, 1]·D, any side): 0.75, 1.0, 1.5 and 2.0 m 8 of 8 `tee_ahead`, the
-# opening within −13 … +15 mm; 3.0 m 4 of 8 (4 `straight`, converged). Before the opening
+# opening within −13 … +15 mm; 3.0 m 4 of 8 (3 `straight`, converged; one `tee_ahead` 67 mm
+# late). 3 of 8 (5 `straight`) before the opening test pooled two neighbouring sectors
+# (`epd_core::scene::sparse::WINDOW_SECTORS`): an opening straddling a sector boundary split
+# its exceedances between the two. Before the opening
 # test of the sparse cells (`epd_core::scene::sparse`) 1.5, 2.0 and 3.0 m were 0 of 8: the
 # opening holds too few of this camera's points for the medians' tests, as the elbow's in
 # `test_independent_bends.py`. The same caster at 640 × 480 pixels: 6 of 6 at 1.5 and
 # 3.0 m (asserted below). Issue 23's goal is not met on this geometry at 160 × 120 at
 # 3 m; the misses are recorded as xfail rather than loosened.
 NOT_MET = {
-    3.0: "issue 23: 4 of 8 at 160 x 120 (4 straight)",
+    3.0: "issue 23: 4 of 8 at 160 x 120 (3 straight, 1 tee 67 mm late)",
 }
 
 

@@ -135,17 +135,33 @@ pub(crate) fn test_openings(
             .filter(|&j| sparse[j + w - 1] - sparse[j] < 2 * w)
             .collect()
     };
-    let pooled = |j: usize, w: usize, k: usize| {
+    // Sectors k, k + 1, …, k + v − 1 around the clock (wrapping).
+    let arc = |k: usize, v: usize| (k..k + v).map(move |m| m % sectors);
+    let pooled = |j: usize, w: usize, k: usize, v: usize| {
         counts[j..j + w]
             .iter()
-            .fold((0usize, 0usize), |(n, e), row| (n + row[k].0, e + row[k].1))
+            .fold((0usize, 0usize), |(n, e), row| {
+                arc(k, v).fold((n, e), |(n, e), m| (n + row[m].0, e + row[m].1))
+            })
     };
+    // The clock windows: each width up to the sectors there are (wrapping makes a
+    // window of every sector the same for each start: counted once).
+    let widths: Vec<usize> = WINDOW_SECTORS
+        .iter()
+        .copied()
+        .filter(|&v| v < sectors)
+        .collect();
     let tested = WINDOW_SLICES
         .iter()
         .map(|&w| {
             windows(w)
                 .into_iter()
-                .map(|j| (0..sectors).filter(|&k| pooled(j, w, k).0 > 0).count())
+                .map(|j| {
+                    widths
+                        .iter()
+                        .map(|&v| (0..sectors).filter(|&k| pooled(j, w, k, v).0 > 0).count())
+                        .sum::<usize>()
+                })
                 .sum::<usize>()
         })
         .sum::<usize>()
@@ -155,19 +171,23 @@ pub(crate) fn test_openings(
     }
     for &w in &WINDOW_SLICES {
         for j in windows(w) {
-            for k in 0..sectors {
-                let (n, e) = pooled(j, w, k);
-                let p = (tested * binomial_tail(n, e, p0, law)).min(1.0);
-                // Where in the window the exceedances begin: its first slice with one in
-                // this sector (a window may start on wall before the opening).
-                let Some(first) = (j..j + w).find(|&m| counts[m][k].1 > 0) else {
-                    continue;
-                };
-                let i = sparse[first];
-                if !(p >= slices[i].opening_p) {
-                    slices[i].opening_p = p;
-                    slices[i].opening_psi =
-                        (k as f64 + 0.5) / sectors as f64 * std::f64::consts::TAU;
+            for &v in &widths {
+                for k in 0..sectors {
+                    let (n, e) = pooled(j, w, k, v);
+                    let p = (tested * binomial_tail(n, e, p0, law)).min(1.0);
+                    // Where in the window the exceedances begin: its first slice with one
+                    // in these sectors (a window may start on wall before the opening).
+                    let Some(first) = (j..j + w).find(|&m| arc(k, v).any(|s| counts[m][s].1 > 0))
+                    else {
+                        continue;
+                    };
+                    let i = sparse[first];
+                    if !(p >= slices[i].opening_p) {
+                        slices[i].opening_p = p;
+                        slices[i].opening_psi = ((k as f64 + 0.5 * v as f64) / sectors as f64
+                            * std::f64::consts::TAU)
+                            % std::f64::consts::TAU;
+                    }
                 }
             }
         }
@@ -187,6 +207,16 @@ pub(crate) fn test_openings(
 /// length (the slices between holding no points); its p-value goes to its first slice
 /// with an exceedance in the sector tested.
 pub const WINDOW_SLICES: [usize; 3] = [1, 2, 4];
+
+/// The widths, in sectors, of the clock windows the opening test pools a window's
+/// counts over: one sector, and two neighbouring ones (around the clock). A branch of
+/// 0.5–1·D spans 0.16–0.32 of the circumference (2–4 of 12 sectors), and wherever the
+/// fitted roll puts it, its opening may straddle a sector boundary with its exceedances
+/// split between two sectors, too few in either (`test_independent_tees.py`, 160 × 120
+/// at 3 m: 4 exceeding points of 4 in one sector, the others in the next). Two widths
+/// double the Bonferroni factor, a cost of ln 2 in the exponent of a tail that falls as
+/// p₀^e.
+pub const WINDOW_SECTORS: [usize; 2] = [1, 2];
 
 /// The exceedance limit of sector `k` in slice `i`: the median +
 /// [`EXCEEDANCE_SIGMAS`]·1.4826·MAD of that sector's deviations in slice `i` and its
@@ -430,8 +460,35 @@ mod tests {
     fn tested_cells(sectors: usize, slices: usize) -> usize {
         WINDOW_SLICES
             .iter()
-            .map(|&w| sectors * (slices + 1 - w))
+            .map(|&w| sectors * (slices + 1 - w) * WINDOW_SECTORS.len())
             .sum()
+    }
+
+    /// An opening across a sector boundary (between sectors 11 and 0, where the clock
+    /// wraps): 2 of each cell's 4 points 0.2 m out in slices 20 and 21 of both. Each
+    /// sector alone, 4 of 8 (P ≈ 70p₀⁴ ≈ 2·10⁻⁶ before the adjustment), does not open;
+    /// the two sectors pooled, 8 of 16, do, first at slice 20, at the boundary's clock
+    /// angle (0).
+    #[test]
+    fn neighbouring_sectors_pool_an_opening_across_their_boundary() {
+        let mut u = uniforms(43);
+        let law = DesignEffect::INDEPENDENT;
+        let (mut slices, mut cells) = frame(&mut u, 4, |_, _| false);
+        for i in 20..22 {
+            for k in [11, 0] {
+                for d in cells[i * 12 + k].iter_mut().take(2) {
+                    *d += 0.2;
+                }
+            }
+        }
+        let alone = tested_cells(12, 40) as f64 * binomial_tail(8, 4, OPEN_RATE, &law);
+        assert!(alone > OPENING_FALSE_ALARM, "{alone}");
+        test_openings(&mut slices, &cells, &SegmentOptions::default(), &law);
+        let open: Vec<usize> = (0..slices.len()).filter(|&i| slices[i].opens()).collect();
+        assert_eq!(open.first(), Some(&20), "{:?}", &slices[18..24]);
+        assert!(open.iter().all(|i| (20..22).contains(i)), "{open:?}");
+        let psi = slices[20].opening_psi;
+        assert!(psi.min(std::f64::consts::TAU - psi) < 1e-12, "{psi}");
     }
 
     /// Points correlated in patches (each cell's 8 points share one draw, as a 3-pixel
