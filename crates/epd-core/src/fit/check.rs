@@ -90,6 +90,9 @@ pub struct Diagnostics {
     pub sector_misfit: f64,
     /// Points assessed.
     pub n_assessed: usize,
+    /// The [`SECTORS`] sectors around the axis holding at least [`MIN_SECTOR_POINTS`] of
+    /// the points assessed: all of them for a camera that sees the wall all round.
+    pub sectors_seen: usize,
 }
 
 /// Why an estimate is not believed although the solver stopped.
@@ -103,6 +106,19 @@ pub enum Implausible {
     AxisNotAhead {
         /// The angle between the fitted axis and the sensor's X axis (rad).
         tilt: f64,
+    },
+    /// Too little of the wall is in view to measure the pipe: the points lie in some of
+    /// the sectors around the axis only, and span less than [`MIN_SPAN_RATIO`] of a
+    /// fitted diameter across it, which is then extrapolated, not measured.
+    PartialView {
+        /// 0 for Dmax, 1 for Dmin.
+        axis: usize,
+        /// The fitted diameter (m).
+        diameter: f64,
+        /// The points' span across the axis along that diameter (m).
+        span: f64,
+        /// The sectors holding points ([`Diagnostics::sectors_seen`]).
+        sectors_seen: usize,
     },
     /// The fitted diameter does not match the cloud's extent across the axis.
     DiameterVsExtent {
@@ -157,6 +173,22 @@ impl std::fmt::Display for Implausible {
                  frame's (X forward): a camera's optical frame has Z forward, and a cloud already in \
                  the sensor frame must not be converted from it",
                 tilt.to_degrees()
+            ),
+            Implausible::PartialView {
+                axis,
+                diameter,
+                span,
+                sectors_seen,
+            } => write!(
+                f,
+                "too little of the wall is in view to measure the pipe: the points lie in \
+                 {sectors_seen} of the {SECTORS} sectors around the axis and span {:.1} mm \
+                 across it, under half the fitted {} {:.1} mm, which is extrapolated (a \
+                 partial view: a fitting close ahead, an obstruction, the sensor near the \
+                 wall); a frame with more of the wall in view measures it",
+                span * 1e3,
+                if axis == 0 { "Dmax" } else { "Dmin" },
+                diameter * 1e3,
             ),
             Implausible::DiameterVsExtent {
                 axis,
@@ -321,6 +353,16 @@ impl Diagnostics {
         .enumerate()
         {
             let hi = MAX_SPAN_RATIO + SPAN_NOISE_ALLOWANCE * s / d;
+            // A span short of the diameter with sectors around the axis empty is a view
+            // of part of the wall; with the wall seen all round it is a fit gone off it.
+            if ratio < MIN_SPAN_RATIO && self.sectors_seen < SECTORS {
+                return Some(Implausible::PartialView {
+                    axis,
+                    diameter: d,
+                    span: ratio * d,
+                    sectors_seen: self.sectors_seen,
+                });
+            }
             if !(ratio >= MIN_SPAN_RATIO && ratio <= hi) {
                 return Some(Implausible::DiameterVsExtent {
                     axis,
@@ -383,6 +425,7 @@ pub fn assess(points: &[[f64; 3]], beta: &Params) -> Result<Diagnostics, Implaus
     // A floor for noise-free clouds, where the medians are rounding.
     let s_eff = s.max(1e-9 * (beta.d_max + beta.d_min));
     let mut misfit: f64 = 0.0;
+    let mut sectors_seen = 0;
     let mut in_sector = Vec::with_capacity(n);
     for k in 0..SECTORS {
         in_sector.clear();
@@ -396,6 +439,7 @@ pub fn assess(points: &[[f64; 3]], beta: &Params) -> Result<Diagnostics, Implaus
         if in_sector.len() < MIN_SECTOR_POINTS {
             continue;
         }
+        sectors_seen += 1;
         let med = quantile(&mut in_sector, 0.5);
         let sampling = SECTOR_SAMPLING / (in_sector.len() as f64).sqrt();
         misfit = misfit.max(med.abs() / s_eff - sampling);
@@ -407,6 +451,7 @@ pub fn assess(points: &[[f64; 3]], beta: &Params) -> Result<Diagnostics, Implaus
         residual_scale: s,
         sector_misfit: misfit.max(0.0),
         n_assessed: n,
+        sectors_seen,
     })
 }
 
@@ -478,6 +523,29 @@ mod tests {
             matches!(d.verdict(&big), Some(Implausible::DiameterVsExtent { .. })),
             "{d:?}"
         );
+    }
+
+    /// Points on a 60° arc of the wall only (as a fitting close ahead or an obstruction
+    /// leaves in view): refused as a partial view, not as a diverged fit, and a huge pipe
+    /// fitted to the wall seen all round is still a diverged fit.
+    #[test]
+    fn a_partial_view_is_named_as_such() {
+        let t = truth();
+        let arc: Vec<[f64; 3]> = (0..4000)
+            .map(|i| {
+                let phi = (i % 60) as f64 * std::f64::consts::PI / 180.0;
+                let x = 0.6 + (i % 53) as f64 * 0.1;
+                let w = Point3::new(x, 0.5 * t.d_max * phi.cos(), 0.5 * t.d_min * phi.sin());
+                let s = t.pcs_to_scs(&w);
+                [s.x, s.y, s.z]
+            })
+            .collect();
+        let d = assess(&arc, &t).unwrap();
+        assert!(d.sectors_seen <= 2, "{d:?}");
+        let v = d.verdict(&t);
+        assert!(matches!(v, Some(Implausible::PartialView { .. })), "{v:?}");
+        assert!(v.unwrap().to_string().contains("in view"), "{}", v.unwrap());
+        assert_eq!(assess(&cloud(&t), &t).unwrap().sectors_seen, SECTORS);
     }
 
     #[test]
