@@ -38,3 +38,26 @@ def test_bad_max_points(epd_bin, frames):
         epd.estimate(frames[0], max_points=-5)
     with pytest.raises(ValueError, match="uniform, stratified, informed"):
         epd.estimate(frames[0], max_points=5000, sampling="best")
+
+
+def test_a_choice_measured_again_is_the_same_from_an_array(epd_bin, tmp_path):
+    """A frame whose informed choice disagrees with its pilot and is measured again on a
+    uniform sample (`epd_frame::sampling::Witness`; a 320 × 240 frame with a multipath
+    band from the independent numpy caster, seed 121, frame 3): the array path
+    (`epd.estimate(points, max_points=…)`, the choice made in memory) gives the file
+    path's report (`epd estimate --max-points`, the choice read from the file's records),
+    `sampling` included."""
+    import numpy as np
+
+    from test_independent_frames import frame, write_ply
+
+    rng = np.random.default_rng(121)
+    for _ in range(4):
+        pts, _, _ = frame(rng, "multipath", 320, 240)
+    path = tmp_path / "multipath_3.ply"
+    write_ply(path, pts)
+    cli = cli_json(epd_bin, path, "--max-points", "20000")
+    assert cli["sampling"] == "uniform", cli
+    points, _ = epd.read(path)
+    by_array = epd.estimate(points, max_points=20000)
+    assert_same_report(by_array, cli, skip=("file", "elapsed_ms", "read_ms"))
