@@ -326,8 +326,9 @@ enum Input<'py> {
 /// `sigma_bend_radius_mm` (mm), `bend_angle_deg`,
 /// `bend_direction_deg` (degrees), `bend_withheld`, `dent_at_m` (m), `dent_clock_deg`
 /// (degrees), `dent_depth_mm` (mm; a dent, debris or an obstacle on a straight pipe's
-/// wall), `n_sampled` and `sampling` (with
-/// `max_points`), `calibration_outside` (the fraction of the points outside an incidence
+/// wall), `n_sampled` and `sampling` (with `max_points`; `sampling` is "uniform" where
+/// the informed choice's fit disagreed with its pilot and the frame was measured again
+/// on uniform points), `calibration_outside` (the fraction of the points outside an incidence
 /// table's support, with `calibration`), `error`, `stamp_ns`, `frame_id` (a bag
 /// message's header; `None` here). A result that cannot be believed is `None` with the
 /// reason in `error`.
