@@ -13,7 +13,7 @@
 //! how many converged frames are more than max(5σ̂, 0.5 mm) off. With `EPD_DUMP_DIR=DIR`
 //! every frame is also written there (see `dump`); with `EPD_STRAIGHT_ONLY=1` the frames
 //! are fitted as `--straight-only` does, with `EPD_MAX_POINTS=N` as `--max-points N`
-//! does (the informed choice).
+//! does (the informed choice); `EPD_OD_IN` and `EPD_WALL_MM` change the pipe.
 
 use std::borrow::Cow;
 use std::collections::BTreeMap;
@@ -179,9 +179,17 @@ struct Outcome {
 }
 
 fn frame_outcome(case: &Case, k: u64, cfg: &EstimateConfig) -> Outcome {
+    let env = |name: &str| {
+        std::env::var(name).ok().map(|v| {
+            v.parse::<f64>()
+                .unwrap_or_else(|_| panic!("{name}: a number"))
+        })
+    };
+    let paper = Pipe::paper_20in();
     let pipe = Pipe {
         ovality: 0.02,
-        ..Pipe::paper_20in()
+        nominal_od_in: env("EPD_OD_IN").unwrap_or(paper.nominal_od_in),
+        wall_thickness: env("EPD_WALL_MM").map_or(paper.wall_thickness, |w| w * 1e-3),
     };
     let truth: Params = PoseRanges::default()
         .sample(&pipe, 7, k)
