@@ -66,3 +66,61 @@ fn an_approach_run_replaces_its_own_results() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// SIGTERM stops an approach run at the next distance (each distance's frames are a
+/// batch, as a sweep's trials are): of 40 distances, at most one more begins after the
+/// signal (the one begun before it finishes), the run exits 130 saying so and leaves
+/// no output. Before, the run went on through every distance.
+#[test]
+fn a_signal_stops_an_approach_run_at_the_next_distance() {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let dir = temp_dir("approach-signal");
+    let file = dir.join("long.toml");
+    let distances: Vec<String> = (0..40)
+        .map(|i| format!("{:.2}", 3.0 - 0.05 * i as f64))
+        .collect();
+    std::fs::write(
+        &file,
+        format!(
+            "name = \"elbow_long\"\nseed = 3\n\n[approach]\nkind = \"elbow\"\n\
+             distances_m = [{}]\nframes = 1\nsigma_m = 0.01\n",
+            distances.join(", ")
+        ),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let mut child = bin()
+        .arg(&file)
+        .args(["--threads", "1", "--out"])
+        .arg(&out)
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    let mut begun = 0;
+    for line in lines.by_ref() {
+        if line.unwrap().contains("m ahead") {
+            begun += 1;
+            if begun == 2 {
+                break;
+            }
+        }
+    }
+    assert_eq!(begun, 2, "the run ended before its second distance");
+    let k = std::process::Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(k.success());
+    let rest: Vec<String> = lines.map(|l| l.unwrap()).collect();
+    let status = child.wait().unwrap();
+    let after = rest.iter().filter(|l| l.contains("m ahead")).count();
+    assert!(
+        after <= 1,
+        "{after} distances begun after the signal: {rest:?}"
+    );
+    assert_eq!(status.code(), Some(130), "{rest:?}");
+    assert!(rest.iter().any(|l| l.contains("interrupted")), "{rest:?}");
+    assert!(!out.exists(), "an interrupted run wrote {}", out.display());
+}

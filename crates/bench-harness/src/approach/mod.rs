@@ -32,13 +32,14 @@
 //! `scenario.toml`, `metadata.json`.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use anyhow::Context;
 use rayon::prelude::*;
 
 use crate::experiment::{Experiment, Finished, Refused, Request};
-use crate::output::{StagedFiles, write_new, write_run};
+use crate::output::{INTERRUPTED, Interrupted, StagedFiles, write_new, write_run};
 use crate::provenance::Metadata;
 use crate::scenario::ScenarioError;
 use frames::{frame_rows, write_frames_csv};
@@ -118,6 +119,11 @@ fn stage(s: &ApproachScenario, dir: &Path, progress: bool) -> anyhow::Result<App
     let start = Instant::now();
     let mut rows = Vec::new();
     for di in 0..s.distances_m.len() {
+        // A signal stops the run before the next distance's frames (their batch is the
+        // unit of work, as a sweep's batch of trials is).
+        if INTERRUPTED.load(Ordering::SeqCst) {
+            return Err(Interrupted.into());
+        }
         if progress {
             epd_io::stderr_line!(
                 "{}: {} m ahead, {} frames",
