@@ -54,11 +54,23 @@ pub const FORM_AXIAL_CELLS: usize = 16;
 /// ([`WallCells::shared_along_axis`]).
 pub const FORM_TOLERANCE_SCALES: f64 = 2.0;
 
-/// At most this many points (evenly strided) are tested: 32 768 points put about 340 in
-/// each of the 96 cells, whose median then has a standard error of 1.2533/√340 = 0.07 of
-/// the noise — a region off by 1.3 times the noise is found — and the test's memory stays
-/// at 0.5 MB whatever the frame.
-pub const FORM_POINTS: usize = 32_768;
+/// At most this many points (evenly strided) are tested: 65 536 points put about 340 in
+/// each of the form test's 192 cells ([`FORM_AXIAL_CELLS`] × 12 sectors), whose median
+/// then has a standard error of 1.2533/√340 = 0.07 of the noise — a region off by 1.3
+/// times the noise is found — and the test's memory stays at 1 MB whatever the frame.
+///
+/// Why 2¹⁶ and not 2¹⁵: the test for errors shared along the axis
+/// ([`WallCells::shared_along_axis`]) compares slice means whose standard errors shrink as
+/// 1/√n, so its F grows as n where the estimate's 1-σ shrinks as 1/√N over all N points.
+/// A band of multipath in the far slices, where few points carry much of the
+/// information on the diameters, moved them by 4–7σ̂ while the test, at 2¹⁵ points,
+/// missed it (tof-sim's 8" frames with rays of 1–2 m read 5 cm long:
+/// `EPD_OD_IN=8.625 EPD_WALL_MM=8.18 cargo run --release -p epd-frame --example coverage --
+/// 100 multipath`, Welch F 3.8 against a critical 4.1 on one frame; 1 of 100 beyond
+/// max(5σ̂, 0.5 mm), coverage 0.90). At 2¹⁶ its F doubles: 0 of 100, coverage
+/// 0.96/0.96/0.98; the 20" frames of every other model of the example unchanged within
+/// one frame of 40. It costs 1.7 ms more per fit of a full 640 × 480 frame.
+pub const FORM_POINTS: usize = 65_536;
 
 /// A cell holding less than 1/[`SLIVER_FRACTION`] of its share N/G of the points is not
 /// tested: the cells are cut to hold equal shares, so such a cell is a sliver at the edge
