@@ -1,9 +1,10 @@
 //! Memory: no heap allocation per point inside the solver, and the peak for 10⁶ points
-//! stays below 1.3 MB beyond the input (measured 1 177 432 B for C-EPD, 1 167 344 B for
-//! RU-EPD, 1 161 456 B for ML-EPD with `cargo test -p epd-core --test memory --
-//! --nocapture`: the strided subsamples of the stages, the initial guess and the
-//! plausibility check, each ≤ 8192 points, and the uncertainty's cluster pass, whose
-//! parts and blocks are bounded whatever the points). A copy of the points (24 MB) or a
+//! stays below 1.3 MB beyond the input (measured 975 192 B for C-EPD, 956 112 B for
+//! RU-EPD and ML-EPD with `cargo test -p epd-core --test memory -- --nocapture`: the
+//! strided subsamples of the stages, the initial guess and the plausibility check, each
+//! ≤ 8192 points; the uncertainty's cluster pass, whose parts and blocks are bounded
+//! whatever the points; and the form test's 2¹⁶ residuals, 8 B each, with a 4 B cell
+//! index each while they are gathered: 0.75 MB, the largest part). A copy of the points (24 MB) or a
 //! per-point buffer of one f64 (8 MB) would break it.
 //! Measured with a counting global allocator.
 

@@ -57,7 +57,8 @@ pub const FORM_TOLERANCE_SCALES: f64 = 2.0;
 /// At most this many points (evenly strided) are tested: 65 536 points put about 340 in
 /// each of the form test's 192 cells ([`FORM_AXIAL_CELLS`] × 12 sectors), whose median
 /// then has a standard error of 1.2533/√340 = 0.07 of the noise — a region off by 1.3
-/// times the noise is found — and the test's memory stays at 1 MB whatever the frame.
+/// times the noise is found — and the test holds 12 B per point tested (a residual and its
+/// cell while they are gathered), 0.75 MB whatever the frame.
 ///
 /// Why 2¹⁶ and not 2¹⁵: the test for errors shared along the axis
 /// ([`WallCells::shared_along_axis`]) compares slice means whose standard errors shrink as
@@ -240,20 +241,28 @@ impl WallCells {
         let geom = Geometry::new(beta)?;
         let g = cells.len();
         let indexer = cells.indexer();
-        // On at most FORM_POINTS evenly strided points: each cell's residuals, and the
-        // sums of its points' axial distances and clock-angle sines and cosines.
+        // On at most FORM_POINTS evenly strided points, in two passes so that the
+        // residuals are held once, grouped by cell in one buffer: first each point's cell
+        // (and the sums of each cell's axial distances and clock-angle sines and
+        // cosines), then each residual written to its cell's part of the buffer.
         let stride = points.len().div_ceil(FORM_POINTS).max(1);
-        let mut per_cell: Vec<Vec<f64>> = vec![Vec::new(); g];
+        let residual = |i: usize, p: &[f64; 3]| {
+            let scale = scales.and_then(|s| s.get(i)).copied().unwrap_or(1.0);
+            scale * geom.residual(Residual::Range, p)
+        };
+        let mut cell_of: Vec<u32> = Vec::with_capacity(points.len().div_ceil(stride));
+        let mut counts = vec![0usize; g];
         let mut centre = vec![[0.0f64; 3]; g];
         for (i, p) in points.iter().enumerate().step_by(stride) {
-            let scale = scales.and_then(|s| s.get(i)).copied().unwrap_or(1.0);
-            let r = scale * geom.residual(Residual::Range, p);
-            if !r.is_finite() {
+            if !residual(i, p).is_finite() {
+                cell_of.push(u32::MAX);
                 continue;
             }
             let [x, y, z] = wall_point_pcs(&geom, p);
             let c = indexer.index(x, y, z);
-            per_cell[c].push(r);
+            // Cells number far below 2³² (axial bins × sectors of a few hundred at most).
+            cell_of.push(u32::try_from(c).unwrap_or(u32::MAX));
+            counts[c] += 1;
             // sin and cos of the clock angle atan2(y, z).
             let rho = y.hypot(z);
             centre[c][0] += x;
@@ -262,25 +271,36 @@ impl WallCells {
                 centre[c][2] += z / rho;
             }
         }
-        let n_all: usize = per_cell.iter().map(Vec::len).sum();
+        let n_all: usize = counts.iter().sum();
         let min_points = MIN_CELL_POINTS.max(n_all / (SLIVER_FRACTION * g));
-        if !per_cell.iter().any(|c| c.len() >= min_points) {
+        if !counts.iter().any(|&n| n >= min_points) {
             return None;
         }
-        // The frame's noise scale: the robust scale of every residual, with a floor for
-        // noise-free clouds, whose residuals are rounding (~1e-16 relative): 1e-9 of the
-        // diameter, far below any physical form deviation.
-        let mut abs_r: Vec<f64> = per_cell.iter().flatten().map(|r| r.abs()).collect();
-        let noise_scale =
-            crate::loss::mad_sigma(&mut abs_r).max(NOISE_FREE_FLOOR * (beta.d_max + beta.d_min));
+        let mut start = Vec::with_capacity(g + 1);
+        start.push(0usize);
+        for n in &counts {
+            start.push(start[start.len() - 1] + n);
+        }
+        let mut residuals = vec![0.0f64; n_all];
+        let mut fill = start.clone();
+        for ((i, p), &c) in points.iter().enumerate().step_by(stride).zip(&cell_of) {
+            if let Some(slot) = fill.get_mut(c as usize) {
+                residuals[*slot] = residual(i, p);
+                *slot += 1;
+            }
+        }
+        drop(cell_of);
         let mut tested = Vec::new();
-        for (id, (cell, c)) in per_cell.iter_mut().zip(&centre).enumerate() {
-            if cell.len() < min_points {
+        let mut dev = Vec::new();
+        for (id, c) in centre.iter().enumerate() {
+            let cell = &mut residuals[start[id]..start[id + 1]];
+            let n = cell.len();
+            if n < min_points {
                 continue;
             }
-            let n = cell.len();
             let median = crate::fit::check::quantile(cell, 0.5);
-            let mut dev: Vec<f64> = cell.iter().map(|v| (v - median).abs()).collect();
+            dev.clear();
+            dev.extend(cell.iter().map(|v| (v - median).abs()));
             tested.push(CellMedian {
                 id,
                 n,
@@ -290,6 +310,15 @@ impl WallCells {
                 clock_deg: c[1].atan2(c[2]).to_degrees().rem_euclid(360.0),
             });
         }
+        // The frame's noise scale: the robust scale of every residual (a median, the same
+        // whatever the order the cells' medians left them in), with a floor for
+        // noise-free clouds, whose residuals are rounding (~1e-16 relative): 1e-9 of the
+        // diameter, far below any physical form deviation.
+        for r in &mut residuals {
+            *r = r.abs();
+        }
+        let noise_scale = crate::loss::mad_sigma(&mut residuals)
+            .max(NOISE_FREE_FLOOR * (beta.d_max + beta.d_min));
         Some(WallCells {
             cells: tested,
             sectors: cells.sectors.max(1),
