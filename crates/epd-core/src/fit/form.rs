@@ -67,7 +67,7 @@ pub const FORM_TOLERANCE_SCALES: f64 = 2.0;
 /// information on the diameters, moved them by 4–7σ̂ while the test, at 2¹⁵ points,
 /// missed it (tof-sim's 8" frames with rays of 1–2 m read 5 cm long:
 /// `EPD_OD_IN=8.625 EPD_WALL_MM=8.18 cargo run --release -p epd-frame --example coverage --
-/// 100 multipath`, Welch F 3.8 against a critical 4.1 on one frame; 1 of 100 beyond
+/// 100 multipath`, Welch F 3.8 against a critical 4.3 on one frame; 1 of 100 beyond
 /// max(5σ̂, 0.5 mm), coverage 0.90). At 2¹⁶ its F doubles: 0 of 100, coverage
 /// 0.96/0.96/0.98; the 20" frames of every other model of the example unchanged within
 /// one frame of 40. It costs 1.7 ms more per fit of a full 640 × 480 frame.
