@@ -2,8 +2,10 @@
 //! estimate with its covariance and Cramér–Rao bound, and the checks that the result
 //! agrees with its points.
 
+pub mod bound;
 pub mod check;
 pub mod cloud;
+pub mod covariance;
 pub mod estimate;
 pub mod form;
 pub mod init;

@@ -1,0 +1,95 @@
+//! Bounds and summaries of a fit against its points: the Cramér–Rao lower bound on each
+//! parameter's 1-σ (constant and per-point σ) and the RMS range residual.
+
+use crate::cloud::clean;
+use crate::error::EpdError;
+use crate::estimate::{Sigmas, View, weighted_cloud};
+use crate::params::{N_PARAMS, Params};
+use crate::problem::PipeFit;
+use crate::residual::Residual;
+use crate::uncertainty::covariance;
+
+/// The Cramér–Rao lower bound on the 1-σ of each parameter, for range noise N(0, σ²)
+/// along each sensing line: the Fisher information is JᵀJ/σ² with J the Jacobian of the
+/// ML-EPD range residual at the true β over the noise-free points (SCS, m). The case
+/// σᵢ = σ of [`cramer_rao_bound_weighted`].
+pub fn cramer_rao_bound(
+    noise_free_points: &[[f64; 3]],
+    truth: &Params,
+    sigma_range: f64,
+) -> Result<Sigmas, EpdError> {
+    if !(sigma_range >= 0.0 && sigma_range.is_finite()) {
+        return Err(EpdError::InvalidOption(format!(
+            "sigma_range = {sigma_range}: must be a finite number ≥ 0"
+        )));
+    }
+    let cloud = clean(noise_free_points);
+    let view = View {
+        points: &cloud.points,
+        scales: None,
+    };
+    fisher_bound(view, cloud.dropped, truth, sigma_range * sigma_range)
+}
+
+/// The Cramér–Rao lower bound on the 1-σ of each parameter for independent range noise
+/// N(0, σᵢ²) along each sensing line, σᵢ (m) per point: the Fisher information is
+/// Σ gᵢgᵢᵀ/σᵢ² with gᵢ the gradient of the ML-EPD range residual at the true β of the
+/// noise-free point i (SCS, m); the bound of [`estimate_weighted`](crate::estimate::estimate_weighted) with ML-EPD.
+/// Computed as σ̃²·(Σ sᵢ²gᵢgᵢᵀ)⁻¹ with sᵢ = σ̃/σᵢ, σ̃ the median σᵢ. Points (with their
+/// σᵢ) are dropped as in [`estimate_weighted`](crate::estimate::estimate_weighted); `sigma.len() != points.len()` is an
+/// [`EpdError::InvalidOption`].
+pub fn cramer_rao_bound_weighted(
+    noise_free_points: &[[f64; 3]],
+    sigma: &[f64],
+    truth: &Params,
+) -> Result<Sigmas, EpdError> {
+    if sigma.len() != noise_free_points.len() {
+        return Err(EpdError::InvalidOption(format!(
+            "{} range standard deviations for {} points: need one per point",
+            sigma.len(),
+            noise_free_points.len()
+        )));
+    }
+    let (cloud, scales, typical) = weighted_cloud(noise_free_points, sigma);
+    let view = View {
+        points: &cloud.points,
+        scales: Some(&scales),
+    };
+    fisher_bound(view, cloud.dropped, truth, typical * typical)
+}
+
+/// σ̃²·(J̃ᵀJ̃)⁻¹ on the determined parameters, J̃ the scaled Jacobian of the range residual
+/// of `cloud` at `truth`.
+fn fisher_bound(
+    cloud: View<'_>,
+    n_dropped: usize,
+    truth: &Params,
+    sigma2: f64,
+) -> Result<Sigmas, EpdError> {
+    if cloud.len() < N_PARAMS {
+        return Err(EpdError::TooFewPoints {
+            usable: cloud.len(),
+            dropped: n_dropped,
+            needed: N_PARAMS,
+        });
+    }
+    let eq = cloud
+        .fit(Residual::Range)
+        .equations_at(truth)
+        .ok_or_else(|| {
+            EpdError::InvalidOption("the true β puts the sensor outside the pipe".into())
+        })?;
+    Ok(covariance(&eq, sigma2).0)
+}
+
+/// RMS of the range residual r_m (ML-EPD's residual, m) of measured points (SCS) at β:
+/// a fit quality in metres comparable across methods. `None` when no point is usable or
+/// β puts the sensor outside the pipe.
+pub fn rms_range_residual(points: &[[f64; 3]], beta: &Params) -> Option<f64> {
+    let cloud = clean(points);
+    if cloud.points.is_empty() {
+        return None;
+    }
+    let eq = PipeFit::new(&cloud.points, Residual::Range).equations_at(beta)?;
+    Some((eq.cost / cloud.points.len() as f64).sqrt())
+}
