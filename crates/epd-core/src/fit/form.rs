@@ -70,7 +70,9 @@ pub const FORM_TOLERANCE_SCALES: f64 = 2.0;
 /// 100 multipath`, Welch F 3.8 against a critical 4.3 on one frame; 1 of 100 beyond
 /// max(5σ̂, 0.5 mm), coverage 0.90). At 2¹⁶ its F doubles: 0 of 100, coverage
 /// 0.96/0.96/0.98; the 20" frames of every other model of the example unchanged within
-/// one frame of 40. It costs 1.7 ms more per fit of a full 640 × 480 frame.
+/// one frame of 40. The test costs 4.5 ms at 10⁵ points against 1.8 ms at 2¹⁵
+/// (`cargo bench -p epd-core -- parts`); a full frame with the survey took as long as
+/// before within the noise of paired runs (docs/benchmarks.md).
 pub const FORM_POINTS: usize = 65_536;
 
 /// A cell holding less than 1/[`SLIVER_FRACTION`] of its share N/G of the points is not
