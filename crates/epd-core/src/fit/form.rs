@@ -23,8 +23,8 @@
 
 use crate::fit::student::f_upper_quantile;
 use crate::params::Params;
-use crate::problem::{Cells, wall_point_pcs};
-use crate::residual::{Geometry, Residual};
+use crate::problem::{Cells, for_each_range_and_cell};
+use crate::residual::Geometry;
 
 /// The level of the form test per frame: at most one frame in a thousand whose wall is
 /// an elliptic cylinder is flagged.
@@ -70,9 +70,10 @@ pub const FORM_TOLERANCE_SCALES: f64 = 2.0;
 /// 100 multipath`, Welch F 3.8 against a critical 4.3 on one frame; 1 of 100 beyond
 /// max(5σ̂, 0.5 mm), coverage 0.90). At 2¹⁶ its F doubles: 0 of 100, coverage
 /// 0.96/0.96/0.98; the 20" frames of every other model of the example unchanged within
-/// one frame of 40. The test costs 4.5 ms at 10⁵ points against 1.8 ms at 2¹⁵
-/// (`cargo bench -p epd-core -- parts`); a full frame with the survey took as long as
-/// before within the noise of paired runs (docs/benchmarks.md).
+/// one frame of 40. The test then cost 4.5 ms at 10⁵ points against 1.8 ms at 2¹⁵
+/// (`cargo bench -p epd-core -- parts`); with its residuals, wall points and cells in
+/// AVX2 registers ([`crate::problem::for_each_range_and_cell`]) it costs 1.8 ms on 2¹⁶
+/// (docs/benchmarks.md).
 pub const FORM_POINTS: usize = 65_536;
 
 /// A cell holding less than 1/[`SLIVER_FRACTION`] of its share N/G of the points is not
@@ -248,31 +249,28 @@ impl WallCells {
         // (and the sums of each cell's axial distances and clock-angle sines and
         // cosines), then each residual written to its cell's part of the buffer.
         let stride = points.len().div_ceil(FORM_POINTS).max(1);
-        let residual = |i: usize, p: &[f64; 3]| {
-            let scale = scales.and_then(|s| s.get(i)).copied().unwrap_or(1.0);
-            scale * geom.residual(Residual::Range, p)
-        };
+        let scale_of = |i: usize| scales.and_then(|s| s.get(i)).copied().unwrap_or(1.0);
         let mut cell_of: Vec<u32> = Vec::with_capacity(points.len().div_ceil(stride));
         let mut counts = vec![0usize; g];
         let mut centre = vec![[0.0f64; 3]; g];
-        for (i, p) in points.iter().enumerate().step_by(stride) {
-            if !residual(i, p).is_finite() {
+        for_each_range_and_cell(&geom, &indexer, points, stride, |i, r, c, [x, y, z]| {
+            if !(scale_of(i) * r).is_finite() {
                 cell_of.push(u32::MAX);
-                continue;
+                return;
             }
-            let [x, y, z] = wall_point_pcs(&geom, p);
-            let c = indexer.index(x, y, z);
             // Cells number far below 2³² (axial bins × sectors of a few hundred at most).
             cell_of.push(u32::try_from(c).unwrap_or(u32::MAX));
             counts[c] += 1;
-            // sin and cos of the clock angle atan2(y, z).
-            let rho = y.hypot(z);
+            // sin and cos of the clock angle atan2(y, z); ρ by a plain square root, not
+            // `hypot` (which guards against overflow, impossible for a wall point, at a
+            // quarter of the whole test's time).
+            let rho = (y * y + z * z).sqrt();
             centre[c][0] += x;
             if rho > 0.0 {
                 centre[c][1] += y / rho;
                 centre[c][2] += z / rho;
             }
-        }
+        });
         let n_all: usize = counts.iter().sum();
         let min_points = MIN_CELL_POINTS.max(n_all / (SLIVER_FRACTION * g));
         if !counts.iter().any(|&n| n >= min_points) {
@@ -285,12 +283,14 @@ impl WallCells {
         }
         let mut residuals = vec![0.0f64; n_all];
         let mut fill = start.clone();
-        for ((i, p), &c) in points.iter().enumerate().step_by(stride).zip(&cell_of) {
-            if let Some(slot) = fill.get_mut(c as usize) {
-                residuals[*slot] = residual(i, p);
+        let mut k = 0;
+        for_each_range_and_cell(&geom, &indexer, points, stride, |i, r, _, _| {
+            if let Some(slot) = cell_of.get(k).and_then(|&c| fill.get_mut(c as usize)) {
+                residuals[*slot] = scale_of(i) * r;
                 *slot += 1;
             }
-        }
+            k += 1;
+        });
         drop(cell_of);
         let mut tested = Vec::new();
         let mut dev = Vec::new();

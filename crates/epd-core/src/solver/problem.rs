@@ -9,6 +9,9 @@ use crate::loss::Loss;
 use crate::params::{N_PARAMS, Params};
 use crate::residual::{Geometry, Residual};
 
+use super::cells::cells_of;
+pub use super::cells::{CellIndexer, Cells, for_each_range_and_cell, wall_point_pcs};
+
 /// Points per chunk. Chunks are fixed, and their partial sums are added in order, so
 /// the result does not depend on the number of threads.
 const CHUNK: usize = 4096;
@@ -180,164 +183,6 @@ impl PipeFit<'_> {
             }
         }
         Some(total)
-    }
-}
-
-/// Cells of the wall for a cluster-robust covariance: `axial_edges.len() + 1` bins of the
-/// distance along the pipe axis (PCS x, m) times `sectors` equal sectors of the clock
-/// angle around it. Errors that are correlated within a cell (neighbouring pixels, a
-/// camera's filtering) but not between cells leave the cluster-robust sandwich unbiased.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Cells {
-    /// Increasing inner edges of the axial bins (PCS x, m).
-    pub axial_edges: Vec<f64>,
-    /// Sectors of the clock angle, each 2π/sectors wide.
-    pub sectors: usize,
-}
-
-impl Cells {
-    /// Number of cells.
-    pub fn len(&self) -> usize {
-        (self.axial_edges.len() + 1) * self.sectors.max(1)
-    }
-
-    /// Whether there are none (never: at least one bin and one sector).
-    pub fn is_empty(&self) -> bool {
-        false
-    }
-
-    /// The cell of a PCS point (x along the axis, y and z across it). For many points,
-    /// [`indexer`](Self::indexer) once and its [`CellIndexer::index`] per point.
-    pub fn index(&self, x: f64, y: f64, z: f64) -> usize {
-        self.indexer().index(x, y, z)
-    }
-
-    /// The cells' boundaries prepared for indexing many points.
-    pub fn indexer(&self) -> CellIndexer<'_> {
-        let s = self.sectors.max(1);
-        let per_quadrant = if s.is_multiple_of(4) { s / 4 } else { 0 };
-        // Inner boundaries of a quadrant's sectors, at j·2π/s (j = 1 … s/4 − 1).
-        let quadrant_bounds = (1..per_quadrant)
-            .map(|j| {
-                let a = std::f64::consts::TAU * j as f64 / s as f64;
-                (a.cos(), a.sin())
-            })
-            .collect();
-        CellIndexer {
-            axial_edges: &self.axial_edges,
-            sectors: s,
-            per_quadrant,
-            quadrant_bounds,
-        }
-    }
-}
-
-/// [`Cells`] ready to index many points without a transcendental function per point.
-#[derive(Clone, Debug)]
-pub struct CellIndexer<'c> {
-    axial_edges: &'c [f64],
-    sectors: usize,
-    /// s/4 when the sectors divide the quadrants, else 0 (then [`atan2`](f64::atan2)).
-    per_quadrant: usize,
-    /// (cos a_j, sin a_j) of the quadrant's inner sector boundaries a_j = j·2π/s.
-    quadrant_bounds: Vec<(f64, f64)>,
-}
-
-impl CellIndexer<'_> {
-    /// The cell of a PCS point (x along the axis, y and z across it): axial bin × sector
-    /// k = ⌊(atan2(y, z) + π)·s/2π⌋. When s is a multiple of 4 the point is turned into
-    /// its quadrant q (by the signs of y and z), where its angle α = atan2(Y, Z) ∈ [0, π/2)
-    /// has passed a boundary a_j when Y·cos a_j − Z·sin a_j ≥ 0; atan2(y, z) + π is then
-    /// α + (q + 2)·π/2 (mod 2π), that is sector ((q + 2) mod 4)·s/4 + j.
-    #[inline(always)]
-    pub fn index(&self, x: f64, y: f64, z: f64) -> usize {
-        let a = self.axial_edges.iter().filter(|&&e| e <= x).count();
-        let s = self.sectors;
-        if self.per_quadrant == 0 {
-            let phi = y.atan2(z) + std::f64::consts::PI;
-            let k = ((phi / std::f64::consts::TAU) * s as f64) as usize;
-            return a * s + k.min(s - 1);
-        }
-        // Quadrants of ψ = atan2(y, z) in [0, 2π): 0 [0, π/2), 1 [π/2, π), 2 [π, 3π/2),
-        // 3 [3π/2, 2π); (Z, Y) is the point turned back by q·π/2.
-        let (q, zz, yy) = if y >= 0.0 {
-            if z > 0.0 { (0, z, y) } else { (1, y, -z) }
-        } else if z < 0.0 {
-            (2, -z, -y)
-        } else {
-            (3, -y, z)
-        };
-        let j = self
-            .quadrant_bounds
-            .iter()
-            .filter(|&&(c, sn)| yy * c - zz * sn >= 0.0)
-            .count();
-        a * s + ((q + 2) % 4) * self.per_quadrant + j
-    }
-}
-
-/// Where the sensing line of the measured point `p` (SCS, m) meets the wall of the
-/// geometry's β, in the PCS: the point t·p with t the line parameter of eq. (21)
-/// ([`Geometry::wall_points`]).
-/// It depends on the ray's direction only, not on the point's range error: cells chosen
-/// by the measured point itself would be chosen by its noise too (a point pushed out
-/// along its ray crosses a cell's far edge), and the cells' mean residuals would then be
-/// biased — about ±1.3 mm at σ = 20 mm for bins 0.5 m long along a pipe.
-pub fn wall_point_pcs(geom: &Geometry, p: &[f64; 3]) -> [f64; 3] {
-    let [x, y, z] = geom.wall_points::<1>(&[*p]);
-    [x[0], y[0], z[0]]
-}
-
-/// The cell of each of `points` ([`wall_point_pcs`] indexed by `indexer`) into `out`,
-/// compiled for AVX2 + FMA when the CPU has them (as [`accumulate_chunk`]).
-fn cells_of(geom: &Geometry, indexer: &CellIndexer<'_>, points: &[[f64; 3]], out: &mut [u32]) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-        // SAFETY: the CPU supports the features the function is compiled for.
-        return unsafe { cells_of_avx2(geom, indexer, points, out) };
-    }
-    cells_of_lanes(geom, indexer, points, out, false)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn cells_of_avx2(geom: &Geometry, indexer: &CellIndexer<'_>, points: &[[f64; 3]], out: &mut [u32]) {
-    cells_of_lanes(geom, indexer, points, out, true)
-}
-
-/// [`cells_of`], [`LANES`] points at a time; with `avx2` (only from [`cells_of_avx2`])
-/// the wall points from [`Geometry::wall_points_avx2`].
-#[inline(always)]
-fn cells_of_lanes(
-    geom: &Geometry,
-    indexer: &CellIndexer<'_>,
-    points: &[[f64; 3]],
-    out: &mut [u32],
-    avx2: bool,
-) {
-    let mut blocks = points.chunks_exact(LANES);
-    let mut outs = out.chunks_exact_mut(LANES);
-    for (block, o) in (&mut blocks).zip(&mut outs) {
-        let pts: &[[f64; 3]; LANES] = block.try_into().expect("chunks_exact yields LANES points");
-        #[cfg(target_arch = "x86_64")]
-        let [x, y, z] = if avx2 {
-            // SAFETY: `avx2` is set only by `cells_of_avx2`, run where the CPU has AVX2.
-            unsafe { geom.wall_points_avx2(pts).0 }
-        } else {
-            geom.wall_points::<LANES>(pts)
-        };
-        #[cfg(not(target_arch = "x86_64"))]
-        let [x, y, z] = {
-            let _ = avx2;
-            geom.wall_points::<LANES>(pts)
-        };
-        for l in 0..LANES {
-            o[l] = indexer.index(x[l], y[l], z[l]) as u32;
-        }
-    }
-    for (p, o) in blocks.remainder().iter().zip(outs.into_remainder()) {
-        let [x, y, z] = wall_point_pcs(geom, p);
-        *o = indexer.index(x, y, z) as u32;
     }
 }
 
@@ -690,46 +535,6 @@ mod tests {
         }
     }
 
-    /// The indexer's sector against the definition with `atan2`, for sector counts that
-    /// divide the quadrants (the comparisons) and that do not (the fallback), on random
-    /// points and on the axes; points within 1e-12 rad of a boundary are skipped (there
-    /// the two may round differently).
-    #[test]
-    fn cell_index_matches_the_atan2_definition() {
-        let mut r = numbers(7);
-        for sectors in [1usize, 3, 4, 8, 12, 16, 36] {
-            let cells = Cells {
-                axial_edges: vec![-0.5, 0.0, 0.7],
-                sectors,
-            };
-            let ix = cells.indexer();
-            let mut pts: Vec<[f64; 3]> = (0..20_000).map(|_| [2.0 * r(), r(), r()]).collect();
-            pts.extend([
-                [0.1, 1.0, 0.0],
-                [0.1, -1.0, 0.0],
-                [0.1, 0.0, 1.0],
-                [0.1, 0.0, -1.0],
-            ]);
-            for [x, y, z] in pts {
-                let phi = y.atan2(z) + std::f64::consts::PI;
-                let u = phi / std::f64::consts::TAU * sectors as f64;
-                if (u - u.round()).abs() < 1e-12 && u.round() != 0.0 && u.round() != sectors as f64
-                {
-                    continue;
-                }
-                let k = (u as usize).min(sectors - 1);
-                let a = cells.axial_edges.iter().filter(|&&e| e <= x).count();
-                assert_eq!(
-                    ix.index(x, y, z),
-                    a * sectors + k,
-                    "{sectors} sectors, ({x}, {y}, {z})"
-                );
-            }
-        }
-    }
-
-    /// The wall point of each sensing line against its definition through the line
-    /// parameter of eq. (21) ([`Geometry::line_parameter`]) and the rotation of eq. (3).
     /// The AVX2 kernel ([`accumulate_avx2`]) against the portable one: the same sums to
     /// the bit, for every residual, loss and weighting, on points that take both forms of
     /// the root (B > 0 and B ≤ 0), rays along the axis (no information: zero) and a
@@ -799,38 +604,6 @@ mod tests {
                     }
                 }
             }
-        }
-    }
-
-    #[test]
-    fn wall_points_match_the_line_parameter() {
-        let beta = Params {
-            d_max: 0.51,
-            d_min: 0.47,
-            roll: 0.7,
-            pitch: 0.06,
-            yaw: -0.09,
-            dy: 0.04,
-            dz: -0.03,
-        };
-        let geom = Geometry::new(&beta).expect("inside");
-        let m = *beta.rotation().matrix();
-        let mut r = numbers(3);
-        for _ in 0..5_000 {
-            let p = [3.0 * r().abs() + 0.1, r(), r()];
-            let t = geom.line_parameter(&p);
-            let q = m * nalgebra::Vector3::new(t * p[0], t * p[1], t * p[2]);
-            let want = [q.x, q.y + beta.dy, q.z + beta.dz];
-            let got = wall_point_pcs(&geom, &p);
-            for k in 0..3 {
-                assert!(
-                    (got[k] - want[k]).abs() < 1e-12,
-                    "{p:?}: {got:?} vs {want:?}"
-                );
-            }
-            // On the ellipse of eq. (5).
-            let e = (2.0 * got[1] / beta.d_max).powi(2) + (2.0 * got[2] / beta.d_min).powi(2);
-            assert!((e - 1.0).abs() < 1e-12, "{p:?}: {e}");
         }
     }
 
