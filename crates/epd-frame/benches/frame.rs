@@ -105,6 +105,37 @@ fn bench(c: &mut Criterion) {
             measure_frame(input, &cfg).expect("measure")
         })
     });
+    // What the measurement above spends, once per frame, on the checks that the model
+    // fits (the form test over its cells and the plausibility check) and on the 1-σ's
+    // cluster pass, at the frame's fitted β: issue 22's goal is that the checks add
+    // ≤ 15 % to the whole (docs/benchmarks.md).
+    let beta = epd_core::estimate(&plain.measured, Method::MlEpd, &EstimateOptions::default())
+        .expect("estimate")
+        .params;
+    let form_cells = epd_core::fit::covariance::wall_cells(
+        &plain.measured,
+        &beta,
+        epd_core::fit::form::FORM_AXIAL_CELLS,
+    );
+    let cells = epd_core::fit::covariance::wall_cells(
+        &plain.measured,
+        &beta,
+        epd_core::estimate::AXIAL_CELLS,
+    );
+    g.bench_function("checks_full_frame", |b| {
+        b.iter(|| {
+            let wall =
+                epd_core::fit::form::WallCells::gather(&plain.measured, None, &beta, &form_cells);
+            let misfit = wall
+                .as_ref()
+                .map(|w| (w.form_test(), w.misfit_slices(), w.shared_along_axis()));
+            (misfit, epd_core::check::assess(&plain.measured, &beta))
+        })
+    });
+    g.bench_function("one_sigma_cluster_pass_full_frame", |b| {
+        let fit = epd_core::problem::PipeFit::new(&plain.measured, epd_core::Residual::Range);
+        b.iter(|| fit.cluster_sandwich_at(&beta, &cells).expect("inside"))
+    });
     g.finish();
 }
 

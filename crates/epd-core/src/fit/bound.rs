@@ -5,9 +5,9 @@ use crate::cloud::clean;
 use crate::error::EpdError;
 use crate::estimate::{Sigmas, View, weighted_cloud};
 use crate::params::{N_PARAMS, Params};
-use crate::problem::PipeFit;
-use crate::residual::Residual;
+use crate::residual::{Geometry, Residual};
 use crate::uncertainty::covariance;
+use rayon::prelude::*;
 
 /// The Cramér–Rao lower bound on the 1-σ of each parameter, for range noise N(0, σ²)
 /// along each sensing line: the Fisher information is JᵀJ/σ² with J the Jacobian of the
@@ -90,6 +90,56 @@ pub fn rms_range_residual(points: &[[f64; 3]], beta: &Params) -> Option<f64> {
     if cloud.points.is_empty() {
         return None;
     }
-    let eq = PipeFit::new(&cloud.points, Residual::Range).equations_at(beta)?;
-    Some((eq.cost / cloud.points.len() as f64).sqrt())
+    // Σ r² as the solver's cost (`PipeFit::equations_at`) sums it, chunk by chunk in
+    // order, without its gradients.
+    let geom = Geometry::new(beta)?;
+    let chunks: Vec<f64> = cloud
+        .points
+        .par_chunks(crate::problem::CHUNK)
+        .map(|c| geom.range_sum_of_squares(c))
+        .collect();
+    let cost = chunks.iter().fold(0.0, |t, c| t + c);
+    Some((cost / cloud.points.len() as f64).sqrt())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::problem::PipeFit;
+
+    /// The RMS from the residual-only pass against the solver's own cost at β
+    /// (`PipeFit::equations_at`, gradients and all), bit for bit, for clouds of one point,
+    /// a few, one chunk and several chunks with remainders, points on both forms of the
+    /// root and a ray along the axis.
+    #[test]
+    fn rms_is_the_solvers_cost_to_the_bit() {
+        let beta = Params {
+            d_max: 0.50,
+            d_min: 0.48,
+            roll: 0.3,
+            pitch: 0.04,
+            yaw: 0.02,
+            dy: 0.01,
+            dz: -0.02,
+        };
+        let mut s = 17u64;
+        let mut r = move || {
+            s = s
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (s >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+        };
+        let axis = beta.dir_pcs_to_scs(&nalgebra::Vector3::new(1.0, 0.0, 0.0));
+        for n in [1usize, 3, 4, 7, 4096, 4099, 3 * 4096 + 5] {
+            let mut pts: Vec<[f64; 3]> =
+                (0..n).map(|_| [2.0 * r().abs() + 0.2, r(), r()]).collect();
+            pts[n / 2] = [axis.x, axis.y, axis.z];
+            let eq = PipeFit::new(&pts, Residual::Range)
+                .equations_at(&beta)
+                .expect("inside");
+            let want = (eq.cost / n as f64).sqrt();
+            let got = rms_range_residual(&pts, &beta).expect("inside");
+            assert_eq!(got.to_bits(), want.to_bits(), "{n} points: {got} vs {want}");
+        }
+    }
 }

@@ -203,7 +203,7 @@ const CELL_EDGE_POINTS: usize = 4096;
 /// The wall's cells at `beta`: `axial` bins of equal counts of `points`
 /// (by where their sensing lines meet the wall, [`wall_point_pcs`]) times
 /// [`CLOCK_SECTORS`] sectors.
-pub(crate) fn wall_cells(points: &[[f64; 3]], beta: &Params, axial: usize) -> Cells {
+pub fn wall_cells(points: &[[f64; 3]], beta: &Params, axial: usize) -> Cells {
     let stride = points.len().div_ceil(CELL_EDGE_POINTS).max(1);
     let mut x: Vec<f64> = match Geometry::new(beta) {
         None => Vec::new(),

@@ -14,7 +14,7 @@ pub use super::cells::{CellIndexer, Cells, for_each_range_and_cell, wall_point_p
 
 /// Points per chunk. Chunks are fixed, and their partial sums are added in order, so
 /// the result does not depend on the number of threads.
-const CHUNK: usize = 4096;
+pub(crate) const CHUNK: usize = 4096;
 
 /// Eq. (4): F(β) = Σ (sᵢ·rᵢ)²(x̂_i,P, β) over measured points in the SCS (m), with
 /// per-point scales sᵢ (1 unless given) and optionally some parameters held.
