@@ -63,7 +63,7 @@ fn mean_and_sem(v: &[f64]) -> (f64, f64) {
 }
 
 /// RU-EPD's diameter bias (mm) under range noise σ (m) on a 20" pipe, and its standard
-/// error, for the poses of `rows`: a pull of order σ² that grows as tan²(tilt) (README
+/// error, for the poses of `rows`: a pull of order σ² that grows as tan²(tilt) (docs/trust.md,
 /// "Tilt"; cos(tilt) = cos θy·cos θz), scaled from `results/tilt_sweep` at 10° and
 /// σ = 0.05 m (mean diameter +0.549 ± 0.027 mm over 100 poses; the same law gives
 /// 0.135 mm at 5° and 1.29 mm at 15°, measured 0.127 ± 0.014 and 1.37 ± 0.07).

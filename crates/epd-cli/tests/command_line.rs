@@ -208,7 +208,7 @@ fn output_file_threads_and_quiet() {
 /// the reader's 8 KiB buffer hold, so `epd` must meet the closed pipe before it is done.
 /// It then stops without a word on standard error (no "Broken pipe", no `error:` line,
 /// no panic) and exits 0: every file it estimated was fine, and a reader that left is
-/// not a failure (README, "Command line").
+/// not a failure (docs/epd.md, `epd estimate`).
 #[test]
 fn a_closed_standard_output_ends_quietly() {
     let dir = common::temp_dir("cmdline_pipe");

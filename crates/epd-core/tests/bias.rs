@@ -1,5 +1,5 @@
 //! Bias under range noise (Theorems 1 and 2): C-EPD overestimates the diameters,
-//! ML-EPD does not, RU-EPD only by its second-order tilt bias (README "Tilt"); and the
+//! ML-EPD does not, RU-EPD only by its second-order tilt bias (docs/trust.md, "Tilt"); and the
 //! reported 1-σ against the scatter over noise draws.
 
 mod common;
@@ -56,7 +56,7 @@ fn c_epd_is_biased_ml_is_not_ru_by_its_tilt_bias() {
         mean[2],
         sem[2]
     );
-    // RU-EPD: its second-order tilt bias (README "Tilt"), predicted for these poses,
+    // RU-EPD: its second-order tilt bias (docs/trust.md, "Tilt"), predicted for these poses,
     // within 3 standard errors (this test's and the prediction's, in quadrature).
     let (predicted, predicted_se) = ru_tilt_bias_mm(sigma, tan2_tilt);
     let limit = 3.0 * sem[1].hypot(predicted_se);
@@ -70,7 +70,7 @@ fn c_epd_is_biased_ml_is_not_ru_by_its_tilt_bias() {
 }
 
 /// tan²(tilt) / tan²(10°) of a pose, the tilt the angle between the pipe axis and the
-/// sensor's X axis: cos(tilt) = cos θy·cos θz (README "Conventions").
+/// sensor's X axis: cos(tilt) = cos θy·cos θz (the shared SPEC, "Conventions").
 fn ru_tilt_weight(p: &epd_core::Params) -> f64 {
     let c2 = (p.pitch.cos() * p.yaw.cos()).powi(2);
     (1.0 / c2 - 1.0) / 10f64.to_radians().tan().powi(2)
@@ -78,7 +78,7 @@ fn ru_tilt_weight(p: &epd_core::Params) -> f64 {
 
 /// RU-EPD's mean-diameter bias (mm) under range noise σ (m) on a 20" pipe, and its
 /// standard error, for poses of mean [`ru_tilt_weight`] `w`: a pull of order σ² that
-/// grows as tan²(tilt) (README "Tilt"), scaled from `results/tilt_sweep` at 10° and
+/// grows as tan²(tilt) (docs/trust.md, "Tilt"), scaled from `results/tilt_sweep` at 10° and
 /// σ = 0.05 m (+0.549 ± 0.027 mm, 100 poses; the same law gives 0.135 mm at 5° and
 /// 1.29 mm at 15°, measured 0.127 ± 0.014 and 1.37 ± 0.07).
 fn ru_tilt_bias_mm(sigma: f64, w: f64) -> (f64, f64) {
@@ -93,7 +93,8 @@ fn ru_tilt_bias_mm(sigma: f64, w: f64) -> (f64, f64) {
 /// SE 0.03): ML-EPD 0.90–0.98 (its 1-σ 5–9 % above the Cramér–Rao bound, its scatter
 /// 0–6 % above), RU-EPD's diameters 0.96–1.04 and its pose 0.86–0.99 (RU-EPD's depth
 /// residual, eqs. (20)–(23), is not the range error, so its scores are not its
-/// likelihood's). A 1-σ more than a third above the scatter fails.
+/// likelihood's). The floor is the lowest measured ratio, 0.86, less 4 of its standard
+/// errors (4 × 0.03): 0.74, taken as 0.75; a 1-σ a third above the scatter fails.
 const MIN_SD_OVER_REPORTED: f64 = 0.75;
 
 /// The reported 1-σ against the scatter over repeated noise draws of one pose (σ = 0.03
@@ -107,9 +108,7 @@ const MIN_SD_OVER_REPORTED: f64 = 0.75;
 /// (mean·√n) (≤ 0.003 here), in quadrature: SE(sd/reported). The CRB is exact, so
 /// sd/CRB has the first alone and the mean reported/CRB the second alone. Each check
 /// allows 4 of its standard errors (two-sided false-failure rate 6·10⁻⁵; 28 checks:
-/// ≤ 2·10⁻³ for the test). RU-EPD's pose ratios are compared with the measured ones,
-/// the two standard errors in quadrature (the runs share seeds, which only shrinks the
-/// difference's spread).
+/// ≤ 2·10⁻³ for the test).
 #[test]
 fn reported_sigma_matches_scatter_and_crb() {
     const Z: f64 = 4.0;

@@ -45,9 +45,15 @@ pub const MAX_SPAN_RATIO: f64 = 1.5;
 /// moves out by up to z₀.₉₉ = 2.33 s, so 4.65 s at both ends, and 8 s leaves 3.3 s for
 /// the percentiles' own sampling error.
 pub const SPAN_NOISE_ALLOWANCE: f64 = 8.0;
-/// Largest robust scale of the range residuals, as a fraction of the mean radius.
+/// Largest robust scale of the range residuals, as a fraction of the mean radius: with
+/// noise of half the radius the wall's points scatter over the whole cross-section
+/// (±2s spans two radii), so the points no longer show where the wall is. A plausibility
+/// bound, not a statistic: a real camera in a pipe is a hundred times below it.
 pub const MAX_NOISE_TO_RADIUS: f64 = 0.5;
-/// Angular sectors around the axis for the lack-of-fit test.
+/// Angular sectors around the axis for the lack-of-fit test: a wrong tilt or basin
+/// leaves a side of the wall off the fit, a half or a quarter of it; eight sectors of
+/// 45° resolve a quarter, and leave each sector 512 of the 4096 points assessed (see
+/// `MAX_ASSESSED`).
 pub const SECTORS: usize = 8;
 /// Largest |median residual| of a sector, in units of s (beyond the sampling term): a
 /// whole sector one noise scale off the wall is a wrong tilt or basin, not noise.
@@ -422,8 +428,8 @@ pub fn assess(points: &[[f64; 3]], beta: &Params) -> Result<Diagnostics, Implaus
     let span = |v: &mut Vec<f64>| quantile(v, 0.99) - quantile(v, 0.01);
     let span_y = span(&mut ys_in);
     let span_z = span(&mut zs_in);
-    // A floor for noise-free clouds, where the medians are rounding.
-    let s_eff = s.max(1e-9 * (beta.d_max + beta.d_min));
+    // A floor for noise-free clouds, where the medians are rounding (the form test's).
+    let s_eff = s.max(crate::fit::form::NOISE_FREE_FLOOR * (beta.d_max + beta.d_min));
     let mut misfit: f64 = 0.0;
     let mut sectors_seen = 0;
     let mut in_sector = Vec::with_capacity(n);

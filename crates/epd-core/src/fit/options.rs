@@ -93,13 +93,24 @@ pub enum LossScale {
     Auto,
 }
 
+/// The solver stops once its step is below this many standard deviations of each
+/// parameter (taken from the normal equations, without a further pass over the data):
+/// point clouds are large samples, and a step of 0.1σ changes an estimate by 0.5 % of its
+/// own variance (0.1²), far below anything its 1-σ can show.
+pub const STAT_TOL: f64 = 0.1;
+
+/// The evenly strided subsample on which the fit first converges before its final
+/// iterations on every point: 8192 points put the parameters within a few of their
+/// 1-σ at that size, √(N/8192) of the full frame's (6σ at 3·10⁵ points), from where the
+/// iterations on every point, each costing O(N), take few steps (two on a clean full
+/// frame, docs/benchmarks.md).
+pub const STAGE_POINTS: usize = 8192;
+
 impl Default for EstimateOptions {
     fn default() -> Self {
         Self {
-            // Point clouds are large samples: stop once a step is below 0.1 standard
-            // deviations of the parameters (taken without a further pass over the data).
-            lm: LmOptions::default().with_stat(0.1),
-            stage_points: 8192,
+            lm: LmOptions::default().with_stat(STAT_TOL),
+            stage_points: STAGE_POINTS,
             loss: Loss::Squared,
             loss_scale: LossScale::Fixed,
             range_gate: None,

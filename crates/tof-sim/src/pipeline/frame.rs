@@ -5,9 +5,9 @@
 use epd_core::torus::Torus;
 use nalgebra::{Rotation3, Unit, Vector3};
 
-use super::Segment;
 #[cfg(doc)]
 use super::Pipeline;
+use super::Segment;
 
 /// A segment's start: `origin` on the centreline (PCS, m) and `rotation` whose columns
 /// are the segment's local X (along the centreline), Y and Z axes in the PCS, so that a
