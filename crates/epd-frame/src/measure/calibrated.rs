@@ -1,0 +1,287 @@
+//! The depth table's part of a measurement: a version-2 (incidence) table's rounds of
+//! fit → incidence → correction, the scene surveyed on the plain table's points, the
+//! frames refused for lying outside the table's support, and what the table leaves to
+//! the 1-σ (its bins' standard errors, shared by the points each corrected, and the
+//! transfer from the rigs' sizes to the pipe's).
+
+use epd_core::estimate;
+
+use crate::config::EstimateConfig;
+use crate::scene::FrameScene;
+
+/// A frame more than this fraction of whose points lie outside the depth table's support
+/// is refused: 90 %. The fit then rests on under a tenth of the wall the camera saw —
+/// on the Helios2 model a band of ranges near the rig's, where the diameters and the
+/// sensor's offset are not told apart: of eight such frames (a 20" table, 30" frames,
+/// 93–100 % outside) seven ended `implausible` and the eighth 19.6 mm off.
+pub const REFUSE_OUTSIDE: f64 = 0.9;
+
+/// Rounds of fit → incidence → correction → refit at most: the incidence comes from the
+/// fitted wall, which moves with the correction. The mean diameter settles within
+/// [`INCIDENCE_TOLERANCE_M`] in two rounds on the Helios2 model (a 1 mm change of the
+/// diameter changes cos θ by 0.2 % at a 0.5 m pipe, and the correction by far less
+/// than a micrometre), so three leave a margin.
+pub const INCIDENCE_ROUNDS: usize = 3;
+
+/// The convergence criterion of the rounds: the mean diameter moved by less than 10 µm
+/// (a hundredth of the 1 mm resolution the report gives the diameters to).
+pub const INCIDENCE_TOLERANCE_M: f64 = 1e-5;
+
+/// A frame more than this fraction of whose points lie outside the depth table's
+/// support is said to be (in `status_reason`): the majority of its wall, one half, was
+/// left out of the fit (points outside the support are not corrected and not fitted),
+/// so its diameters rest on less than half of what the camera saw.
+pub const MOSTLY_OUTSIDE: f64 = 0.5;
+
+/// A point's shared range error: its bin and the bin mean's standard error (m).
+pub(super) type Shift = Option<(u32, f64)>;
+
+/// The shared range errors of a frame's points.
+#[derive(Clone, Debug)]
+pub(super) enum Shares {
+    /// One bin per point (the incidence table: the bin holding the point).
+    Home(Vec<Shift>),
+    /// The 4 bins a version-1 table's bilinear interpolation read, each with its weight
+    /// × its standard error (`epd_core::DepthTable::shared_error_terms`).
+    Interpolated(Vec<[(u32, f64); 4]>),
+}
+
+/// What the incidence table's correction leaves to the 1-σ: per point the bin whose
+/// mean corrected it (its standard error shared by every point of the bin).
+#[derive(Clone, Debug)]
+pub(super) struct SharedErrors {
+    /// Per point: the bins whose errors it shares, with their standard errors (m).
+    pub(super) shift: Shares,
+    /// Groups: the table's bins.
+    pub(super) n_groups: usize,
+    /// Of the valid points with an intensity, the fraction outside the support.
+    pub(super) outside_fraction: f64,
+    /// The table's spread at each corrected point (m), for a weighted fit.
+    pub(super) sigma_m: Vec<f64>,
+    /// The (Dmax, Dmin) of the fit on the raw points (m): the correction's whole effect
+    /// on the diameters is the corrected fit's minus these (the incidence table's
+    /// rounds fit them; `None` for a version-1 table, which is not checked against the
+    /// rig's size).
+    pub(super) raw_diameters: Option<(f64, f64)>,
+}
+
+/// The scene of a frame to be corrected by a version-2 (incidence) table, surveyed on
+/// its points corrected by the table's plain range × intensity part. The incidence
+/// table leaves out (NaN) the points outside its support — a bend's or a tee's wall,
+/// whose incidences and ranges straight rigs never showed — so a survey of its points
+/// would not see what lies ahead (issue 24: a bend read `straight` with the version-2
+/// table of the pipeline run); the plain table corrects every point its range and
+/// intensity axes hold. The straight section it finds is then fitted on the incidence
+/// table's points ([`correct_by_incidence`]).
+pub(super) fn survey_for_incidence(
+    cal: &crate::table::CalibrationTable,
+    raw: &[[f64; 3]],
+    intensity: &[f64],
+    raw_range_m: &[f64],
+    cfg: &EstimateConfig,
+) -> Result<FrameScene, String> {
+    let mut plain = raw.to_vec();
+    cal.correct_points(false, &mut plain, Some(intensity), false)?;
+    let table = (raw_range_m.len() == raw.len()).then_some((&cal.table, raw_range_m, intensity));
+    FrameScene::survey(&plain, cfg.method, &cfg.options, table).map_err(|e| e.to_string())
+}
+
+/// The incidence table's correction of a frame's `points` in place: the frame fitted
+/// on its raw points, then up to [`INCIDENCE_ROUNDS`] rounds of cos θ of each ray at
+/// the fitted wall → the raw points corrected by the table → refit, until the mean
+/// diameter moves by less than [`INCIDENCE_TOLERANCE_M`]. Points outside the table's
+/// support are left out (NaN) and counted. With `straight` (the scene's straight
+/// section, [`survey_for_incidence`]) only its points are fitted and corrected, the
+/// others left out (NaN, not counted): a bend's or a tee's wall is no straight
+/// cylinder, and the incidences of a fit that included it would be wrong. The points
+/// moved and what the 1-σ needs.
+pub(super) fn correct_by_incidence(
+    cal: &crate::table::CalibrationTable,
+    table: &epd_core::calibration::IncidenceTable,
+    points: &mut Vec<[f64; 3]>,
+    intensity: &[f64],
+    straight: Option<&[bool]>,
+    cfg: &EstimateConfig,
+) -> Result<(usize, SharedErrors), String> {
+    let mut raw = points.clone();
+    if let Some(keep) = straight {
+        for (p, &k) in raw.iter_mut().zip(keep) {
+            if !k {
+                *p = [f64::NAN; 3];
+            }
+        }
+    }
+    let fit = |p: &[[f64; 3]]| {
+        estimate(p, cfg.method, &cfg.options).map_err(|e| format!("{e} (the incidence round)"))
+    };
+    let mut pose = fit(&raw)?;
+    let raw_diameters = (pose.params.d_max, pose.params.d_min);
+    let mut out = None;
+    for round in 0..INCIDENCE_ROUNDS {
+        if round == 0 {
+            // Refused before the corrected points are fitted: too few lie in the support.
+            let cos = epd_core::calibration::incidences(&raw, &pose.params);
+            let mut c = raw.clone();
+            let corr = cal.correct_with_incidence(table, &mut c, intensity, &cos)?;
+            let total = corr.moved + corr.outside;
+            if total > 0 && corr.outside as f64 > REFUSE_OUTSIDE * total as f64 {
+                return Err(format!(
+                    "{:.0} % of the frame's points lie outside the depth table's support (more \
+                     than {:.0} %): the rigs ({}) did not show this pipe's ranges, \
+                     intensities and incidences; calibrate with a rig of this pipe's size",
+                    100.0 * corr.outside as f64 / total as f64,
+                    REFUSE_OUTSIDE * 100.0,
+                    cal.rigs
+                        .iter()
+                        .map(|((d, _), _)| format!("{:.1} mm", d * 1e3))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ));
+            }
+        }
+        let cos = epd_core::calibration::incidences(&raw, &pose.params);
+        let mut c = raw.clone();
+        let corr = cal.correct_with_incidence(table, &mut c, intensity, &cos)?;
+        let next = fit(&c)?;
+        let moved = (next.d_mean() - pose.d_mean()).abs();
+        pose = next;
+        out = Some((c, corr));
+        if moved < INCIDENCE_TOLERANCE_M {
+            break;
+        }
+    }
+    let Some((corrected, corr)) = out else {
+        return Err("no incidence round ran".into());
+    };
+    let shift = Shares::Home(
+        corr.bin
+            .iter()
+            .map(|b| b.map(|b| (b, table.se_m[b as usize])))
+            .collect(),
+    );
+    let total = corr.moved + corr.outside;
+    *points = corrected;
+    Ok((
+        corr.moved,
+        SharedErrors {
+            shift,
+            n_groups: table.cells(),
+            outside_fraction: if total == 0 {
+                0.0
+            } else {
+                corr.outside as f64 / total as f64
+            },
+            sigma_m: corr.sigma_m,
+            raw_diameters: Some(raw_diameters),
+        },
+    ))
+}
+
+/// The relative margin around the rigs' diameters within which a pipe counts as one of
+/// their sizes: 3 %, the 2 % ovality a pipe may have (API 5L's out-of-roundness limit for
+/// line pipe is 1.5 % of the OD at the ends, more along the body) plus the 1 % tolerance
+/// of the nominal diameter — nominal sizes 2" apart at 16"–30" differ by 7 % or more.
+pub const RIG_SIZE_MARGIN: f64 = 0.03;
+
+/// When the frame's mean diameter lies outside the rigs' sizes (the smallest rig's
+/// Dmin to the largest rig's Dmax, widened by [`RIG_SIZE_MARGIN`]), the table's
+/// correction is not known to transfer to it (at the same range, intensity and
+/// incidence the rigs' poses absorbed a part of the error that depends on the pipe's
+/// size): the whole effect of the correction on each diameter, |D_corrected − D_raw|,
+/// is added to its variance — a 1-σ that spans the raw and the corrected result. The
+/// smallest and largest rig diameters (mm) when so, else `None`.
+pub(super) fn add_transfer_uncertainty(
+    est: &mut epd_core::Estimate,
+    s: &SharedErrors,
+    cal: &crate::table::CalibrationTable,
+) -> Option<(f64, f64)> {
+    let raw = s.raw_diameters?;
+    let lo = cal.rigs.iter().map(|r| r.0.1).fold(f64::INFINITY, f64::min);
+    let hi = cal.rigs.iter().map(|r| r.0.0).fold(0.0f64, f64::max);
+    let d = est.d_mean();
+    if !(lo.is_finite() && hi > 0.0)
+        || (lo * (1.0 - RIG_SIZE_MARGIN)..=hi * (1.0 + RIG_SIZE_MARGIN)).contains(&d)
+    {
+        return None;
+    }
+    let delta = [est.params.d_max - raw.0, est.params.d_min - raw.1];
+    if let Some(mut cov) = est.diameter_cov {
+        for k in 0..2 {
+            cov[k][k] += delta[k] * delta[k];
+        }
+        est.diameter_cov = Some(cov);
+    }
+    for k in 0..2 {
+        if let Some(sig) = est.sigma[k] {
+            est.sigma[k] = Some(sig.hypot(delta[k]));
+        }
+    }
+    Some((lo * 1e3, hi * 1e3))
+}
+
+/// Add the depth table's own uncertainty to the diameters' 1-σ: each bin's standard
+/// error, shared by every point the bin corrected (a version-1 table: by every point
+/// whose bilinear interpolation read it, times its weight), propagated through the
+/// fit's Jacobian ([`epd_core::calibration::shared_error_cov_terms`]) and added to the
+/// fit's own covariance. The fitted points: those of the straight
+/// section (`mask`) within the range gate.
+pub(super) fn add_table_uncertainty(
+    est: &mut epd_core::Estimate,
+    points: &[[f64; 3]],
+    mask: Option<&[bool]>,
+    s: &SharedErrors,
+    cfg: &EstimateConfig,
+) {
+    let Some(mut cov) = est.diameter_cov else {
+        return;
+    };
+    let geom = epd_core::residual::Geometry::new(&est.params);
+    let gate = cfg.options.range_gate();
+    let fitted = |k: usize, p: &[f64; 3]| {
+        mask.is_none_or(|m| m.get(k).copied().unwrap_or(false))
+            && match (gate, &geom) {
+                (Some((lo, hi)), Some(g)) => {
+                    let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                    (lo..=hi).contains(&(g.line_parameter(p) * r))
+                }
+                _ => true,
+            }
+    };
+    fn pick<T: Copy>(
+        points: &[[f64; 3]],
+        terms: &[T],
+        keep: impl Fn(usize, &[f64; 3]) -> bool,
+    ) -> (Vec<[f64; 3]>, Vec<T>) {
+        points
+            .iter()
+            .zip(terms)
+            .enumerate()
+            .filter(|(k, (p, _))| keep(*k, p))
+            .map(|(_, (p, t))| (*p, *t))
+            .unzip()
+    }
+    let extra = match &s.shift {
+        Shares::Home(sh) => {
+            let (p, sh) = pick(points, sh, fitted);
+            epd_core::calibration::shared_error_cov(&p, &sh, s.n_groups, &est.params)
+        }
+        Shares::Interpolated(t) => {
+            let (p, t) = pick(points, t, fitted);
+            epd_core::calibration::shared_error_cov_terms(&p, &t, s.n_groups, &est.params)
+        }
+    };
+    let Some(extra) = extra else {
+        return;
+    };
+    for a in 0..2 {
+        for b in 0..2 {
+            cov[a][b] += extra[a][b];
+        }
+    }
+    est.diameter_cov = Some(cov);
+    for k in 0..2 {
+        if let Some(sig) = est.sigma[k] {
+            est.sigma[k] = Some((sig * sig + extra[k][k]).sqrt());
+        }
+    }
+}
