@@ -13,9 +13,9 @@
 //! the calling thread waits without the GIL and checks for signals every
 //! [`SIGNAL_POLL`] (Ctrl-C raises `KeyboardInterrupt` once the estimator reaches its next
 //! step: `epd_core::cancel`); an allocation that cannot be made raises `MemoryError`
-//! (the working memory is reserved before the fit: [`reserve_working_memory`]); the
+//! (the working memory is reserved before the fit: `control::reserve_working_memory`); the
 //! thread pool belongs to one process and is rebuilt in a child made by `os.fork`
-//! ([`pool`]); a masked array (`numpy.ma`) has its masked points dropped.
+//! (`control::pool`); a masked array (`numpy.ma`) has its masked points dropped.
 #![deny(missing_docs)]
 
 use std::borrow::Cow;
@@ -46,166 +46,14 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
 use tof_sim::settings::{PoseOverride, SimulateError, SimulateSettings, Simulator};
 
-/// Points or per-point values taken from a Python object: a read-only borrow of a
-/// float64 array, either the caller's own (no copy) or a converted copy.
-struct Taken<A> {
-    array: A,
-    /// Whether the values were copied (converted dtype, layout or a non-array object).
-    copied: bool,
-}
+mod arrays;
+mod bag;
+mod control;
 
-/// `obj` as a numpy array (`numpy.asarray`, which makes a new array of anything but an
-/// array), checked: real numbers (integer or float) in `ndim` dimensions, the second of
-/// length 3 for points; `name` starts the error messages.
-fn as_real_array<'py>(
-    obj: &Bound<'py, PyAny>,
-    name: &str,
-    ndim: usize,
-) -> PyResult<Bound<'py, PyAny>> {
-    let py = obj.py();
-    let np = py.import("numpy")?;
-    // An Open3D PointCloud (or any object holding its points in `points`) that is no
-    // array itself: its points.
-    let held;
-    let obj = if name == "points"
-        && !obj.is_instance_of::<numpy::PyUntypedArray>()
-        && !obj.hasattr("__array__")?
-        && !obj.hasattr("__array_interface__")?
-        && obj.hasattr("points")?
-    {
-        held = obj.getattr("points")?;
-        &held
-    } else {
-        obj
-    };
-    let obj = &unmasked(obj, name)?;
-    let arr = np
-        .call_method1("asarray", (obj,))
-        .map_err(|e| PyValueError::new_err(format!("{name}: not an array of numbers: {e}")))?;
-    let dtype = arr.getattr("dtype")?;
-    let kind: String = dtype.getattr("kind")?.extract()?;
-    if !matches!(kind.as_str(), "f" | "i" | "u") {
-        return Err(PyValueError::new_err(format!(
-            "{name}: dtype {} is not a real number type (float or integer){}",
-            dtype.str()?,
-            if kind == "O" {
-                "; an Open3D point cloud or a list of objects? pass numpy.asarray(pcd.points), \
-                 an (N, 3) array of numbers"
-            } else {
-                ""
-            }
-        )));
-    }
-    let shape: Vec<usize> = arr.getattr("shape")?.extract()?;
-    let ok = shape.len() == ndim && (ndim != 2 || shape[1] == 3);
-    if !ok {
-        let want = if ndim == 2 { "(N, 3)" } else { "(N,)" };
-        return Err(PyValueError::new_err(format!(
-            "{name}: expected an array of shape {want}, got shape {shape:?}"
-        )));
-    }
-    Ok(arr)
-}
-
-/// A masked array (`numpy.ma.MaskedArray`) as the values it stands for: its data when
-/// nothing is masked (no copy); for points, a float64 copy with every masked value NaN, so
-/// that each point with a masked coordinate is dropped and counted in `n_dropped` as an
-/// invalid pixel is; for per-point values (`intensity`, `sigma`) a `ValueError`, since
-/// dropping a value would misalign it with its point. Anything else as it is.
-fn unmasked<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<Bound<'py, PyAny>> {
-    let py = obj.py();
-    let ma = py.import("numpy.ma")?;
-    if !obj.is_instance(&ma.getattr("MaskedArray")?)? {
-        return Ok(obj.clone());
-    }
-    let any_masked: bool = ma
-        .call_method1("getmaskarray", (obj,))?
-        .call_method0("any")?
-        .extract()?;
-    if !any_masked {
-        return obj.getattr("data");
-    }
-    if name != "points" {
-        return Err(PyValueError::new_err(format!(
-            "{name}: a masked array with masked values; pass the points and values without \
-             the masked entries (e.g. points[~mask], {name}[~mask]) or fill them"
-        )));
-    }
-    let np = py.import("numpy")?;
-    let floats = obj.call_method1("astype", (np.getattr("float64")?,))?;
-    floats.call_method1("filled", (f64::NAN,))
-}
-
-/// The array itself when it is float64 (native byte order), aligned and C-contiguous;
-/// else a converted C-contiguous float64 copy.
-fn contiguous_f64<'py>(arr: Bound<'py, PyAny>) -> PyResult<(Bound<'py, PyAny>, bool)> {
-    let fits = match arr.cast::<numpy::PyUntypedArray>() {
-        Ok(a) => {
-            a.is_c_contiguous()
-                && arr
-                    .getattr("flags")?
-                    .getattr("aligned")?
-                    .extract::<bool>()?
-                && a.dtype().is_equiv_to(&numpy::dtype::<f64>(arr.py()))
-        }
-        Err(_) => false,
-    };
-    if fits {
-        return Ok((arr, false));
-    }
-    let np = arr.py().import("numpy")?;
-    let f64_type = np.getattr("float64")?;
-    let copy = np.call_method1("ascontiguousarray", (arr, f64_type))?;
-    Ok((copy, true))
-}
-
-/// Points from an (N, 3) array of real numbers (or anything `numpy.asarray` makes one
-/// of): the caller's float64 C-contiguous array is borrowed, anything else copied once.
-fn take_points<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Taken<PyReadonlyArray2<'py, f64>>> {
-    let arr = as_real_array(obj, "points", 2)?;
-    let made = !obj.is_instance_of::<numpy::PyUntypedArray>();
-    let (arr, converted) = contiguous_f64(arr)?;
-    let copied = made || converted;
-    let arr = arr.cast_into::<PyArray2<f64>>()?;
-    let array = arr
-        .try_readonly()
-        .map_err(|e| PyValueError::new_err(format!("points: {e}")))?;
-    Ok(Taken { array, copied })
-}
-
-/// Per-point values (intensity, σ) from a 1-D array of real numbers.
-fn take_values<'py>(
-    obj: &Bound<'py, PyAny>,
-    name: &str,
-) -> PyResult<Taken<PyReadonlyArray1<'py, f64>>> {
-    let arr = as_real_array(obj, name, 1)?;
-    let made = !obj.is_instance_of::<numpy::PyUntypedArray>();
-    let (arr, converted) = contiguous_f64(arr)?;
-    let copied = made || converted;
-    let arr = arr.cast_into::<PyArray1<f64>>()?;
-    let array = arr
-        .try_readonly()
-        .map_err(|e| PyValueError::new_err(format!("{name}: {e}")))?;
-    Ok(Taken { array, copied })
-}
-
-/// The points of a borrowed (N, 3) array as `[x, y, z]` rows, in place.
-fn rows<'a>(a: &'a PyReadonlyArray2<'_, f64>) -> PyResult<&'a [[f64; 3]]> {
-    let flat = a
-        .as_slice()
-        .map_err(|_| PyValueError::new_err("points: the array is not contiguous"))?;
-    let (rows, rest) = flat.as_chunks::<3>();
-    if !rest.is_empty() {
-        return Err(PyValueError::new_err("points: expected 3 values per point"));
-    }
-    Ok(rows)
-}
-
-/// The values of a borrowed 1-D array, in place.
-fn values<'a>(a: &'a PyReadonlyArray1<'_, f64>, name: &str) -> PyResult<&'a [f64]> {
-    a.as_slice()
-        .map_err(|_| PyValueError::new_err(format!("{name}: the array is not contiguous")))
-}
+use arrays::*;
+use bag::*;
+use control::*;
+pub use control::{SIGNAL_POLL, WORKING_BYTES_PER_POINT};
 
 /// The Python exception for a failure to read `path` with the tool's `message`:
 /// `OSError` (with its errno, so `FileNotFoundError`, `PermissionError`, …) when the file
@@ -522,123 +370,6 @@ fn estimate_array_dict<'py>(
     fields_dict(py, &report.keyed_fields(), true)
 }
 
-/// How often a waiting call checks for signals (Ctrl-C): a tenth of the 0.5 s a user
-/// waits for at most, so the estimator's step, not the poll, sets the delay.
-pub const SIGNAL_POLL: Duration = Duration::from_millis(50);
-
-/// The thread pool of the process that made it: `(pid, pool)`.
-static POOL: Mutex<Option<(u32, Arc<rayon::ThreadPool>)>> = Mutex::new(None);
-
-/// This process's thread pool (threads: `RAYON_NUM_THREADS`, else one per core). A
-/// process forked after a call inherits the parent's pool without its threads (work
-/// sent to it would wait forever): a pool made in another process is left alone and a
-/// new one built.
-fn pool() -> PyResult<Arc<rayon::ThreadPool>> {
-    let pid = std::process::id();
-    let mut slot = POOL.lock().unwrap_or_else(|e| e.into_inner());
-    if let Some((owner, p)) = slot.as_ref()
-        && *owner == pid
-    {
-        return Ok(p.clone());
-    }
-    let p = Arc::new(
-        rayon::ThreadPoolBuilder::new()
-            .thread_name(|i| format!("epd-{i}"))
-            .build()
-            .map_err(|e| PyRuntimeError::new_err(format!("cannot start epd's threads: {e}")))?,
-    );
-    // The parent's pool has no threads here: dropping it would wait on none, but its
-    // memory is the parent's bookkeeping; it is kept (leaked once per fork).
-    if let Some(old) = slot.replace((pid, p.clone())) {
-        std::mem::forget(old);
-    }
-    Ok(p)
-}
-
-/// Why a call stopped without a result.
-enum Stop<E> {
-    /// The work's own error.
-    Failed(E),
-    /// A signal handler raised (Ctrl-C: `KeyboardInterrupt`).
-    Signal(PyErr),
-}
-
-/// Run `work` in this process's pool ([`pool`]) on a thread of its own, the GIL
-/// released, while this thread checks for signals every [`SIGNAL_POLL`]: when a Python
-/// signal handler raises (Ctrl-C), the work is told to stop (`epd_core::cancel`), waited
-/// for (it stops at the estimator's next step), and the exception returned. A panic of
-/// the work goes on unwinding here.
-fn run_interruptible<R: Send, E: Send>(
-    py: Python<'_>,
-    work: impl FnOnce() -> Result<R, E> + Send,
-) -> Result<R, Stop<E>> {
-    let pool = pool().map_err(Stop::Signal)?;
-    let flag = Arc::new(AtomicBool::new(false));
-    std::thread::scope(|scope| {
-        let (tx, rx) = std::sync::mpsc::channel();
-        let stop = flag.clone();
-        let worker = scope.spawn(move || {
-            let r = pool.install(|| epd_core::cancel::run_cancellable(&stop, work));
-            let _ = tx.send(());
-            r
-        });
-        let mut rx = rx;
-        loop {
-            // The receiver moves into the GIL-free wait and back (it is Send, not Sync).
-            let (back, done) = py.detach(move || {
-                let done = rx.recv_timeout(SIGNAL_POLL).is_ok();
-                (rx, done)
-            });
-            rx = back;
-            if done || worker.is_finished() {
-                break;
-            }
-            if let Err(e) = py.check_signals() {
-                flag.store(true, Ordering::Relaxed);
-                py.detach(|| {
-                    let _ = worker.join();
-                });
-                return Err(Stop::Signal(e));
-            }
-        }
-        match worker.join() {
-            Ok(Ok(Ok(r))) => Ok(r),
-            Ok(Ok(Err(e))) => Err(Stop::Failed(e)),
-            // The flag is set only above; a stop without it cannot happen.
-            Ok(Err(epd_core::cancel::Cancelled)) => Err(Stop::Signal(
-                PyKeyboardInterrupt::new_err("epd: the estimate was cancelled"),
-            )),
-            Err(panic) => std::panic::resume_unwind(panic),
-        }
-    })
-}
-
-/// Working memory of an estimate beyond its input, per point (bytes): the geometry
-/// survey's per-point arrays (the fit itself adds none: the input is read in place).
-/// Measured: 37.1 bytes (peak RSS of `epd.estimate` on 10⁷ simulated points, 642 MB,
-/// less the 240 MB input and the interpreter's 31 MB, over 10⁷); 34.3 bytes after the
-/// solver's passes were made cancellable (610 MB; with `straight_only=True`, 0.7 bytes);
-/// reserved with a third more. tests/test_resources.py checks the measurement stays below.
-pub const WORKING_BYTES_PER_POINT: usize = 48;
-
-/// Reserve (and give back) the working memory an estimate of `n` points will need, so
-/// that running out of memory raises `MemoryError` before the fit instead of aborting
-/// the interpreter in the middle of it. Later allocations reuse the freed memory (the
-/// allocator keeps it: `epd_frame::keep_freed_memory` where set, the address space
-/// otherwise).
-fn reserve_working_memory(n: usize) -> PyResult<()> {
-    let bytes = n.saturating_mul(WORKING_BYTES_PER_POINT);
-    let mut probe: Vec<u8> = Vec::new();
-    probe.try_reserve_exact(bytes).map_err(|_| {
-        PyMemoryError::new_err(format!(
-            "epd.estimate: cannot allocate the {:.1} GB of working memory that {n} points \
-             need ({WORKING_BYTES_PER_POINT} bytes per point beyond the input)",
-            bytes as f64 / 1e9
-        ))
-    })?;
-    Ok(())
-}
-
 /// The check of `sigma=` against the points: one finite σ > 0 (m) for every usable point
 /// (finite, not at the origin); a point that is itself invalid may have any σ.
 fn check_sigma(points: &[[f64; 3]], sigma: &[f64]) -> PyResult<()> {
@@ -712,13 +443,6 @@ fn _points_buffer(points: &Bound<'_, PyAny>) -> PyResult<(usize, bool)> {
     Ok((rows.as_ptr() as usize, t.copied))
 }
 
-/// An `(N, 3)` float64 array owning `points` (no copy).
-fn points_array<'py>(py: Python<'py>, points: Vec<[f64; 3]>) -> PyResult<Bound<'py, PyAny>> {
-    let n = points.len();
-    let flat = PyArray1::from_vec(py, points.into_flattened());
-    Ok(flat.reshape([n, 3])?.into_any())
-}
-
 /// Read a point-cloud file (PLY, PCD, CSV/XYZ/TXT/PTS/ASC) with the `epd` tool's readers.
 ///
 /// Returns `(points, properties)`: the points as stored (an (N, 3) float64 array, not
@@ -738,73 +462,6 @@ fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<(Bound<'py, PyAny>, Bou
         props.set_item(name, PyArray1::from_vec(py, v))?;
     }
     Ok((points_array(py, cloud.points)?, props))
-}
-
-/// The PointCloud2 messages of one topic of a ROS 2 bag (an `.mcap` file or a rosbag2
-/// folder with `metadata.yaml`), read as `epd estimate BAG --topic T` reads them.
-///
-/// Iterating yields `(stamp_ns, points, properties)` per message, in the bag's order:
-/// `stamp_ns` the message's `header.stamp` (int, ns), `points` an (N, 3) float64 array as
-/// stored in the message (not converted: pass `units=`/`frame=` to `estimate`; a
-/// `frame_id` ending in `_optical_frame` means `frame="optical"`), `properties` a dict of
-/// the other fields with count 1 (`intensity`, …) as float64 arrays; the iterator's
-/// `frame_id` is the last message's `header.frame_id`. One message is in
-/// memory at a time. `topic=None` reads the bag's only PointCloud2 topic. Raises
-/// `ValueError` for a topic that cannot be chosen, a message that cannot be decoded, or
-/// a truncated or damaged bag (after the messages before the damage were yielded, naming
-/// its byte offset), and `OSError` for a bag that cannot be opened.
-#[pyfunction]
-#[pyo3(signature = (path, topic=None))]
-fn read_bag(path: PathBuf, topic: Option<&str>) -> PyResult<BagReader> {
-    use epd_frame::bag::{BagClouds, BagError, topics};
-    let fail = |e: BagError| match e {
-        BagError::Open(m) => file_error(&path, m),
-        other => PyValueError::new_err(other.to_string()),
-    };
-    let chosen = topics(&path)
-        .map_err(fail)?
-        .choose(topic)
-        .map_err(|e| PyValueError::new_err(e.to_string().replace("--topic", "topic=")))?;
-    let clouds = BagClouds::open(&path, &chosen).map_err(fail)?;
-    Ok(BagReader {
-        clouds,
-        frame_id: None,
-    })
-}
-
-/// One message as `read_bag` yields it: `(stamp_ns, points, properties)`.
-type BagItem<'py> = (i64, Bound<'py, PyAny>, Bound<'py, PyDict>);
-
-/// The iterator `read_bag` returns: `(stamp_ns, points, properties)` per message.
-#[pyclass(unsendable, module = "epd")]
-struct BagReader {
-    clouds: epd_frame::bag::BagClouds,
-    /// The `frame_id` of the message yielded last (`None` before the first).
-    #[pyo3(get)]
-    frame_id: Option<String>,
-}
-
-#[pymethods]
-impl BagReader {
-    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
-        slf
-    }
-
-    fn __next__<'py>(&mut self, py: Python<'py>) -> PyResult<Option<BagItem<'py>>> {
-        let Some(next) = self.clouds.next() else {
-            return Ok(None);
-        };
-        let m = next.map_err(|e| PyValueError::new_err(e.to_string()))?;
-        let c = m
-            .cloud
-            .map_err(|e| PyValueError::new_err(format!("message {}: {e}", m.index)))?;
-        let props = PyDict::new(py);
-        for (name, v) in c.cloud.extra {
-            props.set_item(name, PyArray1::from_vec(py, v))?;
-        }
-        self.frame_id = Some(c.frame_id);
-        Ok(Some((c.stamp_ns, points_array(py, c.cloud.points)?, props)))
-    }
 }
 
 /// Simulate one Helios2-like frame inside a pipe, as `epd simulate` does.
