@@ -8,6 +8,7 @@ use epd_core::estimate;
 
 use crate::config::EstimateConfig;
 use crate::scene::FrameScene;
+use crate::table::CalibrationTable;
 
 /// A frame more than this fraction of whose points lie outside the depth table's support
 /// is refused: 90 %. The fit then rests on under a tenth of the wall the camera saw —
@@ -63,6 +64,118 @@ pub(super) struct SharedErrors {
     /// rounds fit them; `None` for a version-1 table, which is not checked against the
     /// rig's size).
     pub(super) raw_diameters: Option<(f64, f64)>,
+}
+
+/// What a depth table made of a frame before its straight fit ([`calibrate`]).
+pub(super) struct Calibrated {
+    /// Points the table moved.
+    pub(super) n_calibrated: usize,
+    /// Of the valid points with an intensity, the fraction outside the table's support.
+    pub(super) outside: Option<f64>,
+    /// Each point's σ from the table's spread (m), for a weighted fit.
+    pub(super) sigma: Option<Vec<f64>>,
+    /// The scene ahead, when surveyed (`cfg.geometry`).
+    pub(super) scene: Option<FrameScene>,
+    /// Whether the scene was surveyed on the points fitted (a version-1 table's), not
+    /// on other points (a version-2 table's: [`survey_for_incidence`]).
+    pub(super) surveyed_here: bool,
+    /// What the table leaves to the 1-σ.
+    pub(super) shared: Option<SharedErrors>,
+}
+
+/// The depth table's part of `epd estimate --calibration` on a frame: `points` corrected
+/// in place, with `raw_range_m` their measured ranges before the correction (for the
+/// scene's lookups) and `sigma_given` whether the caller gave per-point σ. A version-2
+/// table: the scene surveyed on the plain table's points ([`survey_for_incidence`]), then
+/// its straight section corrected by the incidence rounds ([`correct_by_incidence`]). A
+/// version-1 table: every point corrected, then the scene surveyed on them. `n_read`
+/// completes the messages.
+pub(super) fn calibrate(
+    cal: &CalibrationTable,
+    points: &mut Vec<[f64; 3]>,
+    intensity: Option<&[f64]>,
+    sigma_given: bool,
+    raw_range_m: Option<&[f64]>,
+    cfg: &EstimateConfig,
+    n_read: usize,
+) -> Result<Calibrated, String> {
+    if let (Some(inc), Some(i)) = (&cal.incidence, intensity) {
+        if cfg.weighted && sigma_given {
+            return Err(
+                "per-point σ given with a weighting depth table: give one or the other \
+                        (or the table unweighted)"
+                    .into(),
+            );
+        }
+        let scene = if cfg.geometry {
+            let raw_r = raw_range_m.unwrap_or(&[]);
+            Some(
+                survey_for_incidence(cal, points, i, raw_r, cfg).map_err(|e| {
+                    format!("{e} (the survey on the plain table's points; {n_read} points read)")
+                })?,
+            )
+        } else {
+            None
+        };
+        let straight = scene.as_ref().and_then(|s| s.straight.as_deref());
+        let (moved, s) = correct_by_incidence(cal, inc, points, i, straight, cfg)?;
+        return Ok(Calibrated {
+            n_calibrated: moved,
+            outside: Some(s.outside_fraction),
+            sigma: cfg.weighted.then(|| s.sigma_m.clone()),
+            scene,
+            surveyed_here: false,
+            shared: Some(s),
+        });
+    }
+    let mut outside = None;
+    if let Some(i) = intensity
+        && i.len() == points.len()
+    {
+        let (valid, covered) = points.iter().zip(i).fold((0usize, 0usize), |a, (p, &v)| {
+            let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+            if !(r.is_finite() && r > 0.0) {
+                return a;
+            }
+            (a.0 + 1, a.1 + usize::from(cal.table.covers(r, v)))
+        });
+        outside = (valid > 0).then(|| (valid - covered) as f64 / valid as f64);
+    }
+    let (moved, sigma) = cal.correct_points(cfg.weighted, points, intensity, sigma_given)?;
+    // The bins' standard errors, shared by the points each one corrected.
+    let shared = match intensity {
+        Some(i) if i.len() == points.len() => Some(SharedErrors {
+            shift: Shares::Interpolated(cal.table.shared_error_terms(points, i)),
+            n_groups: cal.table.offset_m.len(),
+            outside_fraction: outside.unwrap_or(0.0),
+            sigma_m: Vec::new(),
+            raw_diameters: None,
+        }),
+        _ => None,
+    };
+    // Invalid pixels (NaN, inf, zeros) are dropped and counted by the estimator; the
+    // range gate keeps points by their model range (see EstimateOptions).
+    epd_core::cancel::checkpoint();
+    let scene = if cfg.geometry {
+        let table = match (raw_range_m, intensity) {
+            (Some(r), Some(i)) => Some((&cal.table, r, i)),
+            _ => None,
+        };
+        Some(
+            FrameScene::survey(points, cfg.method, &cfg.options, table)
+                .map_err(|e| format!("{e} ({n_read} points read)"))?,
+        )
+    } else {
+        None
+    };
+    Ok(Calibrated {
+        n_calibrated: moved,
+        outside,
+        sigma,
+        scene,
+        surveyed_here: true,
+        shared,
+    })
 }
 
 /// The scene of a frame to be corrected by a version-2 (incidence) table, surveyed on

@@ -23,10 +23,7 @@ mod calibrated;
 pub use calibrated::{
     INCIDENCE_ROUNDS, INCIDENCE_TOLERANCE_M, MOSTLY_OUTSIDE, REFUSE_OUTSIDE, RIG_SIZE_MARGIN,
 };
-use calibrated::{
-    SharedErrors, Shares, add_table_uncertainty, add_transfer_uncertainty, correct_by_incidence,
-    survey_for_incidence,
-};
+use calibrated::{add_table_uncertainty, add_transfer_uncertainty, calibrate};
 
 /// A frame's points and what comes with them, as [`measure_frame`] takes them.
 #[derive(Clone, Debug)]
@@ -345,102 +342,48 @@ fn measure_chosen(
     // the camera's error is looked up by them (the bend's points, in the scene step).
     let raw_range_m: Option<Vec<f64>> =
         (cfg.calibration.is_some() && cfg.geometry).then(|| ranges(&points));
-    let mut n_calibrated = None;
-    let mut calibration_outside = None;
-    let mut shared: Option<SharedErrors> = None;
-    let mut sigmas: Option<Cow<'_, [f64]>> = sigma.map(Cow::Borrowed);
     let failed = |e: epd_core::EpdError| format!("{e} ({n_read} points read)");
-    // The scene, when it is surveyed on other points than those fitted (a version-2
-    // table's: [`survey_for_incidence`]).
-    let mut scene_apart: Option<FrameScene> = None;
-    if let Some(cal) = &cfg.calibration {
-        match (&cal.incidence, intensity) {
-            (Some(inc), Some(i)) => {
-                if cfg.weighted && sigma.is_some() {
-                    return Err(
-                        "per-point σ given with a weighting depth table: give one or \
-                                the other (or the table unweighted)"
-                            .into(),
-                    );
-                }
-                if cfg.geometry {
-                    let raw_r = raw_range_m.as_deref().unwrap_or(&[]);
-                    scene_apart = Some(survey_for_incidence(cal, &points, i, raw_r, cfg).map_err(
-                        |e| {
-                            format!(
-                                "{e} (the survey on the plain table's points; {n_read} points read)"
-                            )
-                        },
-                    )?);
-                }
-                let straight = scene_apart.as_ref().and_then(|s| s.straight.as_deref());
-                let (moved, s) = correct_by_incidence(cal, inc, points.to_mut(), i, straight, cfg)?;
-                n_calibrated = Some(moved);
-                calibration_outside = Some(s.outside_fraction);
-                if cfg.weighted {
-                    sigmas = Some(Cow::Owned(s.sigma_m.clone()));
-                }
-                shared = Some(s);
-            }
-            _ => {
-                if let Some(i) = intensity
-                    && i.len() == points.len()
-                {
-                    let (valid, covered) =
-                        points.iter().zip(i).fold((0usize, 0usize), |a, (p, &v)| {
-                            let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-                            if !(r.is_finite() && r > 0.0) {
-                                return a;
-                            }
-                            (a.0 + 1, a.1 + usize::from(cal.table.covers(r, v)))
-                        });
-                    calibration_outside =
-                        (valid > 0).then(|| (valid - covered) as f64 / valid as f64);
-                }
-                let (moved, table_sigmas) =
-                    cal.correct_points(cfg.weighted, points.to_mut(), intensity, sigma.is_some())?;
-                n_calibrated = Some(moved);
-                if let Some(s) = table_sigmas {
-                    sigmas = Some(Cow::Owned(s));
-                }
-                // The bins' standard errors, shared by the points each one corrected.
-                if let Some(i) = intensity
-                    && i.len() == points.len()
-                {
-                    shared = Some(SharedErrors {
-                        shift: Shares::Interpolated(cal.table.shared_error_terms(&points, i)),
-                        n_groups: cal.table.offset_m.len(),
-                        outside_fraction: calibration_outside.unwrap_or(0.0),
-                        sigma_m: Vec::new(),
-                        raw_diameters: None,
-                    });
-                }
-            }
-        }
-    }
-    // Invalid pixels (NaN, inf, zeros) are dropped and counted by the estimator; the
-    // range gate keeps points by their model range (see EstimateOptions).
-    let kept: &[[f64; 3]] = &points;
-    // Between stages, a caller's stop request is honoured (`epd_core::cancel`).
-    epd_core::cancel::checkpoint();
-    let surveyed_apart = scene_apart.is_some();
-    let scene = if let Some(s) = scene_apart {
-        Some(s)
-    } else if cfg.geometry {
-        let table = match (&cfg.calibration, raw_range_m.as_deref(), intensity) {
-            (Some(cal), Some(r), Some(i)) => Some((&cal.table, r, i)),
-            _ => None,
-        };
-        Some(FrameScene::survey(kept, cfg.method, &whole, table).map_err(failed)?)
-    } else {
-        None
+    let calibrated = match &cfg.calibration {
+        Some(cal) => Some(calibrate(
+            cal,
+            points.to_mut(),
+            intensity,
+            sigma.is_some(),
+            raw_range_m.as_deref(),
+            cfg,
+            n_read,
+        )?),
+        None => None,
     };
+    let (n_calibrated, calibration_outside) = calibrated
+        .as_ref()
+        .map_or((None, None), |c| (Some(c.n_calibrated), c.outside));
+    let (sigmas, scene, surveyed_here, shared) = match calibrated {
+        Some(c) => (
+            c.sigma.map(Cow::Owned).or(sigma.map(Cow::Borrowed)),
+            c.scene,
+            c.surveyed_here,
+            c.shared,
+        ),
+        None => {
+            // Invalid pixels (NaN, inf, zeros) are dropped and counted by the estimator; the
+            // range gate keeps points by their model range (see EstimateOptions).
+            epd_core::cancel::checkpoint();
+            let scene = if cfg.geometry {
+                Some(FrameScene::survey(&points, cfg.method, &whole, None).map_err(failed)?)
+            } else {
+                None
+            };
+            (sigma.map(Cow::Borrowed), scene, true, None)
+        }
+    };
+    let kept: &[[f64; 3]] = &points;
     epd_core::cancel::checkpoint();
     let mut est = fit_straight(
         kept,
         sigmas.as_deref(),
         scene.as_ref(),
-        !surveyed_apart,
+        surveyed_here,
         &whole,
         cfg,
     )
