@@ -204,10 +204,11 @@ pub fn run(out: &Path, per_size: u64, passes: u32) -> anyhow::Result<()> {
                 );
             }
             let n = errs.len();
-            let mean = errs.iter().sum::<f64>() / n.max(1) as f64;
-            let sd = (errs.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (n.max(2) - 1) as f64)
-                .sqrt();
-            let ms = sig.iter().sum::<f64>() / n.max(1) as f64;
+            let (mean, sd) = {
+                let st = crate::stats::Stats::of(&errs);
+                (st.mean, st.std)
+            };
+            let ms = crate::stats::Stats::of(&sig).mean;
             record(
                 &mut summary,
                 [
