@@ -4,14 +4,13 @@
 
 use anyhow::Context;
 use epd_core::FitOutcome;
-use epd_core::calibration::{CalibrationFrame, CalibrationSettings, IncidenceTable, incidences};
+use epd_core::calibration::{CalibrationFrame, CalibrationSettings, IncidenceTable};
 use epd_core::{
     DepthTable, EstimateOptions, Loss, LossScale, Method, Params, cramer_rao_bound_weighted,
     estimate, estimate_weighted,
 };
 use epd_frame::config::DEFAULT_LOSS_SCALE_M;
 use epd_frame::input::ranges;
-use epd_frame::measure::{INCIDENCE_ROUNDS, INCIDENCE_TOLERANCE_M};
 use epd_frame::scene::FrameScene;
 use rayon::prelude::*;
 use tof_sim::{Frame, PartKind, Pipe, Segment};
@@ -118,6 +117,24 @@ pub(super) struct RunTables {
     pub(super) incidence: Option<IncidenceTable>,
     /// The spans the rig's observations covered (range, intensity, cos θ).
     pub(super) spans: [(f64, f64); 3],
+    /// Point observations behind the tables.
+    pub(super) n_observations: u64,
+}
+
+impl RunTables {
+    /// The tables as `epd estimate` holds a version-2 file of them: the rig's known
+    /// diameters and frames, its observations' spans.
+    pub(super) fn calibration(&self, s: &PipelineScenario) -> epd_frame::CalibrationTable {
+        epd_frame::CalibrationTable {
+            table: self.plain.clone(),
+            known: (s.rig.d_max(), s.rig.d_min()),
+            frames: s.rig_frames,
+            n_observations: self.n_observations,
+            incidence: self.incidence.clone(),
+            rigs: vec![((s.rig.d_max(), s.rig.d_min()), s.rig_frames)],
+            spans: Some(self.spans),
+        }
+    }
 }
 
 /// Build the depth tables from the rig's frames ([`epd_core::calibration::calibrate`])
@@ -156,6 +173,7 @@ pub(super) fn calibrate(s: &PipelineScenario) -> anyhow::Result<(RunTables, usiz
             plain: cal.table,
             incidence: cal.incidence,
             spans: cal.spans,
+            n_observations: cal.n_observations as u64,
         },
         cal.n_observations,
     ))
@@ -224,7 +242,9 @@ pub(super) struct Surveyed {
 
 impl Surveyed {
     /// Correct `frame` with the run's table (the incidence table when there is one, its
-    /// incidences iterated with the fit as `epd estimate` does: [`by_incidence`]) and
+    /// incidences iterated with the fit by `epd estimate`'s own rounds,
+    /// `epd_frame::measure::incidence_rounds`; where they cannot run or refuse the
+    /// frame, the plain table's points serve) and
     /// read its scene (`epd_frame::scene::FrameScene::survey`, ML-EPD, `opts`) from the
     /// points corrected by the plain table, as `epd estimate` does with a version-2 table
     /// (`epd_frame::measure`; the incidence table leaves out a bend's points outside its
@@ -273,7 +293,16 @@ impl Surveyed {
                     }
                 }
             }
-            by_incidence(it, &raw, &intensity, opts).ok()
+            let cal = tables.calibration(s);
+            let rounds = epd_frame::measure::incidence_rounds(
+                &cal,
+                it,
+                &raw,
+                &intensity,
+                Method::MlEpd,
+                opts,
+            );
+            rounds.ok().map(|r| (r.points, r.correction.sigma_m))
         });
         let (corrected, table_sigma) = incidence.unwrap_or((plain, plain_sigma));
         let report = &scene.geometry;
@@ -293,35 +322,6 @@ impl Surveyed {
             keep: scene.straight,
         })
     }
-}
-
-/// The incidence table's correction of `raw` as `epd estimate` makes it
-/// (`epd_frame::measure`): the frame fitted on its raw points (ML-EPD, `opts`), then up
-/// to [`INCIDENCE_ROUNDS`] rounds of cos θ at the fitted wall → the raw points corrected
-/// → refit, until the mean diameter moves by less than [`INCIDENCE_TOLERANCE_M`]. Points
-/// outside the table's support are NaN (left out). The corrected points and the table's
-/// spread at each (NaN where uncorrected).
-fn by_incidence(
-    table: &IncidenceTable,
-    raw: &[[f64; 3]],
-    intensity: &[f64],
-    opts: &EstimateOptions,
-) -> anyhow::Result<(Vec<[f64; 3]>, Vec<f64>)> {
-    let mut pose = epd_core::estimate(raw, Method::MlEpd, opts)?;
-    let mut out = None;
-    for _ in 0..INCIDENCE_ROUNDS {
-        let cos = incidences(raw, &pose.params);
-        let mut c = raw.to_vec();
-        let corr = table.correct(&mut c, intensity, &cos)?;
-        let next = epd_core::estimate(&c, Method::MlEpd, opts)?;
-        let moved = (next.d_mean() - pose.d_mean()).abs();
-        pose = next;
-        out = Some((c, corr.sigma_m));
-        if moved < INCIDENCE_TOLERANCE_M {
-            break;
-        }
-    }
-    out.ok_or_else(|| anyhow::anyhow!("no incidence round ran"))
 }
 
 /// The Cramér–Rao bound (Dmax, Dmin) of the heteroscedastic model over the valid pixels

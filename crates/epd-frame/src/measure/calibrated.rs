@@ -224,48 +224,11 @@ pub(super) fn correct_by_incidence(
             }
         }
     }
-    let fit = |p: &[[f64; 3]]| {
-        estimate(p, cfg.method, &cfg.options).map_err(|e| format!("{e} (the incidence round)"))
-    };
-    let mut pose = fit(&raw)?;
-    let raw_diameters = (pose.params.d_max, pose.params.d_min);
-    let mut out = None;
-    for round in 0..INCIDENCE_ROUNDS {
-        if round == 0 {
-            // Refused before the corrected points are fitted: too few lie in the support.
-            let cos = epd_core::calibration::incidences(&raw, &pose.params);
-            let mut c = raw.clone();
-            let corr = cal.correct_with_incidence(table, &mut c, intensity, &cos)?;
-            let total = corr.moved + corr.outside;
-            if total > 0 && corr.outside as f64 > REFUSE_OUTSIDE * total as f64 {
-                return Err(format!(
-                    "{:.0} % of the frame's points lie outside the depth table's support (more \
-                     than {:.0} %): the rigs ({}) did not show this pipe's ranges, \
-                     intensities and incidences; calibrate with a rig of this pipe's size",
-                    100.0 * corr.outside as f64 / total as f64,
-                    REFUSE_OUTSIDE * 100.0,
-                    cal.rigs
-                        .iter()
-                        .map(|((d, _), _)| format!("{:.1} mm", d * 1e3))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ));
-            }
-        }
-        let cos = epd_core::calibration::incidences(&raw, &pose.params);
-        let mut c = raw.clone();
-        let corr = cal.correct_with_incidence(table, &mut c, intensity, &cos)?;
-        let next = fit(&c)?;
-        let moved = (next.d_mean() - pose.d_mean()).abs();
-        pose = next;
-        out = Some((c, corr));
-        if moved < INCIDENCE_TOLERANCE_M {
-            break;
-        }
-    }
-    let Some((corrected, corr)) = out else {
-        return Err("no incidence round ran".into());
-    };
+    let IncidenceRounds {
+        points: corrected,
+        correction: corr,
+        raw_diameters,
+    } = incidence_rounds(cal, table, &raw, intensity, cfg.method, &cfg.options)?;
     let shift = Shares::Home(
         corr.bin
             .iter()
@@ -288,6 +251,85 @@ pub(super) fn correct_by_incidence(
             raw_diameters: Some(raw_diameters),
         },
     ))
+}
+
+/// The incidence table's rounds on `raw` (SCS, m; points to leave out NaN), as `epd
+/// estimate` makes them ([`correct_by_incidence`]; the bench harness's pipeline run makes
+/// the same): the frame fitted on its raw points by `method` with `options`, then up to
+/// [`INCIDENCE_ROUNDS`] rounds of cos θ of each ray at the fitted wall → the raw points
+/// corrected by `table` → refit, until the mean diameter moves by less than
+/// [`INCIDENCE_TOLERANCE_M`]. Refused before the corrected points are fitted when more
+/// than [`REFUSE_OUTSIDE`] of them lie outside the table's support. The corrected points
+/// (those outside the support NaN), the last round's correction, and the raw fit's
+/// (Dmax, Dmin) ([`IncidenceRounds`]).
+pub fn incidence_rounds(
+    cal: &CalibrationTable,
+    table: &epd_core::calibration::IncidenceTable,
+    raw: &[[f64; 3]],
+    intensity: &[f64],
+    method: epd_core::Method,
+    options: &epd_core::EstimateOptions,
+) -> Result<IncidenceRounds, String> {
+    let fit = |p: &[[f64; 3]]| {
+        estimate(p, method, options).map_err(|e| format!("{e} (the incidence round)"))
+    };
+    let mut pose = fit(raw)?;
+    let raw_diameters = (pose.params.d_max, pose.params.d_min);
+    let mut out = None;
+    for round in 0..INCIDENCE_ROUNDS {
+        if round == 0 {
+            // Refused before the corrected points are fitted: too few lie in the support.
+            let cos = epd_core::calibration::incidences(raw, &pose.params);
+            let mut c = raw.to_vec();
+            let corr = cal.correct_with_incidence(table, &mut c, intensity, &cos)?;
+            let total = corr.moved + corr.outside;
+            if total > 0 && corr.outside as f64 > REFUSE_OUTSIDE * total as f64 {
+                return Err(format!(
+                    "{:.0} % of the frame's points lie outside the depth table's support (more \
+                     than {:.0} %): the rigs ({}) did not show this pipe's ranges, \
+                     intensities and incidences; calibrate with a rig of this pipe's size",
+                    100.0 * corr.outside as f64 / total as f64,
+                    REFUSE_OUTSIDE * 100.0,
+                    cal.rigs
+                        .iter()
+                        .map(|((d, _), _)| format!("{:.1} mm", d * 1e3))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ));
+            }
+        }
+        let cos = epd_core::calibration::incidences(raw, &pose.params);
+        let mut c = raw.to_vec();
+        let corr = cal.correct_with_incidence(table, &mut c, intensity, &cos)?;
+        let next = fit(&c)?;
+        let moved = (next.d_mean() - pose.d_mean()).abs();
+        pose = next;
+        out = Some((c, corr));
+        if moved < INCIDENCE_TOLERANCE_M {
+            break;
+        }
+    }
+    let Some((corrected, corr)) = out else {
+        return Err("no incidence round ran".into());
+    };
+    Ok(IncidenceRounds {
+        points: corrected,
+        correction: corr,
+        raw_diameters,
+    })
+}
+
+/// What [`incidence_rounds`] made of a frame.
+#[derive(Clone, Debug)]
+pub struct IncidenceRounds {
+    /// The points corrected by the last round (SCS, m; those outside the table's support
+    /// NaN).
+    pub points: Vec<[f64; 3]>,
+    /// The last round's correction: each point's bin, the table's spread at it, the
+    /// counts moved and outside.
+    pub correction: epd_core::calibration::Correction,
+    /// (Dmax, Dmin) of the fit on the raw points (m).
+    pub raw_diameters: (f64, f64),
 }
 
 /// The relative margin around the rigs' diameters within which a pipe counts as one of

@@ -21,7 +21,8 @@ use crate::scene::FrameScene;
 mod calibrated;
 
 pub use calibrated::{
-    INCIDENCE_ROUNDS, INCIDENCE_TOLERANCE_M, MOSTLY_OUTSIDE, REFUSE_OUTSIDE, RIG_SIZE_MARGIN,
+    INCIDENCE_ROUNDS, INCIDENCE_TOLERANCE_M, IncidenceRounds, MOSTLY_OUTSIDE, REFUSE_OUTSIDE,
+    RIG_SIZE_MARGIN, incidence_rounds,
 };
 use calibrated::{add_table_uncertainty, add_transfer_uncertainty, calibrate};
 
