@@ -36,6 +36,8 @@ pub mod model;
 pub mod report;
 pub mod scene;
 pub mod solver;
+#[cfg(test)]
+mod test_numbers;
 
 pub use fit::{check, cloud, estimate, init, uncertainty};
 pub use model::{params, residual, symmetry};

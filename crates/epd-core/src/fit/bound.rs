@@ -122,13 +122,7 @@ mod tests {
             dy: 0.01,
             dz: -0.02,
         };
-        let mut s = 17u64;
-        let mut r = move || {
-            s = s
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (s >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-        };
+        let mut r = crate::test_numbers::numbers(17);
         let axis = beta.dir_pcs_to_scs(&nalgebra::Vector3::new(1.0, 0.0, 0.0));
         for n in [1usize, 3, 4, 7, 4096, 4099, 3 * 4096 + 5] {
             let mut pts: Vec<[f64; 3]> =

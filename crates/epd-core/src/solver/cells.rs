@@ -326,17 +326,7 @@ fn ranges_and_cells_avx2<F: FnMut(usize, f64, usize, [f64; 3])>(
 mod tests {
     use super::*;
     use crate::params::Params;
-
-    /// A reproducible stream of numbers in [−1, 1) (an LCG; no dependency needed).
-    fn numbers(seed: u64) -> impl FnMut() -> f64 {
-        let mut s = seed;
-        move || {
-            s = s
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (s >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-        }
-    }
+    use crate::test_numbers::numbers;
 
     /// The indexer's sector against the definition with `atan2`, for sector counts that
     /// divide the quadrants (the comparisons) and that do not (the fallback), on random

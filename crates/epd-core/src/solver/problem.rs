@@ -523,17 +523,7 @@ impl NormalEquationsProblem<N_PARAMS> for PipeFit<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A reproducible stream of numbers in [−1, 1) (an LCG; no dependency needed).
-    fn numbers(seed: u64) -> impl FnMut() -> f64 {
-        let mut s = seed;
-        move || {
-            s = s
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (s >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-        }
-    }
+    use crate::test_numbers::numbers;
 
     /// The AVX2 kernel ([`accumulate_avx2`]) against the portable one: the same sums to
     /// the bit, for every residual, loss and weighting, on points that take both forms of
