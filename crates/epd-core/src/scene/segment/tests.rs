@@ -195,6 +195,32 @@ fn a_bump_departs_and_is_a_tee_that_resumes() {
     assert!(!resumes(&inside[i..], &o, 0.5));
 }
 
+/// An opening confirmed as a departure is: a significant bump in each of the
+/// `persistence` slices from the departure (30 mm at 0.1 mm standard error); a shift
+/// alone (a multipath band's edge), a bump in one slice of the run, or a run cut short by
+/// the profile's end is not.
+#[test]
+fn an_opening_needs_a_bump_in_every_slice_of_the_run() {
+    let o = SegmentOptions::default();
+    assert_eq!(o.persistence, 2);
+    let wall: Vec<Slice> = (0..12).map(|i| slice(0.05 * i as f64, 0.0, 0.0)).collect();
+    let mut bumps = wall.clone();
+    for s in &mut bumps[4..8] {
+        s.bump_m = 0.03;
+    }
+    assert!(opens_ahead(&bumps, 4, &o));
+    assert!(opens_ahead(&bumps, 6, &o));
+    let mut shifts = wall.clone();
+    for (k, s) in shifts.iter_mut().enumerate().skip(4).take(4) {
+        *s = slice(0.05 * k as f64, 0.01, 0.0);
+    }
+    assert!(shifts[4].departs(&o) && !opens_ahead(&shifts, 4, &o));
+    let mut once = shifts.clone();
+    once[4].bump_m = 0.03;
+    assert!(!opens_ahead(&once, 4, &o));
+    assert!(!opens_ahead(&bumps[..5], 4, &o));
+}
+
 /// One slice that shifts (10 mm at 0.1 mm standard error) departs alone only when its
 /// adjusted p-value is below α² and the slice after it has too few sectors to be
 /// judged; a judged slice after it that does not depart, or a p-value above α², leaves
