@@ -113,15 +113,7 @@ mod tests {
     /// root and a ray along the axis.
     #[test]
     fn rms_is_the_solvers_cost_to_the_bit() {
-        let beta = Params {
-            d_max: 0.50,
-            d_min: 0.48,
-            roll: 0.3,
-            pitch: 0.04,
-            yaw: 0.02,
-            dy: 0.01,
-            dz: -0.02,
-        };
+        let beta = crate::test_numbers::test_pipe();
         let mut r = crate::test_numbers::numbers(17);
         let axis = beta.dir_pcs_to_scs(&nalgebra::Vector3::new(1.0, 0.0, 0.0));
         for n in [1usize, 3, 4, 7, 4096, 4099, 3 * 4096 + 5] {

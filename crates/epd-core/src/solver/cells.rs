@@ -412,15 +412,7 @@ mod tests {
     /// non-finite point among the points.
     #[test]
     fn strided_ranges_and_cells_as_single_points() {
-        let beta = Params {
-            d_max: 0.50,
-            d_min: 0.48,
-            roll: 0.3,
-            pitch: 0.04,
-            yaw: 0.02,
-            dy: 0.01,
-            dz: -0.02,
-        };
+        let beta = crate::test_numbers::test_pipe();
         let geom = Geometry::new(&beta).expect("inside");
         let cells = Cells {
             axial_edges: vec![0.8, 1.4],

@@ -602,15 +602,7 @@ mod tests {
     /// than one block.
     #[test]
     fn cluster_sums_match_a_direct_sum() {
-        let beta = Params {
-            d_max: 0.50,
-            d_min: 0.48,
-            roll: 0.3,
-            pitch: 0.04,
-            yaw: 0.02,
-            dy: 0.01,
-            dz: -0.02,
-        };
+        let beta = crate::test_numbers::test_pipe();
         let geom = Geometry::new(&beta).expect("inside");
         let mut r = numbers(5);
         let n = CLUSTER_PARTS * CLUSTER_BLOCK + 12_345;
