@@ -49,8 +49,8 @@ pub use check::{Diagnostics, FitOutcome, FitStatus, Implausible};
 pub use error::EpdError;
 pub use estimate::{
     Estimate, EstimateOptions, LossScale, Method, Sigmas, cramer_rao_bound,
-    cramer_rao_bound_weighted, estimate, estimate_weighted, gate_by_model_range,
-    rms_range_residual,
+    cramer_rao_bound_weighted, estimate, estimate_weighted, gate_by_model_range, model_range_gate,
+    rms_range_residual, rms_range_residual_of,
 };
 pub use lm::{Convergence, DegenerateReason, LmOptions, Status};
 pub use loss::Loss;

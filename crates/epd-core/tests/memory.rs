@@ -6,6 +6,8 @@
 //! whatever the points; and the form test's 2¹⁶ residuals, 8 B each, with a 4 B cell
 //! index each while they are gathered: 0.75 MB, the largest part). A copy of the points (24 MB) or a
 //! per-point buffer of one f64 (8 MB) would break it.
+//! The geometry survey of a straight frame holds each point's deviation once, in 32 bits
+//! (`scene::profile`), and no copy of the points (issue 27).
 //! Measured with a counting global allocator.
 
 mod common;
@@ -13,6 +15,7 @@ mod common;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
+use epd_core::segment::{Layout as Scene, SegmentOptions, survey};
 use epd_core::{EstimateOptions, Method, estimate};
 
 struct Counting;
@@ -81,4 +84,27 @@ fn memory_is_bounded_and_allocations_do_not_scale_with_points() {
             "{m}: {count_big} vs {count_small}"
         );
     }
+    // The survey of the frame itself (it reads straight, from its first fit alone): its
+    // profile's deviations, 4 B a point in cells grown by doubling (≤ 8 B a point), beside
+    // the estimates' bound above. A copy of the points (24 B a point) breaks it; so did
+    // the profile's former per-point (x, d, sector) list, 24 B, and its cells of 64-bit
+    // deviations.
+    let base = CURRENT.load(Ordering::SeqCst);
+    PEAK.store(base, Ordering::SeqCst);
+    let s = survey(
+        &frame,
+        Method::MlEpd,
+        &EstimateOptions::default(),
+        &SegmentOptions::default(),
+    )
+    .unwrap();
+    let peak = PEAK.load(Ordering::SeqCst) - base;
+    eprintln!(
+        "survey of {} points: peak {peak} B beyond the input ({:.2} B a point)",
+        frame.len(),
+        peak as f64 / frame.len() as f64
+    );
+    assert_eq!(s.segmentation.layout, Scene::Straight);
+    assert_eq!(s.segmentation.rounds, 1, "the frame was refitted");
+    assert!(peak < 8 * frame.len() + 1_300_000, "survey: peak {peak} B");
 }

@@ -109,9 +109,9 @@ fn bench(c: &mut Criterion) {
     // fits (the form test over its cells and the plausibility check) and on the 1-σ's
     // cluster pass, at the frame's fitted β: issue 22's goal is that the checks add
     // ≤ 15 % to the whole (docs/benchmarks.md).
-    let beta = epd_core::estimate(&plain.measured, Method::MlEpd, &EstimateOptions::default())
-        .expect("estimate")
-        .params;
+    let fitted = epd_core::estimate(&plain.measured, Method::MlEpd, &EstimateOptions::default())
+        .expect("estimate");
+    let beta = fitted.params;
     let form_cells = epd_core::fit::covariance::wall_cells(
         &plain.measured,
         &beta,
@@ -135,6 +135,14 @@ fn bench(c: &mut Criterion) {
     g.bench_function("one_sigma_cluster_pass_full_frame", |b| {
         let fit = epd_core::problem::PipeFit::new(&plain.measured, epd_core::Residual::Range);
         b.iter(|| fit.cluster_sandwich_at(&beta, &cells).expect("inside"))
+    });
+    // The survey's departure profile of the frame against its fit (one pass of the
+    // survey; a frame takes one to four): its time, and its memory (issue 27: the
+    // deviations are held once, in 32 bits, in one buffer).
+    let axis = epd_core::scene::profile::AxisSigma::of(&fitted);
+    let seg = epd_core::segment::SegmentOptions::default();
+    g.bench_function("survey_profile_full_frame", |b| {
+        b.iter(|| epd_core::scene::profile::profile(&plain.measured, &beta, &axis, &seg))
     });
     g.finish();
 }

@@ -98,10 +98,12 @@ pub(crate) fn run_interruptible<R: Send, E: Send>(
 
 /// Working memory of an estimate beyond its input, per point (bytes): the geometry
 /// survey's per-point arrays (the fit itself adds none: the input is read in place).
-/// Measured: 37.1 bytes (peak RSS of `epd.estimate` on 10⁷ simulated points, 642 MB,
-/// less the 240 MB input and the interpreter's 31 MB, over 10⁷); 34.3 bytes after the
-/// solver's passes were made cancellable (610 MB; with `straight_only=True`, 0.7 bytes);
-/// reserved with a third more. tests/test_resources.py checks the measurement stays below.
+/// Measured as the growth of the peak RSS of `epd.estimate` over the input's points, on
+/// 10⁷ points (a frame repeated, whose survey refits the straight section: its copy of
+/// those points is most of it): 34.3 bytes, 30.7 since the survey's profile holds each
+/// deviation once in 32 bits; on 2·10⁶ (no refit) 7.8 bytes (with `straight_only=True`,
+/// 0.7). Reserved with a half more than the worst. tests/test_resources.py checks the
+/// measurement stays below.
 pub const WORKING_BYTES_PER_POINT: usize = 48;
 
 /// Reserve (and give back) the working memory an estimate of `n` points will need, so

@@ -1,7 +1,7 @@
 //! Bounds and summaries of a fit against its points: the Cramér–Rao lower bound on each
 //! parameter's 1-σ (constant and per-point σ) and the RMS range residual.
 
-use crate::cloud::clean;
+use crate::cloud::{clean, usable};
 use crate::error::EpdError;
 use crate::estimate::{Sigmas, View, weighted_cloud};
 use crate::params::{N_PARAMS, Params};
@@ -86,20 +86,41 @@ fn fisher_bound(
 /// a fit quality in metres comparable across methods. `None` when no point is usable or
 /// β puts the sensor outside the pipe.
 pub fn rms_range_residual(points: &[[f64; 3]], beta: &Params) -> Option<f64> {
-    let cloud = clean(points);
-    if cloud.points.is_empty() {
+    rms_range_residual_of(points.iter().copied(), beta)
+}
+
+/// Batches of [`rms_range_residual_of`]: 16 of the solver's chunks (1.5 MiB of points).
+const RMS_BATCH_CHUNKS: usize = 16;
+
+/// [`rms_range_residual`] of the points an iterator yields (the unusable ones skipped),
+/// without holding them: they pass through a buffer of [`RMS_BATCH_CHUNKS`] solver
+/// chunks, so that the RMS of a selection (a straight section, a range gate) costs no
+/// copy of it (issue 27), and the sum is the one of the selection held in one slice, bit
+/// for bit: the chunks' sums in order.
+pub fn rms_range_residual_of(points: impl Iterator<Item = [f64; 3]>, beta: &Params) -> Option<f64> {
+    let geom = Geometry::new(beta);
+    let batch_len = RMS_BATCH_CHUNKS * crate::problem::CHUNK;
+    let mut batch: Vec<[f64; 3]> = Vec::with_capacity(batch_len);
+    let (mut cost, mut n) = (0.0, 0usize);
+    let mut points = points.filter(usable).peekable();
+    while points.peek().is_some() {
+        batch.clear();
+        batch.extend(points.by_ref().take(batch_len));
+        n += batch.len();
+        // Σ r² as the solver's cost (`PipeFit::equations_at`) sums it, chunk by chunk in
+        // order, without its gradients.
+        let geom = geom.as_ref()?;
+        let chunks: Vec<f64> = batch
+            .par_chunks(crate::problem::CHUNK)
+            .map(|c| geom.range_sum_of_squares(c))
+            .collect();
+        cost = chunks.iter().fold(cost, |t, c| t + c);
+    }
+    if n == 0 {
         return None;
     }
-    // Σ r² as the solver's cost (`PipeFit::equations_at`) sums it, chunk by chunk in
-    // order, without its gradients.
-    let geom = Geometry::new(beta)?;
-    let chunks: Vec<f64> = cloud
-        .points
-        .par_chunks(crate::problem::CHUNK)
-        .map(|c| geom.range_sum_of_squares(c))
-        .collect();
-    let cost = chunks.iter().fold(0.0, |t, c| t + c);
-    Some((cost / cloud.points.len() as f64).sqrt())
+    geom?;
+    Some((cost / n as f64).sqrt())
 }
 
 #[cfg(test)]
@@ -127,5 +148,34 @@ mod tests {
             let got = rms_range_residual(&pts, &beta).expect("inside");
             assert_eq!(got.to_bits(), want.to_bits(), "{n} points: {got} vs {want}");
         }
+    }
+
+    /// The RMS of a selection streamed through the batches against the same selection
+    /// held in one slice, bit for bit: selections that end inside a chunk, on a batch's
+    /// edge and past it, with unusable points (NaN, the origin) mixed in; nothing usable,
+    /// and β outside the model, give `None` both ways.
+    #[test]
+    fn a_streamed_selection_is_the_held_one_to_the_bit() {
+        let beta = crate::test_numbers::test_pipe();
+        let mut r = crate::test_numbers::numbers(23);
+        let batch = RMS_BATCH_CHUNKS * crate::problem::CHUNK;
+        for n in [5usize, batch, batch + 1, 2 * batch + 4099] {
+            let mut pts: Vec<[f64; 3]> =
+                (0..n).map(|_| [2.0 * r().abs() + 0.2, r(), r()]).collect();
+            pts[n / 3] = [f64::NAN, 0.0, 0.0];
+            pts[n / 4] = [0.0; 3];
+            // Every point but those whose y is in the upper third.
+            let keep = |p: &&[f64; 3]| !(p[1] > 0.33);
+            let held: Vec<[f64; 3]> = pts.iter().filter(keep).copied().collect();
+            let want = rms_range_residual(&held, &beta).expect("inside");
+            let got =
+                rms_range_residual_of(pts.iter().filter(keep).copied(), &beta).expect("inside");
+            assert_eq!(got.to_bits(), want.to_bits(), "{n} points: {got} vs {want}");
+        }
+        assert_eq!(rms_range_residual_of([[0.0; 3]].into_iter(), &beta), None);
+        let outside = Params { dy: 10.0, ..beta };
+        let pts = [[1.0, 0.1, 0.1]];
+        assert_eq!(rms_range_residual(&pts, &outside), None);
+        assert_eq!(rms_range_residual_of(pts.into_iter(), &outside), None);
     }
 }

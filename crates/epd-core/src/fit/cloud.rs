@@ -49,7 +49,8 @@ pub fn check_ranges(points: &[[f64; 3]]) -> Result<(), EpdError> {
     })
 }
 
-fn usable(p: &[f64; 3]) -> bool {
+/// Whether a point is finite and not at the sensor origin (what [`clean`] keeps).
+pub fn usable(p: &[f64; 3]) -> bool {
     p.iter().all(|v| v.is_finite()) && p.iter().any(|&v| v != 0.0)
 }
 

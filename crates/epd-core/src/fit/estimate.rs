@@ -7,7 +7,9 @@ use rayon::prelude::*;
 use crate::check::{Diagnostics, FitStatus, Implausible, MIN_UNCERTAINTY_DOF, assess};
 use crate::cloud::{CleanWeighted, check_ranges, clean, clean_weighted};
 use crate::error::EpdError;
-pub use crate::fit::bound::{cramer_rao_bound, cramer_rao_bound_weighted, rms_range_residual};
+pub use crate::fit::bound::{
+    cramer_rao_bound, cramer_rao_bound_weighted, rms_range_residual, rms_range_residual_of,
+};
 pub use crate::fit::covariance::{AXIAL_CELLS, AxisCov, CLOCK_SECTORS};
 pub(crate) use crate::fit::covariance::{SliceShift, uncertainty, wall_cells};
 use crate::fit::form::{
@@ -316,17 +318,20 @@ fn estimate_view(
 /// [lo, hi] (m): the model range of a ray, t·‖p‖ with t the line parameter of eq. (21),
 /// does not depend on the point's own range noise. Empty when β leaves the model.
 pub fn gate_by_model_range(points: &[[f64; 3]], beta: &Params, lo: f64, hi: f64) -> Vec<[f64; 3]> {
-    let Some(geom) = Geometry::new(beta) else {
+    let Some(in_gate) = model_range_gate(beta, lo, hi) else {
         return Vec::new();
     };
-    points
-        .iter()
-        .filter(|p| {
-            let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-            (lo..=hi).contains(&(geom.line_parameter(p) * r))
-        })
-        .copied()
-        .collect()
+    points.iter().filter(|p| in_gate(p)).copied().collect()
+}
+
+/// The test of [`gate_by_model_range`] for one point: whether its ray meets the wall of
+/// β at a range in [lo, hi] (m). `None` when β leaves the model.
+pub fn model_range_gate(beta: &Params, lo: f64, hi: f64) -> Option<impl Fn(&[f64; 3]) -> bool> {
+    let geom = Geometry::new(beta)?;
+    Some(move |p: &[f64; 3]| {
+        let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+        (lo..=hi).contains(&(geom.line_parameter(p) * r))
+    })
 }
 
 /// [`crate::loss::mad_sigma`] (1.4826·median|sᵢrᵢ|) of `kind`'s (scaled) residuals of

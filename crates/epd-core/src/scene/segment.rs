@@ -353,7 +353,7 @@ fn restart_from_near(
 ) -> (Option<Refined>, usize) {
     let mut rounds = 0;
     for near in [1.0, 0.6] {
-        let close: Vec<[f64; 3]> = pts.iter().filter(|p| p[0] <= near).copied().collect();
+        let close = select_where(pts, |p| p[0] <= near);
         if close.len() < 2000 {
             continue;
         }
@@ -484,37 +484,49 @@ pub fn segment(
     })
 }
 
-/// The PCS axial coordinate at which each point's ray meets the wall of `beta`: the
+/// The PCS axial coordinate at which a point's ray meets the wall of `beta`: the
 /// crossing t·x̂ of eq. (21), which depends on the ray only, so that a cut on it does not
 /// select points by their range noise (at a grazing wall the noise moves a point mostly
 /// along the axis). `None` when β leaves the model.
-fn model_axial(points: &[[f64; 3]], beta: &Params) -> Option<Vec<f64>> {
+fn model_axial(beta: &Params) -> Option<impl Fn(&[f64; 3]) -> f64> {
     let geom = Geometry::new(beta)?;
-    let r = beta.rotation();
-    let row = r.matrix().row(0).into_owned();
-    Some(
-        points
-            .iter()
-            .map(|p| {
-                crate::cancel::tick();
-                geom.line_parameter(p) * (row[0] * p[0] + row[1] * p[1] + row[2] * p[2])
-            })
-            .collect(),
-    )
+    let row = beta.rotation().matrix().row(0).into_owned();
+    Some(move |p: &[f64; 3]| {
+        geom.line_parameter(p) * (row[0] * p[0] + row[1] * p[1] + row[2] * p[2])
+    })
 }
 
 /// The points (SCS) whose ray meets the wall of `beta` at a PCS axial coordinate that
 /// satisfies `keep` ([`model_axial`]). Empty when β leaves the model.
 fn axial_select(points: &[[f64; 3]], beta: &Params, keep: impl Fn(f64) -> bool) -> Vec<[f64; 3]> {
-    let Some(x) = model_axial(points, beta) else {
+    let Some(axial) = model_axial(beta) else {
         return Vec::new();
     };
-    points
+    select_where(points, |p| keep(axial(p)))
+}
+
+/// The points for which `keep` holds, in their order, in a vector of exactly their
+/// number: a refit's selection is most of a frame, and a vector grown by doubling would
+/// hold up to twice it while it grows (issue 27: the survey's memory beside its input).
+/// The test runs once per point (one byte each), serially, with a stop check every
+/// [`crate::cancel::TICKS_PER_CHECK`] points.
+fn select_where(points: &[[f64; 3]], keep: impl Fn(&[f64; 3]) -> bool) -> Vec<[f64; 3]> {
+    let mask: Vec<bool> = points
         .iter()
-        .zip(x)
-        .filter(|(_, x)| keep(*x))
-        .map(|(p, _)| *p)
-        .collect()
+        .map(|p| {
+            crate::cancel::tick();
+            keep(p)
+        })
+        .collect();
+    let mut out = Vec::with_capacity(mask.iter().filter(|&&k| k).count());
+    out.extend(
+        points
+            .iter()
+            .zip(&mask)
+            .filter(|(_, k)| **k)
+            .map(|(p, _)| *p),
+    );
+    out
 }
 
 /// Where a branch opening starts, from the first departing slice `i`: that slice's near
@@ -1022,8 +1034,8 @@ pub fn clock_angle_deg(beta: &Params, direction: f64) -> f64 {
 /// straight fit `beta`, m): those whose ray meets the fitted wall before `end − margin`
 /// (the ray's model crossing, not the noisy point). All `false` when β leaves the model.
 pub fn straight_mask(points: &[[f64; 3]], beta: &Params, end: f64, margin: f64) -> Vec<bool> {
-    match model_axial(points, beta) {
-        Some(x) => x.into_iter().map(|x| x < end - margin).collect(),
+    match model_axial(beta) {
+        Some(axial) => points.iter().map(|p| axial(p) < end - margin).collect(),
         None => vec![false; points.len()],
     }
 }

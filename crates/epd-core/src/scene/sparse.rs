@@ -77,7 +77,7 @@ pub const MIN_SECTORS_IN_VIEW: usize = MIN_SECTORS_TESTED;
 /// slice), as `profile` binned them.
 pub(crate) fn test_openings(
     slices: &mut [Slice],
-    cells: &[Vec<f64>],
+    cells: &[Vec<f32>],
     o: &SegmentOptions,
     law: &DesignEffect,
 ) {
@@ -111,7 +111,7 @@ pub(crate) fn test_openings(
                         return (0, 0);
                     }
                     let limit = sector_limit(cells, sectors, i, k, o.min_shift_m);
-                    let e = d.iter().filter(|&&v| v > limit).count();
+                    let e = d.iter().filter(|&&v| f64::from(v) > limit).count();
                     n_all += d.len();
                     e_all += e;
                     // A cell whose median the medians' tests use is theirs.
@@ -233,7 +233,7 @@ pub const WINDOW_SECTORS: [usize; 2] = [1, 2];
 /// frame the MAD is the fit's rounding error, 10⁻¹³ m, and the rounding's tail read
 /// straight frames as tees and bends. A ray through an opening runs on to the branch's
 /// far wall, about a diameter beyond, far above either.
-fn sector_limit(cells: &[Vec<f64>], sectors: usize, i: usize, k: usize, min_excess: f64) -> f64 {
+fn sector_limit(cells: &[Vec<f32>], sectors: usize, i: usize, k: usize, min_excess: f64) -> f64 {
     let n_slices = cells.len() / sectors;
     let (mut lo, mut hi) = (i, i);
     let mut n = cells[i * sectors + k].len();
@@ -248,7 +248,7 @@ fn sector_limit(cells: &[Vec<f64>], sectors: usize, i: usize, k: usize, min_exce
         }
     }
     let mut d: Vec<f64> = (lo..=hi)
-        .flat_map(|j| cells[j * sectors + k].iter().copied())
+        .flat_map(|j| cells[j * sectors + k].iter().map(|&v| f64::from(v)))
         .collect();
     let (centre, sigma) = crate::loss::median_and_mad_sigma(&mut d);
     centre + (EXCEEDANCE_SIGMAS * sigma).max(min_excess)
@@ -302,7 +302,7 @@ mod tests {
         u: &mut impl FnMut() -> f64,
         per_cell: usize,
         open: impl Fn(usize, usize) -> bool,
-    ) -> (Vec<Slice>, Vec<Vec<f64>>) {
+    ) -> (Vec<Slice>, Vec<Vec<f32>>) {
         let (n_slices, ns) = (40, 12);
         let mut cells = vec![Vec::new(); n_slices * ns];
         for i in 0..n_slices {
@@ -310,7 +310,7 @@ mod tests {
                 for _ in 0..per_cell {
                     // Box–Muller.
                     let g = (-2.0 * (1.0 - u()).ln()).sqrt() * (std::f64::consts::TAU * u()).cos();
-                    cells[i * ns + k].push(0.002 * g + if open(i, k) { 0.2 } else { 0.0 });
+                    cells[i * ns + k].push((0.002 * g + if open(i, k) { 0.2 } else { 0.0 }) as f32);
                 }
             }
         }
@@ -503,7 +503,7 @@ mod tests {
             for c in cells.iter_mut() {
                 let g = (-2.0 * (1.0 - u()).ln()).sqrt() * (std::f64::consts::TAU * u()).cos();
                 for _ in 0..8 {
-                    c.push(0.002 * g + 0.0002 * (u() - 0.5));
+                    c.push((0.002 * g + 0.0002 * (u() - 0.5)) as f32);
                 }
             }
             let slices: Vec<Slice> = (0..n_slices)

@@ -7,7 +7,7 @@ use std::borrow::Cow;
 use std::path::Path;
 use std::time::Instant;
 
-use epd_core::{EstimateOptions, Method, estimate, estimate_weighted, rms_range_residual};
+use epd_core::{EstimateOptions, Method, estimate, estimate_weighted};
 
 use crate::config::EstimateConfig;
 use crate::input::{
@@ -482,30 +482,23 @@ fn radial_loss_scale_m(est: &epd_core::Estimate) -> f64 {
 }
 
 /// RMS range residual (mm) of the straight section's points (those `mask` keeps; all of
-/// them when nothing lies ahead) within the range gate, about the estimate.
+/// them when nothing lies ahead) within the range gate, about the estimate; the points
+/// are not copied (`epd_core::rms_range_residual_of`).
 fn straight_rms_mm(
     points: &[[f64; 3]],
     mask: Option<&[bool]>,
     est: &epd_core::Estimate,
     cfg: &EstimateConfig,
 ) -> Option<f64> {
-    let straight: Cow<'_, [[f64; 3]]> = match mask {
-        None => Cow::Borrowed(points),
-        Some(keep) => points
-            .iter()
-            .zip(keep)
-            .filter(|(_, k)| **k)
-            .map(|(p, _)| *p)
-            .collect(),
+    let gate = match cfg.options.range_gate() {
+        None => None,
+        Some((lo, hi)) => Some(epd_core::model_range_gate(&est.params, lo, hi)?),
     };
-    let fitted: Cow<'_, [[f64; 3]]> = match cfg.options.range_gate() {
-        None => straight,
-        Some((lo, hi)) => Cow::Owned(epd_core::gate_by_model_range(
-            &straight,
-            &est.params,
-            lo,
-            hi,
-        )),
-    };
-    rms_range_residual(&fitted, &est.params).map(|v| v * 1e3)
+    let straight = points
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| mask.is_none_or(|m| m.get(*i).copied().unwrap_or(false)))
+        .filter(|(_, p)| gate.as_ref().is_none_or(|g| g(p)))
+        .map(|(_, p)| *p);
+    epd_core::rms_range_residual_of(straight, &est.params).map(|v| v * 1e3)
 }

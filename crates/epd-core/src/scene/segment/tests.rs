@@ -48,15 +48,17 @@ fn clustered_profile(rng: &mut impl FnMut() -> f64, tau: f64, shift: f64) -> Vec
     let o = SegmentOptions::default();
     let mut slices: Vec<Slice> = (0..16)
         .map(|i| {
-            let mut cells: Vec<Vec<f64>> = (0..ns)
+            let cells: Vec<Vec<f32>> = (0..ns)
                 .map(|k| {
                     let psi = (k as f64 + 0.5) / ns as f64 * std::f64::consts::TAU;
                     let lateral = if i == 7 { shift * psi.cos() } else { 0.0 };
                     let shared = tau * normal(rng) + lateral;
-                    (0..n).map(|_| shared + sigma * normal(rng)).collect()
+                    (0..n)
+                        .map(|_| (shared + sigma * normal(rng)) as f32)
+                        .collect()
                 })
                 .collect();
-            slice_stats(&mut cells, 0.05 * i as f64, &o)
+            slice_stats(&cells, 0.05 * i as f64, &o)
         })
         .collect();
     calibrate_tests(&mut slices, ns, &AxisSigma::default(), 0.05);
