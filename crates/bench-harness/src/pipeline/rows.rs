@@ -241,15 +241,14 @@ pub(super) struct Surveyed {
 }
 
 impl Surveyed {
-    /// Correct `frame` with the run's table (the incidence table when there is one, its
-    /// incidences iterated with the fit by `epd estimate`'s own rounds,
-    /// `epd_frame::measure::incidence_rounds`; where they cannot run or refuse the
-    /// frame, the plain table's points serve) and
-    /// read its scene (`epd_frame::scene::FrameScene::survey`, ML-EPD, `opts`) from the
-    /// points corrected by the plain table, as `epd estimate` does with a version-2 table
-    /// (`epd_frame::measure`; the incidence table leaves out a bend's points outside its
-    /// support: docs/calibration.md, the pipeline run), its incidence rounds fitting the
-    /// straight section the survey found.
+    /// Correct `frame` with the run's tables and read its scene (ML-EPD, `opts`) as `epd
+    /// estimate --calibration` does ([`epd_frame::measure::incidence_frame`]): with an
+    /// incidence table, the scene read from the points the plain table corrected (the
+    /// incidence table leaves a bend's points outside its support out: docs/calibration.md,
+    /// the pipeline run), then the incidence rounds on the straight section it found; with
+    /// the plain table alone, the scene read from its points. Where the rounds cannot run
+    /// or refuse the frame (`epd estimate` refuses it), the plain table's points serve:
+    /// the run compares the methods on every frame it can.
     pub(super) fn of(
         s: &PipelineScenario,
         tables: &RunTables,
@@ -257,54 +256,49 @@ impl Surveyed {
         frame: &Frame,
         opts: &EstimateOptions,
     ) -> anyhow::Result<Self> {
-        let table = &tables.plain;
         let intensity: Vec<f64> = frame.intensity.iter().map(|&i| i as f64).collect();
-        let mut plain = frame.measured.clone();
-        let (_, plain_sigma) = table.correct_with_sigmas(&mut plain, &intensity)?;
-        // The incidence table leaves the points outside its support out (NaN): a bend's
-        // or a tee's wall beyond what the straight rig showed. The survey needs them to
-        // see what lies ahead, so it reads the points the plain table corrected (all
-        // of them); the estimates use the incidence table's, its rounds fitting the
-        // straight section the survey found. (A frame whose raw points
-        // cannot be fitted as a straight pipe, in a bend, has no incidences: the plain
-        // table's points then serve for both.)
         let raw_range_m = ranges(&frame.measured);
-        let scene = FrameScene::survey(
-            &plain,
-            Method::MlEpd,
-            opts,
-            Some((table, &raw_range_m, &intensity)),
-        )
-        .with_context(|| {
+        let context = || {
             format!(
                 "the geometry survey of {} frame {} at {:.2} m ({} valid points)",
                 s.place_name(plan.place),
                 plan.index,
                 plan.x,
-                plain.iter().filter(|p| **p != [0.0; 3]).count()
+                frame.measured.iter().filter(|p| **p != [0.0; 3]).count()
             )
-        })?;
-        let incidence = tables.incidence.as_ref().and_then(|it| {
-            let mut raw = frame.measured.clone();
-            if let Some(keep) = &scene.straight {
-                for (p, &k) in raw.iter_mut().zip(keep) {
-                    if !k {
-                        *p = [f64::NAN; 3];
-                    }
-                }
+        };
+        let (scene, rounds) = match &tables.incidence {
+            Some(it) => {
+                let f = epd_frame::measure::incidence_frame(
+                    &tables.calibration(s),
+                    it,
+                    &frame.measured,
+                    &intensity,
+                    &raw_range_m,
+                    Method::MlEpd,
+                    opts,
+                )
+                .map_err(|e| anyhow::anyhow!(e))
+                .with_context(context)?;
+                (f.scene, f.rounds.ok())
             }
-            let cal = tables.calibration(s);
-            let rounds = epd_frame::measure::incidence_rounds(
-                &cal,
-                it,
-                &raw,
-                &intensity,
-                Method::MlEpd,
-                opts,
-            );
-            rounds.ok().map(|r| (r.points, r.correction.sigma_m))
-        });
-        let (corrected, table_sigma) = incidence.unwrap_or((plain, plain_sigma));
+            None => {
+                let mut plain = frame.measured.clone();
+                tables.plain.correct(&mut plain, &intensity)?;
+                let lookups = Some((&tables.plain, &raw_range_m[..], &intensity[..]));
+                let scene = FrameScene::survey(&plain, Method::MlEpd, opts, lookups)
+                    .with_context(context)?;
+                (scene, None)
+            }
+        };
+        let (corrected, table_sigma) = match rounds {
+            Some(r) => (r.points, r.correction.sigma_m),
+            None => {
+                let mut plain = frame.measured.clone();
+                let (_, sigma) = tables.plain.correct_with_sigmas(&mut plain, &intensity)?;
+                (plain, sigma)
+            }
+        };
         let report = &scene.geometry;
         let geometry = Geometry {
             found: report.layout,

@@ -77,7 +77,7 @@ pub(super) struct Calibrated {
     /// The scene ahead, when surveyed (`cfg.geometry`).
     pub(super) scene: Option<FrameScene>,
     /// Whether the scene was surveyed on the points fitted (a version-1 table's), not
-    /// on other points (a version-2 table's: [`survey_for_incidence`]).
+    /// on other points (a version-2 table's: [`incidence_frame`]).
     pub(super) surveyed_here: bool,
     /// What the table leaves to the 1-σ.
     pub(super) shared: Option<SharedErrors>,
@@ -86,8 +86,8 @@ pub(super) struct Calibrated {
 /// The depth table's part of `epd estimate --calibration` on a frame: `points` corrected
 /// in place, with `raw_range_m` their measured ranges before the correction (for the
 /// scene's lookups) and `sigma_given` whether the caller gave per-point σ. A version-2
-/// table: the scene surveyed on the plain table's points ([`survey_for_incidence`]), then
-/// its straight section corrected by the incidence rounds ([`correct_by_incidence`]). A
+/// table: the scene surveyed on the plain table's points, then its straight section
+/// corrected by the incidence rounds ([`incidence_frame`]). A
 /// version-1 table: every point corrected, then the scene surveyed on them. `n_read`
 /// completes the messages.
 pub(super) fn calibrate(
@@ -107,18 +107,17 @@ pub(super) fn calibrate(
                     .into(),
             );
         }
-        let scene = if cfg.geometry {
+        let (scene, rounds) = if cfg.geometry {
             let raw_r = raw_range_m.unwrap_or(&[]);
-            Some(
-                survey_for_incidence(cal, points, i, raw_r, cfg).map_err(|e| {
-                    format!("{e} (the survey on the plain table's points; {n_read} points read)")
-                })?,
-            )
+            let f = incidence_frame(cal, inc, points, i, raw_r, cfg.method, &cfg.options).map_err(
+                |e| format!("{e} (the survey on the plain table's points; {n_read} points read)"),
+            )?;
+            (Some(f.scene), f.rounds)
         } else {
-            None
+            let rounds = incidence_rounds(cal, inc, points, i, cfg.method, &cfg.options);
+            (None, rounds)
         };
-        let straight = scene.as_ref().and_then(|s| s.straight.as_deref());
-        let (moved, s) = correct_by_incidence(cal, inc, points, i, straight, cfg)?;
+        let (moved, s) = shared_errors(inc, rounds?, points);
         return Ok(Calibrated {
             n_calibrated: moved,
             outside: Some(s.outside_fraction),
@@ -178,57 +177,77 @@ pub(super) fn calibrate(
     })
 }
 
-/// The scene of a frame to be corrected by a version-2 (incidence) table, surveyed on
-/// its points corrected by the table's plain range × intensity part. The incidence
-/// table leaves out (NaN) the points outside its support — a bend's or a tee's wall,
-/// whose incidences and ranges straight rigs never showed — so a survey of its points
-/// would not see what lies ahead (issue 24: a bend read `straight` with the version-2
-/// table of the pipeline run); the plain table corrects every point its range and
-/// intensity axes hold. The straight section it finds is then fitted on the incidence
-/// table's points ([`correct_by_incidence`]).
-pub(super) fn survey_for_incidence(
-    cal: &crate::table::CalibrationTable,
+/// A frame to be corrected by a version-2 (incidence) table, as `epd estimate
+/// --calibration` makes it ([`calibrate`]; the bench harness's pipeline run makes the
+/// same): the scene surveyed on the points corrected by the table's plain range ×
+/// intensity part, then the incidence rounds ([`incidence_rounds`]) on the raw points of
+/// the straight section it found (the others left out, NaN).
+///
+/// The incidence table leaves out (NaN) the points outside its support — a bend's or a
+/// tee's wall, whose incidences and ranges straight rigs never showed — so a survey of
+/// its points would not see what lies ahead (issue 24: a bend read `straight` with the
+/// version-2 table of the pipeline run); the plain table corrects every point its range
+/// and intensity axes hold. And a bend's or a tee's wall is no straight cylinder: the
+/// incidences of a fit that included it would be wrong. `raw_range_m` (each point's
+/// measured range, m) lets the scene check a bend against the table; empty for none.
+/// An error when the plain correction or the survey fails; the rounds' own failure (they
+/// cannot fit the straight section, or it lies mostly outside the support) is
+/// [`IncidenceFrame::rounds`].
+pub fn incidence_frame(
+    cal: &CalibrationTable,
+    table: &epd_core::calibration::IncidenceTable,
     raw: &[[f64; 3]],
     intensity: &[f64],
     raw_range_m: &[f64],
-    cfg: &EstimateConfig,
-) -> Result<FrameScene, String> {
+    method: epd_core::Method,
+    options: &epd_core::EstimateOptions,
+) -> Result<IncidenceFrame, String> {
     let mut plain = raw.to_vec();
     cal.correct_points(false, &mut plain, Some(intensity), false)?;
-    let table = (raw_range_m.len() == raw.len()).then_some((&cal.table, raw_range_m, intensity));
-    FrameScene::survey(&plain, cfg.method, &cfg.options, table).map_err(|e| e.to_string())
-}
-
-/// The incidence table's correction of a frame's `points` in place: the frame fitted
-/// on its raw points, then up to [`INCIDENCE_ROUNDS`] rounds of cos θ of each ray at
-/// the fitted wall → the raw points corrected by the table → refit, until the mean
-/// diameter moves by less than [`INCIDENCE_TOLERANCE_M`]. Points outside the table's
-/// support are left out (NaN) and counted. With `straight` (the scene's straight
-/// section, [`survey_for_incidence`]) only its points are fitted and corrected, the
-/// others left out (NaN, not counted): a bend's or a tee's wall is no straight
-/// cylinder, and the incidences of a fit that included it would be wrong. The points
-/// moved and what the 1-σ needs.
-pub(super) fn correct_by_incidence(
-    cal: &crate::table::CalibrationTable,
-    table: &epd_core::calibration::IncidenceTable,
-    points: &mut Vec<[f64; 3]>,
-    intensity: &[f64],
-    straight: Option<&[bool]>,
-    cfg: &EstimateConfig,
-) -> Result<(usize, SharedErrors), String> {
-    let mut raw = points.clone();
-    if let Some(keep) = straight {
-        for (p, &k) in raw.iter_mut().zip(keep) {
+    let lookups = (raw_range_m.len() == raw.len()).then_some((&cal.table, raw_range_m, intensity));
+    let scene = FrameScene::survey(&plain, method, options, lookups).map_err(|e| e.to_string())?;
+    let mut straight = raw.to_vec();
+    if let Some(keep) = &scene.straight {
+        for (p, &k) in straight.iter_mut().zip(keep) {
             if !k {
                 *p = [f64::NAN; 3];
             }
         }
     }
+    let rounds = incidence_rounds(cal, table, &straight, intensity, method, options);
+    Ok(IncidenceFrame {
+        scene,
+        plain,
+        rounds,
+    })
+}
+
+/// What [`incidence_frame`] made of a frame.
+#[derive(Clone, Debug)]
+pub struct IncidenceFrame {
+    /// The scene, surveyed on `plain`.
+    pub scene: FrameScene,
+    /// The points corrected by the table's plain range × intensity part (SCS, m; every
+    /// point its axes hold).
+    pub plain: Vec<[f64; 3]>,
+    /// The incidence rounds on the scene's straight section, or why they could not run
+    /// or refused the frame.
+    pub rounds: Result<IncidenceRounds, String>,
+}
+
+/// The incidence rounds' result as a measurement takes it: `points` replaced by the
+/// corrected ones, and the points moved with what the 1-σ needs (each corrected point's
+/// bin, whose standard error every point of the bin shares).
+fn shared_errors(
+    table: &epd_core::calibration::IncidenceTable,
+    rounds: IncidenceRounds,
+    points: &mut Vec<[f64; 3]>,
+) -> (usize, SharedErrors) {
     let IncidenceRounds {
         points: corrected,
         correction: corr,
         raw_diameters,
-    } = incidence_rounds(cal, table, &raw, intensity, cfg.method, &cfg.options)?;
+    } = rounds;
     let shift = Shares::Home(
         corr.bin
             .iter()
@@ -237,7 +256,7 @@ pub(super) fn correct_by_incidence(
     );
     let total = corr.moved + corr.outside;
     *points = corrected;
-    Ok((
+    (
         corr.moved,
         SharedErrors {
             shift,
@@ -250,11 +269,11 @@ pub(super) fn correct_by_incidence(
             sigma_m: corr.sigma_m,
             raw_diameters: Some(raw_diameters),
         },
-    ))
+    )
 }
 
 /// The incidence table's rounds on `raw` (SCS, m; points to leave out NaN), as `epd
-/// estimate` makes them ([`correct_by_incidence`]; the bench harness's pipeline run makes
+/// estimate` makes them ([`incidence_frame`]; the bench harness's pipeline run makes
 /// the same): the frame fitted on its raw points by `method` with `options`, then up to
 /// [`INCIDENCE_ROUNDS`] rounds of cos θ of each ray at the fitted wall → the raw points
 /// corrected by `table` → refit, until the mean diameter moves by less than

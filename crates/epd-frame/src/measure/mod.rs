@@ -21,8 +21,8 @@ use crate::scene::FrameScene;
 mod calibrated;
 
 pub use calibrated::{
-    INCIDENCE_ROUNDS, INCIDENCE_TOLERANCE_M, IncidenceRounds, MOSTLY_OUTSIDE, REFUSE_OUTSIDE,
-    RIG_SIZE_MARGIN, incidence_rounds,
+    INCIDENCE_ROUNDS, INCIDENCE_TOLERANCE_M, IncidenceFrame, IncidenceRounds, MOSTLY_OUTSIDE,
+    REFUSE_OUTSIDE, RIG_SIZE_MARGIN, incidence_frame, incidence_rounds,
 };
 use calibrated::{add_table_uncertainty, add_transfer_uncertainty, calibrate};
 
