@@ -1,6 +1,7 @@
-//! One flow for every experiment. A scenario file is one of three kinds ([`Kind`]): a
-//! sweep ([`crate::sweep`]), a pipeline run ([`crate::pipeline`], a `[pipeline]` table) or
-//! an approach run ([`crate::approach`], an `[approach]` table). Each implements
+//! One flow for every experiment. A scenario file is one of four kinds ([`Kind`]): a
+//! sweep ([`crate::sweep`]), a pipeline run ([`crate::pipeline`], a `[pipeline]` table),
+//! an approach run ([`crate::approach`], an `[approach]` table) or a calibration-transfer
+//! run ([`crate::calibration_transfer`], a `[calibration_transfer]` table). Each implements
 //! [`Experiment`], so `bench-harness` reads, checks and runs any of them the same way:
 //!
 //! 1. [`Experiment::parse`] the scenario's text (a [`ScenarioError`] names the key);
@@ -77,11 +78,14 @@ pub enum Kind {
     Pipeline,
     /// An `[approach]` table ([`crate::approach::ApproachScenario`]).
     Approach,
+    /// A `[calibration_transfer]` table
+    /// ([`crate::calibration_transfer::TransferScenario`]).
+    CalibrationTransfer,
 }
 
 impl Kind {
-    /// The kind of the scenario text `source`: `[pipeline]` first, then `[approach]`, else
-    /// a sweep (whose parser then reports what is wrong with a text that is no TOML).
+    /// The kind of the scenario text `source`: `[pipeline]` first, then `[approach]`, then
+    /// `[calibration_transfer]`, else a sweep (whose parser then reports what is wrong with a text that is no TOML).
     pub fn of(source: &str) -> Self {
         let tables = toml::from_str::<toml::Table>(source).ok();
         let has = |key: &str| tables.as_ref().is_some_and(|t| t.contains_key(key));
@@ -89,6 +93,8 @@ impl Kind {
             Kind::Pipeline
         } else if has("approach") {
             Kind::Approach
+        } else if has("calibration_transfer") {
+            Kind::CalibrationTransfer
         } else {
             Kind::Sweep
         }
@@ -105,6 +111,10 @@ mod tests {
         assert_eq!(Kind::of("name = \"a\"\n[pipeline]\n"), Kind::Pipeline);
         assert_eq!(Kind::of("name = \"a\"\n[approach]\n"), Kind::Approach);
         assert_eq!(Kind::of("[approach]\n[pipeline]\n"), Kind::Pipeline);
+        assert_eq!(
+            Kind::of("name = \"a\"\n[calibration_transfer]\n"),
+            Kind::CalibrationTransfer
+        );
         assert_eq!(Kind::of("not toml ["), Kind::Sweep);
     }
 }

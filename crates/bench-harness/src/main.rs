@@ -15,6 +15,7 @@ use std::process::ExitCode;
 use std::sync::atomic::Ordering;
 
 use bench_harness::approach::ApproachScenario;
+use bench_harness::calibration_transfer::TransferScenario;
 use bench_harness::experiment::{Experiment, Kind, Refused, Request};
 use bench_harness::output::{INTERRUPTED, Interrupted, OutputRefused};
 use bench_harness::pipeline::PipelineScenario;
@@ -283,5 +284,6 @@ fn main() -> ExitCode {
         Kind::Sweep => run_scenario::<Scenario>(&cli, &path, &text),
         Kind::Pipeline => run_scenario::<PipelineScenario>(&cli, &path, &text),
         Kind::Approach => run_scenario::<ApproachScenario>(&cli, &path, &text),
+        Kind::CalibrationTransfer => run_scenario::<TransferScenario>(&cli, &path, &text),
     }
 }

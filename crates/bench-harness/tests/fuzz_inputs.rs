@@ -19,6 +19,7 @@ use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use bench_harness::approach::ApproachScenario;
+use bench_harness::calibration_transfer::TransferScenario;
 use bench_harness::experiment::Kind;
 use bench_harness::pipeline::PipelineScenario;
 use bench_harness::sweep::merge::{MergeError, MergeOptions, merge};
@@ -179,6 +180,9 @@ fn run_scenarios(n: u32) {
                         .err()
                         .map(|e| e.to_string()),
                     Kind::Approach => ApproachScenario::parse(path, &text)
+                        .err()
+                        .map(|e| e.to_string()),
+                    Kind::CalibrationTransfer => TransferScenario::parse(path, &text)
                         .err()
                         .map(|e| e.to_string()),
                 };

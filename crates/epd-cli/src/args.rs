@@ -303,7 +303,8 @@ pub struct CalibrateArgs {
     pub min_count: usize,
     /// Passes of the alternating refinement of the poses and the table (1: the poses
     /// fitted once on the raw points).
-    #[arg(long, value_name = "N", default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=20))]
+    #[arg(long, value_name = "N", default_value_t = epd_frame::rig::DEFAULT_PASSES,
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(epd_frame::rig::MAX_PASSES)))]
     pub passes: u32,
     #[command(flatten)]
     pub input: InputArgs,

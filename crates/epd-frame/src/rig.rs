@@ -17,6 +17,17 @@ pub const MAX_TABLE_BINS: usize = epd_core::calibration::MAX_TABLE_BINS;
 /// relative standard error is 1/√(2(n − 1)) ≈ 35 %, the loosest a weight may be.
 pub const MIN_BIN_COUNT: usize = 5;
 
+/// Passes of the alternating refinement of the rig's poses and the table by default
+/// (`epd calibrate --passes`): the first fits the poses on the raw points, the next two
+/// refit them on the corrected points, after which the table moves by less than its
+/// bins' standard errors (docs/calibration.md: 8 and 10 passes change the two-size
+/// table's errors by less than their spread).
+pub const DEFAULT_PASSES: u32 = 3;
+
+/// Most passes: each refits every rig frame, and the refinement has settled long before
+/// 20 (docs/calibration.md measured up to 10), so more is a typing error.
+pub const MAX_PASSES: u32 = 20;
+
 /// The settings of `epd calibrate` as given (flags), before [`RigSettings::check`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RigSettings {

@@ -1,23 +1,82 @@
 //! The paper's §4.2 experiment with rigs of one and two sizes (issue 24): depth tables
 //! from a 20" rig and from 20" + 30" rigs (`epd calibrate`'s defaults: 30 × 12 × 16
-//! bins over range × intensity × incidence, three passes), applied to frames of 16" to
+//! bins over range × intensity × incidence, `passes` passes), applied to frames of 16" to
 //! 30" pipes under tof-sim's Helios2 model; per size and table the calibrated
 //! mean-diameter error, the reported 1-σ, whether it covers, and the share of points
-//! outside the table's support. `cargo run --release -p bench-harness --example
-//! calibration_transfer -- OUT_DIR [FRAMES_PER_SIZE] [PASSES]` writes `frames.csv`,
-//! `summary.csv` and `calibration_transfer.png` to OUT_DIR.
+//! outside the table's support. A scenario with a `[calibration_transfer]` table
+//! ([`TransferScenario`]; `scenarios/calibration_transfer.toml`) run by `bench-harness`
+//! writes `frames.csv`, `summary.csv`, `calibration_transfer.png`, `scenario.toml` and
+//! `metadata.json`.
 
 use std::borrow::Cow;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
+use std::time::Instant;
 
-use anyhow::Context;
 use epd_core::calibration::{CalibrationFrame, RigFrames};
 use epd_frame::rig::{RigSettings, calibrate_rig_sizes};
 use epd_frame::{EstimateConfig, EstimateSettings, FrameInput, measure_frame};
 use epd_io::csv::num;
 use tof_sim::settings::{PoseOverride, SimulateSettings, Simulator};
 
+use crate::experiment::{Experiment, Finished, Refused, Request};
+use crate::output::{INTERRUPTED, Interrupted, StagedFiles, write_new, write_run};
 use crate::plots::{Figure, Panel, Series, render};
+use crate::provenance::Metadata;
+use crate::scenario::ScenarioError;
+
+mod scenario;
+
+pub use scenario::{MAX_FRAMES_PER_SIZE, TransferScenario};
+
+impl Experiment for TransferScenario {
+    fn parse(path: &Path, source: &str) -> Result<Self, ScenarioError> {
+        TransferScenario::parse(path, source)
+    }
+
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Neither `--trials` (the frames are `calibration_transfer.frames_per_size`) nor
+    /// `--shard`.
+    fn check(&self, request: &Request) -> Result<(), Refused> {
+        if request.trials.is_some() || request.shard.is_some() {
+            return Err(Refused(
+                "--trials and --shard do not apply to a calibration-transfer run (set \
+                 calibration_transfer.frames_per_size)"
+                    .into(),
+            ));
+        }
+        Ok(())
+    }
+
+    fn run(&self, out: &Path, request: &Request) -> anyhow::Result<Finished> {
+        let report = write_run(out, |dir| stage(self, dir, request.progress))?;
+        Ok(Finished {
+            what: format!(
+                "{}: 2 tables × {} sizes × {} frames",
+                self.name,
+                SIZES_IN.len(),
+                self.frames_per_size
+            ),
+            wall_time_s: report.wall_time_s,
+            errors: None,
+        })
+    }
+}
+
+/// What a run wrote.
+struct Report {
+    files: Vec<PathBuf>,
+    wall_time_s: f64,
+}
+
+impl StagedFiles for Report {
+    fn files_mut(&mut self) -> &mut Vec<PathBuf> {
+        &mut self.files
+    }
+}
 
 /// The pipe sizes measured (nominal OD, inch).
 pub const SIZES_IN: [f64; 8] = [16.0, 18.0, 20.0, 22.0, 24.0, 26.0, 28.0, 30.0];
@@ -92,13 +151,14 @@ where
     text.push('\n');
 }
 
-/// Run the experiment into `out` with `per_size` test frames per pipe size and `passes`
-/// passes of the rigs' pose/table refinement.
-pub fn run(out: &Path, per_size: u64, passes: u32) -> anyhow::Result<()> {
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+/// The run into the staging folder `dir`: the rigs' tables, then every test frame of
+/// every size measured with each; a signal stops it before the next size.
+fn stage(s: &TransferScenario, dir: &Path, progress: bool) -> anyhow::Result<Report> {
+    let start = Instant::now();
+    let (per_size, passes, seed) = (s.frames_per_size, s.passes, s.seed);
     let id = inner_diameter_m;
-    let rig20 = frames(20.0, 0.0, 7, RIG_FRAMES)?;
-    let rig30 = frames(30.0, 0.0, 17, RIG_FRAMES)?;
+    let rig20 = frames(20.0, 0.0, seed + 7, RIG_FRAMES)?;
+    let rig30 = frames(30.0, 0.0, seed + 17, RIG_FRAMES)?;
     let (c20, c30) = (as_cal(&rig20), as_cal(&rig30));
     let settings = RigSettings {
         known_id_mm: id(20.0) * 1e3,
@@ -143,8 +203,14 @@ pub fn run(out: &Path, per_size: u64, passes: u32) -> anyhow::Result<()> {
         })?;
         cfg.calibration = Some(table.clone());
         let mut points = Vec::new();
-        for (s, &od) in SIZES_IN.iter().enumerate() {
-            let test = frames(od, 0.02, 100 + s as u64, per_size)?;
+        for (si, &od) in SIZES_IN.iter().enumerate() {
+            if INTERRUPTED.load(Ordering::SeqCst) {
+                return Err(Interrupted.into());
+            }
+            if progress {
+                epd_io::stderr_line!("{}: {name}, {od}\" pipe, {per_size} frames", s.name);
+            }
+            let test = frames(od, 0.02, seed + 100 + si as u64, per_size)?;
             let (mut errs, mut sig, mut covered, mut outside) = (vec![], vec![], 0, 0.0);
             for (j, (p, i, truth)) in test.iter().enumerate() {
                 let r = measure_frame(
@@ -242,8 +308,11 @@ pub fn run(out: &Path, per_size: u64, passes: u32) -> anyhow::Result<()> {
             markers_only: false,
         });
     }
-    std::fs::write(out.join("frames.csv"), rows)?;
-    std::fs::write(out.join("summary.csv"), summary)?;
+    let mut files = vec![
+        write_new(&dir.join("frames.csv"), rows.as_bytes())?,
+        write_new(&dir.join("summary.csv"), summary.as_bytes())?,
+        write_new(&dir.join("scenario.toml"), s.source.as_bytes())?,
+    ];
     let png = render(
         Figure::linear(
             "calibration_transfer.png",
@@ -258,6 +327,14 @@ pub fn run(out: &Path, per_size: u64, passes: u32) -> anyhow::Result<()> {
             series: &series,
         }],
     )?;
-    std::fs::write(out.join(&png.name), png.bytes)?;
-    Ok(())
+    files.push(write_new(&dir.join(&png.name), &png.bytes)?);
+    let wall_time_s = start.elapsed().as_secs_f64();
+    files.push(
+        Metadata::new(&s.name, s.seed, wall_time_s)
+            .with("kind", "calibration_transfer")
+            .with("frames_per_size", per_size)
+            .with("passes", passes)
+            .write(dir)?,
+    );
+    Ok(Report { files, wall_time_s })
 }
