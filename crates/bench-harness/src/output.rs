@@ -129,7 +129,8 @@ impl CsvFile {
 #[error("{0}")]
 pub struct OutputRefused(String);
 
-/// The files a sweep run writes; with [`PIPELINE_FILES`] and [`SHARD_FILES`], the only names an output folder
+/// The files a sweep run writes; with [`PIPELINE_FILES`], [`APPROACH_FILES`],
+/// [`TRANSFER_FILES`] and [`SHARD_FILES`], the only names an output folder
 /// holding a previous run may contain (with the temporary files of earlier versions,
 /// `.trials.csv.tmp<PID>`).
 pub const RUN_FILES: &[&str] = &[
@@ -171,6 +172,15 @@ pub const APPROACH_FILES: &[&str] = &[
     "approach.png",
 ];
 
+/// The files of a calibration-transfer run (a scenario with `[calibration_transfer]`).
+pub const TRANSFER_FILES: &[&str] = &[
+    "scenario.toml",
+    "metadata.json",
+    "frames.csv",
+    "summary.csv",
+    "calibration_transfer.png",
+];
+
 /// A shard's manifest file (`--shard K/N`).
 pub const MANIFEST_FILE: &str = "shard.json";
 /// A shard's exact per-trial values: one JSON object per trial and line.
@@ -186,6 +196,7 @@ fn is_run_file(name: &str) -> bool {
         || SAMPLING_FILES.contains(&name)
         || PIPELINE_FILES.contains(&name)
         || APPROACH_FILES.contains(&name)
+        || TRANSFER_FILES.contains(&name)
         || SHARD_FILES.contains(&name)
         || name.strip_prefix('.').is_some_and(|rest| {
             RUN_FILES.iter().any(|f| {
