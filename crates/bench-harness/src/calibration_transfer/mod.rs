@@ -338,3 +338,32 @@ fn stage(s: &TransferScenario, dir: &Path, progress: bool) -> anyhow::Result<Rep
     );
     Ok(Report { files, wall_time_s })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `--trials` and `--shard` are refused before anything runs; the plain request is
+    /// not.
+    #[test]
+    fn the_request_is_checked() {
+        let s = TransferScenario::parse(
+            Path::new("t.toml"),
+            "name = \"t\"\n[calibration_transfer]\nframes_per_size = 1\n",
+        )
+        .unwrap();
+        assert!(s.check(&Request::default()).is_ok());
+        let trials = Request {
+            trials: Some(3),
+            ..Request::default()
+        };
+        let shard = Request {
+            shard: Some("1/2".parse().unwrap()),
+            ..Request::default()
+        };
+        for r in [trials, shard] {
+            let e = s.check(&r).expect_err("refused").to_string();
+            assert!(e.contains("frames_per_size"), "{e}");
+        }
+    }
+}
