@@ -1,6 +1,9 @@
-//! `epd_core::segment::survey` on frames of pipelines with an elbow or a tee ahead
-//! (issue 12): the straight section's end, the bend's torus and the straight estimate,
-//! against the pipeline's ground truth.
+//! `epd_core::segment::survey`, which `epd_frame::scene::FrameScene::survey` calls for
+//! every front end, on frames of pipelines with an elbow or a tee ahead (issue 12): the
+//! straight section's end, the bend's torus and the straight estimate, against the
+//! pipeline's ground truth. Here, beside the frame library, because the frames come from
+//! tof-sim, which depends on epd-core (epd-core's own tests cannot use it without a
+//! cycle).
 
 use std::f64::consts::FRAC_PI_2;
 
@@ -216,7 +219,7 @@ fn least_of(n: u64, alpha: f64) -> (u64, f64) {
 /// of one half at α = 5 % ([`least_of`]): at 2 m all of 5 frames (a rate of ½ passes
 /// with 0.5⁵ = 3.1 %), at 3 m, where the departure is near the detection limit, at
 /// least 12 of 16 (P(Bin(16, ½) ≥ 12) = 3.8 %). Measured over more of these poses
-/// (`EPD_TEST_FRAMES=40,60 cargo test -p tof-sim --test segmentation -- far_elbow
+/// (`EPD_TEST_FRAMES=40,60 cargo test -p epd-frame --test segmentation -- far_elbow
 /// --nocapture`): found in 40 of 40 frames at 2 m, 52 of 60 at 3 m (frames 2, 21, 24,
 /// 27, 34, 40, 41 and 58 read `straight`). At that rate, 0.867, a fresh set of 16
 /// frames would fail the 3 m count with P(Bin(16, 0.867) ≤ 11) = 5.2 %; these 16
