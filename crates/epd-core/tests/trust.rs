@@ -122,7 +122,12 @@ fn sandwich_sigmas_cover_the_errors_under_a_robust_loss() {
 /// reason is not given, and over 200 random 12-point subsets (ν = 5) of noisy frames the
 /// converged answers lie within 5 reported σ at the rate Student's t with 5 degrees of
 /// freedom allows: P(|t₅| > 5·1.96/t₀.₉₇₅(5)) = P(|t₅| > 3.81) = 1.2 %, so more than 10 of
-/// 200 (expected 2.5, standard deviation 1.6) would say the 1-σ does not hold.
+/// 200 (expected 2.5, standard deviation 1.6) would say the 1-σ does not hold. And the
+/// test must not pass by refusing: at least 90 % are answered (180 of 200). Measured 198
+/// of 200 (`cargo test --release -p epd-core --test trust small_clouds -- --nocapture`);
+/// at that rate the share answered has a standard error of √(0.99·0.01/200) = 0.7 %, so
+/// the floor lies 13 standard errors below it, and a check that refused one small cloud
+/// in ten would fail it.
 #[test]
 fn small_clouds_get_a_one_sigma_that_holds_or_are_refused() {
     use epd_core::FitStatus;
@@ -169,7 +174,8 @@ fn small_clouds_get_a_one_sigma_that_holds_or_are_refused() {
             off += 1;
         }
     }
-    assert!(converged >= 150, "only {converged} of 200 converged");
+    eprintln!("{converged} of 200 converged, {off} more than 5σ̂ off");
+    assert!(converged >= 180, "only {converged} of 200 converged");
     assert!(off <= 10, "{off} of {converged} more than 5σ̂ off");
 }
 

@@ -11,7 +11,6 @@ use epd_core::{
 };
 use epd_frame::config::DEFAULT_LOSS_SCALE_M;
 use epd_frame::input::ranges;
-use epd_frame::scene::FrameScene;
 use rayon::prelude::*;
 use tof_sim::{Frame, PartKind, Pipe, Segment};
 
@@ -242,11 +241,12 @@ pub(super) struct Surveyed {
 
 impl Surveyed {
     /// Correct `frame` with the run's tables and read its scene (ML-EPD, `opts`) as `epd
-    /// estimate --calibration` does ([`epd_frame::measure::incidence_frame`]): with an
-    /// incidence table, the scene read from the points the plain table corrected (the
-    /// incidence table leaves a bend's points outside its support out: docs/calibration.md,
-    /// the pipeline run), then the incidence rounds on the straight section it found; with
-    /// the plain table alone, the scene read from its points. Where the rounds cannot run
+    /// estimate --calibration` does: with an incidence table
+    /// ([`epd_frame::measure::incidence_frame`]), the scene read from the points the plain
+    /// table corrected (the incidence table leaves a bend's points outside its support
+    /// out: docs/calibration.md, the pipeline run), then the incidence rounds on the
+    /// straight section it found; with the plain table alone
+    /// ([`epd_frame::measure::plain_frame`]), the scene read from its points. Where the rounds cannot run
     /// or refuse the frame (`epd estimate` refuses it), the plain table's points serve:
     /// the run compares the methods on every frame it can.
     pub(super) fn of(
@@ -267,10 +267,11 @@ impl Surveyed {
                 frame.measured.iter().filter(|p| **p != [0.0; 3]).count()
             )
         };
-        let (scene, rounds) = match &tables.incidence {
+        let cal = tables.calibration(s);
+        let (scene, corrected, table_sigma) = match &tables.incidence {
             Some(it) => {
                 let f = epd_frame::measure::incidence_frame(
-                    &tables.calibration(s),
+                    &cal,
                     it,
                     &frame.measured,
                     &intensity,
@@ -280,23 +281,31 @@ impl Surveyed {
                 )
                 .map_err(|e| anyhow::anyhow!(e))
                 .with_context(context)?;
-                (f.scene, f.rounds.ok())
+                let (points, sigma) = match f.rounds {
+                    Ok(r) => (r.points, r.correction.sigma_m),
+                    // Refused by `epd estimate`; the run takes the plain table's points.
+                    Err(_) => {
+                        let mut p = frame.measured.clone();
+                        let (_, sigma) = tables.plain.correct_with_sigmas(&mut p, &intensity)?;
+                        (p, sigma)
+                    }
+                };
+                (f.scene, points, sigma)
             }
             None => {
-                let mut plain = frame.measured.clone();
-                tables.plain.correct(&mut plain, &intensity)?;
-                let lookups = Some((&tables.plain, &raw_range_m[..], &intensity[..]));
-                let scene = FrameScene::survey(&plain, Method::MlEpd, opts, lookups)
-                    .with_context(context)?;
-                (scene, None)
-            }
-        };
-        let (corrected, table_sigma) = match rounds {
-            Some(r) => (r.points, r.correction.sigma_m),
-            None => {
-                let mut plain = frame.measured.clone();
-                let (_, sigma) = tables.plain.correct_with_sigmas(&mut plain, &intensity)?;
-                (plain, sigma)
+                let mut points = frame.measured.clone();
+                let f = epd_frame::measure::plain_frame(
+                    &cal,
+                    &mut points,
+                    &intensity,
+                    &raw_range_m,
+                    true,
+                    Method::MlEpd,
+                    opts,
+                )
+                .map_err(|e| anyhow::anyhow!(e))
+                .with_context(context)?;
+                (f.scene, points, f.sigma_m.unwrap_or_default())
             }
         };
         let report = &scene.geometry;

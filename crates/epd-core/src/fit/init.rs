@@ -90,6 +90,35 @@ const PULL_INSIDE: f64 = 0.9;
 /// radius) and still be pulled inside; beyond, the points are not a pipe around it.
 const MAX_OUTSIDE: f64 = 1.5;
 
+/// A direction bin's median range stands for the bin only with at least this many
+/// points: three is the fewest whose median outvotes one stray return (one outlier of
+/// two would be a coin toss); bins with fewer are left out.
+const MIN_BIN_POINTS: usize = 3;
+
+/// The fewest representatives that replace the points: 64, seven times the quadric's
+/// nine coefficients, so that the trimmed fit (which may drop a few per step) stays
+/// over-determined; fewer filled bins mean the directions do not spread over the grid
+/// (a narrow view), and every point is used instead.
+const MIN_REPRESENTATIVES: usize = 64;
+
+/// The farthest 1/[`FAR_SHARE_DIVISOR`] of the points (their count rounded up) give a
+/// candidate axis of [`multi_start`], their mean direction: a quarter. Seen from inside a
+/// pipe the far points crowd toward the vanishing point of the axis, and a quarter of a
+/// frame (thousands of points) averages the wall's sides out while staying far along it.
+const FAR_SHARE_DIVISOR: usize = 4;
+
+/// Iterations of each candidate's short solver run in [`multi_start`]: 30, against the
+/// default 100 of a fit. The runs only rank the candidates by their median residual; the
+/// full fit then refines the best from where its run stopped.
+const CANDIDATE_ITERATIONS: usize = 30;
+
+/// The quadric fit's normal matrix is near-singular — the points lie on many quadrics
+/// (a plane, a line) — when its eigenvalues span more than 10¹³: its entries are
+/// products of up to four coordinates scaled to O(1), summed in f64 (ε = 2.2·10⁻¹⁶), so
+/// a ratio of 10⁻¹³ is a few hundred roundings, where the least eigenvalue no longer
+/// measures anything.
+const QUADRIC_CONDITION: f64 = 1e-13;
+
 /// The fewest usable points an estimate takes: the initial guess fits a quadric of nine
 /// coefficients to the points (step 1 of the module doc), which needs at least nine;
 /// the fit itself needs seven, one per parameter.
@@ -145,15 +174,13 @@ fn multi_start(pts: &[Vector3<f64>], a: &Matrix3<f64>) -> Result<Params, EpdErro
         .collect();
     let mut by_range: Vec<&Vector3<f64>> = pts.iter().collect();
     by_range.sort_by(|p, q| p.norm_squared().total_cmp(&q.norm_squared()));
-    let far: Vector3<f64> = by_range[by_range.len() * 3 / 4..]
-        .iter()
-        .map(|p| p.normalize())
-        .sum();
+    let first_far = by_range.len() - by_range.len().div_ceil(FAR_SHARE_DIVISOR);
+    let far: Vector3<f64> = by_range[first_far..].iter().map(|p| p.normalize()).sum();
     axes.push(far);
     axes.push(Vector3::x());
     let raw: Vec<[f64; 3]> = pts.iter().map(|p| [p.x, p.y, p.z]).collect();
     let lm = LmOptions::default()
-        .with_max_iterations(30)
+        .with_max_iterations(CANDIDATE_ITERATIONS)
         .unwrap_or_default();
     let mut best: Option<(f64, Params)> = None;
     let mut last_err = None;
@@ -246,14 +273,14 @@ fn bin_medians(points: &[[f64; 3]]) -> Vec<[f64; 3]> {
     }
     let reps: Vec<[f64; 3]> = bins
         .iter_mut()
-        .filter(|b| b.len() >= 3)
+        .filter(|b| b.len() >= MIN_BIN_POINTS)
         .map(|b| {
             let mid = b.len() / 2;
             let (_, med, _) = b.select_nth_unstable_by(mid, |x, y| x.0.total_cmp(&y.0));
             points[med.1]
         })
         .collect();
-    if reps.len() < 64 {
+    if reps.len() < MIN_REPRESENTATIVES {
         return points.to_vec();
     }
     reps
@@ -332,7 +359,7 @@ fn fit_quadric(
     // Reject near-singular fits, where the points lie on many quadrics (a plane, a line).
     let eig_m = m.symmetric_eigen();
     let (mmin, mmax) = (eig_m.eigenvalues.min(), eig_m.eigenvalues.max());
-    if !(mmin > 1e-13 * mmax) {
+    if !(mmin > QUADRIC_CONDITION * mmax) {
         return Err(EpdError::Degenerate(
             "the points lie on a plane, a line or a few lines, not on a cylinder".into(),
         ));

@@ -12,6 +12,23 @@ use crate::params::{N_PARAMS, Params};
 use crate::problem::{Cells, wall_point_pcs};
 use crate::residual::{Geometry, Residual};
 
+/// The ovality's significance for the roll to count as determined: Dmax − Dmin above
+/// this many of its standard deviations. Three is a one-sided level of 0.13 % under a
+/// normal error: at most that share of a round pipe's frames reports an orientation for
+/// an ovality that is noise.
+pub const ROLL_OVALITY_SIGMAS: f64 = 3.0;
+
+/// The largest roll 1-σ for the roll to count as determined: 45° (π/4). The roll is an
+/// orientation modulo 90° between Dmax and Dmin labels (SPEC's symmetries), so a 1-σ of
+/// 45° spans the whole range of distinct orientations: nothing about the roll is known.
+pub const MAX_DETERMINED_ROLL_SIGMA: f64 = std::f64::consts::FRAC_PI_4;
+
+/// The smallest ovality counted as one, relative to the mean diameter: 10⁻⁶ (0.5 µm on
+/// a 20" pipe). The floor for a noise-free frame, whose sandwich 1-σ is rounding and
+/// would let the significance test read a roll into an ovality of rounding size; any
+/// ovality a camera can see (0.1 mm and more on a 0.5 m pipe) is 200 times larger.
+pub const MIN_OVALITY: f64 = 1e-6;
+
 /// Whether the roll is determined (see [`Estimate::roll_determined`]); held diameters
 /// have an exactly known ovality.
 pub(crate) fn roll_is_determined(
@@ -28,8 +45,8 @@ pub(crate) fn roll_is_determined(
         cov.map(|c| (c[(0, 0)] + c[(1, 1)] - 2.0 * c[(0, 1)]).max(0.0).sqrt())
             .unwrap_or(f64::INFINITY)
     };
-    let roll_ok = sigma[2].is_some_and(|s| s < std::f64::consts::FRAC_PI_4);
-    dd > (1e-6 * mean).max(3.0 * sd_diff) && roll_ok
+    let roll_ok = sigma[2].is_some_and(|s| s < MAX_DETERMINED_ROLL_SIGMA);
+    dd > (MIN_OVALITY * mean).max(ROLL_OVALITY_SIGMAS * sd_diff) && roll_ok
 }
 
 /// A 7 × 7 matrix over β.
@@ -370,14 +387,34 @@ pub(crate) fn sigmas_of(cov: &Mat7, keep: &[bool; N_PARAMS]) -> (Sigmas, Option<
     (sig, complete.then_some(*cov))
 }
 
+/// A parameter with no information: H's diagonal entry at most this (a zero column of J,
+/// or one of underflowed products); 10⁻³⁰⁰, near the smallest normal double (2.2·10⁻³⁰⁸),
+/// so that only an exact or underflowed zero counts.
+const NO_INFORMATION: f64 = 1e-300;
+
+/// A parameter whose information (H's diagonal, the squared norm of its column of J) is
+/// below this fraction of the best-determined one's is left out before the Jacobi
+/// scaling divides by its square root: 10⁻²⁴, a column 10⁻¹² of the largest in norm, far
+/// below what the parameters' units make of a determined one (metres and radians at a
+/// 1–10 m range differ by at most a factor 10²), so only a parameter the points leave
+/// out passes it; [`NULL_EIGEN_RATIO`] judges the rest on the scaled H.
+const MIN_RELATIVE_INFORMATION: f64 = 1e-24;
+
+/// A direction of the Jacobi-scaled H whose eigenvalue is below this fraction of the
+/// largest is a null direction: 10⁻¹², some 4500 machine epsilons (2.2·10⁻¹⁶) above the
+/// rounding of a 7 × 7 symmetric eigen-decomposition relative to its largest eigenvalue,
+/// so a direction the data do not determine (a round pipe's roll, whose eigenvalue is
+/// rounding) is left out; one the data determine is not near it.
+const NULL_EIGEN_RATIO: f64 = 1e-12;
+
 /// H⁻¹ on the parameters the data determine, zero elsewhere, and which those are: a
 /// zero column of J, or a direction of H whose eigenvalue (after Jacobi scaling) is
-/// below 1e-12 of the largest, is left out (the parameter dominating the null direction
-/// is dropped, and the rest inverted again).
+/// below [`NULL_EIGEN_RATIO`] of the largest, is left out (the parameter dominating the
+/// null direction is dropped, and the rest inverted again).
 pub(crate) fn determined_inverse(h: &Mat7) -> (Mat7, [bool; N_PARAMS]) {
     let hmax = (0..N_PARAMS).map(|i| h[(i, i)]).fold(0.0, f64::max);
     let mut keep: Vec<usize> = (0..N_PARAMS)
-        .filter(|&i| h[(i, i)] > 1e-300 && h[(i, i)] > 1e-24 * hmax)
+        .filter(|&i| h[(i, i)] > NO_INFORMATION && h[(i, i)] > MIN_RELATIVE_INFORMATION * hmax)
         .collect();
     loop {
         let k = keep.len();
@@ -396,7 +433,7 @@ pub(crate) fn determined_inverse(h: &Mat7) -> (Mat7, [bool; N_PARAMS]) {
                     (0, f64::INFINITY),
                     |acc, (i, &l)| if l < acc.1 { (i, l) } else { acc },
                 );
-        if lmin > 1e-12 * lmax && lmin.is_finite() {
+        if lmin > NULL_EIGEN_RATIO * lmax && lmin.is_finite() {
             // Invert via the eigen-decomposition.
             let mut inv = DMatrix::zeros(k, k);
             for e in 0..k {

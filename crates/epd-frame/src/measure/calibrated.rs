@@ -140,7 +140,30 @@ pub(super) fn calibrate(
         });
         outside = (valid > 0).then(|| (valid - covered) as f64 / valid as f64);
     }
-    let (moved, sigma) = cal.correct_points(cfg.weighted, points, intensity, sigma_given)?;
+    // Corrected, and the scene read from the corrected points ([`plain_frame`]).
+    let (moved, sigma, scene) = match intensity {
+        Some(i) if cfg.geometry && !(cfg.weighted && sigma_given) => {
+            let f = plain_frame(
+                cal,
+                points,
+                i,
+                raw_range_m.unwrap_or(&[]),
+                cfg.weighted,
+                cfg.method,
+                &cfg.options,
+            )
+            .map_err(|e| match e {
+                PlainFrameError::Correction(m) => m,
+                PlainFrameError::Survey(m) => format!("{m} ({n_read} points read)"),
+            })?;
+            (f.moved, f.sigma_m, Some(f.scene))
+        }
+        _ => {
+            let (moved, sigma) =
+                cal.correct_points(cfg.weighted, points, intensity, sigma_given)?;
+            (moved, sigma, None)
+        }
+    };
     // The bins' standard errors, shared by the points each one corrected.
     let shared = match intensity {
         Some(i) if i.len() == points.len() => Some(SharedErrors {
@@ -152,21 +175,6 @@ pub(super) fn calibrate(
         }),
         _ => None,
     };
-    // Invalid pixels (NaN, inf, zeros) are dropped and counted by the estimator; the
-    // range gate keeps points by their model range (see EstimateOptions).
-    epd_core::cancel::checkpoint();
-    let scene = if cfg.geometry {
-        let table = match (raw_range_m, intensity) {
-            (Some(r), Some(i)) => Some((&cal.table, r, i)),
-            _ => None,
-        };
-        Some(
-            FrameScene::survey(points, cfg.method, &cfg.options, table)
-                .map_err(|e| format!("{e} ({n_read} points read)"))?,
-        )
-    } else {
-        None
-    };
     Ok(Calibrated {
         n_calibrated: moved,
         outside,
@@ -175,6 +183,59 @@ pub(super) fn calibrate(
         surveyed_here: true,
         shared,
     })
+}
+
+/// A frame corrected in place by a version-1 (range × intensity) table and its scene, as
+/// `epd estimate --calibration` makes them ([`calibrate`]; the bench harness's pipeline
+/// run makes the same): every point the table's axes hold moved along its ray, then the
+/// scene surveyed on the corrected points, a bend checked against the table when
+/// `raw_range_m` (each point's measured range, m; empty for none) is given. `weighted`:
+/// each point's σ from the table's spread as well. Invalid pixels (NaN, inf, zeros) are
+/// left for the estimator to drop and count.
+pub fn plain_frame(
+    cal: &CalibrationTable,
+    points: &mut [[f64; 3]],
+    intensity: &[f64],
+    raw_range_m: &[f64],
+    weighted: bool,
+    method: epd_core::Method,
+    options: &epd_core::EstimateOptions,
+) -> Result<PlainFrame, PlainFrameError> {
+    let (moved, sigma_m) = cal
+        .correct_points(weighted, points, Some(intensity), false)
+        .map_err(PlainFrameError::Correction)?;
+    epd_core::cancel::checkpoint();
+    let lookups =
+        (raw_range_m.len() == points.len()).then_some((&cal.table, raw_range_m, intensity));
+    let scene = FrameScene::survey(points, method, options, lookups)
+        .map_err(|e| PlainFrameError::Survey(e.to_string()))?;
+    Ok(PlainFrame {
+        moved,
+        sigma_m,
+        scene,
+    })
+}
+
+/// What [`plain_frame`] made of a frame.
+#[derive(Clone, Debug)]
+pub struct PlainFrame {
+    /// Points the table moved.
+    pub moved: usize,
+    /// Each point's σ from the table's spread (m), when asked for (NaN for invalid points).
+    pub sigma_m: Option<Vec<f64>>,
+    /// The scene, surveyed on the corrected points.
+    pub scene: FrameScene,
+}
+
+/// Why [`plain_frame`] failed.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum PlainFrameError {
+    /// The table refused the frame (another camera's, or no intensity per point).
+    #[error("{0}")]
+    Correction(String),
+    /// The survey of the corrected points failed.
+    #[error("{0}")]
+    Survey(String),
 }
 
 /// A frame to be corrected by a version-2 (incidence) table, as `epd estimate

@@ -22,7 +22,8 @@ mod calibrated;
 
 pub use calibrated::{
     INCIDENCE_ROUNDS, INCIDENCE_TOLERANCE_M, IncidenceFrame, IncidenceRounds, MOSTLY_OUTSIDE,
-    REFUSE_OUTSIDE, RIG_SIZE_MARGIN, incidence_frame, incidence_rounds,
+    PlainFrame, PlainFrameError, REFUSE_OUTSIDE, RIG_SIZE_MARGIN, incidence_frame,
+    incidence_rounds, plain_frame,
 };
 use calibrated::{add_table_uncertainty, add_transfer_uncertainty, calibrate};
 

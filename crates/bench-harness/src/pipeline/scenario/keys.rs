@@ -382,10 +382,15 @@ impl PipelineFile {
         let mut sections = Vec::new();
         for (k, s) in self.section.iter().enumerate() {
             let key = format!("pipeline.section[{k}]");
-            if s.name.is_empty() || s.name.contains([',', '"', '\n']) {
+            // Any text a CSV cell can hold (`epd_io::csv` quotes commas and quotes), but no
+            // control character: the name is a label in the figures too.
+            if s.name.is_empty() || s.name.chars().any(char::is_control) {
                 return Err(key_err(
                     &format!("{key}.name"),
-                    format!("= {:?}: a non-empty name without commas or quotes", s.name),
+                    format!(
+                        "= {:?}: a non-empty name without control characters",
+                        s.name
+                    ),
                 ));
             }
             if !s.start_m.is_finite() {

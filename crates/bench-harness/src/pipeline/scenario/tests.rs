@@ -102,9 +102,9 @@ fn parse_refuses_the_run_keys_naming_key_and_reason() {
 fn parse_refuses_sections_and_rig_naming_key_and_reason() {
     for (source, key, reason) in [
         (
-            set("\"a\"", "\"a,b\""),
+            set("\"a\"", "\"a\\nb\""),
             "pipeline.section[0].name",
-            "a non-empty name without commas or quotes",
+            "a non-empty name without control characters",
         ),
         (
             set("= 10.0\nstart_m = 10.0", "= 10.0\nstart_m = nan"),
@@ -287,4 +287,13 @@ fn frames_between_sections_are_counted_before_they_are_planned() {
     );
     // 10 m at the default 0.2 m: within the limit.
     assert!(PipelineScenario::parse(Path::new("p.toml"), OK).is_ok());
+}
+
+/// A section's name may hold what a CSV cell quotes (commas, quotes): `epd_io::csv`
+/// writes it as one cell.
+#[test]
+fn a_section_name_with_commas_and_quotes_is_taken() {
+    let source = set("\"a\"", "'a, \"b\"'");
+    let s = PipelineScenario::parse(Path::new("s.toml"), &source).expect("parses");
+    assert!(s.sections.iter().any(|x| x.name == "a, \"b\""));
 }
