@@ -1,12 +1,13 @@
 //! What lies ahead of the sensor: the survey of a frame near a bend or a tee
 //! (`segment`, on the departure profile of `profile`), the torus of a bend with its exact ray cast (`torus`) and the bend's fit
 //! (`bend`), where an opening begins (`edge`), and the opening test of the slices too
-//! sparse for the medians (`sparse`).
+//! sparse for the medians (`sparse`); which points belong to which part (`select`).
 
 pub mod bend;
 pub mod edge;
 pub mod profile;
 pub mod segment;
+pub mod select;
 pub mod sparse;
 pub mod torus;
 

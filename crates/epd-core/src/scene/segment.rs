@@ -40,7 +40,8 @@ use crate::cloud::clean;
 use crate::error::EpdError;
 use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
 use crate::params::Params;
-use crate::residual::Geometry;
+pub use crate::scene::select::straight_mask;
+use crate::scene::select::{axial_select, select_where};
 
 pub use crate::scene::profile::{
     AxisSigma, MIN_SECTORS_TESTED, SURVEY_FALSE_ALARM, Slice, departure_evidence, profile,
@@ -482,51 +483,6 @@ pub fn segment(
         profile: prof,
         rounds,
     })
-}
-
-/// The PCS axial coordinate at which a point's ray meets the wall of `beta`: the
-/// crossing t·x̂ of eq. (21), which depends on the ray only, so that a cut on it does not
-/// select points by their range noise (at a grazing wall the noise moves a point mostly
-/// along the axis). `None` when β leaves the model.
-fn model_axial(beta: &Params) -> Option<impl Fn(&[f64; 3]) -> f64> {
-    let geom = Geometry::new(beta)?;
-    let row = beta.rotation().matrix().row(0).into_owned();
-    Some(move |p: &[f64; 3]| {
-        geom.line_parameter(p) * (row[0] * p[0] + row[1] * p[1] + row[2] * p[2])
-    })
-}
-
-/// The points (SCS) whose ray meets the wall of `beta` at a PCS axial coordinate that
-/// satisfies `keep` ([`model_axial`]). Empty when β leaves the model.
-fn axial_select(points: &[[f64; 3]], beta: &Params, keep: impl Fn(f64) -> bool) -> Vec<[f64; 3]> {
-    let Some(axial) = model_axial(beta) else {
-        return Vec::new();
-    };
-    select_where(points, |p| keep(axial(p)))
-}
-
-/// The points for which `keep` holds, in their order, in a vector of exactly their
-/// number: a refit's selection is most of a frame, and a vector grown by doubling would
-/// hold up to twice it while it grows (issue 27: the survey's memory beside its input).
-/// The test runs once per point (one byte each), serially, with a stop check every
-/// [`crate::cancel::TICKS_PER_CHECK`] points.
-fn select_where(points: &[[f64; 3]], keep: impl Fn(&[f64; 3]) -> bool) -> Vec<[f64; 3]> {
-    let mask: Vec<bool> = points
-        .iter()
-        .map(|p| {
-            crate::cancel::tick();
-            keep(p)
-        })
-        .collect();
-    let mut out = Vec::with_capacity(mask.iter().filter(|&&k| k).count());
-    out.extend(
-        points
-            .iter()
-            .zip(&mask)
-            .filter(|(_, k)| **k)
-            .map(|(p, _)| *p),
-    );
-    out
 }
 
 /// Where a branch opening starts, from the first departing slice `i`: that slice's near
@@ -1028,16 +984,6 @@ fn resumes(run: &[Slice], o: &SegmentOptions, within_m: f64) -> bool {
 pub fn clock_angle_deg(beta: &Params, direction: f64) -> f64 {
     let u = beta.dir_pcs_to_scs(&Vector3::new(0.0, direction.cos(), direction.sin()));
     u.y.atan2(u.z).to_degrees().rem_euclid(360.0)
-}
-
-/// Which points (SCS) belong to the straight section that ends at `end` (PCS x of the
-/// straight fit `beta`, m): those whose ray meets the fitted wall before `end − margin`
-/// (the ray's model crossing, not the noisy point). All `false` when β leaves the model.
-pub fn straight_mask(points: &[[f64; 3]], beta: &Params, end: f64, margin: f64) -> Vec<bool> {
-    match model_axial(beta) {
-        Some(axial) => points.iter().map(|p| axial(p) < end - margin).collect(),
-        None => vec![false; points.len()],
-    }
 }
 
 #[cfg(test)]

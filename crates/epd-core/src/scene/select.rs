@@ -1,0 +1,65 @@
+//! Which points belong to which part of a frame: the axial coordinate at which each
+//! point's ray meets a fitted wall, and the selections the survey refits on (the points
+//! before a departure, the near points, the points beyond the straight section).
+
+use crate::params::Params;
+use crate::residual::Geometry;
+
+/// The PCS axial coordinate at which a point's ray meets the wall of `beta`: the
+/// crossing t·x̂ of eq. (21), which depends on the ray only, so that a cut on it does not
+/// select points by their range noise (at a grazing wall the noise moves a point mostly
+/// along the axis). `None` when β leaves the model.
+pub(crate) fn model_axial(beta: &Params) -> Option<impl Fn(&[f64; 3]) -> f64> {
+    let geom = Geometry::new(beta)?;
+    let row = beta.rotation().matrix().row(0).into_owned();
+    Some(move |p: &[f64; 3]| {
+        geom.line_parameter(p) * (row[0] * p[0] + row[1] * p[1] + row[2] * p[2])
+    })
+}
+
+/// The points (SCS) whose ray meets the wall of `beta` at a PCS axial coordinate that
+/// satisfies `keep` ([`model_axial`]). Empty when β leaves the model.
+pub(crate) fn axial_select(
+    points: &[[f64; 3]],
+    beta: &Params,
+    keep: impl Fn(f64) -> bool,
+) -> Vec<[f64; 3]> {
+    let Some(axial) = model_axial(beta) else {
+        return Vec::new();
+    };
+    select_where(points, |p| keep(axial(p)))
+}
+
+/// The points for which `keep` holds, in their order, in a vector of exactly their
+/// number: a refit's selection is most of a frame, and a vector grown by doubling would
+/// hold up to twice it while it grows (issue 27: the survey's memory beside its input).
+/// The test runs once per point (one byte each), serially, with a stop check every
+/// [`crate::cancel::TICKS_PER_CHECK`] points.
+pub(crate) fn select_where(points: &[[f64; 3]], keep: impl Fn(&[f64; 3]) -> bool) -> Vec<[f64; 3]> {
+    let mask: Vec<bool> = points
+        .iter()
+        .map(|p| {
+            crate::cancel::tick();
+            keep(p)
+        })
+        .collect();
+    let mut out = Vec::with_capacity(mask.iter().filter(|&&k| k).count());
+    out.extend(
+        points
+            .iter()
+            .zip(&mask)
+            .filter(|(_, k)| **k)
+            .map(|(p, _)| *p),
+    );
+    out
+}
+
+/// Which points (SCS) belong to the straight section that ends at `end` (PCS x of the
+/// straight fit `beta`, m): those whose ray meets the fitted wall before `end − margin`
+/// (the ray's model crossing, not the noisy point). All `false` when β leaves the model.
+pub fn straight_mask(points: &[[f64; 3]], beta: &Params, end: f64, margin: f64) -> Vec<bool> {
+    match model_axial(beta) {
+        Some(axial) => points.iter().map(|p| axial(p) < end - margin).collect(),
+        None => vec![false; points.len()],
+    }
+}
