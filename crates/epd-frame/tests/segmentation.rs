@@ -1,14 +1,15 @@
-//! `epd_core::segment::survey`, which `epd_frame::scene::FrameScene::survey` calls for
-//! every front end, on frames of pipelines with an elbow or a tee ahead (issue 12): the
-//! straight section's end, the bend's torus and the straight estimate, against the
-//! pipeline's ground truth. Here, beside the frame library, because the frames come from
-//! tof-sim, which depends on epd-core (epd-core's own tests cannot use it without a
-//! cycle).
+//! The survey of a frame as every front end makes it (`epd_frame::FrameScene::survey`,
+//! over `epd_core::segment::survey`) on frames of pipelines with an elbow or a tee ahead
+//! (issue 12): the straight section's end, the bend's torus and the straight estimate,
+//! against the pipeline's ground truth. Here, beside the frame library, because the
+//! frames come from tof-sim, which depends on epd-core (epd-core's own tests cannot use
+//! it without a cycle).
 
 use std::f64::consts::FRAC_PI_2;
 
 use epd_core::segment::{Layout, SegmentOptions, Survey, clock_angle_deg, survey};
 use epd_core::{EstimateOptions, Loss, Method, Params, estimate};
+use epd_frame::FrameScene;
 use rayon::prelude::*;
 use tof_sim::pipeline::LabeledMesh;
 use tof_sim::{
@@ -76,15 +77,12 @@ fn options() -> EstimateOptions {
         .unwrap()
 }
 
-/// The survey of `points` by ML-EPD with [`options`] and the default segment options.
+/// The survey of `points` by ML-EPD with [`options`] as every front end makes it
+/// ([`FrameScene::survey`]: the default segment options, no depth table).
 fn ml_survey(points: &[[f64; 3]]) -> Survey {
-    survey(
-        points,
-        Method::MlEpd,
-        &options(),
-        &SegmentOptions::default(),
-    )
-    .unwrap()
+    FrameScene::survey(points, Method::MlEpd, &options(), None)
+        .unwrap()
+        .survey
 }
 
 /// The Helios2 model's range-dependent noise and invalid pixels, without its systematic
@@ -422,13 +420,9 @@ fn a_close_tee_under_the_cameras_noise_is_found_or_withheld() {
             sweep_index: 2,
         };
         let f = simulate(&Sensor::helios2(), &scene, &noise, Subsample::All, seed).unwrap();
-        let s = survey(
-            &f.measured,
-            Method::MlEpd,
-            &gated,
-            &SegmentOptions::default(),
-        )
-        .unwrap_or_else(|e| panic!("{ahead} m, frame {k}: {e}"));
+        let s = FrameScene::survey(&f.measured, Method::MlEpd, &gated, None)
+            .unwrap_or_else(|e| panic!("{ahead} m, frame {k}: {e}"))
+            .survey;
         let seg = &s.segmentation;
         if ahead > 0.6 {
             assert_eq!(seg.layout, Layout::TeeAhead, "{ahead} m, frame {k}");
