@@ -14,7 +14,7 @@
 
 use std::borrow::Cow;
 
-use bench_harness::calibration_transfer::{inner_diameter_m, simulator};
+use bench_harness::calibration_transfer::{inner_diameter_m, rig_settings, simulator};
 use epd_core::calibration::{
     CalibrationFrame, IncidenceBins, IncidenceTable, RigFrames, Support, incidences,
     offsets_with_incidence,
@@ -105,15 +105,10 @@ fn main() -> anyhow::Result<()> {
     let rig30 = frames(30.0, 0.0, 17, 6)?;
     let (c20, c30) = (cal(&rig20), cal(&rig30));
     let settings = RigSettings {
-        known_id_mm: inner_diameter_m(20.0) * 1e3,
-        known_dmin_mm: None,
-        min_range: 0.5,
-        max_range: 2.0,
         range_bins: env("RBINS", 30),
         intensity_bins: env("IBINS", 12),
         incidence_bins: env("CBINS", 16),
-        min_count: 30,
-        passes: env("PASSES", 3) as u32,
+        ..rig_settings(env("PASSES", 3) as u32)
     }
     .check()?;
     let r20 = RigFrames {

@@ -135,63 +135,51 @@ print((after - before) * 1024 / len(a))
     assert per_point <= WORKING_BYTES_PER_POINT, f"{per_point:.1f} bytes per point"
 
 
-def test_an_estimate_without_the_survey_holds_the_input_once():
-    # Issue 27's goal, memory at most 1.2× the input: without the geometry survey
-    # (straight_only=True) the array is read in place and the fit adds no per-point copy.
-    # 4·10⁶ points (96 MB), filled in place (no temporary larger than the array before the
-    # call); the peak RSS of the call beyond the peak before it, over the input's bytes.
-    # (With the survey, see the next test.)
+def peak_over_input(n, straight_only):
+    """(status, geometry, extra): an estimate of `n` points (one simulated frame repeated,
+    filled in place: no temporary larger than the array before the call), and the peak
+    RSS of the call beyond the peak before it, over the input's bytes."""
     code, out, err = run_child(
-        """
+        f"""
 import gc, resource
 import numpy as np, epd
 pts, _ = epd.simulate(points=None, seed=3)
-a = np.empty((4_000_000, 3))
+a = np.empty(({n}, 3))
 for k in range(0, len(a), len(pts)):
     m = min(len(pts), len(a) - k)
     a[k:k + m] = pts[:m]
 del pts
 gc.collect()
 before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-r = epd.estimate(a, straight_only=True)
-after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print(r["status"], (after - before) * 1024 / a.nbytes)
-"""
-    )
-    assert code == 0, err
-    status, extra = out.split()
-    assert status == "converged", out
-    assert float(extra) <= 0.2, f"peak {1 + float(extra):.2f}× the input"
-
-
-def test_the_survey_of_a_straight_frame_holds_little_beside_the_input():
-    # Issue 27's goal with the survey (the defaults): its profile holds each point's
-    # deviation once, in 32 bits (epd_core::scene::profile), and nothing else per point
-    # while the frame reads straight. 10⁶ points (24 MB: four copies of one frame),
-    # measured as above. A frame whose survey refits the straight section before an end
-    # holds that section's points beside the input too (up to once more: 30.7 bytes a
-    # point on 10⁷, the package README).
-    code, out, err = run_child(
-        """
-import gc, resource
-import numpy as np, epd
-pts, _ = epd.simulate(points=None, seed=3)
-a = np.empty((1_000_000, 3))
-for k in range(0, len(a), len(pts)):
-    m = min(len(pts), len(a) - k)
-    a[k:k + m] = pts[:m]
-del pts
-gc.collect()
-before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-r = epd.estimate(a)
+r = epd.estimate(a, straight_only={straight_only})
 after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 print(r["status"], r["geometry"], (after - before) * 1024 / a.nbytes)
 """
     )
     assert code == 0, err
     status, geometry, extra = out.split()
-    assert (status, geometry) == ("converged", "straight"), out
-    assert float(extra) <= 0.2, f"peak {1 + float(extra):.2f}× the input"
+    return status, geometry, float(extra)
+
+
+def test_an_estimate_without_the_survey_holds_the_input_once():
+    # Issue 27's goal, memory at most 1.2× the input: without the geometry survey
+    # (straight_only=True) the array is read in place and the fit adds no per-point copy.
+    # 4·10⁶ points (96 MB).
+    status, _, extra = peak_over_input(4_000_000, True)
+    assert status == "converged"
+    assert extra <= 0.2, f"peak {1 + extra:.2f}× the input"
+
+
+def test_the_survey_of_a_straight_frame_holds_little_beside_the_input():
+    # Issue 27's goal with the survey (the defaults): its profile holds each point's
+    # deviation once, in 32 bits (epd_core::scene::profile), and nothing else per point
+    # while the frame reads straight. 10⁶ points (24 MB: four copies of one frame). A
+    # frame whose survey refits the straight section before an end holds that section's
+    # points beside the input too (up to once more: 30.7 bytes a point on 10⁷, the package
+    # README).
+    status, geometry, extra = peak_over_input(1_000_000, False)
+    assert (status, geometry) == ("converged", "straight")
+    assert extra <= 0.2, f"peak {1 + extra:.2f}× the input"
 
 
 @pytest.fixture(scope="module")

@@ -112,6 +112,23 @@ pub fn simulator(od_in: f64, ovality: f64, seed: u64) -> anyhow::Result<Simulato
     .map_err(|e| anyhow::anyhow!("{e}"))
 }
 
+/// The experiment's rig settings: `epd calibrate`'s defaults (30 × 12 × 16 bins over
+/// range × intensity × incidence, the rays meeting the wall at 0.5–2 m, 30 points a
+/// bin) for a round 20" rig, with `passes` passes.
+pub fn rig_settings(passes: u32) -> RigSettings {
+    RigSettings {
+        known_id_mm: inner_diameter_m(20.0) * 1e3,
+        known_dmin_mm: None,
+        min_range: 0.5,
+        max_range: 2.0,
+        range_bins: 30,
+        intensity_bins: 12,
+        incidence_bins: 16,
+        min_count: 30,
+        passes,
+    }
+}
+
 /// One frame's points and intensities, and its true (Dmax, Dmin) (m).
 type Frame = (Vec<[f64; 3]>, Vec<f64>, (f64, f64));
 
@@ -160,18 +177,7 @@ fn stage(s: &TransferScenario, dir: &Path, progress: bool) -> anyhow::Result<Rep
     let rig20 = frames(20.0, 0.0, seed + 7, RIG_FRAMES)?;
     let rig30 = frames(30.0, 0.0, seed + 17, RIG_FRAMES)?;
     let (c20, c30) = (as_cal(&rig20), as_cal(&rig30));
-    let settings = RigSettings {
-        known_id_mm: id(20.0) * 1e3,
-        known_dmin_mm: None,
-        min_range: 0.5,
-        max_range: 2.0,
-        range_bins: 30,
-        intensity_bins: 12,
-        incidence_bins: 16,
-        min_count: 30,
-        passes,
-    }
-    .check()?;
+    let settings = rig_settings(passes).check()?;
     let r20 = RigFrames {
         known: (id(20.0), id(20.0)),
         frames: &c20,

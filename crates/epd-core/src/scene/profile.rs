@@ -283,20 +283,22 @@ pub fn profile(
     let watch = crate::cancel::watch();
     let ns = o.sectors;
     let clock = ClockSectors::new(ns);
-    // A point counts when its x, d and ψ are finite (as `deviation` keeps them).
-    let kept =
-        |&[x, y, z, d]: &[f64; 4]| x.is_finite() && d.is_finite() && !(y.is_nan() || z.is_nan());
+    // The (x, Y, Z, d) of a chunk's points that count: x, d and ψ finite (as `deviation`
+    // keeps them); none once a stop is asked for.
+    let counted = |chunk: &[[f64; 3]]| {
+        let mut walls = Vec::new();
+        if !watch.stopped() {
+            geom.wall_deviations(chunk, &mut walls);
+        }
+        walls.retain(|&[x, y, z, d]| x.is_finite() && d.is_finite() && !(y.is_nan() || z.is_nan()));
+        walls
+    };
     // Pass 1: the axial extent of the counted points, which places the slices.
     let (x_min, x_max) = points
         .par_chunks(PROFILE_CHUNK)
         .map(|chunk| {
-            let mut walls = Vec::new();
-            if !watch.stopped() {
-                geom.wall_deviations(chunk, &mut walls);
-            }
-            walls
+            counted(chunk)
                 .iter()
-                .filter(|w| kept(w))
                 .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), w| {
                     (lo.min(w[0]), hi.max(w[0]))
                 })
@@ -317,14 +319,10 @@ pub fn profile(
         let binned: Vec<Vec<(usize, f32)>> = batch
             .par_chunks(PROFILE_CHUNK)
             .map(|chunk| {
-                let mut walls = Vec::new();
-                if !watch.stopped() {
-                    geom.wall_deviations(chunk, &mut walls);
-                }
-                walls
-                    .iter()
-                    .filter(|w| kept(w) && w[0] >= x_min)
-                    .map(|&[x, y, z, d]| {
+                counted(chunk)
+                    .into_iter()
+                    .filter(|w| w[0] >= x_min)
+                    .map(|[x, y, z, d]| {
                         let i = (((x - x_min) / o.slice_m) as usize).min(n_slices - 1);
                         (i * ns + clock.of(y, z), d as f32)
                     })
