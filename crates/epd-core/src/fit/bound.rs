@@ -86,7 +86,20 @@ fn fisher_bound(
 /// a fit quality in metres comparable across methods. `None` when no point is usable or
 /// β puts the sensor outside the pipe.
 pub fn rms_range_residual(points: &[[f64; 3]], beta: &Params) -> Option<f64> {
-    rms_range_residual_of(points.iter().copied(), beta)
+    let cloud = clean(points);
+    if cloud.points.is_empty() {
+        return None;
+    }
+    // Σ r² as the solver's cost (`PipeFit::equations_at`) sums it, chunk by chunk in
+    // order, without its gradients.
+    let geom = Geometry::new(beta)?;
+    let chunks: Vec<f64> = cloud
+        .points
+        .par_chunks(crate::problem::CHUNK)
+        .map(|c| geom.range_sum_of_squares(c))
+        .collect();
+    let cost = chunks.iter().fold(0.0, |t, c| t + c);
+    Some((cost / cloud.points.len() as f64).sqrt())
 }
 
 /// Batches of [`rms_range_residual_of`]: 16 of the solver's chunks (1.5 MiB of points).
@@ -96,7 +109,7 @@ const RMS_BATCH_CHUNKS: usize = 16;
 /// without holding them: they pass through a buffer of [`RMS_BATCH_CHUNKS`] solver
 /// chunks, so that the RMS of a selection (a straight section, a range gate) costs no
 /// copy of it (issue 27), and the sum is the one of the selection held in one slice, bit
-/// for bit: the chunks' sums in order.
+/// for bit: the chunks' sums in order (tested against [`rms_range_residual`]).
 pub fn rms_range_residual_of(points: impl Iterator<Item = [f64; 3]>, beta: &Params) -> Option<f64> {
     let geom = Geometry::new(beta);
     let batch_len = RMS_BATCH_CHUNKS * crate::problem::CHUNK;

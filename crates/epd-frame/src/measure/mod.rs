@@ -495,6 +495,10 @@ fn straight_rms_mm(
         None => None,
         Some((lo, hi)) => Some(epd_core::model_range_gate(&est.params, lo, hi)?),
     };
+    if mask.is_none() && gate.is_none() {
+        // Every point: read in place, on all cores.
+        return epd_core::rms_range_residual(points, &est.params).map(|v| v * 1e3);
+    }
     let straight = points
         .iter()
         .enumerate()
