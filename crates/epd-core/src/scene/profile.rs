@@ -319,10 +319,12 @@ pub fn profile(
         let binned: Vec<Vec<(usize, f32)>> = batch
             .par_chunks(PROFILE_CHUNK)
             .map(|chunk| {
+                // Borrowed, not consumed: a collect in place would keep the deviations'
+                // 32-byte slots for the 16-byte pairs.
                 counted(chunk)
-                    .into_iter()
+                    .iter()
                     .filter(|w| w[0] >= x_min)
-                    .map(|[x, y, z, d]| {
+                    .map(|&[x, y, z, d]| {
                         let i = (((x - x_min) / o.slice_m) as usize).min(n_slices - 1);
                         (i * ns + clock.of(y, z), d as f32)
                     })
