@@ -14,10 +14,9 @@
 
 use std::borrow::Cow;
 
-use bench_harness::calibration_transfer::{inner_diameter_m, rig_settings, simulator};
+use bench_harness::calibration_transfer::{rig_settings, round_rig, simulator};
 use epd_core::calibration::{
-    CalibrationFrame, IncidenceBins, IncidenceTable, RigFrames, Support, incidences,
-    offsets_with_incidence,
+    CalibrationFrame, IncidenceBins, IncidenceTable, Support, incidences, offsets_with_incidence,
 };
 use epd_core::{Method, Params, estimate, estimate_weighted};
 use epd_frame::rig::{RigSettings, calibrate_rig_sizes};
@@ -111,14 +110,7 @@ fn main() -> anyhow::Result<()> {
         ..rig_settings(env("PASSES", 3) as u32)
     }
     .check()?;
-    let r20 = RigFrames {
-        known: (inner_diameter_m(20.0), inner_diameter_m(20.0)),
-        frames: &c20,
-    };
-    let r30 = RigFrames {
-        known: (inner_diameter_m(30.0), inner_diameter_m(30.0)),
-        frames: &c30,
-    };
+    let (r20, r30) = (round_rig(20.0, &c20), round_rig(30.0, &c30));
     let t20 = calibrate_rig_sizes(&[r20], &settings)?;
     let t30 = calibrate_rig_sizes(&[r30], &settings)?;
     let t2030 = calibrate_rig_sizes(&[r20, r30], &settings)?;

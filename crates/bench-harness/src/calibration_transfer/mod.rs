@@ -129,6 +129,15 @@ pub fn rig_settings(passes: u32) -> RigSettings {
     }
 }
 
+/// A round rig of nominal OD `od_in` (inch) and a [`WALL_MM`] wall, seen in `frames`.
+pub fn round_rig<'a>(od_in: f64, frames: &'a [CalibrationFrame<'a>]) -> RigFrames<'a> {
+    let d = inner_diameter_m(od_in);
+    RigFrames {
+        known: (d, d),
+        frames,
+    }
+}
+
 /// One frame's points and intensities, and its true (Dmax, Dmin) (m).
 type Frame = (Vec<[f64; 3]>, Vec<f64>, (f64, f64));
 
@@ -173,19 +182,11 @@ where
 fn stage(s: &TransferScenario, dir: &Path, progress: bool) -> anyhow::Result<Report> {
     let start = Instant::now();
     let (per_size, passes, seed) = (s.frames_per_size, s.passes, s.seed);
-    let id = inner_diameter_m;
     let rig20 = frames(20.0, 0.0, seed + 7, RIG_FRAMES)?;
     let rig30 = frames(30.0, 0.0, seed + 17, RIG_FRAMES)?;
     let (c20, c30) = (as_cal(&rig20), as_cal(&rig30));
     let settings = rig_settings(passes).check()?;
-    let r20 = RigFrames {
-        known: (id(20.0), id(20.0)),
-        frames: &c20,
-    };
-    let r30 = RigFrames {
-        known: (id(30.0), id(30.0)),
-        frames: &c30,
-    };
+    let (r20, r30) = (round_rig(20.0, &c20), round_rig(30.0, &c30));
     let tables = [
         ("20\" rig", calibrate_rig_sizes(&[r20], &settings)?.table),
         (

@@ -263,10 +263,15 @@ pub fn incidence_frame(
     method: epd_core::Method,
     options: &epd_core::EstimateOptions,
 ) -> Result<IncidenceFrame, String> {
-    let mut plain = raw.to_vec();
-    cal.correct_points(false, &mut plain, Some(intensity), false)?;
-    let lookups = (raw_range_m.len() == raw.len()).then_some((&cal.table, raw_range_m, intensity));
-    let scene = FrameScene::survey(&plain, method, options, lookups).map_err(|e| e.to_string())?;
+    // The plain table's points live only as long as the survey: the rounds that follow
+    // hold their own copies of the frame.
+    let scene = {
+        let mut plain = raw.to_vec();
+        cal.correct_points(false, &mut plain, Some(intensity), false)?;
+        let lookups =
+            (raw_range_m.len() == raw.len()).then_some((&cal.table, raw_range_m, intensity));
+        FrameScene::survey(&plain, method, options, lookups).map_err(|e| e.to_string())?
+    };
     let mut straight = raw.to_vec();
     if let Some(keep) = &scene.straight {
         for (p, &k) in straight.iter_mut().zip(keep) {
@@ -276,21 +281,15 @@ pub fn incidence_frame(
         }
     }
     let rounds = incidence_rounds(cal, table, &straight, intensity, method, options);
-    Ok(IncidenceFrame {
-        scene,
-        plain,
-        rounds,
-    })
+    Ok(IncidenceFrame { scene, rounds })
 }
 
 /// What [`incidence_frame`] made of a frame.
 #[derive(Clone, Debug)]
 pub struct IncidenceFrame {
-    /// The scene, surveyed on `plain`.
+    /// The scene, surveyed on the points corrected by the table's plain range ×
+    /// intensity part.
     pub scene: FrameScene,
-    /// The points corrected by the table's plain range × intensity part (SCS, m; every
-    /// point its axes hold).
-    pub plain: Vec<[f64; 3]>,
     /// The incidence rounds on the scene's straight section, or why they could not run
     /// or refused the frame.
     pub rounds: Result<IncidenceRounds, String>,
