@@ -213,6 +213,15 @@ pub fn run_calibrate(a: &CalibrateArgs) -> anyhow::Result<ExitCode> {
     report_calibration_fits(&names, &rig.fits, a.quiet, &mut failed);
     print_skipped(&failed);
     if !a.quiet {
+        let j = rig.joint;
+        stderr_line!(
+            "poses refined jointly with the table: χ² {:.1} → {:.1} over {} points in {} \
+             steps",
+            j.chi2.0,
+            j.chi2.1,
+            j.n_points,
+            j.steps
+        );
         print_table_summary(&a.out, &rig.table);
     }
     Ok(if failed.is_empty() {

@@ -115,8 +115,11 @@ impl RigSettings {
 pub struct RigTable {
     /// The table, with the known diameters and the frames whose fit it used.
     pub table: CalibrationTable,
-    /// Each frame's pose fit on the known pipe, in the order given.
+    /// Each frame's pose fit on the known pipe, in the order given (its β the pose
+    /// after the joint refinement).
     pub fits: Vec<Result<Estimate, EpdError>>,
+    /// What the joint refinement of the poses did.
+    pub joint: epd_core::calibration::JointOutcome,
 }
 
 /// The depth table of `frames` (points in the sensor frame, m, with their intensity),
@@ -169,6 +172,7 @@ pub fn calibrate_rig_sizes(
             spans: Some(cal.spans),
         },
         fits: cal.fits,
+        joint: cal.joint,
     })
 }
 

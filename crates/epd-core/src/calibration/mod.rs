@@ -20,6 +20,7 @@
 //! correction solves ρ + T(ρ, I) = r for the wall range ρ of each measured range r.
 
 mod incidence;
+mod joint;
 mod propagate;
 mod rig;
 mod table;
@@ -29,6 +30,7 @@ mod tests;
 pub use incidence::{
     Correction, IncidenceBins, IncidenceObservation, IncidenceTable, Lookup, Support,
 };
+pub use joint::{JOINT_MAX_STEPS, JOINT_STOP_CHI2, JointOutcome, LAMBDA_START};
 pub use propagate::{shared_error_cov, shared_error_cov_terms};
 pub use rig::{
     Calibration, CalibrationFrame, CalibrationSettings, Observation, RigFrames, calibrate,

@@ -5,6 +5,7 @@
 use rayon::prelude::*;
 
 use super::incidence::{IncidenceBins, IncidenceObservation, IncidenceTable};
+use super::joint::{JointOutcome, ObservedBins, refine_poses};
 use super::table::{DepthTable, TableBins, norm, usable};
 use crate::error::EpdError;
 use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
@@ -161,6 +162,24 @@ pub struct Calibration {
     /// The spans the observations covered: model range (m), intensity, cos θ, each
     /// (min, max).
     pub spans: [(f64, f64); 3],
+    /// What the joint refinement of the poses did.
+    pub joint: JointOutcome,
+}
+
+/// The (min, max) of the observations' model range, intensity and cos θ.
+fn spans_of(obs: &[IncidenceObservation]) -> [(f64, f64); 3] {
+    let fold = |f: &dyn Fn(&IncidenceObservation) -> f64| {
+        obs.iter()
+            .map(f)
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+                (a.min(v), b.max(v))
+            })
+    };
+    [
+        fold(&|o| o.obs.model_range_m),
+        fold(&|o| o.obs.intensity),
+        fold(&|o| o.cos_incidence),
+    ]
 }
 
 /// The depth table of frames recorded in a pipe of known diameter: [`calibrate_rigs`]
@@ -213,7 +232,6 @@ pub fn calibrate_rigs(
     let mut inc_bins: Option<IncidenceBins> = None;
     let mut poses: Vec<Option<Params>> = vec![None; jobs.len()];
     let mut last = None;
-    let mut spans = [(f64::NAN, f64::NAN); 3];
     for _ in 0..settings.passes.max(1) {
         type PerFrame = Result<(Estimate, Vec<IncidenceObservation>), EpdError>;
         let per_frame: Vec<PerFrame> = jobs
@@ -305,28 +323,47 @@ pub fn calibrate_rigs(
             };
             inc_table = Some(IncidenceTable::build(&iobs, &ib)?);
         }
-        let fold = |f: &dyn Fn(&IncidenceObservation) -> f64| {
-            iobs.iter()
-                .map(f)
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
-                    (a.min(v), b.max(v))
-                })
-        };
-        spans = [
-            fold(&|o| o.obs.model_range_m),
-            fold(&|o| o.obs.intensity),
-            fold(&|o| o.cos_incidence),
-        ];
         last = Some((per_frame, obs.len()));
     }
-    let (Some(table), Some((per_frame, n_observations))) = (table, last) else {
+    let (Some(mut table), Some((mut per_frame, _))) = (table, last) else {
         return Err(EpdError::InvalidOption("no calibration pass ran".into()));
     };
+    // The passes' fixed point is not the joint least squares of the poses and the table
+    // (crate::calibration::joint): refine the poses jointly, then rebuild the tables at
+    // the refined poses.
+    let frames: Vec<CalibrationFrame<'_>> = jobs.iter().map(|j| j.0).collect();
+    let binned: &dyn ObservedBins = match &inc_table {
+        Some(t) => t,
+        None => &table,
+    };
+    let joint = refine_poses(&frames, &mut poses, binned, settings.gate)?;
+    let iobs: Vec<IncidenceObservation> = frames
+        .iter()
+        .zip(&poses)
+        .filter_map(|(f, p)| p.as_ref().map(|p| (f, p)))
+        .map(|(f, p)| offsets_with_incidence(f.points, f.intensity, p, settings.gate))
+        .collect::<Result<Vec<_>, _>>()?
+        .into_iter()
+        .flatten()
+        .collect();
+    let obs: Vec<Observation> = iobs.iter().map(|o| o.obs).collect();
+    if let Some(b) = bins {
+        table = DepthTable::build(&obs, &b)?;
+    }
+    if let Some(ib) = inc_bins {
+        inc_table = Some(IncidenceTable::build(&iobs, &ib)?);
+    }
+    for (r, p) in per_frame.iter_mut().zip(&poses) {
+        if let (Ok((e, _)), Some(p)) = (r, p) {
+            e.params = *p;
+        }
+    }
     Ok(Calibration {
         table,
         incidence: inc_table,
         fits: per_frame.into_iter().map(|r| r.map(|(e, _)| e)).collect(),
-        n_observations,
-        spans,
+        n_observations: obs.len(),
+        spans: spans_of(&iobs),
+        joint,
     })
 }

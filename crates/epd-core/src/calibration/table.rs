@@ -710,11 +710,16 @@ impl DepthTable {
     }
 }
 
-/// The clipped mean of `v` (mean within median ± 4·1.4826·MAD) and 1.4826·MAD. `v` is
-/// reordered.
+/// Half-width of a bin's inlier band, in spreads (1.4826·MAD): for Gaussian errors the
+/// band keeps all but 6·10⁻⁵ of the observations, and a gross error (multipath, a flying
+/// pixel) beyond it does not move the bin's mean.
+pub(super) const CLIP_SPREADS: f64 = 4.0;
+
+/// The clipped mean of `v` (mean within median ± [`CLIP_SPREADS`]·1.4826·MAD) and
+/// 1.4826·MAD. `v` is reordered.
 pub(super) fn clipped_mean(v: &mut [f64]) -> (f64, f64) {
     let (med, spread) = crate::loss::median_and_mad_sigma(v);
-    let cut = 4.0 * spread;
+    let cut = CLIP_SPREADS * spread;
     let (mut s, mut n) = (0.0, 0usize);
     for &x in v.iter() {
         if (x - med).abs() <= cut {
