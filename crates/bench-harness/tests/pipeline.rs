@@ -225,7 +225,7 @@ fn scenario_errors_name_the_key() {
             "offset_mm = 300.0\noffset_period",
             "pipeline.drift.offset_mm",
         ),
-        ("passes = 3", "passes = 0", "pipeline.rig.passes"),
+        ("passes = 8", "passes = 0", "pipeline.rig.passes"),
         ("tilt_deg = 2.0", "tilt_degs = 2.0", "tilt_degs"),
     ] {
         assert!(text.contains(from), "{from}");

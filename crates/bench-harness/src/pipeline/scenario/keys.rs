@@ -153,10 +153,10 @@ fn default_rig_offset_mm() -> f64 {
     60.0
 }
 
-/// `pipeline.rig.passes`: passes of the alternating pose/table refinement, as the
-/// committed `scenarios/pipeline_run.toml`.
+/// `pipeline.rig.passes`: passes of the alternating pose/table refinement, as `epd
+/// calibrate` makes by default ([`epd_frame::rig::DEFAULT_PASSES`]).
 fn default_calibration_passes() -> usize {
-    3
+    epd_frame::rig::DEFAULT_PASSES as usize
 }
 
 /// `pipeline.drift.tilt_period_m`: the tilt wanders on a 5 m period, as the committed
