@@ -10,7 +10,7 @@
 //! The tables: one rig (20", 30"), both, both with the bridged bins left outside, both
 //! from the rigs' true poses, 30" from its true poses, and both without the incidence
 //! axis. The environment sets the bins and passes: `RBINS` (30), `IBINS` (12), `CBINS`
-//! (16), `PASSES` (3); a value that is not a number is the default.
+//! (16), `PASSES` (`epd calibrate`'s default); a value that is not a number is the default.
 
 use std::borrow::Cow;
 
@@ -107,7 +107,7 @@ fn main() -> anyhow::Result<()> {
         range_bins: env("RBINS", 30),
         intensity_bins: env("IBINS", 12),
         incidence_bins: env("CBINS", 16),
-        ..rig_settings(env("PASSES", 3) as u32)
+        ..rig_settings(env("PASSES", epd_frame::rig::DEFAULT_PASSES as usize) as u32)
     }
     .check()?;
     let (r20, r30) = (round_rig(20.0, &c20), round_rig(30.0, &c30));
