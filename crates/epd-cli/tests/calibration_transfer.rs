@@ -218,10 +218,11 @@ fn tables_transfer_across_sizes_on_frames_of_another_error_model() {
         v.iter().map(|r| r.1).sum::<f64>() / v.len() as f64
     };
     assert!(two_24.iter().all(|r| r.0 == "converged"), "{two_24:?}");
-    // The issue's goal is 0.3 mm; on this caster the two-size table reaches about
-    // 0.33 mm (docs/calibration.md): the test holds the line at 0.5 mm, a sixth of the
-    // one-size table's error at 24" (about 2 mm) and a fortieth of the raw one.
-    assert!(mean(&two_24).abs() < 0.5, "20\"+30\" → 24\": {two_24:?}");
+    // The issue's goal: |bias| < 0.3 mm with rigs of 20" and 30" on 24" frames of an
+    // error model the table was not written for. The three frames' errors spread by
+    // about 0.03 mm (docs/calibration.md: −0.22, −0.26, −0.21), so their mean has a
+    // standard error of about 0.015 mm against the goal's margin.
+    assert!(mean(&two_24).abs() < 0.3, "20\"+30\" → 24\": {two_24:?}");
     // A size the one rig never saw: each frame's 1-σ covers its error and its
     // status_reason says the pipe lies outside the rig's sizes, or the frame is refused
     // because most of it lies outside the table's support.

@@ -433,6 +433,42 @@ fn the_incidence_table_corrects_inside_its_support_only() {
     assert_eq!(pts[2], [0.0; 3]);
 }
 
+/// Between two rig sizes the bridged bins interpolate: the error of a 24" wall (R =
+/// 0.293 m), which neither rig showed, is read from the table of a 20" and a 30" rig
+/// (24 × 24 intensity × incidence bins, so that a gap of bridged bins lies between
+/// them) to within the table's own resolution: a bin's mean is the error at its points'
+/// centroid, up to half a bin from the centre where the interpolation places it, so the
+/// bound is Σ |∂f/∂x|·(bin width)/2 over the three axes.
+#[test]
+fn bridged_bins_interpolate_an_error_linear_across_the_gap() {
+    let both = two_rigs(&[0.242, 0.369]);
+    let bins = IncidenceBins::spanning(&both, (10, 24, 24), (0.5, 2.0), 5).unwrap();
+    let t = IncidenceTable::build(&both, &bins).unwrap();
+    let width = |a: &Axis| (a.hi - a.lo) / a.n as f64;
+    let bound = 0.5
+        * (0.004 * width(&t.range)
+            + 0.002 * width(&t.log_intensity)
+            + 0.01 * width(&t.log_cos_incidence));
+    let mut bridged = 0;
+    for k in 0..11 {
+        let r = 0.8 + 0.1 * k as f64;
+        let c = 0.293 / r;
+        let i = 500.0 * c / (r * r);
+        let truth = 0.004 * r - 0.002 * i.ln() + 0.01 * c.ln();
+        let look = t.lookup(r, i.ln(), c.ln()).unwrap();
+        bridged += usize::from(t.support[look.bin] == Support::Bridged);
+        assert!(
+            (look.offset_m - truth).abs() < bound,
+            "r {r}: {} vs {truth} (bound {bound})",
+            look.offset_m
+        );
+    }
+    assert!(
+        bridged >= 6,
+        "the 24\" wall should lie in bridged bins: {bridged} of 11"
+    );
+}
+
 /// The propagated covariance of a range error shared by every point matches the change
 /// of the refitted diameters when the points are moved by it (finite difference).
 #[test]
