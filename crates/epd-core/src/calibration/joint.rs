@@ -447,21 +447,29 @@ mod tests {
         (data, IncidenceTable::build(&obs, &bins).unwrap())
     }
 
-    #[test]
-    fn the_normal_equations_are_the_reduced_chi2s_derivatives() {
-        let truth = [
+    /// Three rig frames' poses in the sensor's working range.
+    fn three_poses() -> [Params; 3] {
+        [
             pose(0.03, -0.02, 0.02, -0.03),
             pose(-0.05, 0.01, -0.04, 0.01),
             pose(0.0, 0.06, 0.01, 0.05),
-        ];
-        let (data, table) = rig(&truth, |k, r| 0.02 + 0.01 * r * r + wobble(k));
-        let frames: Vec<CalibrationFrame<'_>> = data
-            .iter()
+        ]
+    }
+
+    fn calibration_frames(data: &[Cast]) -> Vec<CalibrationFrame<'_>> {
+        data.iter()
             .map(|(p, i)| CalibrationFrame {
                 points: p,
                 intensity: i,
             })
-            .collect();
+            .collect()
+    }
+
+    #[test]
+    fn the_normal_equations_are_the_reduced_chi2s_derivatives() {
+        let truth = three_poses();
+        let (data, table) = rig(&truth, |k, r| 0.02 + 0.01 * r * r + wobble(k));
+        let frames = calibration_frames(&data);
         // Away from the minimum, where the gradient is not small.
         let start: Vec<Option<Params>> = truth
             .iter()
@@ -504,19 +512,9 @@ mod tests {
 
     #[test]
     fn a_pose_moved_off_its_frame_comes_back() {
-        let truth = [
-            pose(0.03, -0.02, 0.02, -0.03),
-            pose(-0.05, 0.01, -0.04, 0.01),
-            pose(0.0, 0.06, 0.01, 0.05),
-        ];
+        let truth = three_poses();
         let (data, table) = rig(&truth, |k, _| 0.02 + wobble(k));
-        let frames: Vec<CalibrationFrame<'_>> = data
-            .iter()
-            .map(|(p, i)| CalibrationFrame {
-                points: p,
-                intensity: i,
-            })
-            .collect();
+        let frames = calibration_frames(&data);
         let mut poses: Vec<Option<Params>> = truth.iter().copied().map(Some).collect();
         let moved = poses[1].as_mut().unwrap();
         moved.dz += 0.005;
