@@ -240,7 +240,8 @@ pub(super) fn refine_poses(
     let start = chi2;
     let mut lambda = LAMBDA_START;
     let mut steps = 0;
-    while steps < JOINT_MAX_STEPS {
+    // No frame with points in an observed bin: nothing to refine.
+    while steps < JOINT_MAX_STEPS && a.nrows() > 0 {
         steps += 1;
         let dim = a.nrows();
         let top = (0..dim).map(|i| a[(i, i)]).fold(0.0, f64::max);
@@ -508,6 +509,17 @@ mod tests {
                 2.0 * a[(i, i)]
             );
         }
+    }
+
+    #[test]
+    fn frames_left_out_leave_nothing_to_refine() {
+        let truth = three_poses();
+        let (data, table) = rig(&truth, |k, _| 0.02 + wobble(k));
+        let frames = calibration_frames(&data);
+        let mut poses = vec![None; frames.len()];
+        let out = refine_poses(&frames, &mut poses, &table, (0.1, 3.0)).unwrap();
+        assert_eq!((out.steps, out.n_points), (0, 0));
+        assert!(poses.iter().all(Option::is_none));
     }
 
     #[test]
