@@ -106,21 +106,24 @@ impl ObservedBins for DepthTable {
     }
 }
 
-/// One frame's points in the refinement: each one's index in the frame, its bin
-/// (compact, over all frames) and its weight.
+/// One frame's points in the refinement: each one's index in the frame, its bin among
+/// the frame's own bins, and its weight; and each of the frame's bins' index among all
+/// frames' bins.
 struct Selected {
     point: Vec<u32>,
     bin: Vec<u32>,
     weight: Vec<f64>,
+    global: Vec<u32>,
 }
 
 /// A frame's sums at a pose: Σ w J Jᵀ, Σ w J r, Σ w r², and per bin it touches
-/// (N, E, S₀…S₄).
-struct FrameSums {
+/// (N, E, S₀…S₄), in the order of `global` (the bins' indices among all frames' bins).
+struct FrameSums<'a> {
     h: [[f64; POSE]; POSE],
     g: [f64; POSE],
     c: f64,
-    bins: HashMap<u32, [f64; 2 + POSE]>,
+    bins: Vec<[f64; 2 + POSE]>,
+    global: &'a [u32],
 }
 
 /// What the refinement did.
@@ -163,11 +166,18 @@ impl<'a> Joint<'a> {
                 point: Vec::with_capacity(picks.len()),
                 bin: Vec::with_capacity(picks.len()),
                 weight: Vec::with_capacity(picks.len()),
+                global: Vec::new(),
             };
+            let mut local: HashMap<usize, u32> = HashMap::new();
             for (k, b, w) in picks {
-                let next = compact.len() as u32;
+                let next = local.len() as u32;
+                let l = *local.entry(b).or_insert_with(|| {
+                    let g = compact.len() as u32;
+                    s.global.push(*compact.entry(b).or_insert(g));
+                    next
+                });
                 s.point.push(k);
-                s.bin.push(*compact.entry(b).or_insert(next));
+                s.bin.push(l);
                 s.weight.push(w);
             }
             selected.push(Some(s));
@@ -308,13 +318,18 @@ fn select(
 }
 
 /// The sums of one frame at `pose` (`None` when the pose leaves the model's domain).
-fn frame_sums(f: &CalibrationFrame<'_>, s: &Selected, pose: &Params) -> Option<FrameSums> {
+fn frame_sums<'a>(
+    f: &CalibrationFrame<'_>,
+    s: &'a Selected,
+    pose: &Params,
+) -> Option<FrameSums<'a>> {
     let geom = Geometry::new(pose)?;
     let mut out = FrameSums {
         h: [[0.0; POSE]; POSE],
         g: [0.0; POSE],
         c: 0.0,
-        bins: HashMap::new(),
+        bins: vec![[0.0; 2 + POSE]; s.global.len()],
+        global: &s.global,
     };
     for ((&k, &b), &w) in s.point.iter().zip(&s.bin).zip(&s.weight) {
         let (r, grad) = geom.residual_and_gradient(Residual::Range, &f.points[k as usize]);
@@ -326,7 +341,7 @@ fn frame_sums(f: &CalibrationFrame<'_>, s: &Selected, pose: &Params) -> Option<F
             }
         }
         out.c += w * r * r;
-        let acc = out.bins.entry(b).or_insert([0.0; 2 + POSE]);
+        let acc = &mut out.bins[b as usize];
         acc[0] += w;
         acc[1] += w * r;
         for q in 0..POSE {
@@ -357,7 +372,7 @@ fn reduced_system(sums: &[FrameSums], n_bins: usize) -> Option<(f64, DMatrix<f64
                 a[(slot * POSE + p, slot * POSE + q)] = s.h[p][q];
             }
         }
-        for (&b, acc) in &s.bins {
+        for (&b, acc) in s.global.iter().zip(&s.bins) {
             per_bin[b as usize].push((slot, *acc));
         }
     }
