@@ -6,8 +6,9 @@
 //! whatever the points; and the form test's 2¹⁶ residuals, 8 B each, with a 4 B cell
 //! index each while they are gathered: 0.75 MB, the largest part). A copy of the points (24 MB) or a
 //! per-point buffer of one f64 (8 MB) would break it.
-//! The geometry survey of a straight frame holds each point's deviation once, in 32 bits
-//! (`scene::profile`), and no copy of the points (issue 27).
+//! The geometry survey of a straight frame holds each point's deviation once, in 32 bits,
+//! in blocks that are never reallocated (`scene::profile`), and no copy of the points
+//! (issue 27).
 //! Measured with a counting global allocator.
 
 mod common;
@@ -84,27 +85,33 @@ fn memory_is_bounded_and_allocations_do_not_scale_with_points() {
             "{m}: {count_big} vs {count_small}"
         );
     }
-    // The survey of the frame itself (it reads straight, from its first fit alone): its
-    // profile's deviations, 4 B a point in cells grown by doubling (≤ 8 B a point), beside
-    // the estimates' bound above. A copy of the points (24 B a point) breaks it; so did
-    // the profile's former per-point (x, d, sector) list, 24 B, and its cells of 64-bit
-    // deviations.
-    let base = CURRENT.load(Ordering::SeqCst);
-    PEAK.store(base, Ordering::SeqCst);
-    let s = survey(
-        &frame,
-        Method::MlEpd,
-        &EstimateOptions::default(),
-        &SegmentOptions::default(),
-    )
-    .unwrap();
-    let peak = PEAK.load(Ordering::SeqCst) - base;
-    eprintln!(
-        "survey of {} points: peak {peak} B beyond the input ({:.2} B a point)",
-        frame.len(),
-        peak as f64 / frame.len() as f64
-    );
-    assert_eq!(s.segmentation.layout, Scene::Straight);
-    assert_eq!(s.segmentation.rounds, 1, "the frame was refitted");
-    assert!(peak < 8 * frame.len() + 1_300_000, "survey: peak {peak} B");
+    // The survey of the frame and of its 10⁶-point tiling (each reads straight, from its
+    // first fit alone): its profile's deviations once, 4 B a point, with at most one
+    // part-filled block of 64 in each cell (the frame lies within 6 m: at most 121 slices
+    // of 5 cm × 12 sectors × 256 B), and one batch of (cell, deviation) pairs, 8 B ×
+    // 16 × 4096, beside the estimates' bound above. Measured 2.43 MB (306 000 points)
+    // and 5.26 MB (10⁶). Cells grown by doubling broke it on 10⁶ points (6.70 MB), as do
+    // a copy of the points (24 B a point), the profile's former per-point (x, d, sector)
+    // list, 24 B, and cells of 64-bit deviations.
+    let slack = 121 * 12 * 256 + 8 * 16 * 4096 + 1_300_000;
+    for pts in [&frame, &big] {
+        let base = CURRENT.load(Ordering::SeqCst);
+        PEAK.store(base, Ordering::SeqCst);
+        let s = survey(
+            pts,
+            Method::MlEpd,
+            &EstimateOptions::default(),
+            &SegmentOptions::default(),
+        )
+        .unwrap();
+        let peak = PEAK.load(Ordering::SeqCst) - base;
+        eprintln!(
+            "survey of {} points: peak {peak} B beyond the input ({:.2} B a point)",
+            pts.len(),
+            peak as f64 / pts.len() as f64
+        );
+        assert_eq!(s.segmentation.layout, Scene::Straight);
+        assert_eq!(s.segmentation.rounds, 1, "the frame was refitted");
+        assert!(peak < 4 * pts.len() + slack, "survey: peak {peak} B");
+    }
 }

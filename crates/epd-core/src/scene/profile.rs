@@ -294,18 +294,20 @@ pub fn profile(
         walls
     };
     // Pass 1: the axial extent of the counted points, which places the slices.
-    let (x_min, x_max) = points
+    // Also how many of them lie at x ≥ 0: those that pass 2 bins (x ≥ x_min = max(the
+    // least x, 0) holds for every point at x ≥ 0 when the least x is ≥ 0, and selects
+    // them when it is not).
+    let (x_min, x_max, n_binned) = points
         .par_chunks(PROFILE_CHUNK)
         .map(|chunk| {
-            counted(chunk)
-                .iter()
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), w| {
-                    (lo.min(w[0]), hi.max(w[0]))
-                })
+            counted(chunk).iter().fold(
+                (f64::INFINITY, f64::NEG_INFINITY, 0usize),
+                |(lo, hi, n), w| (lo.min(w[0]), hi.max(w[0]), n + usize::from(w[0] >= 0.0)),
+            )
         })
         .reduce(
-            || (f64::INFINITY, f64::NEG_INFINITY),
-            |a, b| (a.0.min(b.0), a.1.max(b.1)),
+            || (f64::INFINITY, f64::NEG_INFINITY, 0),
+            |a, b| (a.0.min(b.0), a.1.max(b.1), a.2 + b.2),
         );
     crate::cancel::checkpoint();
     let x_min = x_min.max(0.0);
@@ -314,9 +316,11 @@ pub fn profile(
     }
     let n_slices = (((x_max - x_min) / o.slice_m).ceil() as usize).clamp(1, 100_000);
     // Pass 2: each point's deviation into its cell, batch by batch.
-    let mut cells: Vec<Vec<f32>> = vec![Vec::new(); n_slices * ns];
+    let mut store = CellStore::new(n_slices * ns, n_binned);
     for batch in points.chunks(PROFILE_CHUNK * PROFILE_BATCH_CHUNKS) {
-        let binned: Vec<Vec<(usize, f32)>> = batch
+        // A cell's index fits 32 bits: at most 100 000 slices of at most 360 sectors
+        // (`SegmentOptions::validate`).
+        let binned: Vec<Vec<(u32, f32)>> = batch
             .par_chunks(PROFILE_CHUNK)
             .map(|chunk| {
                 // Borrowed, not consumed: a collect in place would keep the deviations'
@@ -326,16 +330,18 @@ pub fn profile(
                     .filter(|w| w[0] >= x_min)
                     .map(|&[x, y, z, d]| {
                         let i = (((x - x_min) / o.slice_m) as usize).min(n_slices - 1);
-                        (i * ns + clock.of(y, z), d as f32)
+                        ((i * ns + clock.of(y, z)) as u32, d as f32)
                     })
                     .collect()
             })
             .collect();
         crate::cancel::checkpoint();
         for (c, d) in binned.into_iter().flatten() {
-            cells[c].push(d);
+            store.push(c as usize, d);
         }
     }
+    let store = store.into_contiguous();
+    let cells: Vec<&[f32]> = (0..n_slices * ns).map(|c| store.cell(c)).collect();
     let tau = std::f64::consts::TAU;
     // Each slice's statistics on its own, on all cores.
     let mut slices: Vec<Slice> = cells
@@ -366,13 +372,108 @@ pub fn profile(
     slices
 }
 
+/// Deviations per block of [`CellStore`]: 64 (256 B), so that the cells' slack, at most
+/// one block each, stays small whatever the points (0.4 MB for 120 slices of 12 sectors).
+const CELL_BLOCK: usize = 64;
+
+/// The profile's deviations, cell by cell, held once (issue 27: the survey's memory beside
+/// its input). While [`profile`] bins them, each cell fills blocks of [`CELL_BLOCK`] taken
+/// in turn from one buffer, which is sized once for every deviation and every cell's
+/// last block, so nothing is ever reallocated or copied (cells grown by doubling held up
+/// to twice their deviations); then the blocks are permuted in place so that each cell's
+/// lie together and in order ([`CellStore::into_contiguous`]).
+struct CellStore {
+    /// The blocks, in the order they were taken.
+    data: Vec<f32>,
+    /// Each cell's blocks, in order.
+    blocks: Vec<Vec<u32>>,
+    /// Each cell's deviations.
+    len: Vec<usize>,
+}
+
+impl CellStore {
+    /// Room for `n` deviations in `cells` cells: at most ⌈n/64⌉ full blocks and one part
+    /// block for each cell that holds any (at most n of them).
+    fn new(cells: usize, n: usize) -> Self {
+        let blocks = n.div_ceil(CELL_BLOCK) + cells.min(n);
+        Self {
+            data: Vec::with_capacity(blocks * CELL_BLOCK),
+            blocks: vec![Vec::new(); cells],
+            len: vec![0; cells],
+        }
+    }
+
+    fn push(&mut self, c: usize, d: f32) {
+        let k = self.len[c] % CELL_BLOCK;
+        if k == 0 {
+            self.blocks[c].push((self.data.len() / CELL_BLOCK) as u32);
+            self.data.resize(self.data.len() + CELL_BLOCK, 0.0);
+        }
+        if let Some(&b) = self.blocks[c].last() {
+            self.data[b as usize * CELL_BLOCK + k] = d;
+        }
+        self.len[c] += 1;
+    }
+
+    /// The blocks permuted in place, cell after cell, each cell's in its order (its part
+    /// block last), by following the permutation's cycles with one block's copy.
+    fn into_contiguous(mut self) -> Cells {
+        let n_blocks = self.data.len() / CELL_BLOCK;
+        // Where each block goes, and where each cell starts.
+        let mut dest = vec![0u32; n_blocks];
+        let mut start = Vec::with_capacity(self.len.len());
+        let mut next = 0u32;
+        for list in &self.blocks {
+            start.push(next as usize * CELL_BLOCK);
+            for &b in list {
+                dest[b as usize] = next;
+                next += 1;
+            }
+        }
+        self.blocks = Vec::new();
+        let mut held = [0.0f32; CELL_BLOCK];
+        for b in 0..n_blocks {
+            // Move the block at b to its place, bringing the one there to b, until b
+            // holds its own.
+            while dest[b] as usize != b {
+                let to = dest[b] as usize;
+                let (lo, hi) = (b.min(to), b.max(to));
+                let (head, tail) = self.data.split_at_mut(hi * CELL_BLOCK);
+                held.copy_from_slice(&head[lo * CELL_BLOCK..(lo + 1) * CELL_BLOCK]);
+                head[lo * CELL_BLOCK..(lo + 1) * CELL_BLOCK].copy_from_slice(&tail[..CELL_BLOCK]);
+                tail[..CELL_BLOCK].copy_from_slice(&held);
+                dest.swap(b, to);
+            }
+        }
+        Cells {
+            data: self.data,
+            start,
+            len: self.len,
+        }
+    }
+}
+
+/// The profile's deviations with each cell's together ([`CellStore::into_contiguous`]).
+struct Cells {
+    data: Vec<f32>,
+    start: Vec<usize>,
+    len: Vec<usize>,
+}
+
+impl Cells {
+    /// Cell `c`'s deviations, in the order they were binned.
+    fn cell(&self, c: usize) -> &[f32] {
+        &self.data[self.start[c]..self.start[c] + self.len[c]]
+    }
+}
+
 /// Points per parallel job of [`profile`]'s pass over the points: large enough that a
 /// job's cost (about 0.1 ms) dwarfs rayon's scheduling, small enough that a 20 000-point
 /// frame still splits over a few cores and that a stop request waits at most one job.
 const PROFILE_CHUNK: usize = 4096;
 
 /// Jobs of [`profile`]'s second pass binned together: the (cell, deviation) pairs of one
-/// batch, 16 bytes a point, are all that is held beside the cells (1 MiB for 16 jobs),
+/// batch, 8 bytes a point, are all that is held beside the cells (0.5 MiB for 16 jobs),
 /// and 16 jobs keep every core of a small machine busy between two binnings.
 const PROFILE_BATCH_CHUNKS: usize = 16;
 
@@ -631,15 +732,20 @@ pub(crate) fn critical_values(tested: usize, dof: f64, sectors: usize) -> (f64, 
 /// One slice's statistics from its sectors' deviations (m, held in 32 bits: a relative
 /// rounding of 6·10⁻⁸, 10⁻⁹ m on a 2 cm deviation, far below any camera's range noise,
 /// which halves the survey's memory per point; the statistics are taken in 64 bits).
-pub(crate) fn slice_stats(sectors: &[Vec<f32>], start_m: f64, o: &SegmentOptions) -> Slice {
+pub(crate) fn slice_stats<C: AsRef<[f32]>>(
+    sectors: &[C],
+    start_m: f64,
+    o: &SegmentOptions,
+) -> Slice {
     let ns = sectors.len();
     let tau = std::f64::consts::TAU;
-    let n_points = sectors.iter().map(Vec::len).sum();
+    let n_points = sectors.iter().map(|c| c.as_ref().len()).sum();
     // (ψ, median, variance of the median) per usable sector.
     let mut meds: Vec<(f64, f64, f64)> = Vec::new();
     let mut by_sector = vec![f64::NAN; ns];
     let mut v: Vec<f64> = Vec::new();
     for (k, cell) in sectors.iter().enumerate() {
+        let cell = cell.as_ref();
         if cell.len() < o.min_points {
             continue;
         }
@@ -706,6 +812,46 @@ pub(crate) fn slice_stats(sectors: &[Vec<f32>], start_m: f64, o: &SegmentOptions
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Cells filled block by block, interleaved at random, read back each its deviations
+    /// in order once made contiguous, on either side of a block's edge; the store never
+    /// outgrows the room it took at the start.
+    #[test]
+    fn a_cell_store_keeps_each_cells_deviations_in_order() {
+        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = move |m: usize| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state % m as u64) as usize
+        };
+        for (cells, n) in [
+            (1, 0),
+            (1, 1),
+            (3, CELL_BLOCK),
+            (7, 3 * CELL_BLOCK + 5),
+            (40, 5000),
+        ] {
+            let mut store = CellStore::new(cells, n);
+            let room = store.data.capacity();
+            let mut want = vec![Vec::new(); cells];
+            for k in 0..n {
+                let c = next(cells);
+                let d = k as f32 * 0.25 - 7.0;
+                store.push(c, d);
+                want[c].push(d);
+            }
+            assert_eq!(store.data.capacity(), room, "the store grew");
+            let got = store.into_contiguous();
+            for (c, w) in want.iter().enumerate() {
+                assert_eq!(
+                    got.cell(c),
+                    w.as_slice(),
+                    "cell {c} of {cells}, {n} deviations"
+                );
+            }
+        }
+    }
 
     /// The clock sector by comparisons against its definition with `atan2`, for sector
     /// counts that divide the quadrants (the comparisons) and that do not (the fallback),

@@ -75,9 +75,9 @@ pub const MIN_SECTORS_IN_VIEW: usize = MIN_SECTORS_TESTED;
 /// `opening_p` and `opening_psi` (and `departure_p` to the least of its own and
 /// `opening_p`): `cells` holds each slice's sectors' deviations (slice-major, `sectors` per
 /// slice), as `profile` binned them.
-pub(crate) fn test_openings(
+pub(crate) fn test_openings<C: AsRef<[f32]>>(
     slices: &mut [Slice],
-    cells: &[Vec<f32>],
+    cells: &[C],
     o: &SegmentOptions,
     law: &DesignEffect,
 ) {
@@ -85,7 +85,7 @@ pub(crate) fn test_openings(
     let in_view = |i: usize| {
         cells[i * sectors..(i + 1) * sectors]
             .iter()
-            .filter(|c| !c.is_empty())
+            .filter(|c| !c.as_ref().is_empty())
             .count()
     };
     let sparse: Vec<usize> = (0..slices.len())
@@ -94,7 +94,7 @@ pub(crate) fn test_openings(
     if sparse.is_empty() {
         return;
     }
-    let cell = |i: usize, k: usize| &cells[i * sectors + k];
+    let cell = |i: usize, k: usize| cells[i * sectors + k].as_ref();
     // Per slice tested, per sector: (points, exceedances); (0, 0) for a cell left to the
     // medians.
     let mut counts: Vec<Vec<(usize, usize)>> = Vec::with_capacity(sparse.len());
@@ -233,22 +233,33 @@ pub const WINDOW_SECTORS: [usize; 2] = [1, 2];
 /// frame the MAD is the fit's rounding error, 10⁻¹³ m, and the rounding's tail read
 /// straight frames as tees and bends. A ray through an opening runs on to the branch's
 /// far wall, about a diameter beyond, far above either.
-fn sector_limit(cells: &[Vec<f32>], sectors: usize, i: usize, k: usize, min_excess: f64) -> f64 {
+fn sector_limit<C: AsRef<[f32]>>(
+    cells: &[C],
+    sectors: usize,
+    i: usize,
+    k: usize,
+    min_excess: f64,
+) -> f64 {
     let n_slices = cells.len() / sectors;
     let (mut lo, mut hi) = (i, i);
-    let mut n = cells[i * sectors + k].len();
+    let mut n = cells[i * sectors + k].as_ref().len();
     while n < LOCAL_WALL_POINTS && (lo > 0 || hi + 1 < n_slices) {
         if lo > 0 {
             lo -= 1;
-            n += cells[lo * sectors + k].len();
+            n += cells[lo * sectors + k].as_ref().len();
         }
         if hi + 1 < n_slices {
             hi += 1;
-            n += cells[hi * sectors + k].len();
+            n += cells[hi * sectors + k].as_ref().len();
         }
     }
     let mut d: Vec<f64> = (lo..=hi)
-        .flat_map(|j| cells[j * sectors + k].iter().map(|&v| f64::from(v)))
+        .flat_map(|j| {
+            cells[j * sectors + k]
+                .as_ref()
+                .iter()
+                .map(|&v| f64::from(v))
+        })
         .collect();
     let (centre, sigma) = crate::loss::median_and_mad_sigma(&mut d);
     centre + (EXCEEDANCE_SIGMAS * sigma).max(min_excess)
