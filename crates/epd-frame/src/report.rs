@@ -75,6 +75,10 @@ pub struct FileEstimate {
     /// frame's mean diameter lies outside them (`crate::measure::RIG_SIZE_MARGIN`); said
     /// in `status_reason`.
     pub size_outside_rigs: Option<(f64, f64)>,
+    /// With an incidence table: the frame lay too far outside its support to be
+    /// corrected, and was fitted on its raw points with the table's largest offset as an
+    /// error shared by every point in its 1-σ; said in `status_reason`.
+    pub uncorrected: Option<crate::measure::UncorrectedFrame>,
     /// The survey's bend ahead, when it found one: its placement in the pipe frame of the
     /// survey's straight fit (those parameters first) and the angle seen so far (rad);
     /// not a key of the report (`epd estimate --export-fit` meshes it as a torus).
@@ -224,7 +228,17 @@ impl FileReport {
             Ok(e) => {
                 f.extend(estimate_fields(&e.estimate));
                 let mut notes = Vec::new();
-                if let Some(out) = e.calibration_outside
+                if let Some(u) = e.uncorrected {
+                    notes.push(format!(
+                        "{:.0} % of the points lie outside the depth table's support (more than \
+                         {:.0} %): the frame is not corrected, and its 1-σ holds the camera's \
+                         error as one error shared by every point, of the table's offsets' \
+                         root mean square ({:.1} mm); calibrate with a rig of this pipe's size",
+                        u.outside_fraction * 100.0,
+                        crate::measure::REFUSE_OUTSIDE * 100.0,
+                        u.shared_error_m * 1e3
+                    ));
+                } else if let Some(out) = e.calibration_outside
                     && out > crate::measure::MOSTLY_OUTSIDE
                 {
                     notes.push(format!(
@@ -616,6 +630,7 @@ mod tests {
                 intensity_without_table: false,
                 calibration_outside: None,
                 size_outside_rigs: None,
+                uncorrected: None,
                 bend_fit: None,
             }),
         }

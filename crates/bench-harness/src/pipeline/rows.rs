@@ -282,9 +282,10 @@ impl Surveyed {
                 .map_err(|e| anyhow::anyhow!(e))
                 .with_context(context)?;
                 let (points, sigma) = match f.rounds {
-                    Ok(r) => (r.points, r.correction.sigma_m),
-                    // Refused by `epd estimate`; the run takes the plain table's points.
-                    Err(_) => {
+                    Ok(r) if r.uncorrected.is_none() => (r.points, r.correction.sigma_m),
+                    // Refused, or left uncorrected, by `epd estimate`; the run takes the
+                    // plain table's points, to compare the methods on every frame.
+                    _ => {
                         let mut p = frame.measured.clone();
                         let (_, sigma) = tables.plain.correct_with_sigmas(&mut p, &intensity)?;
                         (p, sigma)

@@ -1,6 +1,6 @@
 //! The depth table's part of a measurement: a version-2 (incidence) table's rounds of
 //! fit → incidence → correction, the scene surveyed on the plain table's points, the
-//! frames refused for lying outside the table's support, and what the table leaves to
+//! frames left uncorrected for lying outside the table's support, and what the table leaves to
 //! the 1-σ (its bins' standard errors, shared by the points each corrected, and the
 //! transfer from the rigs' sizes to the pipe's).
 
@@ -11,11 +11,43 @@ use crate::scene::FrameScene;
 use crate::table::CalibrationTable;
 
 /// A frame more than this fraction of whose points lie outside the depth table's support
-/// is refused: 90 %. The fit then rests on under a tenth of the wall the camera saw —
-/// on the Helios2 model a band of ranges near the rig's, where the diameters and the
-/// sensor's offset are not told apart: of eight such frames (a 20" table, 30" frames,
-/// 93–100 % outside) seven ended `implausible` and the eighth 19.6 mm off.
+/// is not corrected: 90 %. A fit of the corrected points would rest on under a tenth of
+/// the wall the camera saw — on the Helios2 model a band of ranges near the rig's, where
+/// the diameters and the sensor's offset are not told apart: of eight such frames (a 20"
+/// table, 30" frames, 93–100 % outside) seven ended `implausible` and the eighth 19.6 mm
+/// off. The frame is fitted on its raw points instead, with the camera's unknown error
+/// in its 1-σ ([`UncorrectedFrame`]).
 pub const REFUSE_OUTSIDE: f64 = 0.9;
+
+/// A frame too far outside the depth table's support to be corrected
+/// ([`REFUSE_OUTSIDE`]): it is fitted on its raw points, and the camera's error, which
+/// the table measured only where its rigs looked, enters the 1-σ as one error shared by
+/// every point, of standard deviation the root mean square of the table's offsets over
+/// the points its rigs showed, √(Σ nⱼ·offsetⱼ² / Σ nⱼ) over the observed bins j with nⱼ
+/// points ([`rms_offset_m`]). The assumption, stated: the camera's error where the rigs
+/// did not look is one draw of its errors where they did. A shared error, not an
+/// independent one per point, because the error of one camera at one set of conditions
+/// is the same for every point there (the depth table's own premise).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct UncorrectedFrame {
+    /// Of the valid points with an intensity, the fraction outside the support.
+    pub outside_fraction: f64,
+    /// The table's offsets' root mean square (m), the shared error's standard deviation.
+    pub shared_error_m: f64,
+}
+
+/// The root mean square of a table's offsets over the points its rigs showed (m): each
+/// observed bin's offset weighted by its points ([`UncorrectedFrame`]). 0 for a table
+/// with no observed bin.
+pub fn rms_offset_m(table: &epd_core::calibration::IncidenceTable) -> f64 {
+    let (sum, n) = table
+        .offset_m
+        .iter()
+        .zip(&table.count)
+        .filter(|(o, c)| o.is_finite() && **c > 0)
+        .fold((0.0, 0u64), |(s, n), (o, &c)| (s + o * o * c as f64, n + c));
+    if n == 0 { 0.0 } else { (sum / n as f64).sqrt() }
+}
 
 /// Rounds of fit → incidence → correction → refit at most: the incidence comes from the
 /// fitted wall, which moves with the correction. The mean diameter settles within
@@ -81,6 +113,8 @@ pub(super) struct Calibrated {
     pub(super) surveyed_here: bool,
     /// What the table leaves to the 1-σ.
     pub(super) shared: Option<SharedErrors>,
+    /// The frame lay too far outside the table's support to be corrected.
+    pub(super) uncorrected: Option<UncorrectedFrame>,
 }
 
 /// The depth table's part of `epd estimate --calibration` on a frame: `points` corrected
@@ -117,14 +151,18 @@ pub(super) fn calibrate(
             let rounds = incidence_rounds(cal, inc, points, i, cfg.method, &cfg.options);
             (None, rounds)
         };
-        let (moved, s) = shared_errors(inc, rounds?, points);
+        let rounds = rounds?;
+        let uncorrected = rounds.uncorrected;
+        let (moved, s) = shared_errors(inc, rounds, points);
         return Ok(Calibrated {
             n_calibrated: moved,
             outside: Some(s.outside_fraction),
-            sigma: cfg.weighted.then(|| s.sigma_m.clone()),
+            // Uncorrected points have no spread from the table: the fit is unweighted.
+            sigma: (cfg.weighted && uncorrected.is_none()).then(|| s.sigma_m.clone()),
             scene,
             surveyed_here: false,
             shared: Some(s),
+            uncorrected,
         });
     }
     let mut outside = None;
@@ -182,6 +220,7 @@ pub(super) fn calibrate(
         scene,
         surveyed_here: true,
         shared,
+        uncorrected: None,
     })
 }
 
@@ -307,7 +346,31 @@ fn shared_errors(
         points: corrected,
         correction: corr,
         raw_diameters,
+        uncorrected,
     } = rounds;
+    if let Some(u) = uncorrected {
+        // One error shared by every valid point, of the table's largest offset.
+        let shift = corrected
+            .iter()
+            .map(|p| {
+                let r2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
+                (r2.is_finite() && r2 > 0.0).then_some((0, u.shared_error_m))
+            })
+            .collect();
+        *points = corrected;
+        return (
+            0,
+            SharedErrors {
+                shift: Shares::Home(shift),
+                n_groups: 1,
+                outside_fraction: u.outside_fraction,
+                sigma_m: Vec::new(),
+                // Nothing corrected: no correction's effect to add for a size outside
+                // the rigs' ([`add_transfer_uncertainty`]).
+                raw_diameters: None,
+            },
+        );
+    }
     let shift = Shares::Home(
         corr.bin
             .iter()
@@ -337,8 +400,9 @@ fn shared_errors(
 /// the same): the frame fitted on its raw points by `method` with `options`, then up to
 /// [`INCIDENCE_ROUNDS`] rounds of cos θ of each ray at the fitted wall → the raw points
 /// corrected by `table` → refit, until the mean diameter moves by less than
-/// [`INCIDENCE_TOLERANCE_M`]. Refused before the corrected points are fitted when more
-/// than [`REFUSE_OUTSIDE`] of them lie outside the table's support. The corrected points
+/// [`INCIDENCE_TOLERANCE_M`]. Left uncorrected, before the corrected points are fitted,
+/// when more than [`REFUSE_OUTSIDE`] of them lie outside the table's support: the raw
+/// points, with [`IncidenceRounds::uncorrected`] saying so. The corrected points
 /// (those outside the support NaN), the last round's correction, and the raw fit's
 /// (Dmax, Dmin) ([`IncidenceRounds`]).
 pub fn incidence_rounds(
@@ -354,27 +418,18 @@ pub fn incidence_rounds(
     };
     let mut pose = fit(raw)?;
     let raw_diameters = (pose.params.d_max, pose.params.d_min);
+    let raw_status = pose.status.clone();
     let mut out = None;
     for round in 0..INCIDENCE_ROUNDS {
         if round == 0 {
-            // Refused before the corrected points are fitted: too few lie in the support.
+            // Left uncorrected before the corrected points are fitted: too few lie in the
+            // support.
             let cos = epd_core::calibration::incidences(raw, &pose.params);
             let mut c = raw.to_vec();
             let corr = cal.correct_with_incidence(table, &mut c, intensity, &cos)?;
             let total = corr.moved + corr.outside;
             if total > 0 && corr.outside as f64 > REFUSE_OUTSIDE * total as f64 {
-                return Err(format!(
-                    "{:.0} % of the frame's points lie outside the depth table's support (more \
-                     than {:.0} %): the rigs ({}) did not show this pipe's ranges, \
-                     intensities and incidences; calibrate with a rig of this pipe's size",
-                    100.0 * corr.outside as f64 / total as f64,
-                    REFUSE_OUTSIDE * 100.0,
-                    cal.rigs
-                        .iter()
-                        .map(|((d, _), _)| format!("{:.1} mm", d * 1e3))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ));
+                return Ok(uncorrected_rounds(raw, raw_diameters, table, &corr));
             }
         }
         let cos = epd_core::calibration::incidences(raw, &pose.params);
@@ -391,11 +446,49 @@ pub fn incidence_rounds(
     let Some((corrected, corr)) = out else {
         return Err("no incidence round ran".into());
     };
+    // The corrected points of a frame mostly outside the support (more than
+    // [`MOSTLY_OUTSIDE`]) that do not determine the pipe — their fit's own check finds it
+    // implausible (a partial view, diverged) — while the raw points did: the raw points,
+    // with the camera's error in the 1-σ.
+    let total = corr.moved + corr.outside;
+    let mostly_outside = total > 0 && corr.outside as f64 > MOSTLY_OUTSIDE * total as f64;
+    if mostly_outside
+        && matches!(pose.status, epd_core::FitStatus::Implausible(_))
+        && !matches!(raw_status, epd_core::FitStatus::Implausible(_))
+    {
+        return Ok(uncorrected_rounds(raw, raw_diameters, table, &corr));
+    }
     Ok(IncidenceRounds {
         points: corrected,
         correction: corr,
         raw_diameters,
+        uncorrected: None,
     })
+}
+
+/// A frame left uncorrected ([`UncorrectedFrame`]): its raw points, none moved, and the
+/// fraction of them `corr` found outside the table's support.
+fn uncorrected_rounds(
+    raw: &[[f64; 3]],
+    raw_diameters: (f64, f64),
+    table: &epd_core::calibration::IncidenceTable,
+    corr: &epd_core::calibration::Correction,
+) -> IncidenceRounds {
+    let total = corr.moved + corr.outside;
+    IncidenceRounds {
+        points: raw.to_vec(),
+        correction: epd_core::calibration::Correction {
+            moved: 0,
+            outside: total,
+            bin: vec![None; raw.len()],
+            sigma_m: vec![f64::NAN; raw.len()],
+        },
+        raw_diameters,
+        uncorrected: Some(UncorrectedFrame {
+            outside_fraction: corr.outside as f64 / total.max(1) as f64,
+            shared_error_m: rms_offset_m(table),
+        }),
+    }
 }
 
 /// What [`incidence_rounds`] made of a frame.
@@ -409,6 +502,9 @@ pub struct IncidenceRounds {
     pub correction: epd_core::calibration::Correction,
     /// (Dmax, Dmin) of the fit on the raw points (m).
     pub raw_diameters: (f64, f64),
+    /// The frame lay too far outside the table's support to be corrected
+    /// ([`REFUSE_OUTSIDE`]): `points` are the raw ones.
+    pub uncorrected: Option<UncorrectedFrame>,
 }
 
 /// The relative margin around the rigs' diameters within which a pipe counts as one of

@@ -22,8 +22,8 @@ mod calibrated;
 
 pub use calibrated::{
     INCIDENCE_ROUNDS, INCIDENCE_TOLERANCE_M, IncidenceFrame, IncidenceRounds, MOSTLY_OUTSIDE,
-    PlainFrame, PlainFrameError, REFUSE_OUTSIDE, RIG_SIZE_MARGIN, incidence_frame,
-    incidence_rounds, plain_frame,
+    PlainFrame, PlainFrameError, REFUSE_OUTSIDE, RIG_SIZE_MARGIN, UncorrectedFrame,
+    incidence_frame, incidence_rounds, plain_frame,
 };
 use calibrated::{add_table_uncertainty, add_transfer_uncertainty, calibrate};
 
@@ -357,9 +357,10 @@ fn measure_chosen(
         )?),
         None => None,
     };
-    let (n_calibrated, calibration_outside) = calibrated
-        .as_ref()
-        .map_or((None, None), |c| (Some(c.n_calibrated), c.outside));
+    let (n_calibrated, calibration_outside, uncorrected) =
+        calibrated.as_ref().map_or((None, None, None), |c| {
+            (Some(c.n_calibrated), c.outside, c.uncorrected)
+        });
     let (sigmas, scene, surveyed_here, shared) = match calibrated {
         Some(c) => (
             c.sigma.map(Cow::Owned).or(sigma.map(Cow::Borrowed)),
@@ -422,6 +423,7 @@ fn measure_chosen(
         intensity_without_table: false,
         calibration_outside,
         size_outside_rigs,
+        uncorrected,
         bend_fit,
     })
 }
