@@ -418,7 +418,7 @@ pub fn incidence_rounds(
     };
     let mut pose = fit(raw)?;
     let raw_diameters = (pose.params.d_max, pose.params.d_min);
-    let raw_status = pose.status.clone();
+    let raw_status = pose.status;
     let mut out = None;
     for round in 0..INCIDENCE_ROUNDS {
         if round == 0 {
