@@ -4,7 +4,9 @@
 //! 30" pipes under tof-sim's Helios2 model; per size and table the calibrated
 //! mean-diameter error, the reported 1-σ, whether it covers, and the share of points
 //! outside the table's support (in `summary.csv` its mean over the frames measured; a
-//! frame refused for lying mostly outside reports none). A scenario with a `[calibration_transfer]` table
+//! frame whose measurement fails reports none; one too far outside the support to be
+//! corrected is measured uncorrected, `epd estimate`'s answer). A scenario with a
+//! `[calibration_transfer]` table
 //! ([`TransferScenario`]; `scenarios/calibration_transfer.toml`) run by `bench-harness`
 //! writes `frames.csv`, `summary.csv`, `calibration_transfer.png`, `scenario.toml` and
 //! `metadata.json`.
@@ -296,8 +298,8 @@ fn stage(s: &TransferScenario, dir: &Path, progress: bool) -> anyhow::Result<Rep
                     format!("{sd:.4}"),
                     format!("{ms:.4}"),
                     covered.to_string(),
-                    // Over the frames measured: a refused frame (more than 90 % outside
-                    // the support) reports no fraction.
+                    // Over the frames measured: a frame whose measurement failed reports
+                    // no fraction.
                     format!("{:.4}", crate::stats::Stats::of(&outside).mean),
                 ],
             );
