@@ -232,8 +232,8 @@ impl FileReport {
                     notes.push(format!(
                         "{:.0} % of the points lie outside the depth table's support (more than \
                          {:.0} %): the frame is not corrected, and its 1-σ holds the camera's \
-                         error as one error shared by every point, of the table's offsets' \
-                         root mean square ({:.1} mm); calibrate with a rig of this pipe's size",
+                         error as one error shared by every point, of the largest offset its \
+                         rigs showed ({:.1} mm); calibrate with a rig of this pipe's size",
                         u.outside_fraction * 100.0,
                         crate::measure::REFUSE_OUTSIDE * 100.0,
                         u.shared_error_m * 1e3
