@@ -117,8 +117,8 @@ fn frames(dir: &Path, name: &str, id_mm: f64, n: usize, seed: u64) -> Vec<PathBu
         .collect()
 }
 
-/// Per frame: (status, mean-diameter error mm, whether the ±1.96σ interval of both
-/// diameters covers their errors, calibration_outside, status_reason).
+/// Per frame: (status, mean-diameter error mm, whether the 1-σ of both diameters
+/// covers their errors, calibration_outside, status_reason).
 fn estimate(files: &[PathBuf], lut: &Path, id_mm: f64) -> Vec<(String, f64, bool, f64, String)> {
     let o = epd()
         .arg("estimate")
