@@ -144,7 +144,7 @@ fn estimate(files: &[PathBuf], lut: &Path, id_mm: f64) -> Vec<(String, f64, bool
                         d["sigma_d_max_mm"].as_f64().unwrap_or(0.0),
                         d["sigma_d_min_mm"].as_f64().unwrap_or(0.0),
                     );
-                    let covered = (a - id_mm).abs() <= 1.96 * sa && (b - id_mm).abs() <= 1.96 * sb;
+                    let covered = (a - id_mm).abs() <= sa && (b - id_mm).abs() <= sb;
                     (status, 0.5 * (a + b) - id_mm, covered, out, reason)
                 }
                 _ => (status, f64::NAN, false, out, reason),
