@@ -75,6 +75,10 @@ pub struct FileEstimate {
     /// frame's mean diameter lies outside them (`crate::measure::RIG_SIZE_MARGIN`); said
     /// in `status_reason`.
     pub size_outside_rigs: Option<(f64, f64)>,
+    /// With an incidence table: more than half of the frame's points lay outside its
+    /// support, and the correction's whole effect on the diameters was added to their
+    /// 1-σ; said in `status_reason`.
+    pub outside_in_sigma: bool,
     /// With an incidence table: the frame lay too far outside its support to be
     /// corrected, and was fitted on its raw points with the table's largest offset as an
     /// error shared by every point in its 1-σ; said in `status_reason`.
@@ -241,9 +245,18 @@ impl FileReport {
                 } else if let Some(out) = e.calibration_outside
                     && out > crate::measure::MOSTLY_OUTSIDE
                 {
+                    // An incidence table leaves them out of the fit; a version-1 table
+                    // corrects them from its edge or neighbouring bins.
+                    let what = if e.outside_in_sigma {
+                        "they are left out of the fit, and the correction's whole effect on \
+                         the diameters is in their 1-σ"
+                    } else {
+                        "the table corrects them with the values of its edge or nearest filled \
+                         bins, which its rigs did not show there"
+                    };
                     notes.push(format!(
                         "{:.0} % of the points lie outside the depth table's support (more than \
-                         {:.0} %): they are left out of the fit",
+                         {:.0} %): {what}",
                         out * 100.0,
                         crate::measure::MOSTLY_OUTSIDE * 100.0
                     ));
@@ -630,6 +643,7 @@ mod tests {
                 intensity_without_table: false,
                 calibration_outside: None,
                 size_outside_rigs: None,
+                outside_in_sigma: false,
                 uncorrected: None,
                 bend_fit: None,
             }),

@@ -13,9 +13,16 @@ use epd_frame::{CalibrationTable, EstimateConfig, EstimateSettings, FrameInput, 
 /// axis over a cone of rays, their ranges jittered by a deterministic ±0.5 mm, and an
 /// intensity 500·cos θ/r² (cos θ at the wall).
 fn frame() -> (Vec<[f64; 3]>, Vec<f64>) {
+    let (pts, inten, _) = frame_and_incidence();
+    (pts, inten)
+}
+
+/// [`frame`] with each point's cos θ at the wall.
+fn frame_and_incidence() -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
     let (rad, dy, dz) = (0.242, 0.03, -0.02);
     let mut pts = vec![];
     let mut inten = vec![];
+    let mut cosines = vec![];
     for a in 0..120 {
         for b in 0..60 {
             let phi = std::f64::consts::TAU * a as f64 / 120.0;
@@ -34,9 +41,10 @@ fn frame() -> (Vec<[f64; 3]>, Vec<f64>) {
             let r = t + jitter;
             pts.push([u[0] * r, u[1] * r, u[2] * r]);
             inten.push(500.0 * cos / (t * t));
+            cosines.push(cos);
         }
     }
-    (pts, inten)
+    (pts, inten, cosines)
 }
 
 /// A 5 × 3 table over the frame's ranges and intensities, offsets 0, spreads 5 mm,
@@ -171,4 +179,102 @@ fn a_version_1_tables_standard_errors_propagate_as_refits_move_the_diameters() {
             s_fit[a]
         );
     }
+}
+
+/// A frame mostly outside an incidence table's support, at the rig's own size: the
+/// table observed only the nearest 35 % of the frame's ranges (a 3 mm offset),
+/// so 65 % of the points are left out of the fit. The correction's whole effect on each
+/// diameter, |D_corrected − D_raw|, is in its 1-σ (`add_transfer_uncertainty`), and
+/// `status_reason` says so; without it the 1-σ (the fit's and the bins' standard errors)
+/// is far below that effect.
+#[test]
+fn a_frame_mostly_outside_the_support_carries_the_corrections_effect_in_its_1_sigma() {
+    use epd_core::calibration::{
+        IncidenceBins, IncidenceObservation, IncidenceTable, Observation, TableBins,
+    };
+    let (pts, inten, cosines) = frame_and_incidence();
+    let range = |p: &[f64; 3]| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+    let mut sorted: Vec<f64> = pts.iter().map(range).collect();
+    sorted.sort_by(f64::total_cmp);
+    let near = sorted[sorted.len() * 35 / 100];
+    let obs: Vec<IncidenceObservation> = pts
+        .iter()
+        .zip(&inten)
+        .zip(&cosines)
+        .filter(|((p, _), _)| range(p) < near)
+        .enumerate()
+        .map(|(k, ((p, &i), &c))| IncidenceObservation {
+            obs: Observation {
+                model_range_m: range(p),
+                intensity: i,
+                // 3 mm, scattered by ±0.5 mm so that each bin has a spread.
+                offset_m: 0.003 + 5e-4 * ((k % 11) as f64 / 5.0 - 1.0),
+            },
+            cos_incidence: c,
+        })
+        .collect();
+    let bins = IncidenceBins::spanning(&obs, (4, 3, 3), (0.0, 100.0), 30).expect("bins");
+    let inc = IncidenceTable::build(&obs, &bins).expect("an incidence table");
+    let plain_obs: Vec<Observation> = obs.iter().map(|o| o.obs).collect();
+    let plain = DepthTable::build(
+        &plain_obs,
+        &TableBins::spanning(&plain_obs, 4, 3).expect("plain bins"),
+    )
+    .expect("a plain table");
+    let settings = EstimateSettings {
+        geometry: false,
+        loss: "none".into(),
+        ..EstimateSettings::default()
+    };
+    let measure = |table: Option<CalibrationTable>| {
+        let mut cfg = EstimateConfig::new(&settings).expect("settings");
+        cfg.calibration = table;
+        cfg.weighted = false;
+        measure_frame(
+            FrameInput {
+                points: Cow::Borrowed(&pts),
+                intensity: Some(&inten),
+                sigma: None,
+                read_ms: 0.0,
+            },
+            &cfg,
+        )
+        .expect("a result")
+    };
+    let raw = measure(None).estimate;
+    let mut cal = CalibrationTable::plain(plain, (0.484, 0.484), 1, obs.len() as u64);
+    cal.incidence = Some(inc);
+    let e = measure(Some(cal));
+    let out = e.calibration_outside.expect("a fraction outside");
+    assert!((0.5..0.9).contains(&out), "{out}");
+    assert!(e.outside_in_sigma && e.uncorrected.is_none() && e.size_outside_rigs.is_none());
+    let est = &e.estimate;
+    let effect = [
+        (est.params.d_max - raw.params.d_max).abs(),
+        (est.params.d_min - raw.params.d_min).abs(),
+    ];
+    for k in 0..2 {
+        let sigma = est.sigma[k].expect("a 1-σ");
+        eprintln!(
+            "diameter {k}: the correction's effect {:.3} mm, 1-σ {:.3} mm",
+            effect[k] * 1e3,
+            sigma * 1e3
+        );
+        // The correction moves the diameters by millimetres (a 3 mm offset), far above
+        // the fit's own 1-σ on 7200 points jittered by ±0.5 mm.
+        assert!(effect[k] > 1e-3, "{k}: {}", effect[k]);
+        assert!(
+            sigma >= effect[k],
+            "{k}: 1-σ {sigma} below the effect {}",
+            effect[k]
+        );
+    }
+    let report = epd_frame::FileReport {
+        file: "f.ply".into(),
+        file_bytes: None,
+        outcome: Ok(e),
+        message: None,
+    }
+    .json();
+    assert!(report.contains("the correction's whole effect"), "{report}");
 }

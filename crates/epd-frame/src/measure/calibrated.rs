@@ -523,22 +523,30 @@ pub const RIG_SIZE_MARGIN: f64 = 0.03;
 /// Dmin to the largest rig's Dmax, widened by [`RIG_SIZE_MARGIN`]), the table's
 /// correction is not known to transfer to it (at the same range, intensity and
 /// incidence the rigs' poses absorbed a part of the error that depends on the pipe's
-/// size): the whole effect of the correction on each diameter, |D_corrected − D_raw|,
-/// is added to its variance — a 1-σ that spans the raw and the corrected result. The
-/// smallest and largest rig diameters (mm) when so, else `None`.
+/// size); when more than [`MOSTLY_OUTSIDE`] of its points lie outside the table's
+/// support, the fit rests on a minority of the wall, the part the rigs showed. Either
+/// way the whole effect of the correction on each diameter, |D_corrected − D_raw|, is
+/// added to its variance — a 1-σ that spans the raw and the corrected result (a version-2
+/// table's frames only: a version-1 table's are not fitted raw). Which of the two held
+/// ([`Transfer`]).
 pub(super) fn add_transfer_uncertainty(
     est: &mut epd_core::Estimate,
     s: &SharedErrors,
     cal: &crate::table::CalibrationTable,
-) -> Option<(f64, f64)> {
-    let raw = s.raw_diameters?;
+) -> Transfer {
+    let none = Transfer::default();
+    let Some(raw) = s.raw_diameters else {
+        return none;
+    };
     let lo = cal.rigs.iter().map(|r| r.0.1).fold(f64::INFINITY, f64::min);
     let hi = cal.rigs.iter().map(|r| r.0.0).fold(0.0f64, f64::max);
     let d = est.d_mean();
-    if !(lo.is_finite() && hi > 0.0)
-        || (lo * (1.0 - RIG_SIZE_MARGIN)..=hi * (1.0 + RIG_SIZE_MARGIN)).contains(&d)
-    {
-        return None;
+    let outside_sizes = lo.is_finite()
+        && hi > 0.0
+        && !(lo * (1.0 - RIG_SIZE_MARGIN)..=hi * (1.0 + RIG_SIZE_MARGIN)).contains(&d);
+    let mostly_outside = s.outside_fraction > MOSTLY_OUTSIDE;
+    if !(outside_sizes || mostly_outside) {
+        return none;
     }
     let delta = [est.params.d_max - raw.0, est.params.d_min - raw.1];
     if let Some(mut cov) = est.diameter_cov {
@@ -552,7 +560,20 @@ pub(super) fn add_transfer_uncertainty(
             est.sigma[k] = Some(sig.hypot(delta[k]));
         }
     }
-    Some((lo * 1e3, hi * 1e3))
+    Transfer {
+        size_outside_rigs: outside_sizes.then_some((lo * 1e3, hi * 1e3)),
+        mostly_outside,
+    }
+}
+
+/// Why [`add_transfer_uncertainty`] added the correction's whole effect to the 1-σ.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Transfer {
+    /// The rigs' smallest and largest diameters (mm), when the frame's mean diameter
+    /// lies outside them.
+    pub size_outside_rigs: Option<(f64, f64)>,
+    /// More than [`MOSTLY_OUTSIDE`] of the frame's points lie outside the support.
+    pub mostly_outside: bool,
 }
 
 /// Add the depth table's own uncertainty to the diameters' 1-σ: each bin's standard

@@ -393,10 +393,10 @@ fn measure_chosen(
     .map_err(failed)?;
     epd_core::cancel::checkpoint();
     let mask = scene.as_ref().and_then(|s| s.straight.as_deref());
-    let mut size_outside_rigs = None;
+    let mut transfer = calibrated::Transfer::default();
     if let (Some(s), Some(cal)) = (&shared, &cfg.calibration) {
         add_table_uncertainty(&mut est, kept, mask, s, cfg);
-        size_outside_rigs = add_transfer_uncertainty(&mut est, s, cal);
+        transfer = add_transfer_uncertainty(&mut est, s, cal);
     }
     let elapsed_ms = sampling_ms + t1.elapsed().as_secs_f64() * 1e3;
     let bend_fit = scene.as_ref().and_then(|s| {
@@ -422,7 +422,8 @@ fn measure_chosen(
         sampled,
         intensity_without_table: false,
         calibration_outside,
-        size_outside_rigs,
+        size_outside_rigs: transfer.size_outside_rigs,
+        outside_in_sigma: transfer.mostly_outside,
         uncorrected,
         bend_fit,
     })
