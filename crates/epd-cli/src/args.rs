@@ -297,8 +297,10 @@ pub struct CalibrateArgs {
     /// fitted wall's normal); 0: a range × intensity table alone (version-1 behaviour).
     #[arg(long, value_name = "N", default_value_t = 16)]
     pub incidence_bins: usize,
-    /// A bin with fewer points (at least 5) is empty and takes the nearest filled bin's
-    /// values.
+    /// A bin with fewer points (at least 5) is empty: outside the incidence table's
+    /// support (its points are not corrected) unless it lies between two rigs' bins of
+    /// its range, which bridge it; in a range × intensity table it takes the nearest
+    /// filled bin's values.
     #[arg(long, value_name = "N", default_value_t = 30)]
     pub min_count: usize,
     /// Passes of the alternating refinement of the poses and the table (1: the poses

@@ -199,11 +199,11 @@ fn stage(s: &TransferScenario, dir: &Path, progress: bool) -> anyhow::Result<Rep
     ];
     let mut rows = String::from(
         "rigs,size_in,frame,status,err_d_mean_mm,err_d_max_mm,err_d_min_mm,sigma_d_max_mm,\
-         sigma_d_min_mm,covered,calibration_outside\n",
+         sigma_d_min_mm,covered,calibration_outside,uncorrected\n",
     );
     let mut summary = String::from(
         "rigs,size_in,frames,with_result,mean_err_d_mean_mm,sd_err_d_mean_mm,\
-         mean_sigma_d_mean_mm,covered,mean_calibration_outside\n",
+         mean_sigma_d_mean_mm,covered,mean_calibration_outside,uncorrected\n",
     );
     let mut series: Vec<Series> = Vec::new();
     for (k, (name, table)) in tables.iter().enumerate() {
@@ -222,6 +222,8 @@ fn stage(s: &TransferScenario, dir: &Path, progress: bool) -> anyhow::Result<Rep
             }
             let test = frames(od, 0.02, seed + 100 + si as u64, per_size)?;
             let (mut errs, mut sig, mut covered, mut outside) = (vec![], vec![], 0, vec![]);
+            // Frames measured on their raw points, too far outside the support.
+            let mut n_uncorrected = 0usize;
             for (j, (p, i, truth)) in test.iter().enumerate() {
                 let r = measure_frame(
                     FrameInput {
@@ -237,7 +239,7 @@ fn stage(s: &TransferScenario, dir: &Path, progress: bool) -> anyhow::Result<Rep
                         &mut rows,
                         [*name, &od.to_string(), &j.to_string(), "error"]
                             .into_iter()
-                            .chain(["", "", "", "", "", "false", ""]),
+                            .chain(["", "", "", "", "", "false", "", ""]),
                     );
                     continue;
                 };
@@ -252,7 +254,7 @@ fn stage(s: &TransferScenario, dir: &Path, progress: bool) -> anyhow::Result<Rep
                         &mut rows,
                         [*name, &od.to_string(), &j.to_string(), status]
                             .into_iter()
-                            .chain(["", "", "", "", "", "false", &outside]),
+                            .chain(["", "", "", "", "", "false", &outside, ""]),
                     );
                     continue;
                 }
@@ -278,8 +280,10 @@ fn stage(s: &TransferScenario, dir: &Path, progress: bool) -> anyhow::Result<Rep
                         mm(sb),
                         cov.to_string(),
                         format!("{out_frac:.4}"),
+                        e.uncorrected.is_some().to_string(),
                     ],
                 );
+                n_uncorrected += usize::from(e.uncorrected.is_some());
             }
             let n = errs.len();
             let (mean, sd) = {
@@ -301,6 +305,7 @@ fn stage(s: &TransferScenario, dir: &Path, progress: bool) -> anyhow::Result<Rep
                     // Over the frames measured: a frame whose measurement failed reports
                     // no fraction.
                     format!("{:.4}", crate::stats::Stats::of(&outside).mean),
+                    n_uncorrected.to_string(),
                 ],
             );
             if n > 0 {
