@@ -483,48 +483,10 @@ fn bad_options_are_refused() {
 /// dent, lies within max(5σ̂, 0.5 mm) of the truth (issue 22's bound).
 #[test]
 fn a_dent_is_neither_a_tee_nor_a_bend() {
-    use tof_sim::contamination::{Contamination, Dent};
-    use tof_sim::{WallModel, simulate_with};
     let (depth, x_d, phi_d) = (0.025, 1.0, 2.0);
-    let pipe = Pipe {
-        ovality: 0.02,
-        ..Pipe::paper_20in()
-    };
     let dents: Vec<_> = (0..6u64)
         .into_par_iter()
-        .map(|k| {
-            let truth = PoseRanges::default().sample(&pipe, 11, k).unwrap();
-            let scene = Scene::new(&truth, WallModel::Exact, 6.0)
-                .and_then(|s| {
-                    s.with_contamination(Contamination {
-                        dent: Some(Dent {
-                            x_m: x_d,
-                            clock_rad: phi_d,
-                            depth_m: depth,
-                            axial_sigma_m: 0.15,
-                            circumferential_sigma_m: 0.15,
-                        }),
-                        ..Contamination::default()
-                    })
-                })
-                .unwrap();
-            let seed = FrameSeed {
-                seed: 11,
-                trial: k,
-                sweep_index: 0,
-            };
-            let f = simulate_with(
-                &Sensor::helios2(),
-                &scene,
-                &Noise::range(0.02),
-                &Default::default(),
-                Subsample::All,
-                seed,
-            )
-            .unwrap();
-            let s = ml_survey(&f.measured);
-            (s, truth)
-        })
+        .map(|k| dented_survey(11, k, depth, phi_d))
         .collect();
     for (k, (s, truth)) in dents.iter().enumerate() {
         assert_eq!(s.segmentation.layout, Layout::Straight, "frame {k}");
@@ -569,46 +531,11 @@ fn a_dent_is_neither_a_tee_nor_a_bend() {
 /// before the departure only, 31 of these 40 were covered.
 #[test]
 fn a_dents_flank_is_left_out_of_the_straight_estimate() {
-    use tof_sim::contamination::{Contamination, Dent};
-    use tof_sim::{WallModel, simulate_with};
-    let pipe = Pipe {
-        ovality: 0.02,
-        ..Pipe::paper_20in()
-    };
     let n = 40u64;
     let covered: usize = (0..n)
         .into_par_iter()
         .map(|k| {
-            let truth = PoseRanges::default().sample(&pipe, 23, k).unwrap();
-            let scene = Scene::new(&truth, WallModel::Exact, 6.0)
-                .and_then(|s| {
-                    s.with_contamination(Contamination {
-                        dent: Some(Dent {
-                            x_m: 1.0,
-                            clock_rad: 0.0,
-                            depth_m: 0.025,
-                            axial_sigma_m: 0.15,
-                            circumferential_sigma_m: 0.15,
-                        }),
-                        ..Contamination::default()
-                    })
-                })
-                .unwrap();
-            let seed = FrameSeed {
-                seed: 23,
-                trial: k,
-                sweep_index: 0,
-            };
-            let f = simulate_with(
-                &Sensor::helios2(),
-                &scene,
-                &Noise::range(0.02),
-                &Default::default(),
-                Subsample::All,
-                seed,
-            )
-            .unwrap();
-            let s = ml_survey(&f.measured);
+            let (s, truth) = dented_survey(23, k, 0.025, 0.0);
             assert!(s.dent.is_some(), "frame {k}: no dent");
             let est = &s.segmentation.straight;
             let sigma = est.sigma[1].unwrap_or(0.0);
@@ -617,4 +544,45 @@ fn a_dents_flank_is_left_out_of_the_straight_estimate() {
         .sum();
     eprintln!("Dmin covered in {covered} of {n} dented frames");
     assert!(covered >= 33, "Dmin covered in {covered} of {n}");
+}
+
+/// The survey of frame `k` (seed `seed`) of tof-sim's Gaussian dent `depth` m deep,
+/// 1.0 m ahead at clock angle `clock_rad`, extent σ 0.15 m along and around, in a 20"
+/// pipe with 2 % ovality (σ = 0.02 m, full frames), and the frame's truth.
+fn dented_survey(seed: u64, k: u64, depth: f64, clock_rad: f64) -> (Survey, Params) {
+    use tof_sim::contamination::{Contamination, Dent};
+    use tof_sim::{WallModel, simulate_with};
+    let pipe = Pipe {
+        ovality: 0.02,
+        ..Pipe::paper_20in()
+    };
+    let truth = PoseRanges::default().sample(&pipe, seed, k).unwrap();
+    let scene = Scene::new(&truth, WallModel::Exact, 6.0)
+        .and_then(|s| {
+            s.with_contamination(Contamination {
+                dent: Some(Dent {
+                    x_m: 1.0,
+                    clock_rad,
+                    depth_m: depth,
+                    axial_sigma_m: 0.15,
+                    circumferential_sigma_m: 0.15,
+                }),
+                ..Contamination::default()
+            })
+        })
+        .unwrap();
+    let f = simulate_with(
+        &Sensor::helios2(),
+        &scene,
+        &Noise::range(0.02),
+        &Default::default(),
+        Subsample::All,
+        FrameSeed {
+            seed,
+            trial: k,
+            sweep_index: 0,
+        },
+    )
+    .unwrap();
+    (ml_survey(&f.measured), truth)
 }
