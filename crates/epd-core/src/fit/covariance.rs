@@ -82,6 +82,9 @@ pub(crate) fn uncertainty(
     );
     if !roll_determined {
         sigma[2] = None;
+        if let Some(c) = cov.as_ref().filter(|_| !fixed[2]) {
+            hold_roll(&mut sigma, canonical, c);
+        }
     }
     let diameter_cov = match (&cov, sigma[0], sigma[1]) {
         (Some(c), _, _) => Some([[c[(0, 0)], c[(0, 1)]], [c[(1, 0)], c[(1, 1)]]]),
@@ -99,16 +102,51 @@ pub(crate) fn uncertainty(
     )
 }
 
+/// The 1-σ of pitch, yaw, δy and δz at the reported roll, for a pipe whose roll is
+/// undetermined. Turning the PCS about the pipe's axis by φ
+/// ([`crate::symmetry::turn_about_axis`]) moves β along v = ∂β/∂φ and leaves a round
+/// pipe's wall in place, so the fit's error has a large component along v that only says
+/// which roll the fit happened to take. Re-expressed at the reported roll, the error is
+/// Δβ' = Δβ − v·Δθx / v_θx, with covariance MΣMᵀ for M = I − v·e_θxᵀ / v_θx: the
+/// uncertainty of the pose that goes with the reported roll (zero along v, the
+/// diameters' rows unchanged, since v has no diameter component). Taken one by one, Σ's
+/// own 1-σ carry the whole turn (a round 20" frame: pitch and yaw 2°, δz 44 mm). v is
+/// taken by central differences of step [`AXIS_STEP`]; v_θx is 1 when pitch and yaw are
+/// zero (the turn is then a roll) and stays near 1 for a pipe camera's tilts; nothing is
+/// changed when |v_θx| falls below 1/2, where the roll would no longer be the turn's
+/// coordinate (a tilt of tens of degrees).
+fn hold_roll(sigma: &mut Sigmas, beta: &Params, cov: &Mat7) {
+    let at = |phi: f64| {
+        SVector::<f64, N_PARAMS>::from(crate::symmetry::turn_about_axis(beta, phi).to_array())
+    };
+    let mut v = (at(AXIS_STEP) - at(-AXIS_STEP)) / (2.0 * AXIS_STEP);
+    v[2] = crate::params::wrap_pi(v[2] * 2.0 * AXIS_STEP) / (2.0 * AXIS_STEP);
+    if v[2].abs() < 0.5 || !v.iter().all(|x| x.is_finite()) {
+        return;
+    }
+    let mut m = Mat7::identity();
+    for i in 0..N_PARAMS {
+        m[(i, 2)] -= v[i] / v[2];
+    }
+    let held = m * cov * m.transpose();
+    for j in 3..N_PARAMS {
+        if sigma[j].is_some() {
+            sigma[j] = Some(held[(j, j)].max(0.0).sqrt());
+        }
+    }
+}
+
 /// Where the fitted axis lies across the pipe, with its uncertainty: the axis's lateral
 /// displacement at PCS distance x, in the PCS of the estimate (toward +Y and +Z), is
 /// (A + x·B)·Δβ to first order for an error Δβ of the parameters, so its covariance is
 /// P + x(Q + Qᵀ) + x²R with P = AΣAᵀ, Q = AΣBᵀ, R = BΣBᵀ (Σ the estimate's covariance).
 /// A and B are taken by central differences of the axis of β + Δβ mapped into the PCS of
-/// β. Unlike the reported 1-σ of pitch, yaw and the offsets taken one by one, this holds
+/// β. Unlike the 1-σ of pitch, yaw and the offsets taken one by one from Σ, this holds
 /// for a near-round pipe, whose roll is nearly undetermined: turning the roll while the
 /// other angles and offsets compensate leaves the axis where it is (A and B have no
 /// component along that turn), where their 1-σ taken one by one carry it in full (a round
-/// 20" pipe: pitch and yaw 2°, δz 44 mm).
+/// 20" pipe: pitch and yaw 2°, δz 44 mm; the reported ones are held at the reported roll,
+/// [`hold_roll`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AxisCov {
     /// P (m²).

@@ -39,6 +39,18 @@ pub fn turn_90(p: &Params) -> Params {
     swapped.with_rotation(&r, p.dz, -p.dy)
 }
 
+/// The PCS turned by `phi` about its X axis, the diameters kept: R' = Rx(φ)·R and
+/// [0, δy', δz'] = Rx(φ)·[0, δy, δz]. For a round pipe (Dmax = Dmin) this is a symmetry
+/// for every φ — the roll is then undetermined, and the pitch, yaw and offsets that go
+/// with a roll are those of this turn; [`flip_180`] is its φ = π for any pipe, and
+/// [`turn_90`] its φ = −π/2 with the diameters swapped.
+pub fn turn_about_axis(p: &Params, phi: f64) -> Params {
+    let q = Rotation3::from_axis_angle(&Vector3::x_axis(), phi);
+    let r: Matrix3<f64> = q.matrix() * p.rotation().matrix();
+    let (s, c) = phi.sin_cos();
+    p.with_rotation(&r, c * p.dy - s * p.dz, s * p.dy + c * p.dz)
+}
+
 /// The end-for-end symmetry: the PCS turned by π about its Z axis, so that its X axis
 /// points the other way along the pipe: Rz(π)·Rz(θz) = Rz(θz+π) and [0, δy, δz] →
 /// [0, −δy, δz]. Canonical estimates have the PCS X axis pointing forward (cos θz > 0).
@@ -194,6 +206,23 @@ mod tests {
         let o_a = a.sensor_origin_pcs();
         let o_b = b.sensor_origin_pcs();
         assert!(((o_a.coords.norm()) - o_b.coords.norm()).abs() < 1e-12);
+    }
+
+    /// Any turn about the axis maps a round pipe onto itself, and φ = π is the flip.
+    #[test]
+    fn a_turn_about_the_axis_is_a_symmetry_of_a_round_pipe() {
+        let round = Params {
+            d_min: 0.50,
+            ..p(0.4, 0.05, -0.08)
+        };
+        for phi in [-2.5, -0.7, 0.3, 1.1, 3.0] {
+            same_surface(&round, &turn_about_axis(&round, phi));
+        }
+        let e = p(0.4, 0.05, -0.08);
+        let (a, b) = (turn_about_axis(&e, std::f64::consts::PI), flip_180(&e));
+        for (x, y) in a.to_array().iter().zip(b.to_array()) {
+            assert!((wrap_pi(x - y)).abs() < 1e-12, "{a:?} {b:?}");
+        }
     }
 
     #[test]
