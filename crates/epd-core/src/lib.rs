@@ -56,5 +56,5 @@ pub use lm::{Convergence, DegenerateReason, LmOptions, Status};
 pub use loss::Loss;
 pub use params::{N_PARAMS, PARAM_NAMES, Params};
 pub use residual::Residual;
-pub use symmetry::{ParamErrors, canonicalize, errors_against};
+pub use symmetry::{ParamErrors, canonicalize, errors_against, errors_at_roll};
 pub use torus::{RayCrossings, Torus};

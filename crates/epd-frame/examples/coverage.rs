@@ -10,10 +10,13 @@
 //! `epd_frame::measure_frame` with `epd estimate`'s defaults. Prints one line per model:
 //! the statuses, the coverage of the ±1.96σ̂ interval for Dmax, Dmin and the mean diameter
 //! over the converged frames (with its binomial standard error), the spread of err/σ̂, and
-//! how many converged frames are more than max(5σ̂, 0.5 mm) off. With `EPD_DUMP_DIR=DIR`
+//! how many converged frames are more than max(5σ̂, 0.5 mm) off, the largest |error| of
+//! Dmax and Dmin (mm). With `EPD_DUMP_DIR=DIR`
 //! every frame is also written there (see `dump`); with `EPD_STRAIGHT_ONLY=1` the frames
 //! are fitted as `--straight-only` does, with `EPD_MAX_POINTS=N` as `--max-points N`
-//! does (the informed choice); `EPD_OD_IN` and `EPD_WALL_MM` change the pipe.
+//! does (the informed choice); `EPD_OD_IN` and `EPD_WALL_MM` change the pipe. The geometry
+//! column counts the frames per `geometry`, `straight+dent` for a straight pipe with a
+//! dent reported (`dent_at_m`).
 
 use std::borrow::Cow;
 use std::collections::BTreeMap;
@@ -108,19 +111,10 @@ fn cases() -> Vec<Case> {
                 ..Contamination::default()
             },
         ),
-        dirty(
-            "dent_25mm",
-            Contamination {
-                dent: Some(Dent {
-                    x_m: 1.0,
-                    clock_rad: 0.0,
-                    depth_m: 0.025,
-                    axial_sigma_m: 0.15,
-                    circumferential_sigma_m: 0.15,
-                }),
-                ..Contamination::default()
-            },
-        ),
+        dirty("dent_25mm", dent(0.025)),
+        dirty("dent_10mm", dent(0.010)),
+        dirty("dent_5mm", dent(0.005)),
+        dirty("dent_2mm", dent(0.002)),
         dirty(
             "upper_half_view",
             Contamination {
@@ -132,6 +126,21 @@ fn cases() -> Vec<Case> {
             },
         ),
     ]
+}
+
+/// tof-sim's Gaussian dent `depth_m` deep, 1.0 m ahead on top, extent σ 0.15 m along and
+/// around.
+fn dent(depth_m: f64) -> Contamination {
+    Contamination {
+        dent: Some(Dent {
+            x_m: 1.0,
+            clock_rad: 0.0,
+            depth_m,
+            axial_sigma_m: 0.15,
+            circumferential_sigma_m: 0.15,
+        }),
+        ..Contamination::default()
+    }
 }
 
 fn config() -> EstimateConfig {
@@ -245,7 +254,13 @@ fn frame_outcome(case: &Case, k: u64, cfg: &EstimateConfig) -> Outcome {
         }
     };
     let withheld = e.geometry.as_ref().and_then(|g| g.withheld()).is_some();
-    let geometry = e.geometry.as_ref().map_or("not surveyed", |g| g.layout);
+    let geometry = e.geometry.as_ref().map_or("not surveyed", |g| {
+        if g.dent.is_some() {
+            "straight+dent"
+        } else {
+            g.layout
+        }
+    });
     let est = &e.estimate;
     let status = if withheld {
         "withheld".to_string()
@@ -288,7 +303,7 @@ fn main() {
     let wanted: Vec<String> = args.collect();
     let cfg = config();
     println!(
-        "{:<20} {:>5} {:>28}  {:>16} {:>16} {:>16}  {:>14}  {:>9}  geometry",
+        "{:<20} {:>5} {:>28}  {:>16} {:>16} {:>16}  {:>14}  {:>9}  {:>13}  geometry",
         "model",
         "n",
         "statuses",
@@ -297,6 +312,7 @@ fn main() {
         "cov Dmean (±se)",
         "sd z max/min",
         "far_off",
+        "max|err| mm",
     );
     for case in cases() {
         if !wanted.is_empty() && !wanted.iter().any(|w| w == case.name) {
@@ -319,6 +335,7 @@ fn main() {
             .iter()
             .filter(|z| (0..2).any(|q| z[q].0.abs() > 5.0 && z[q].1 > 0.5))
             .count();
+        let worst = |q: usize| conv.iter().map(|z| z[q].1).fold(0.0, f64::max);
         let st: Vec<String> = statuses.iter().map(|(k, v)| format!("{k}:{v}")).collect();
         let mut layouts: BTreeMap<&str, usize> = BTreeMap::new();
         for o in &outcomes {
@@ -326,7 +343,7 @@ fn main() {
         }
         let geometry: Vec<String> = layouts.iter().map(|(k, v)| format!("{k}:{v}")).collect();
         println!(
-            "{:<20} {:>5} {:>28}  {:>16} {:>16} {:>16}  {:>6.2}/{:<6.2}  {:>9}  {}",
+            "{:<20} {:>5} {:>28}  {:>16} {:>16} {:>16}  {:>6.2}/{:<6.2}  {:>9}  {:>6.3}/{:<6.3}  {}",
             case.name,
             frames,
             st.join(","),
@@ -336,6 +353,8 @@ fn main() {
             sd(0),
             sd(1),
             far_off,
+            worst(0),
+            worst(1),
             geometry.join(",")
         );
     }

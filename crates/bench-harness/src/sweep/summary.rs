@@ -5,6 +5,8 @@ use std::path::Path;
 
 use anyhow::Context;
 
+use epd_core::errors_at_roll;
+
 use super::record::TrialRecord;
 use super::rows::QUANTITIES;
 use crate::stats::{FalseAlarms, Stats};
@@ -28,7 +30,9 @@ pub struct SummaryRow {
     pub crb_std: Option<f64>,
     /// Fraction of the converged trials whose |error| ≤ 1.96·(reported 1-σ): the
     /// coverage of the nominal 95 % interval (parameters only; trials without a
-    /// reported 1-σ, e.g. an undetermined roll, count as not covered).
+    /// reported 1-σ, e.g. an undetermined roll, count as not covered). Where the roll is
+    /// undetermined, the pose's errors are taken at the reported roll
+    /// ([`epd_core::symmetry::errors_at_roll`]), where its 1-σ are.
     pub coverage95: Option<f64>,
     /// With `geometry = true`: the frames whose geometry was reported and how many were
     /// read as anything but `straight` (the same on every row of a setting and method);
@@ -136,11 +140,17 @@ pub(crate) fn summarise(
             let coverage95 = q.param.filter(|_| !ok.is_empty()).map(|i| {
                 let covered = ok
                     .iter()
-                    .filter(|(r, _)| {
+                    .filter(|(r, t)| {
                         let (Some(e), Some(s)) = (r.errors.as_ref(), r.sigma[i]) else {
                             return false;
                         };
-                        ((q.error)(e)).abs() <= 1.96 * s * q.scale
+                        // An undetermined roll (no 1-σ): the pose's 1-σ are those at the
+                        // reported roll, and so are its errors.
+                        let at_roll = r.sigma[2]
+                            .is_none()
+                            .then(|| r.estimate.map(|est| errors_at_roll(&est, &t.truth)))
+                            .flatten();
+                        ((q.error)(at_roll.as_ref().unwrap_or(e))).abs() <= 1.96 * s * q.scale
                     })
                     .count();
                 covered as f64 / ok.len() as f64

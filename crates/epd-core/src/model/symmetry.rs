@@ -173,6 +173,41 @@ pub fn errors_against(estimate: &Params, truth: &Params) -> ParamErrors {
     }
 }
 
+/// Errors of `estimate` against `truth` turned about its axis to the estimate's roll
+/// ([`turn_about_axis`] by the φ that makes the canonical truth's roll the canonical
+/// estimate's, found by Newton's method: the turn moves the roll by about one radian per
+/// radian for a pipe camera's tilts). For an estimate whose roll is undetermined
+/// ([`crate::Estimate::roll_determined`] false): its pitch, yaw and offsets are those that
+/// go with the roll the fit took, and their reported 1-σ are taken at that roll, so their
+/// errors are taken there too. The diameters' errors are [`errors_against`]'s. Falls
+/// back to [`errors_against`] when the Newton iteration does not reach the roll.
+pub fn errors_at_roll(estimate: &Params, truth: &Params) -> ParamErrors {
+    let e = canonicalize(estimate);
+    let t = canonicalize(truth);
+    let mut phi = wrap_pi(e.roll - t.roll);
+    let mut turned = turn_about_axis(&t, phi);
+    for _ in 0..50 {
+        let miss = wrap_pi(e.roll - turned.roll);
+        if miss.abs() < 1e-12 {
+            break;
+        }
+        phi += miss;
+        turned = turn_about_axis(&t, phi);
+    }
+    let plain = errors_against(estimate, truth);
+    if wrap_pi(e.roll - turned.roll).abs() > 1e-9 || turned.yaw.cos() * turned.pitch.cos() <= 0.0 {
+        return plain;
+    }
+    ParamErrors {
+        roll: 0.0,
+        pitch: wrap_pi(e.pitch - turned.pitch),
+        yaw: wrap_pi(e.yaw - turned.yaw),
+        dy: e.dy - turned.dy,
+        dz: e.dz - turned.dz,
+        ..plain
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -222,6 +257,26 @@ mod tests {
         let (a, b) = (turn_about_axis(&e, std::f64::consts::PI), flip_180(&e));
         for (x, y) in a.to_array().iter().zip(b.to_array()) {
             assert!((wrap_pi(x - y)).abs() < 1e-12, "{a:?} {b:?}");
+        }
+    }
+
+    /// A round pipe's estimate that is its truth turned about the axis has no pose error
+    /// at its roll, though `errors_against` sees the turn in pitch, yaw and the offsets.
+    #[test]
+    fn errors_at_the_estimates_roll_do_not_see_a_turn_about_the_axis() {
+        let truth = Params {
+            d_min: 0.50,
+            ..p(0.4, 0.05, -0.08)
+        };
+        let est = turn_about_axis(&truth, 0.9);
+        let plain = errors_against(&est, &truth);
+        assert!(
+            plain.dy.abs() > 1e-3 && plain.pitch.abs() > 1e-3,
+            "{plain:?}"
+        );
+        let at = errors_at_roll(&est, &truth);
+        for v in [at.pitch, at.yaw, at.dy, at.dz, at.roll] {
+            assert!(v.abs() < 1e-12, "{at:?}");
         }
     }
 
