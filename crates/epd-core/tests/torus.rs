@@ -165,12 +165,18 @@ proptest! {
 
     /// Grazing entry from outside on the convex (outer) half: a ray in the tangent plane
     /// tilted inwards by ε, starting 1 mm before the wall point, first crosses there.
+    /// ε ≥ 10⁻⁶: the ray's chord through the tube is about 2ρ·sin ε (ρ the wall's radius
+    /// of curvature along the ray), and the quartic's dip between its two roots, which
+    /// falls as ε², reaches the rounding of the quartic's evaluation near ε ≈ 10⁻⁷ (a
+    /// case at ε = 1.15·10⁻⁷ on a 54 mm tube was reported without a hit, a chord of
+    /// 12 nm: a tangent to double precision, for which no hit is as right as one). From
+    /// 10⁻⁶ the dip is 100 times larger.
     #[test]
     fn grazing_entry_from_outside_hits_the_known_point(
         t in torus_strategy(),
         cth in 0.0..std::f64::consts::TAU, cps in -1.2..1.2f64,
         mix in 0.0..std::f64::consts::TAU,
-        log_eps in -7.0..-2.0f64,
+        log_eps in -6.0..-2.0f64,
     ) {
         let (p, n, e1, e2) = wall_point(&t, cth, cps);
         let eps = 10f64.powf(log_eps);

@@ -251,6 +251,21 @@ fn a_lone_slice_departs_where_its_next_cannot_confirm_it() {
     }
 }
 
+/// A bump in one slice (30 mm outside the harmonic at 0.1 mm standard error: an
+/// opening's near edge) departs alone though the slices after it are judged and on the
+/// wall; a shift of the same size there does not (the previous test), nor does a bump
+/// below its critical value.
+#[test]
+fn a_lone_bump_departs() {
+    let o = SegmentOptions::default();
+    let mut prof: Vec<Slice> = (0..12).map(|i| slice(0.05 * i as f64, 0.0, 0.0)).collect();
+    prof[6] = slice(0.3, 0.0, 0.03);
+    assert!(prof[6].bumps(&o) && !prof[7].departs(&o) && prof[7].n_sectors == 12);
+    assert_eq!(first_departure(&prof, &o), Some(6));
+    prof[6].bump_m = 0.5 * prof[6].critical_t * prof[6].bump_se_m;
+    assert_eq!(first_departure(&prof, &o), None);
+}
+
 #[test]
 fn a_growing_shift_never_resumes() {
     let o = SegmentOptions::default();
