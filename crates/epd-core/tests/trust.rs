@@ -260,7 +260,9 @@ fn shared_range_errors_are_covered_by_the_one_sigma() {
 /// is the same after any turn about its axis, so its truth is re-expressed at the
 /// estimate's roll before the errors are taken: the turn R' = Rx(φ)·R, δ' = Rx(φ)·δ,
 /// written here with nalgebra's own rotations and Euler angles (not the library's
-/// `turn_about_axis`), with φ found by Newton's method on the roll.
+/// `turn_about_axis`), with φ found by the fixed-point iteration φ ← φ + (θx − θx(φ)),
+/// which converges here since dθx/dφ = cos θz / cos θy lies within 1 % of 1 for tilts of
+/// 5° (checked to 10⁻⁹ below).
 ///
 /// 400 clouds (10⁴ points, σ = 0.03 m, 20", ovality 0, pitch and yaw within ±5°, offsets
 /// within 20 % of the radius): the same binomial band as the sandwich test above,

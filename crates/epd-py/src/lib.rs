@@ -164,7 +164,7 @@ enum Input<'py> {
 /// (degrees), `dy_mm`, `dz_mm` (mm: the sensor's offset from the pipe's axis),
 /// `roll_determined`, the 1-σ of each (`sigma_d_max_mm` … `sigma_dz_mm`, same units;
 /// `None` where the data do not determine it; when the roll is not determined, the
-/// pose's 1-σ are those at the reported roll), `d_mean_mm`, `sigma_d_mean_mm` (mm),
+/// pose's 1-σ are those at the reported roll, conditional on it), `d_mean_mm`, `sigma_d_mean_mm` (mm),
 /// `ovality_pct`, `sigma_ovality_pct` (% of the mean diameter), `n_read`,
 /// `n_out_of_range`, `n_calibrated`, `weighted`, `rms_residual_mm` (mm), `elapsed_ms`,
 /// `read_ms` (ms), `loss`, `loss_scale_m` (m), `nominal_od_mm`, `wall_thickness_est_mm`

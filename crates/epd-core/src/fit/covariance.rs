@@ -111,10 +111,19 @@ pub(crate) fn uncertainty(
 /// uncertainty of the pose that goes with the reported roll (zero along v, the
 /// diameters' rows unchanged, since v has no diameter component). Taken one by one, Σ's
 /// own 1-σ carry the whole turn (a round 20" frame: pitch and yaw 2°, δz 44 mm). v is
-/// taken by central differences of step [`AXIS_STEP`]; v_θx is 1 when pitch and yaw are
-/// zero (the turn is then a roll) and stays near 1 for a pipe camera's tilts; nothing is
-/// changed when |v_θx| falls below 1/2, where the roll would no longer be the turn's
-/// coordinate (a tilt of tens of degrees).
+/// taken by central differences of step [`AXIS_STEP`] (in closed form v = (0, 0,
+/// cos θz / cos θy, −sin θz, cos θz·tan θy, −δz, δy)); v_θx is 1 when pitch and yaw are
+/// zero (the turn is then a roll) and never changes sign for a canonical estimate; nothing
+/// is changed when |v_θx| falls below 1/2 (|θz| beyond about 60°).
+///
+/// These 1-σ are conditional on the reported roll: they describe where the axis lies in
+/// the PCS of that roll. Against a pose given at another roll — the true roll of an oval
+/// pipe whose ovality the frame does not resolve — the pose differs by the turn, which the
+/// roll's missing 1-σ says is unknown. Known limit: the shared-error steps before this one
+/// ([`add_shared_offsets`], [`take_shared_errors`]) judge and scale Σ before it is held at
+/// the roll, so part of the turn's variance can reach the held 1-σ through their scaling
+/// (measured: `results/straight_false_alarm`, 8" pipe under a 6 mm wiggle, pitch covered
+/// in 32 of 40 frames).
 fn hold_roll(sigma: &mut Sigmas, beta: &Params, cov: &Mat7) {
     let at = |phi: f64| {
         SVector::<f64, N_PARAMS>::from(crate::symmetry::turn_about_axis(beta, phi).to_array())

@@ -175,8 +175,8 @@ pub fn errors_against(estimate: &Params, truth: &Params) -> ParamErrors {
 
 /// Errors of `estimate` against `truth` turned about its axis to the estimate's roll
 /// ([`turn_about_axis`] by the φ that makes the canonical truth's roll the canonical
-/// estimate's, found by Newton's method: the turn moves the roll by about one radian per
-/// radian for a pipe camera's tilts). For an estimate whose roll is undetermined
+/// estimate's, found by Newton's method with the turn's derivative dθx/dφ = cos θz / cos θy,
+/// from row 3 of Rx(φ)·R). For an estimate whose roll is undetermined
 /// ([`crate::Estimate::roll_determined`] false): its pitch, yaw and offsets are those that
 /// go with the roll the fit took, and their reported 1-σ are taken at that roll, so their
 /// errors are taken there too. The diameters' errors are [`errors_against`]'s. Falls
@@ -191,7 +191,11 @@ pub fn errors_at_roll(estimate: &Params, truth: &Params) -> ParamErrors {
         if miss.abs() < 1e-12 {
             break;
         }
-        phi += miss;
+        let slope = turned.yaw.cos() / turned.pitch.cos();
+        if !(slope.abs() > 1e-3) {
+            break;
+        }
+        phi += miss / slope;
         turned = turn_about_axis(&t, phi);
     }
     let plain = errors_against(estimate, truth);
@@ -275,6 +279,12 @@ mod tests {
             "{plain:?}"
         );
         let at = errors_at_roll(&est, &truth);
+        for v in [at.pitch, at.yaw, at.dy, at.dz, at.roll] {
+            assert!(v.abs() < 1e-12, "{at:?}");
+        }
+        // A large yaw, where the turn moves the roll by cos θz / cos θy ≈ 0.36 per radian.
+        let yawed = Params { yaw: 1.2, ..truth };
+        let at = errors_at_roll(&turn_about_axis(&yawed, 0.9), &yawed);
         for v in [at.pitch, at.yaw, at.dy, at.dz, at.roll] {
             assert!(v.abs() < 1e-12, "{at:?}");
         }

@@ -266,8 +266,11 @@ fn refit_before(
 /// `straight` because the refit before the opening was a partial view (diameters
 /// 100–1000 mm off) and the departure vanished from its profile; their openings' bumps
 /// were 28–123 mm at 12–107 standard errors in four slices in a row. A multipath band's
-/// edge departs by a shift; with a departure kept on a bump in any one slice, 3 of 40
-/// straight 42" frames with multipath read as tees (scenarios/straight_false_alarm.toml).
+/// edge departs by a shift; with a partial-view refit kept for a bump in any one slice, 3
+/// of 40 straight 42" frames with multipath read as tees (scenarios/straight_false_alarm.toml).
+/// This concerns what is done with a partial-view refit, not whether the slice departs: a
+/// lone bump does depart ([`first_departure`]), and a partial-view refit before it is
+/// then taken as for a shift (the tee approach runs read the same with and without).
 fn opens_ahead(prof: &[Slice], i: usize, seg: &SegmentOptions) -> bool {
     let run = &prof[i..];
     run.len() >= seg.persistence
