@@ -46,7 +46,9 @@ def frame(a, k):
     if a.points is not None and a.points < len(idx):
         # An even subsample over the whole image.
         idx = idx[np.linspace(0, len(idx) - 1, a.points).astype(int)]
-    return pts[idx], {"intensity": np.asarray(v["intensity"])[idx]}
+    names = {p.name for p in v.properties}
+    props = {"intensity": np.asarray(v["intensity"])[idx]} if "intensity" in names else {}
+    return pts[idx], props
 
 
 def main():
@@ -67,16 +69,19 @@ def main():
     stamp = ts.types["builtin_interfaces/msg/Time"]
 
     blobs = []
+    names = ["x", "y", "z"]
     for k in range(a.distinct):
         pts, props = frame(a, k)
-        rec = np.zeros(len(pts), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
-                                        ("intensity", "<f4")])
+        # Intensity when the frames carry it (a PLY of clean tof-sim frames does not).
+        names = ["x", "y", "z"] + sorted(props)
+        rec = np.zeros(len(pts), dtype=[(n, "<f4") for n in names])
         # Optical frame: X right, Y down, Z forward.
         rec["x"], rec["y"], rec["z"] = pts[:, 1], -pts[:, 2], pts[:, 0]
-        rec["intensity"] = props["intensity"]
+        for n, values in props.items():
+            rec[n] = values
         blobs.append(np.frombuffer(rec.tobytes(), dtype=np.uint8))
-    fields = [field(name=n, offset=4 * i, datatype=7, count=1)
-              for i, n in enumerate(["x", "y", "z", "intensity"])]
+    step = 4 * len(names)
+    fields = [field(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate(names)]
 
     work = Path(a.dir or tempfile.mkdtemp(prefix="epd-bag-"))
     bag = work / "run"
@@ -85,15 +90,15 @@ def main():
         conn = w.add_connection("/helios/points", pc2.__msgtype__, typestore=ts)
         for i in range(a.messages):
             data = blobs[i % a.distinct]
-            n = len(data) // 16
+            n = len(data) // step
             t = 1_700_000_000 * 10**9 + i * 33_333_333
             msg = pc2(header=header(stamp=stamp(sec=t // 10**9, nanosec=t % 10**9),
                                     frame_id="helios_optical_frame"),
-                      height=1, width=n, fields=fields, is_bigendian=False, point_step=16,
-                      row_step=16 * n, data=data, is_dense=False)
+                      height=1, width=n, fields=fields, is_bigendian=False, point_step=step,
+                      row_step=step * n, data=data, is_dense=False)
             w.write(conn, t, ts.serialize_cdr(msg, pc2.__msgtype__))
     size = sum(f.stat().st_size for f in bag.glob("*.mcap"))
-    print(f"bag: {a.messages} messages of {len(blobs[0]) // 16} points, "
+    print(f"bag: {a.messages} messages of {len(blobs[0]) // step} points, "
           f"{size / 2**20:.0f} MiB, written in {time.time() - t0:.1f} s ({bag})")
 
     cmd = ["/usr/bin/time", "-v", a.epd_bin, "estimate", str(bag), "--topic",
