@@ -48,9 +48,9 @@ pub use calibration::{DepthTable, Observation, TableBins};
 pub use check::{Diagnostics, FitOutcome, FitStatus, Implausible};
 pub use error::EpdError;
 pub use estimate::{
-    Estimate, EstimateOptions, LossScale, Method, Sigmas, cramer_rao_bound,
-    cramer_rao_bound_weighted, estimate, estimate_weighted, gate_by_model_range, model_range_gate,
-    rms_range_residual, rms_range_residual_of,
+    Estimate, EstimateOptions, LossScale, Method, PoseFit, Sigmas, cramer_rao_bound,
+    cramer_rao_bound_weighted, estimate, estimate_weighted, fit_pose, gate_by_model_range,
+    model_range_gate, rms_range_residual, rms_range_residual_of,
 };
 pub use lm::{Convergence, DegenerateReason, LmOptions, Status};
 pub use loss::Loss;

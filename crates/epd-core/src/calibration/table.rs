@@ -62,10 +62,11 @@ impl Axis {
 
     /// The bin holding x (clamped to the axis).
     pub(super) fn bin(&self, x: f64) -> usize {
-        let k = ((x - self.lo) / self.width()).floor();
+        let k = (x - self.lo) / self.width();
         if k.is_nan() || k < 0.0 {
             0
         } else {
+            // k ≥ 0: truncation is the floor (and no libm call); saturates when huge.
             (k as usize).min(self.n - 1)
         }
     }

@@ -23,7 +23,7 @@ use crate::loss::Loss;
 use crate::params::{N_PARAMS, Params};
 use crate::problem::PipeFit;
 use crate::residual::{Geometry, Residual};
-use crate::symmetry::{canonical_form, canonicalize};
+use crate::symmetry::{Applied, canonical_form, canonicalize};
 use crate::uncertainty::{SharedOffset, slice_offset_scores};
 
 /// A 1-σ standard deviation per parameter of eq. (2) (m, rad); `None` where the data do
@@ -275,8 +275,74 @@ fn estimate_view(
     method: Method,
     options: &EstimateOptions,
 ) -> Result<Estimate, EpdError> {
+    gated(cloud, n_dropped, method, options, |kept, gated, start| {
+        fit_cloud(kept, n_dropped, gated, method, options, start)
+    })
+}
+
+/// β from measured points (SCS, m) as [`estimate`] finds it — the same cleaning, range
+/// gate, start and solver stages, the same β to the bit — without what only its 1-σ and
+/// its status need: the cluster-robust covariance, the form test that the model fits,
+/// and the normal equations at a canonical form the solver did not end in. For a fit
+/// whose only use is its β, a step toward another fit (a depth table's incidence rounds
+/// take each round's pose to look up the next correction). Its status is the solver's,
+/// overruled by the plausibility check ([`crate::check`]); never `lack_of_fit`, which
+/// only the form test finds.
+pub fn fit_pose(
+    points: &[[f64; 3]],
+    method: Method,
+    options: &EstimateOptions,
+) -> Result<PoseFit, EpdError> {
+    check_ranges(points)?;
+    let cloud = clean(points);
+    let view = View {
+        points: &cloud.points,
+        scales: None,
+    };
+    let dropped = cloud.dropped;
+    gated(view, dropped, method, options, |kept, _, start| {
+        let s = solve_cloud(kept, dropped, method, options, start)?;
+        Ok(PoseFit {
+            params: s.canonical,
+            status: FitStatus::from_solver(s.rep.status, s.implausible),
+            iterations: s.iterations,
+            n_points: kept.len(),
+        })
+    })
+}
+
+/// What [`fit_pose`] returns.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseFit {
+    /// β in canonical form, as [`Estimate::params`].
+    pub params: Params,
+    /// Why the solver stopped, overruled when the result is implausible.
+    pub status: FitStatus,
+    /// Solver iterations over all stages.
+    pub iterations: usize,
+    /// Points used (after the cleaning and the range gate).
+    pub n_points: usize,
+}
+
+impl PoseFit {
+    /// The mean diameter (Dmax + Dmin)/2 (m).
+    pub fn d_mean(&self) -> f64 {
+        0.5 * (self.params.d_max + self.params.d_min)
+    }
+}
+
+/// The range gate ([`EstimateOptions::with_range_gate`]) of clean points, then `fit` of
+/// the points kept, given how many the gate left out and the start: without a gate every
+/// point and the options' held start.
+fn gated<T>(
+    cloud: View<'_>,
+    n_dropped: usize,
+    method: Method,
+    options: &EstimateOptions,
+    fit: impl FnOnce(View<'_>, usize, Option<Params>) -> Result<T, EpdError>,
+) -> Result<T, EpdError> {
     let Some((lo, hi)) = options.range_gate else {
-        return fit_cloud(cloud, n_dropped, 0, method, options, options.held_start());
+        return fit(cloud, 0, options.held_start());
     };
     let range = |p: &[f64; 3]| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
     // The first fit only chooses the points and the start of the final one: the points
@@ -290,28 +356,20 @@ fn estimate_view(
     } else {
         cloud.select(in_gate)
     };
-    let first = fit_cloud(
+    let first = solve_cloud(
         probe.view(),
         n_dropped,
-        0,
         method,
         options,
         options.held_start(),
     )?;
-    let geom = Geometry::new(&first.params).ok_or_else(|| {
+    let geom = Geometry::new(&first.canonical).ok_or_else(|| {
         EpdError::Degenerate("the first fit of the range gate left the model".into())
     })?;
     // The model range of a ray: the wall point x0 + t(x̂ − x0) is t·‖p‖ from the sensor.
     let kept = cloud.select(|p| (lo..=hi).contains(&(geom.line_parameter(p) * range(p))));
     let gated = cloud.len() - kept.points.len();
-    fit_cloud(
-        kept.view(),
-        n_dropped,
-        gated,
-        method,
-        options,
-        Some(first.params),
-    )
+    fit(kept.view(), gated, Some(first.canonical))
 }
 
 /// The points (SCS, m; finite, non-zero) whose ray meets the wall of β at a range in
@@ -359,39 +417,21 @@ fn fit_cloud(
     options: &EstimateOptions,
     start: Option<Params>,
 ) -> Result<Estimate, EpdError> {
+    let Solved {
+        fitted,
+        rep,
+        canonical: _,
+        iterations,
+        loss,
+        init,
+        diagnostics,
+        implausible,
+    } = solve_cloud(cloud, n_dropped, method, options, start)?;
     let n = cloud.len();
-    if n < N_PARAMS {
-        return Err(EpdError::TooFewPoints {
-            usable: n,
-            dropped: n_dropped,
-            needed: N_PARAMS,
-        });
-    }
     let fixed = options.fixed_mask();
-    let init = match start {
-        Some(p) => p,
-        None => cold_start(cloud.points, options)?,
-    };
-    let sub: Selection;
-    let stage_pts: View<'_> = if options.stage_points > 0 && n > 2 * options.stage_points {
-        let stride = n / options.stage_points;
-        sub = cloud.strided(stride);
-        sub.view()
-    } else {
-        cloud
-    };
-    let stages = Stages {
-        cloud,
-        stage_pts,
-        method,
-        options,
-        fixed,
-        init: &init,
-    };
-    let (x, rep, iterations, loss) = stages.solve(start.is_some())?;
     let kind = method.residual();
     let fit = problem(cloud, kind, loss, fixed);
-    let (canonical, eq) = canonical_equations(&Params::from_array(x.into()), &rep, &fit, options);
+    let (canonical, eq) = canonical_equations(&fitted, &rep, &fit, options);
     let form_cells = wall_cells(cloud.points, &canonical, FORM_AXIAL_CELLS);
     let wall = WallCells::gather(cloud.points, cloud.scales, &canonical, &form_cells);
     let shared = wall
@@ -444,10 +484,6 @@ fn fit_cloud(
         shared_offset.as_ref(),
         &off,
     );
-    let (diagnostics, implausible) = match assess(stage_pts.points, &canonical) {
-        Ok(d) => (Some(d), d.verdict(&canonical)),
-        Err(i) => (None, Some(i)),
-    };
     let dof = n.saturating_sub(fixed.iter().filter(|&&f| !f).count());
     let implausible = implausible
         .or((dof < MIN_UNCERTAINTY_DOF)
@@ -479,6 +515,77 @@ fn fit_cloud(
         roll_determined,
         diameter_cov,
         axis_cov,
+    })
+}
+
+/// What the solver's stages reached on a cloud ([`solve_cloud`]), before the 1-σ and the
+/// form test: β as the solver left it and in canonical form, and the plausibility check
+/// of [`assess`] on the stage points.
+struct Solved {
+    fitted: Params,
+    canonical: Params,
+    rep: LmReport<N_PARAMS>,
+    iterations: usize,
+    loss: Loss,
+    init: Params,
+    diagnostics: Option<Diagnostics>,
+    implausible: Option<Implausible>,
+}
+
+/// The solver's part of [`fit_cloud`]: the start (cold or `start`), the stages
+/// ([`Stages::solve`]), the canonical form, the plausibility check.
+fn solve_cloud(
+    cloud: View<'_>,
+    n_dropped: usize,
+    method: Method,
+    options: &EstimateOptions,
+    start: Option<Params>,
+) -> Result<Solved, EpdError> {
+    let n = cloud.len();
+    if n < N_PARAMS {
+        return Err(EpdError::TooFewPoints {
+            usable: n,
+            dropped: n_dropped,
+            needed: N_PARAMS,
+        });
+    }
+    let fixed = options.fixed_mask();
+    let init = match start {
+        Some(p) => p,
+        None => cold_start(cloud.points, options)?,
+    };
+    let sub: Selection;
+    let stage_pts: View<'_> = if options.stage_points > 0 && n > 2 * options.stage_points {
+        let stride = n / options.stage_points;
+        sub = cloud.strided(stride);
+        sub.view()
+    } else {
+        cloud
+    };
+    let stages = Stages {
+        cloud,
+        stage_pts,
+        method,
+        options,
+        fixed,
+        init: &init,
+    };
+    let (x, rep, iterations, loss) = stages.solve(start.is_some())?;
+    let fitted = Params::from_array(x.into());
+    let canonical = canonical_params(&fitted, options).0;
+    let (diagnostics, implausible) = match assess(stage_pts.points, &canonical) {
+        Ok(d) => (Some(d), d.verdict(&canonical)),
+        Err(i) => (None, Some(i)),
+    };
+    Ok(Solved {
+        fitted,
+        canonical,
+        rep,
+        iterations,
+        loss,
+        init,
+        diagnostics,
+        implausible,
     })
 }
 
@@ -642,16 +749,9 @@ impl Stages<'_, '_> {
     }
 }
 
-/// The canonical form of the fitted β (see [`canonical_form`]) and the normal equations
-/// of `fit` there: a 180° turn only flips the signs of (pitch, yaw, δy, δz) in the last
-/// stage's equations; a 90° turn or the end-for-end turn re-expresses the pose, so the
-/// equations are evaluated afresh. Held diameters are restated exactly.
-fn canonical_equations(
-    fitted: &Params,
-    rep: &LmReport<N_PARAMS>,
-    fit: &PipeFit<'_>,
-    options: &EstimateOptions,
-) -> (Params, NormalEquations<N_PARAMS>) {
+/// The canonical form of the fitted β ([`canonical_form`]) and the turns applied; held
+/// diameters are restated exactly.
+fn canonical_params(fitted: &Params, options: &EstimateOptions) -> (Params, Applied) {
     let (mut canonical, applied) = canonical_form(fitted);
     if let Some((d_max, d_min)) = options.fixed_diameters {
         // The solver's steps in held diameters are exactly zero, and Dmax ≥ Dmin, so the
@@ -661,6 +761,20 @@ fn canonical_equations(
         canonical.d_max = d_max;
         canonical.d_min = d_min;
     }
+    (canonical, applied)
+}
+
+/// The canonical form of the fitted β ([`canonical_params`]) and the normal equations
+/// of `fit` there: a 180° turn only flips the signs of (pitch, yaw, δy, δz) in the last
+/// stage's equations; a 90° turn or the end-for-end turn re-expresses the pose, so the
+/// equations are evaluated afresh.
+fn canonical_equations(
+    fitted: &Params,
+    rep: &LmReport<N_PARAMS>,
+    fit: &PipeFit<'_>,
+    options: &EstimateOptions,
+) -> (Params, NormalEquations<N_PARAMS>) {
+    let (canonical, applied) = canonical_params(fitted, options);
     let eq = if applied.turned || applied.reversed {
         fit.equations_at(&canonical).unwrap_or(rep.equations)
     } else {

@@ -4,7 +4,7 @@
 //! the 1-σ (its bins' standard errors, shared by the points each corrected, and the
 //! transfer from the rigs' sizes to the pipe's).
 
-use epd_core::estimate;
+use epd_core::fit_pose;
 
 use crate::config::EstimateConfig;
 use crate::scene::FrameScene;
@@ -419,28 +419,25 @@ pub fn incidence_rounds(
     method: epd_core::Method,
     options: &epd_core::EstimateOptions,
 ) -> Result<IncidenceRounds, String> {
+    // Each round's fit is used for its β alone (the incidences of the next correction):
+    // the final fit, with its 1-σ, is the caller's, of the corrected points.
     let fit = |p: &[[f64; 3]]| {
-        estimate(p, method, options).map_err(|e| format!("{e} (the incidence round)"))
+        fit_pose(p, method, options).map_err(|e| format!("{e} (the incidence round)"))
     };
     let mut pose = fit(raw)?;
     let raw_diameters = (pose.params.d_max, pose.params.d_min);
     let raw_status = pose.status;
     let mut out = None;
     for round in 0..INCIDENCE_ROUNDS {
-        if round == 0 {
-            // Left uncorrected before the corrected points are fitted: too few lie in the
-            // support.
-            let cos = epd_core::calibration::incidences(raw, &pose.params);
-            let mut c = raw.to_vec();
-            let corr = cal.correct_with_incidence(table, &mut c, intensity, &cos)?;
-            let total = corr.moved + corr.outside;
-            if total > 0 && corr.outside as f64 > REFUSE_OUTSIDE * total as f64 {
-                return Ok(uncorrected_rounds(raw, raw_diameters, table, &corr));
-            }
-        }
         let cos = epd_core::calibration::incidences(raw, &pose.params);
         let mut c = raw.to_vec();
         let corr = cal.correct_with_incidence(table, &mut c, intensity, &cos)?;
+        let total = corr.moved + corr.outside;
+        if round == 0 && total > 0 && corr.outside as f64 > REFUSE_OUTSIDE * total as f64 {
+            // Left uncorrected before the corrected points are fitted: too few lie in the
+            // support.
+            return Ok(uncorrected_rounds(raw, raw_diameters, table, &corr));
+        }
         let next = fit(&c)?;
         let moved = (next.d_mean() - pose.d_mean()).abs();
         pose = next;
