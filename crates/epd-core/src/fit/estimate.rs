@@ -735,9 +735,12 @@ impl Stages<'_, '_> {
             x = rep.x;
         }
         let loss = self.loss_at(kind, &x);
-        // Stage 2: all points (unless stage 1 already fitted them with this loss).
+        // Stage 2: all points (unless stage 1 already fitted them with this loss), from
+        // near the minimum (stage 1's, or a previous fit's): with stretched steps, which
+        // save passes over every point where the robust loss's curvature is too high.
         if stage_pts.len() != n || last.is_none() || auto {
-            let rep = minimize(&problem(self.cloud, kind, loss, fixed), x, &options.lm);
+            let lm = options.lm.with_stretched_steps(true);
+            let rep = minimize(&problem(self.cloud, kind, loss, fixed), x, &lm);
             iterations += rep.iterations;
             x = rep.x;
             last = Some(rep);

@@ -558,7 +558,9 @@ fn departure_direction(run: &[Slice], o: &SegmentOptions) -> f64 {
 /// (the leading order of R − √(R² − (x − x₀)²), a bend's centreline leaving the axis);
 /// x₀ on a grid of slice/20 steps from three slices before slice `i` to its far edge,
 /// c ≥ 0 by weighted least squares for each x₀. A tee, whose shift jumps, gives the x₀
-/// where the jump is best placed.
+/// where the jump is best placed. A shift in the departing slice alone, the slices after
+/// it back on the pipe (or out of view), locates no onset: the departure then starts as
+/// an opening does ([`opening_start`]) when the slice bumps, else at its near edge.
 fn locate_end(profile: &[Slice], i: usize, o: &SegmentOptions) -> f64 {
     locate_onset(profile, i, i.saturating_sub(3), o)
 }
@@ -568,6 +570,22 @@ fn locate_end(profile: &[Slice], i: usize, o: &SegmentOptions) -> f64 {
 fn locate_onset(profile: &[Slice], i: usize, lo_i: usize, o: &SegmentOptions) -> f64 {
     if !profile[i].shifts(o) {
         return opening_start(profile, i);
+    }
+    // The departing slice shifts alone: the next `persistence − 1` slices with points
+    // are back on the pipe (or none is in view). An opening's slice whose medians its far
+    // rays pulled aside, not a centreline leaving the axis: one shifted slice fits the
+    // parabola best from the grid's first x₀, three slices early, whatever the truth.
+    let lone = profile[i + 1..]
+        .iter()
+        .filter(|s| s.n_points > 0)
+        .take(o.persistence.saturating_sub(1).max(1))
+        .all(|s| !s.shifts(o));
+    if lone {
+        return if profile[i].bumps(o) {
+            opening_start(profile, i)
+        } else {
+            profile[i].start_m
+        };
     }
     let hi_i = (i + 6).min(profile.len());
     let (uy, uz) = profile[i..hi_i]

@@ -305,3 +305,40 @@ fn an_invalid_cloud_counts_its_points_as_dropped() {
     );
     assert_eq!(seg.to_string(), plain.to_string());
 }
+
+/// A lone departing slice that bumps and also shifts (an opening whose far rays pull the
+/// slice's medians aside; the slices after it back on the pipe) starts at its near edge,
+/// as a bump alone does — not three slices early, where the onset search begins and
+/// where every onset fits alike (no parabola explains a shift that does not persist). A
+/// lone shift without a bump (departing at α^persistence with the slices after it
+/// unjudged) starts at its near edge too; a growing shift still has its onset fitted.
+#[test]
+fn a_lone_shifting_slice_starts_at_its_edge() {
+    let o = SegmentOptions::default();
+    for shift in [0.003, 0.01, 0.03] {
+        let mut prof: Vec<Slice> = (0..12).map(|i| slice(0.05 * i as f64, 0.0, 0.0)).collect();
+        prof[6] = slice(0.3, shift, 0.03);
+        assert!(prof[6].shifts(&o) && prof[6].bumps(&o));
+        assert_eq!(first_departure(&prof, &o), Some(6));
+        let end = locate_end(&prof, 6, &o);
+        assert!((end - 0.3).abs() < 1e-9, "shift {shift}: end {end}");
+        // Without the bump.
+        prof[6].bump_m = 0.0;
+        let end = locate_end(&prof, 6, &o);
+        assert!(
+            (end - 0.3).abs() < 1e-9,
+            "shift {shift}, no bump: end {end}"
+        );
+    }
+    // A shift that grows from x₀ = 0.3 m on (a bend, R = 0.76 m) still has its onset
+    // found by the fit, within a slice.
+    let prof: Vec<Slice> = (0..12)
+        .map(|i| {
+            let x = 0.05 * i as f64;
+            slice(x, (x + 0.025 - 0.3).max(0.0).powi(2) / 1.52, 0.0)
+        })
+        .collect();
+    let i = first_departure(&prof, &o).expect("departs");
+    let end = locate_end(&prof, i, &o);
+    assert!((end - 0.3).abs() <= o.slice_m, "bend: end {end}");
+}
