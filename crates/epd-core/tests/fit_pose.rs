@@ -54,3 +54,34 @@ fn the_pose_is_estimates_to_the_bit() {
         }
     }
 }
+
+/// Clouds cut to 8–12 points (fewer than three residual degrees of freedom for the
+/// smallest): `fit_pose` reports the status `estimate` does, `TooFewForUncertainty`
+/// included, and the same β.
+#[test]
+fn tiny_clouds_have_estimates_status() {
+    let mut rng = common::rng(9);
+    let mut too_few = 0;
+    for k in 0..40u64 {
+        let truth = common::random_params(&mut rng, common::id_m(20.0), 0.02, 10.0, 0.2);
+        let pts = common::cloud(&truth, 160, 120, 6.0, 0.01, 0, k);
+        let stride = pts.len() / (8 + (k as usize % 5));
+        let few: Vec<[f64; 3]> = pts.iter().step_by(stride).copied().collect();
+        let o = EstimateOptions::default();
+        let (Ok(est), Ok(pose)) = (
+            estimate(&few, Method::RuEpd, &o),
+            fit_pose(&few, Method::RuEpd, &o),
+        ) else {
+            continue;
+        };
+        assert_eq!(pose.params, est.params, "cloud {k}");
+        if !matches!(est.status, FitStatus::LackOfFit(_)) {
+            assert_eq!(pose.status, est.status, "cloud {k}");
+        }
+        too_few += usize::from(matches!(
+            est.status,
+            FitStatus::Implausible(epd_core::check::Implausible::TooFewForUncertainty { .. })
+        ));
+    }
+    assert!(too_few > 0, "no cloud had too few degrees of freedom");
+}

@@ -484,10 +484,6 @@ fn fit_cloud(
         shared_offset.as_ref(),
         &off,
     );
-    let dof = n.saturating_sub(fixed.iter().filter(|&&f| !f).count());
-    let implausible = implausible
-        .or((dof < MIN_UNCERTAINTY_DOF)
-            .then_some(Implausible::TooFewForUncertainty { points: n, dof }));
     let mut status = FitStatus::from_solver(rep.status, implausible);
     if status.is_converged()
         && let Some(misfit) = wall
@@ -520,7 +516,7 @@ fn fit_cloud(
 
 /// What the solver's stages reached on a cloud ([`solve_cloud`]), before the 1-σ and the
 /// form test: β as the solver left it and in canonical form, and the plausibility check
-/// of [`assess`] on the stage points.
+/// of [`assess`] on the stage points (with too few degrees of freedom for a 1-σ).
 struct Solved {
     fitted: Params,
     canonical: Params,
@@ -577,6 +573,12 @@ fn solve_cloud(
         Ok(d) => (Some(d), d.verdict(&canonical)),
         Err(i) => (None, Some(i)),
     };
+    // Too few residual degrees of freedom for a 1-σ: implausible whether or not one is
+    // computed (`fit_pose` reports the status `estimate` would).
+    let dof = n.saturating_sub(fixed.iter().filter(|&&f| !f).count());
+    let implausible = implausible
+        .or((dof < MIN_UNCERTAINTY_DOF)
+            .then_some(Implausible::TooFewForUncertainty { points: n, dof }));
     Ok(Solved {
         fitted,
         canonical,

@@ -559,8 +559,8 @@ fn departure_direction(run: &[Slice], o: &SegmentOptions) -> f64 {
 /// x₀ on a grid of slice/20 steps from three slices before slice `i` to its far edge,
 /// c ≥ 0 by weighted least squares for each x₀. A tee, whose shift jumps, gives the x₀
 /// where the jump is best placed. A shift in the departing slice alone, the slices after
-/// it back on the pipe (or out of view), locates no onset: the departure then starts as
-/// an opening does ([`opening_start`]) when the slice bumps, else at its near edge.
+/// it judged and back on the pipe, locates no onset: the departure then starts as an
+/// opening does ([`opening_start`]) when the slice bumps, else at its near edge.
 fn locate_end(profile: &[Slice], i: usize, o: &SegmentOptions) -> f64 {
     locate_onset(profile, i, i.saturating_sub(3), o)
 }
@@ -571,15 +571,32 @@ fn locate_onset(profile: &[Slice], i: usize, lo_i: usize, o: &SegmentOptions) ->
     if !profile[i].shifts(o) {
         return opening_start(profile, i);
     }
-    // The departing slice shifts alone: the next `persistence − 1` slices with points
-    // are back on the pipe (or none is in view). An opening's slice whose medians its far
-    // rays pulled aside, not a centreline leaving the axis: one shifted slice fits the
+    // The departing slice shifts alone: an opening's slice whose medians its far rays
+    // pulled aside, not a centreline leaving the axis. One shifted slice fits the
     // parabola best from the grid's first x₀, three slices early, whatever the truth.
-    let lone = profile[i + 1..]
+    // Alone means the next `persistence − 1` slices with points are judged (enough
+    // sectors), do not shift, and shift less than slice `i` along its direction by more
+    // than the critical value at the survey's false-alarm rate: a bend's shift grows
+    // along the run, so a next slice merely below its own test (or not judged, or out
+    // of view) keeps the onset fit.
+    let shift_i = profile[i].shift_m;
+    let norm_i = shift_i[0].hypot(shift_i[1]);
+    let z = crate::fit::form::normal_upper_quantile(SURVEY_FALSE_ALARM);
+    let next: Vec<&Slice> = profile[i + 1..]
         .iter()
         .filter(|s| s.n_points > 0)
         .take(o.persistence.saturating_sub(1).max(1))
-        .all(|s| !s.shifts(o));
+        .collect();
+    let lone = norm_i > 0.0
+        && !next.is_empty()
+        && next.iter().all(|s| {
+            let along = (s.shift_m[0] * shift_i[0] + s.shift_m[1] * shift_i[1]) / norm_i;
+            let se = profile[i].shift_se_m.hypot(s.shift_se_m);
+            s.n_sectors >= MIN_SECTORS_TESTED
+                && !s.shifts(o)
+                && along.is_finite()
+                && norm_i - along > z * se
+        });
     if lone {
         return if profile[i].bumps(o) {
             opening_start(profile, i)

@@ -523,6 +523,9 @@ impl<'a, const N: usize, P: NormalEquationsProblem<N>> Solver<'a, N, P> {
             if stretch > 1.0 {
                 // A stretched step refused: the next one is the plain step.
                 self.curvature_ratio = 1.0;
+                if self.iterations >= self.options.max_iterations {
+                    return Trial::Stop(Status::IterationLimit);
+                }
                 return Trial::Rejected;
             }
             // Refused: the step left the domain or did not lower the cost. (A refused

@@ -341,4 +341,19 @@ fn a_lone_shifting_slice_starts_at_its_edge() {
     let i = first_departure(&prof, &o).expect("departs");
     let end = locate_end(&prof, i, &o);
     assert!((end - 0.3).abs() <= o.slice_m, "bend: end {end}");
+    // The bend's next slice not judged (too few sectors), below its own test, or out of
+    // view: not a lone slice, the onset is still fitted.
+    let mut unjudged = prof.clone();
+    unjudged[i + 1].n_sectors = MIN_SECTORS_TESTED - 1;
+    let mut weak = prof.clone();
+    weak[i + 1].shift_f = 0.5 * weak[i + 1].critical_f;
+    assert!(!weak[i + 1].shifts(&o));
+    let ends = prof[..=i].to_vec();
+    for (name, p) in [("unjudged", unjudged), ("weak", weak), ("ends", ends)] {
+        let end = locate_end(&p, i, &o);
+        assert!(
+            (end - 0.3).abs() <= o.slice_m,
+            "bend, next slice {name}: end {end}"
+        );
+    }
 }
