@@ -53,7 +53,10 @@ fn parts(c: &mut Criterion) {
         b.iter(|| fit.equations_at(&truth).expect("inside"))
     });
     group.bench_function("cluster_sandwich/100000", |b| {
-        b.iter(|| fit.cluster_sandwich_at(&truth, &cells).expect("inside"))
+        b.iter(|| {
+            fit.cluster_sandwich_at(&truth, &cells, epd_core::problem::Curvature::Exact)
+                .expect("inside")
+        })
     });
     let form_cells = epd_core::problem::Cells {
         axial_edges: (1..16).map(|k| 0.3 + 0.15 * k as f64).collect(),

@@ -134,7 +134,10 @@ fn bench(c: &mut Criterion) {
     });
     g.bench_function("one_sigma_cluster_pass_full_frame", |b| {
         let fit = epd_core::problem::PipeFit::new(&plain.measured, epd_core::Residual::Range);
-        b.iter(|| fit.cluster_sandwich_at(&beta, &cells).expect("inside"))
+        b.iter(|| {
+            fit.cluster_sandwich_at(&beta, &cells, epd_core::problem::Curvature::Exact)
+                .expect("inside")
+        })
     });
     // The survey's departure profile of the frame against its fit (one pass of the
     // survey; a frame takes one to four): its time, and its memory (issue 27: the

@@ -150,7 +150,9 @@ impl Loss {
     }
 
     /// (c(r), w_g(r), w_H(r)) for a residual r: the cost 2ρ(r), the gradient weight
-    /// c'(r)/(2r) and the curvature weight max(c''(r)/2, 0).
+    /// c'(r)/(2r) and the curvature weight max(c''(r)/2, 0) — clipped at zero, which
+    /// keeps the solver's H positive (see [`cost_and_exact_weights`](Self::cost_and_exact_weights)
+    /// for the unclipped one).
     #[inline(always)]
     pub fn cost_and_weights(&self, r: f64) -> (f64, f64, f64) {
         match *self {
@@ -168,6 +170,23 @@ impl Loss {
                 let w = 1.0 / (1.0 + q);
                 (k * k * ln_1p_nonneg(q), w, ((1.0 - q) * w * w).max(0.0))
             }
+        }
+    }
+
+    /// [`cost_and_weights`](Self::cost_and_weights) with the curvature weight c''(r)/2
+    /// unclipped: negative past the Cauchy loss's knee (|r| > k, where (1 − q)/(1 + q)²
+    /// with q = (r/k)² turns negative); the squared and Huber losses have no negative
+    /// curvature, so theirs are the same. The curvature of the cost itself, as the
+    /// sandwich's bread needs it (`crate::fit::covariance`).
+    #[inline(always)]
+    pub fn cost_and_exact_weights(&self, r: f64) -> (f64, f64, f64) {
+        match *self {
+            Loss::Cauchy { scale: k } => {
+                let q = (r / k) * (r / k);
+                let w = 1.0 / (1.0 + q);
+                (k * k * ln_1p_nonneg(q), w, (1.0 - q) * w * w)
+            }
+            _ => self.cost_and_weights(r),
         }
     }
 }

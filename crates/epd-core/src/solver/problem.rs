@@ -91,7 +91,7 @@ impl<'a> PipeFit<'a> {
             if watch.stopped() {
                 return NormalEquations::zero();
             }
-            accumulate_chunk(&geom, kind, loss, chunk, s).eq
+            accumulate_chunk(&geom, kind, loss, chunk, s, Curvature::Clipped).eq
         };
         let mut total = if self.points.len() <= CHUNK {
             accumulate((self.points, self.scales.unwrap_or(&[])))
@@ -214,7 +214,12 @@ impl PipeFit<'_> {
     /// the SIMD kernel of the solver's own normal equations (its Jᵀr is the cell's score,
     /// its JᵀJ the cell's bread). Parts and blocks are cut by the point count alone and
     /// added in order, so the result does not depend on the number of threads.
-    pub fn cluster_sandwich_at(&self, beta: &Params, cells: &Cells) -> Option<ClusterSandwich> {
+    pub fn cluster_sandwich_at(
+        &self,
+        beta: &Params,
+        cells: &Cells,
+        curvature: Curvature,
+    ) -> Option<ClusterSandwich> {
         let geom = Geometry::new(beta)?;
         let indexer = cells.indexer();
         let g = cells.len();
@@ -264,7 +269,14 @@ impl PipeFit<'_> {
                     } else {
                         &sorted_scales[run.clone()]
                     };
-                    total.merge(&accumulate_chunk(&geom, kind, loss, &sorted[run], sc));
+                    total.merge(&accumulate_chunk(
+                        &geom,
+                        kind,
+                        loss,
+                        &sorted[run],
+                        sc,
+                        curvature,
+                    ));
                 }
             }
             sums
@@ -362,7 +374,7 @@ const LANES: usize = 4;
 /// compiled in. With `avx2` (only from [`accumulate_avx2`], on a CPU with AVX2) the
 /// residuals and gradients come from [`Geometry::residuals_and_gradients_avx2`].
 #[inline(always)]
-fn accumulate_lanes<const WEIGHTED: bool>(
+fn accumulate_lanes<const WEIGHTED: bool, const EXACT: bool>(
     geom: &Geometry,
     kind: Residual,
     loss: Loss,
@@ -416,7 +428,11 @@ fn accumulate_lanes<const WEIGHTED: bool>(
             }
         } else {
             for l in 0..LANES {
-                let (c, g_w, h_w) = loss.cost_and_weights(r[l]);
+                let (c, g_w, h_w) = if EXACT {
+                    loss.cost_and_exact_weights(r[l])
+                } else {
+                    loss.cost_and_weights(r[l])
+                };
                 cost[l] += c;
                 raw[l] += r[l] * r[l];
                 wg[l] = g_w;
@@ -448,7 +464,11 @@ fn accumulate_lanes<const WEIGHTED: bool>(
             r *= s;
             g = g.map(|v| s * v);
         }
-        let (c, wg, wh) = loss.cost_and_weights(r);
+        let (c, wg, wh) = if EXACT {
+            loss.cost_and_exact_weights(r)
+        } else {
+            loss.cost_and_weights(r)
+        };
         eq.push_weighted(r, &g, c, wg, wh);
         raw_cost += r * r;
     }
@@ -474,43 +494,60 @@ fn accumulate_lanes<const WEIGHTED: bool>(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn accumulate_avx2<const WEIGHTED: bool>(
+fn accumulate_avx2<const WEIGHTED: bool, const EXACT: bool>(
     geom: &Geometry,
     kind: Residual,
     loss: Loss,
     chunk: &[[f64; 3]],
     scales: &[f64],
 ) -> Sums {
-    accumulate_lanes::<WEIGHTED>(geom, kind, loss, chunk, scales, true)
+    accumulate_lanes::<WEIGHTED, EXACT>(geom, kind, loss, chunk, scales, true)
 }
 
 /// [`accumulate_lanes`] compiled for AVX2 + FMA when the CPU has them; weighted when
-/// `scales` is not empty (then one per point).
+/// `scales` is not empty (then one per point); with the loss's curvature clipped at zero
+/// (the solver's) or exact ([`Curvature`]).
 fn accumulate_chunk(
     geom: &Geometry,
     kind: Residual,
     loss: Loss,
     chunk: &[[f64; 3]],
     scales: &[f64],
+    curvature: Curvature,
 ) -> Sums {
     let weighted = !scales.is_empty();
+    let exact = curvature == Curvature::Exact;
     debug_assert!(!weighted || scales.len() == chunk.len());
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
         // SAFETY: the CPU supports the features the function is compiled for.
         return unsafe {
-            if weighted {
-                accumulate_avx2::<true>(geom, kind, loss, chunk, scales)
-            } else {
-                accumulate_avx2::<false>(geom, kind, loss, chunk, scales)
+            match (weighted, exact) {
+                (true, true) => accumulate_avx2::<true, true>(geom, kind, loss, chunk, scales),
+                (true, false) => accumulate_avx2::<true, false>(geom, kind, loss, chunk, scales),
+                (false, true) => accumulate_avx2::<false, true>(geom, kind, loss, chunk, scales),
+                (false, false) => accumulate_avx2::<false, false>(geom, kind, loss, chunk, scales),
             }
         };
     }
-    if weighted {
-        accumulate_lanes::<true>(geom, kind, loss, chunk, scales, false)
-    } else {
-        accumulate_lanes::<false>(geom, kind, loss, chunk, scales, false)
+    match (weighted, exact) {
+        (true, true) => accumulate_lanes::<true, true>(geom, kind, loss, chunk, scales, false),
+        (true, false) => accumulate_lanes::<true, false>(geom, kind, loss, chunk, scales, false),
+        (false, true) => accumulate_lanes::<false, true>(geom, kind, loss, chunk, scales, false),
+        (false, false) => accumulate_lanes::<false, false>(geom, kind, loss, chunk, scales, false),
     }
+}
+
+/// Which curvature of the loss the normal equations' H carries: the solver's, clipped at
+/// zero so that H stays positive (Triggs' correction), or the cost's exact one, which a
+/// sandwich's bread needs (a residual past a redescending loss's knee lowers F's
+/// curvature; clipped, the bread overstates it and the variance comes out too small).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Curvature {
+    /// max(c''/2, 0): the solver's.
+    Clipped,
+    /// c''/2.
+    Exact,
 }
 
 impl NormalEquationsProblem<N_PARAMS> for PipeFit<'_> {
@@ -568,13 +605,17 @@ mod tests {
                         let (fast, plain) = unsafe {
                             if sc.is_empty() {
                                 (
-                                    accumulate_avx2::<false>(&geom, kind, loss, &pts, sc),
-                                    accumulate_lanes::<false>(&geom, kind, loss, &pts, sc, false),
+                                    accumulate_avx2::<false, false>(&geom, kind, loss, &pts, sc),
+                                    accumulate_lanes::<false, false>(
+                                        &geom, kind, loss, &pts, sc, false,
+                                    ),
                                 )
                             } else {
                                 (
-                                    accumulate_avx2::<true>(&geom, kind, loss, &pts, sc),
-                                    accumulate_lanes::<true>(&geom, kind, loss, &pts, sc, false),
+                                    accumulate_avx2::<true, false>(&geom, kind, loss, &pts, sc),
+                                    accumulate_lanes::<true, false>(
+                                        &geom, kind, loss, &pts, sc, false,
+                                    ),
                                 )
                             }
                         };
@@ -615,7 +656,9 @@ mod tests {
         let fit = PipeFit::new(&pts, Residual::Range)
             .with_loss(Loss::Cauchy { scale: 0.05 })
             .with_scales(Some(&scales));
-        let sw = fit.cluster_sandwich_at(&beta, &cells).expect("inside");
+        let sw = fit
+            .cluster_sandwich_at(&beta, &cells, Curvature::Clipped)
+            .expect("inside");
         let mut score = vec![SVector::<f64, N_PARAMS>::zeros(); cells.len()];
         let mut bread = vec![Mat::zeros(); cells.len()];
         let mut raw = 0.0;
