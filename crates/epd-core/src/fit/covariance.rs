@@ -123,7 +123,7 @@ pub(crate) fn uncertainty(
 /// ([`add_shared_offsets`], [`take_shared_errors`]) judge and scale Σ before it is held at
 /// the roll, so part of the turn's variance can reach the held 1-σ through their scaling
 /// (measured: `results/straight_false_alarm`, 8" pipe under a 6 mm wiggle, pitch covered
-/// in 32 of 40 frames).
+/// in 33 of 40 frames).
 fn hold_roll(sigma: &mut Sigmas, beta: &Params, cov: &Mat7) {
     let at = |phi: f64| {
         SVector::<f64, N_PARAMS>::from(crate::symmetry::turn_about_axis(beta, phi).to_array())

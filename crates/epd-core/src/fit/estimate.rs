@@ -66,7 +66,8 @@ pub struct Estimate {
     /// The loss as applied, its scale in the method's residual units.
     pub loss: Loss,
     /// 1-σ of each parameter, for every loss the cluster-robust sandwich
-    /// c·H⁻¹·B·H⁻¹ with H = Σ w_H JᵢJᵢᵀ, B = Σ_g s_g s_gᵀ the spread of the scores
+    /// c·H⁻¹·B·H⁻¹ with H = Σ w_H JᵢJᵢᵀ (the loss's exact curvature w_H, negative past
+    /// a redescending loss's knee: [`crate::problem::Curvature`]), B = Σ_g s_g s_gᵀ the spread of the scores
     /// s_g = Σ_{i∈g} w_g(rᵢ)rᵢJᵢ of the wall's cells g ([`AXIAL_CELLS`] × [`CLOCK_SECTORS`])
     /// and c = G/(G − 1)·(N − 1)/(N − p) (p the fitted parameters: 7, or 5 with the
     /// diameters held); σ̂²·(JᵀJ)⁻¹ when there are too few cells. With weights, of the

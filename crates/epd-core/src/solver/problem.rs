@@ -189,7 +189,7 @@ impl PipeFit<'_> {
 /// The cluster-robust sandwich terms at one β ([`PipeFit::cluster_sandwich_at`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct ClusterSandwich {
-    /// H = Σ w_H(rᵢ)·JᵢJᵢᵀ over all points.
+    /// H = Σ w_H(rᵢ)·JᵢJᵢᵀ over all points, w_H as the [`Curvature`] asked for.
     pub bread: SMatrix<f64, N_PARAMS, N_PARAMS>,
     /// B = Σ_g s_g s_gᵀ with s_g = Σ_{i ∈ g} ψ(rᵢ)Jᵢ the score of cell g.
     pub meat: SMatrix<f64, N_PARAMS, N_PARAMS>,
