@@ -4,8 +4,23 @@
 
 mod common;
 
-use epd_core::{EstimateOptions, Loss, LossScale, Method, errors_against, estimate};
+use epd_core::{
+    Estimate, EstimateOptions, Loss, LossScale, Method, Params, errors_against, estimate,
+};
 use rand::RngExt;
+
+/// Counts, per parameter, the estimates with a 1-σ (`determined`) and those whose
+/// ±1.96σ̂ holds the truth (`covered`).
+fn tally(est: &Estimate, truth: &Params, covered: &mut [usize; 7], determined: &mut [usize; 7]) {
+    let e = errors_against(&est.params, truth);
+    let errs = [e.d_max, e.d_min, e.roll, e.pitch, e.yaw, e.dy, e.dz];
+    for i in 0..7 {
+        if let Some(s) = est.sigma[i] {
+            determined[i] += 1;
+            covered[i] += usize::from(errs[i].abs() <= 1.96 * s);
+        }
+    }
+}
 
 /// Full 160×120 frames within 6 m, σ = 0.03 m, 20" pipe, 24 poses, ML-EPD, gate
 /// [0.5, 2] m. The measured-range gate biases the mean diameter by ≈ +1 mm
@@ -92,14 +107,7 @@ fn sandwich_sigmas_cover_the_errors_under_a_robust_loss() {
         }
         let est = estimate(&pts, Method::MlEpd, &opts).unwrap();
         assert!(est.status.is_converged(), "{:?}", est.status);
-        let e = errors_against(&est.params, &truth);
-        let errs = [e.d_max, e.d_min, e.roll, e.pitch, e.yaw, e.dy, e.dz];
-        for i in 0..7 {
-            if let Some(s) = est.sigma[i] {
-                determined[i] += 1;
-                covered[i] += usize::from(errs[i].abs() <= 1.96 * s);
-            }
-        }
+        tally(&est, &truth, &mut covered, &mut determined);
     }
     eprintln!("covered {covered:?} of {determined:?}");
     let se = (0.95 * 0.05 / clouds as f64).sqrt();
@@ -159,14 +167,7 @@ fn sandwich_sigmas_cover_the_errors_under_range_dependent_noise() {
         if !est.status.is_converged() {
             continue;
         }
-        let e = errors_against(&est.params, &truth);
-        let errs = [e.d_max, e.d_min, e.roll, e.pitch, e.yaw, e.dy, e.dz];
-        for i in 0..7 {
-            if let Some(s) = est.sigma[i] {
-                determined[i] += 1;
-                covered[i] += usize::from(errs[i].abs() <= 1.96 * s);
-            }
-        }
+        tally(&est, &truth, &mut covered, &mut determined);
     }
     eprintln!("covered {covered:?} of {determined:?}");
     for i in 0..7 {
