@@ -113,7 +113,8 @@ fn writes_the_tally_and_the_section_table_identically_for_1_and_2_threads() {
     for r in at(18.0) {
         assert_eq!(
             (r[geometry], r[truth], r[5]),
-            ("in_bend", "in_bend", "withheld")
+            ("in_bend", "in_bend", "withheld"),
+            "{r:?}"
         );
         assert_eq!(r[6], "", "a withheld estimate has no diameter");
     }

@@ -209,10 +209,12 @@ impl GeometryReport {
             );
         }
         self.straight_withheld.then(|| {
-            let what = if self.layout == "tee_ahead" {
-                "a tee's branch opening"
-            } else {
-                "a bend"
+            let what = match self.layout {
+                "tee_ahead" => "a tee's branch opening",
+                "bend_ahead" => "a bend",
+                // A straight pipe's estimate is withheld only before something on its
+                // wall (`dent`), which the survey found where the straight section ends.
+                _ => "a dent, debris or an obstacle on the wall",
             };
             let at = self
                 .straight_until_m
@@ -223,5 +225,53 @@ impl GeometryReport {
                 self.layout
             )
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn report(layout: &'static str, dent: Option<DentReport>) -> GeometryReport {
+        GeometryReport {
+            layout,
+            straight_until_m: Some(0.73),
+            sigma_straight_until_m: None,
+            evidence: 10.0,
+            bend_radius_mm: None,
+            sigma_bend_radius_mm: None,
+            bend_angle_deg: None,
+            bend_direction_deg: None,
+            straight_withheld: true,
+            bend_withheld: None,
+            dent,
+        }
+    }
+
+    /// A withheld straight estimate names what starts where it ends: a tee's opening, a
+    /// bend, or — in a straight pipe — what lies on its wall (a frame of a 42" tee 0.5 m
+    /// ahead whose opening read as a dent was said to have "a bend" ahead).
+    #[test]
+    fn the_reason_names_what_ends_the_straight_section() {
+        let dent = DentReport {
+            at_m: 0.75,
+            clock_deg: 217.0,
+            depth_mm: 3.0,
+        };
+        for (layout, dent, names) in [
+            (
+                "tee_ahead",
+                None,
+                "tee's branch opening starts 0.73 m ahead",
+            ),
+            ("bend_ahead", None, "a bend starts 0.73 m ahead"),
+            ("straight", Some(dent), "a dent, debris or an obstacle"),
+        ] {
+            let why = report(layout, dent).withheld().unwrap();
+            assert!(why.contains(names), "{layout}: {why}");
+            assert!(why.contains(layout), "{layout}: {why}");
+        }
+        let why = report("in_bend", None).withheld().unwrap();
+        assert!(why.contains("in a bend"), "{why}");
     }
 }

@@ -14,9 +14,13 @@
 //!   inside a pipe sees the wall all round, so the span of the points' PCS y (z)
 //!   coordinates, between their 1 % and 99 % quantiles, lies within
 //!   [[`MIN_SPAN_RATIO`], [`MAX_SPAN_RATIO`]] of Dmax (Dmin), widened by the noise;
-//! - the range residuals r_m (ML-EPD's residual, m, whatever the method) have a robust
-//!   scale s = 1.4826·median|r_m| below [`MAX_NOISE_TO_RADIUS`] of the mean radius: a
-//!   pipe whose wall is blurred by more than that is not measured by the frame;
+//! - the points' displacements across the axis, r_d (RU-EPD's residual: the range error
+//!   projected on the cross-section, m), have a robust scale 1.4826·median|r_d| below
+//!   [`MAX_NOISE_TO_RADIUS`] of the mean radius: a pipe whose cross-section is blurred by
+//!   more than that is not measured by the frame. Range noise along rays that graze the
+//!   wall moves the points mostly along the axis: the range residuals' own scale s says
+//!   nothing about the cross-section there (an 8" pipe under σ = 0.05 m of range noise
+//!   has s = 0.54 radius and a cross-section scatter of about a fifth of it);
 //! - no region of the wall is systematically missed: around the axis, in
 //!   [`SECTORS`] sectors, the median range residual of each sector stays within
 //!   [`MAX_SECTOR_MEDIAN`]·s + [`SECTOR_SAMPLING`]·s/√n (n the sector's points). A fit with a wrong tilt
@@ -45,10 +49,13 @@ pub const MAX_SPAN_RATIO: f64 = 1.5;
 /// moves out by up to z₀.₉₉ = 2.33 s, so 4.65 s at both ends, and 8 s leaves 3.3 s for
 /// the percentiles' own sampling error.
 pub const SPAN_NOISE_ALLOWANCE: f64 = 8.0;
-/// Largest robust scale of the range residuals, as a fraction of the mean radius: with
-/// noise of half the radius the wall's points scatter over the whole cross-section
-/// (±2s spans two radii), so the points no longer show where the wall is. A plausibility
-/// bound, not a statistic: a real camera in a pipe is a hundred times below it.
+/// Largest robust scale of the points' displacements across the axis (the range
+/// residuals projected on the cross-section, [`Residual::ErrorBased`]), as a fraction of
+/// the mean radius: with a cross-section scatter of half the radius the wall's points
+/// fill the whole cross-section (±2 scales span two radii), so the points no longer show
+/// where the wall is. A plausibility bound, not a statistic: a real camera in a pipe is
+/// ten to a hundred times below it. The range residuals' scale would not do: range noise
+/// on rays that graze the wall displaces the points along the axis, not across it.
 pub const MAX_NOISE_TO_RADIUS: f64 = 0.5;
 /// Angular sectors around the axis for the lack-of-fit test: a wrong tilt or basin
 /// leaves a side of the wall off the fit, a half or a quarter of it; eight sectors of
@@ -91,6 +98,9 @@ pub struct Diagnostics {
     pub span_ratio_minor: f64,
     /// Robust scale of the range residuals, 1.4826·median|r_m| (m).
     pub residual_scale: f64,
+    /// Robust scale of the displacements across the axis, 1.4826·median|r_d| (m): the
+    /// range residuals projected on the cross-section ([`Residual::ErrorBased`]).
+    pub cross_section_scale: f64,
     /// Largest |median range residual| of a sector, minus the sampling term 5·s/√n,
     /// in units of s.
     pub sector_misfit: f64,
@@ -135,9 +145,11 @@ pub enum Implausible {
         /// The cloud's span (m).
         span: f64,
     },
-    /// The residuals' scale is too large for the fitted radius to be measured.
+    /// The points' scatter across the axis is too large for the fitted radius to be
+    /// measured.
     NoiseVsRadius {
-        /// Robust residual scale (m).
+        /// Robust scale of the displacements across the axis (m)
+        /// ([`Diagnostics::cross_section_scale`]).
         scale: f64,
         /// Mean fitted radius (m).
         radius: f64,
@@ -210,8 +222,8 @@ impl std::fmt::Display for Implausible {
             ),
             Implausible::NoiseVsRadius { scale, radius } => write!(
                 f,
-                "the points scatter by {:.1} mm about the fitted wall, more than half its radius ({:.1} mm): \
-                 the diameters are not determined",
+                "the points scatter by {:.1} mm across the pipe about the fitted wall, more than half \
+                 its radius ({:.1} mm): the diameters are not determined",
                 scale * 1e3,
                 radius * 1e3
             ),
@@ -377,8 +389,12 @@ impl Diagnostics {
                 });
             }
         }
-        if !(s <= MAX_NOISE_TO_RADIUS * radius) {
-            return Some(Implausible::NoiseVsRadius { scale: s, radius });
+        let cross = self.cross_section_scale;
+        if !(cross <= MAX_NOISE_TO_RADIUS * radius) {
+            return Some(Implausible::NoiseVsRadius {
+                scale: cross,
+                radius,
+            });
         }
         if !(self.sector_misfit <= MAX_SECTOR_MEDIAN) {
             return Some(Implausible::LackOfFit {
@@ -403,6 +419,7 @@ pub fn assess(points: &[[f64; 3]], beta: &Params) -> Result<Diagnostics, Implaus
     let stride = points.len().div_ceil(MAX_ASSESSED).max(1);
     let n = points.len().div_ceil(stride);
     let mut r = Vec::with_capacity(n);
+    let mut across = Vec::with_capacity(n);
     let mut ys = Vec::with_capacity(n);
     let mut zs = Vec::with_capacity(n);
     let mut sector = Vec::with_capacity(n);
@@ -410,12 +427,14 @@ pub fn assess(points: &[[f64; 3]], beta: &Params) -> Result<Diagnostics, Implaus
         let y = m[(1, 0)] * p[0] + m[(1, 1)] * p[1] + m[(1, 2)] * p[2] + beta.dy;
         let z = m[(2, 0)] * p[0] + m[(2, 1)] * p[1] + m[(2, 2)] * p[2] + beta.dz;
         r.push(geom.residual(Residual::Range, p));
+        across.push(geom.residual(Residual::ErrorBased, p).abs());
         ys.push(y);
         zs.push(z);
         sector.push(octant(y, z));
     }
     let mut abs_r: Vec<f64> = r.iter().map(|v| v.abs()).collect();
     let s = crate::loss::mad_sigma(&mut abs_r);
+    let cross_section_scale = crate::loss::mad_sigma(&mut across);
     // The spans over the inliers only: far outliers (dust, flying pixels, stray light)
     // lie anywhere along their rays, beyond the wall too, and would widen the span of a
     // good fit.
@@ -455,6 +474,7 @@ pub fn assess(points: &[[f64; 3]], beta: &Params) -> Result<Diagnostics, Implaus
         span_ratio_major: span_y / beta.d_max,
         span_ratio_minor: span_z / beta.d_min,
         residual_scale: s,
+        cross_section_scale,
         sector_misfit: misfit.max(0.0),
         n_assessed: n,
         sectors_seen,
@@ -513,6 +533,50 @@ mod tests {
         assert!(d.verdict(&t).is_none(), "{d:?}");
         assert!((d.span_ratio_major - 1.0).abs() < 0.01, "{d:?}");
         assert!(d.residual_scale < 1e-9);
+    }
+
+    /// The wall of [`cloud`] with normal noise of `sigma` (m), along each point's ray
+    /// (`along_ray`) or across the axis (in the PCS y–z plane).
+    fn noisy(t: &Params, sigma: f64, along_ray: bool) -> Vec<[f64; 3]> {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+        cloud(t)
+            .into_iter()
+            .map(|p| {
+                let e: f64 = StandardNormal.sample(&mut rng);
+                if along_ray {
+                    let range = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                    p.map(|c| c * (1.0 + sigma * e / range))
+                } else {
+                    let e2: f64 = StandardNormal.sample(&mut rng);
+                    let w = t.scs_to_pcs(&Point3::new(p[0], p[1], p[2]));
+                    let q = t.pcs_to_scs(&Point3::new(w.x, w.y + sigma * e, w.z + sigma * e2));
+                    [q.x, q.y, q.z]
+                }
+            })
+            .collect()
+    }
+
+    /// Range noise of 0.8 × the radius on rays that graze the wall (points 0.6–5.8 m
+    /// ahead of a 0.245 m radius) moves the points along the axis: their scatter across
+    /// it is a tenth of the radius or less, and the pipe is measured. The same scale
+    /// across the axis blurs the cross-section and is refused.
+    #[test]
+    fn noise_is_judged_by_its_scatter_across_the_axis() {
+        let t = truth();
+        let radius = 0.25 * (t.d_max + t.d_min);
+        let along = noisy(&t, 0.8 * radius, true);
+        let d = assess(&along, &t).unwrap();
+        assert!(d.residual_scale > MAX_NOISE_TO_RADIUS * radius, "{d:?}");
+        assert!(d.cross_section_scale < 0.1 * radius, "{d:?}");
+        assert!(d.verdict(&t).is_none(), "{d:?}");
+        let across = noisy(&t, 0.8 * radius, false);
+        let d = assess(&across, &t).unwrap();
+        assert!(
+            matches!(d.verdict(&t), Some(Implausible::NoiseVsRadius { .. })),
+            "{d:?}"
+        );
     }
 
     #[test]
