@@ -111,8 +111,8 @@ pub struct DentReport {
 
 /// The least fraction of a bend's points that must lie where the depth table observed
 /// the camera's error for its radius to be reported from calibrated points. Measured
-/// (`scenarios/pipeline_run.toml`, Helios2 model, rig table): 0–41 % of the bend's points
-/// covered went with radius errors of −7.0 … +1.2 %, against ≤ 1.3 % without systematic
+/// (`scenarios/pipeline_run.toml`, Helios2 model, rig table): 0–38 % of the bend's points
+/// covered went with radius errors of −6.9 … +1.3 %, against ≤ 1.3 % without systematic
 /// errors (`scenarios/elbow_approach.toml`).
 pub const MIN_BEND_TABLE_COVERAGE: f64 = 0.5;
 
