@@ -318,15 +318,6 @@ fn refine(
         if !moved || rounds > seg.max_rounds {
             break;
         }
-        if std::env::var_os("EPD_TRACE").is_some() && found.is_none() {
-            let x = end.unwrap_or(f64::NAN);
-            let near: Vec<String> = prof
-                .iter()
-                .filter(|s| (s.start_m - x).abs() < 3.0 * seg.slice_m)
-                .map(|s| format!("{:.3}:{:.1e}/{:.1e}", s.start_m, s.departure_p, s.opening_p))
-                .collect();
-            eprintln!("vanished at {x:.3}: {}", near.join(" "));
-        }
         let Some(x_end) = found else {
             // The departure vanished with the last refit: the straight pipe fitted on the
             // points before it leaves no slice departing, so nothing departs from the
