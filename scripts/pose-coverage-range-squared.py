@@ -11,30 +11,15 @@ import sys, json, math, subprocess
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'crates', 'epd-py', 'tests'))
 import numpy as np
 import test_independent_frames as T
-# Same draws as T.frame, returning the pose too.
+# The caster's frame under range noise growing as r², with its pose.
 def frame(rng, w, h):
-    od = rng.uniform(14.0, 32.0) * 25.4e-3
-    inner = od - 2 * rng.uniform(0.006, 0.015)
-    ovality = rng.uniform(0.01, 0.04)
-    d_max, d_min = inner * (1 + ovality / 2), inner * (1 - ovality / 2)
-    roll = rng.uniform(-math.pi, math.pi)
-    pitch, yaw = np.radians(rng.uniform(-6.0, 6.0, size=2))
-    dy, dz = rng.uniform(-0.05, 0.05, size=2) * inner / 0.5
-    d_s = T.rays(w, h)
-    e = d_s @ T.rot(roll, pitch, yaw).T
-    a2, b2 = (d_max / 2) ** 2, (d_min / 2) ** 2
-    qa = e[..., 1] ** 2 / a2 + e[..., 2] ** 2 / b2
-    qb = 2 * (dy * e[..., 1] / a2 + dz * e[..., 2] / b2)
-    qc = dy * dy / a2 + dz * dz / b2 - 1.0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (-qb + np.sqrt(qb * qb - 4 * qa * qc)) / (2 * qa)
-    noise = rng.normal(0.0, T.SIGMA_M, size=t.shape) * (T.S0_M / T.SIGMA_M) * t**2
-    keep = np.isfinite(t) & (t <= T.MAX_RANGE_M)
-    pts = (d_s * (t + noise)[..., None])[keep]
+    pts, d_max, d_min, (roll, pitch, yaw, dy, dz) = T.frame(
+        rng, "range_squared", w, h, with_pose=True
+    )
     # canonical: roll in [-90, 90): a 180° turn flips pitch, yaw, dy, dz
     if not (-math.pi / 2 <= roll < math.pi / 2):
         roll -= math.copysign(math.pi, roll); pitch, yaw, dy, dz = -pitch, -yaw, -dy, -dz
-    return pts.astype(np.float32), dict(pitch_deg=math.degrees(pitch), yaw_deg=math.degrees(yaw), dy_mm=dy*1e3, dz_mm=dz*1e3, d_max_mm=d_max*1e3, d_min_mm=d_min*1e3)
+    return pts, dict(pitch_deg=math.degrees(pitch), yaw_deg=math.degrees(yaw), dy_mm=dy*1e3, dz_mm=dz*1e3, d_max_mm=d_max*1e3, d_min_mm=d_min*1e3)
 w, h, n = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
 rng = np.random.default_rng(2026)
 paths, truth = [], {}

@@ -79,9 +79,10 @@ def blur(img, px):
     return np.apply_along_axis(lambda a: np.convolve(a, k, mode="valid"), 0, rows)
 
 
-def frame(rng, model, w=W, h=H, od_in=None, sigma=SIGMA_M):
+def frame(rng, model, w=W, h=H, od_in=None, sigma=SIGMA_M, with_pose=False):
     """One frame of a `w` × `h` camera under the range-error `model` (one of MODELS) of
-    scale `sigma` (m): (points (n, 3) float32 in the sensor frame, Dmax, Dmin in m). The
+    scale `sigma` (m): (points (n, 3) float32 in the sensor frame, Dmax, Dmin in m), and
+    with `with_pose` the true pose too, (roll, pitch, yaw in rad, δy, δz in m). The
     pipe's outside diameter is drawn in 14–32" unless `od_in` gives it (inches). The draws of the first
     three models are those they had before the others were added (same seed, same frame
     at W × H)."""
@@ -115,6 +116,8 @@ def frame(rng, model, w=W, h=H, od_in=None, sigma=SIGMA_M):
         measured = np.where(wild, rng.uniform(*OUTLIER_RANGE_M, size=t.shape), measured)
     keep = np.isfinite(t) & (t <= MAX_RANGE_M)
     pts = (d_s * measured[..., None])[keep]
+    if with_pose:
+        return pts.astype(np.float32), d_max, d_min, (roll, pitch, yaw, dy, dz)
     return pts.astype(np.float32), d_max, d_min
 
 
