@@ -18,8 +18,13 @@ const BAND_M: (f64, f64) = (1.0, 2.0);
 /// One straight frame of a 20" pipe at 320 × 240 within 6 m, its band read long by
 /// `bias_m`.
 fn banded_frame(seed: u64, bias_m: f64) -> Vec<[f64; 3]> {
+    banded_frame_of(seed, bias_m, 20.0)
+}
+
+/// [`banded_frame`] of a pipe `od_in` inches outside.
+fn banded_frame_of(seed: u64, bias_m: f64, od_in: f64) -> Vec<[f64; 3]> {
     let mut rng = common::rng(seed);
-    let truth = common::random_params(&mut rng, common::id_m(20.0), 0.02, 6.0, 0.2);
+    let truth = common::random_params(&mut rng, common::id_m(od_in), 0.02, 6.0, 0.2);
     let normal = Normal::new(0.0, SIGMA_M).expect("σ is finite");
     common::rays(320, 240)
         .iter()
@@ -62,6 +67,36 @@ fn a_band_of_long_ranges_is_no_departure() {
     for k in 0..frames {
         let seed = 5000 + pick.random_range(0..1_000_000u64) + k;
         let pts = banded_frame(seed, 2.5 * SIGMA_M);
+        let s = survey_of(&pts);
+        if s.segmentation.layout != Layout::Straight {
+            misread.push((
+                seed,
+                s.segmentation.layout.name(),
+                s.segmentation.straight_until,
+            ));
+        }
+    }
+    println!("{} of {frames} read otherwise: {misread:?}", misread.len());
+    assert!(misread.len() < 5, "{misread:?}");
+}
+
+/// As [`a_band_of_long_ranges_is_no_departure`], on a 30" pipe: there the band begins
+/// about 0.9 m ahead, within the survey's near windows, and the sector medians of its
+/// slices lie ≈ 15 mm out all around (the band's 2.5σ along rays that graze the wall), far
+/// beyond their standard errors: the wall reads wider all around, as neither a branch
+/// opening nor a bend makes it (`epd_core::segment`, `widens_all_around`), and the frame
+/// reads straight, its straight section ending where the band begins. The same bound as
+/// there (fails at 5 or more of 100). Measured: 2 of 100, both `in_bend` (no result; the
+/// band's edge departs at the start of the view); 7 of 100 (5 `tee_ahead`) without the
+/// test of the wall's least half.
+#[test]
+fn a_band_across_a_wide_pipe_is_no_fitting() {
+    let frames = 100;
+    let mut misread = Vec::new();
+    let mut pick = common::rng(30);
+    for k in 0..frames {
+        let seed = 7000 + pick.random_range(0..1_000_000u64) + k;
+        let pts = banded_frame_of(seed, 2.5 * SIGMA_M, 30.0);
         let s = survey_of(&pts);
         if s.segmentation.layout != Layout::Straight {
             misread.push((

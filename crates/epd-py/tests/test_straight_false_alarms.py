@@ -64,15 +64,7 @@ def survey(epd_bin, tmp_path, model, size, offset=0):
 # noise 6 of 800: the fit on every point, pulled off the pipe by the band, had been kept.
 # What does not hold is recorded here as xfail with its figures, not loosened.
 MISREAD_NOT_MET = {}
-FAR_NOT_MET = {
-    ("multipath", (320, 240)): (
-        "1 of 78 answered far off (frame 147, a 768 mm pipe: Dmax +29.4 mm at 5.4σ̂) since "
-        "the survey's near restarts take the nearest 85 % / 60 % of the points "
-        "(epd_core::segment::RESTART_NEAREST_SHARE, 2026-12-06): the 85 % window of this "
-        "30-inch frame reaches into the band of 1–2 m that the former 1.0 m window stopped "
-        "short of (then +9.2 mm at 1.5σ̂ on 49 624 points; now 64 641). Not met."
-    ),
-}
+FAR_NOT_MET = {}
 
 CASES = [(m, s) for m in MODELS for s in SIZES]
 

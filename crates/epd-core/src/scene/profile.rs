@@ -22,6 +22,21 @@ pub struct Slice {
     pub n_sectors: usize,
     /// Mean radial deviation c₀ (m).
     pub widening_m: f64,
+    /// Variance of `widening_m` (m²): from the medians' independent-point variances,
+    /// then (`calibrate_tests`) scaled by κ̂ as the shift's is. NaN without a fit.
+    pub widening_var_m2: f64,
+    /// The least mean deviation of the wall's halves (m): over the `sectors` rotations
+    /// of a half of the circumference (⌊sectors/2⌋ consecutive sectors, at least half of
+    /// them with medians), the least mean of the sector medians. A branch opening or a
+    /// bend moves at most half the wall outward (a branch is no wider than the main pipe,
+    /// so its opening spans at most half the circumference seen from the axis; a bend
+    /// moves the other half inward), so a slice whose every half lies outside the wall
+    /// shows neither: the wall reads wider all around (a range bias over a band of
+    /// ranges, as multipath gives, or a wider pipe). NaN without such a half.
+    pub least_half_m: f64,
+    /// Variance of `least_half_m` (m²): the medians' variances summed over its sectors
+    /// and divided by their count squared, scaled by κ̂ (`calibrate_tests`).
+    pub least_half_var_m2: f64,
     /// Lateral shift (c₁, c₂) (m), toward +Y and +Z of the PCS.
     pub shift_m: [f64; 2],
     /// Standard error of the shift's length (m).
@@ -158,6 +173,9 @@ impl Slice {
             n_points: 0,
             n_sectors: 0,
             widening_m: f64::NAN,
+            widening_var_m2: f64::NAN,
+            least_half_m: f64::NAN,
+            least_half_var_m2: f64::NAN,
             shift_m: [f64::NAN; 2],
             shift_se_m: f64::NAN,
             opposite_m: f64::NAN,
@@ -571,6 +589,8 @@ pub(crate) fn calibrate_tests(
         s.shift_se_m = shift_se(s.shift_m, s.shift_cov_m2);
         s.shift_f = shift_f(s.shift_m, s.shift_cov_m2);
         s.bump_se_m *= kappa.sqrt();
+        s.widening_var_m2 *= kappa;
+        s.least_half_var_m2 *= kappa;
         s.variance_scale = kappa;
         s.critical_f = critical_f;
         s.critical_t = critical_t;
@@ -743,6 +763,7 @@ pub(crate) fn slice_stats<C: AsRef<[f32]>>(
     // (ψ, median, variance of the median) per usable sector.
     let mut meds: Vec<(f64, f64, f64)> = Vec::new();
     let mut by_sector = vec![f64::NAN; ns];
+    let mut var_by_sector = vec![f64::NAN; ns];
     let mut v: Vec<f64> = Vec::new();
     for (k, cell) in sectors.iter().enumerate() {
         let cell = cell.as_ref();
@@ -759,6 +780,7 @@ pub(crate) fn slice_stats<C: AsRef<[f32]>>(
         let psi = (k as f64 + 0.5) / ns as f64 * tau;
         meds.push((psi, m, var));
         by_sector[k] = m;
+        var_by_sector[k] = var;
     }
     let mut out = Slice {
         n_points,
@@ -781,6 +803,7 @@ pub(crate) fn slice_stats<C: AsRef<[f32]>>(
     };
     let c = inv * rhs;
     out.widening_m = c[0];
+    out.widening_var_m2 = inv[(0, 0)];
     out.shift_m = [c[1], c[2]];
     out.shift_cov_m2 = [inv[(1, 1)], inv[(1, 2)], inv[(2, 2)]];
     out.shift_se_m = shift_se(out.shift_m, out.shift_cov_m2);
@@ -803,15 +826,70 @@ pub(crate) fn slice_stats<C: AsRef<[f32]>>(
     if out.misfit_dof > 0 {
         out.variance_ratio = median(&mut ratios).unwrap_or(f64::NAN) / CHI2_1_MEDIAN;
     }
+    (out.least_half_m, out.least_half_var_m2) = least_half(&by_sector, &var_by_sector);
     let dir = c[2].atan2(c[1]);
     let opp = ((dir + std::f64::consts::PI).rem_euclid(tau) / tau * ns as f64) as usize % ns;
     out.opposite_m = by_sector[opp];
     out
 }
 
+/// The least mean of the sector medians `by_sector` over the rotations of a half of the
+/// circumference, and its variance from `var_by_sector` ([`Slice::least_half_m`]); NaN
+/// without a half of which at least half the sectors have medians.
+fn least_half(by_sector: &[f64], var_by_sector: &[f64]) -> (f64, f64) {
+    let ns = by_sector.len();
+    let half = ns / 2;
+    let mut least = (f64::NAN, f64::NAN);
+    for k0 in 0..ns {
+        let (mut sum, mut var, mut n) = (0.0, 0.0, 0usize);
+        for k in (k0..k0 + half).map(|k| k % ns) {
+            if by_sector[k].is_finite() {
+                sum += by_sector[k];
+                var += var_by_sector[k];
+                n += 1;
+            }
+        }
+        if n == 0 || 2 * n < half {
+            continue;
+        }
+        let mean = sum / n as f64;
+        if !(mean >= least.0) {
+            least = (mean, var / (n * n) as f64);
+        }
+    }
+    least
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A half of the wall out reads no widening of its least half; the whole wall out
+    /// reads it, with the variance of a mean of the half's medians; sectors without
+    /// medians are left out of their half's mean.
+    #[test]
+    fn the_least_half_is_out_only_when_the_whole_wall_is() {
+        let var = vec![1e-6; 12];
+        let half_out: Vec<f64> = (0..12).map(|k| if k < 6 { 0.02 } else { 0.0 }).collect();
+        assert_eq!(least_half(&half_out, &var).0, 0.0);
+        let all_out = vec![0.02; 12];
+        let (m, v) = least_half(&all_out, &var);
+        assert!((m - 0.02).abs() < 1e-15 && (v - 1e-6 / 6.0).abs() < 1e-18);
+        // A tube shifted sideways (a bend): one half out, the other in.
+        let bent: Vec<f64> = (0..12)
+            .map(|k| 0.02 * ((k as f64 + 0.5) / 12.0 * std::f64::consts::TAU).cos())
+            .collect();
+        assert!(least_half(&bent, &var).0 < -0.01);
+        // Sectors without medians: a half needs three of its six.
+        let mut sparse = vec![f64::NAN; 12];
+        sparse[0] = 0.01;
+        assert!(least_half(&sparse, &var).0.is_nan());
+        for k in [0, 1, 2] {
+            sparse[k] = 0.01;
+        }
+        let (m, v) = least_half(&sparse, &var);
+        assert!((m - 0.01).abs() < 1e-15 && (v - 1e-6 / 3.0).abs() < 1e-18);
+    }
 
     /// Cells filled block by block, interleaved at random, read back each its deviations
     /// in order once made contiguous, on either side of a block's edge; the store never

@@ -352,6 +352,14 @@ fn departs_at_start(prof: &[Slice], seg: &SegmentOptions) -> bool {
     first_departure(prof, seg).is_some_and(|i| locate_end(prof, i, seg) <= x_first + seg.slice_m)
 }
 
+/// Whether a fit's wall differs along the axis (Welch's test of the estimate, at 10⁻³)
+/// or the straight model does not fit its points (its form test): a fit that finds no
+/// end although this holds has hidden what lies ahead in its misfit (and, through it, in
+/// its 1-σ, [`AxisSigma`]) rather than found a straight pipe.
+fn misfits(fit: &Estimate) -> bool {
+    fit.shared_along_axis || matches!(fit.status, FitStatus::LackOfFit(_))
+}
+
 /// The near windows [`restart_from_near`] fits: the nearest 85 %, then 60 %, of the
 /// frame's points by their forward coordinate (SCS x). Shares of the points, not reaches
 /// in metres, so that they hold for any pipe and camera: the windows were 1.0 and 0.6 m,
@@ -451,8 +459,7 @@ pub fn segment(
     // it (its form test): what lies ahead may have biased the fit and, through the misfit,
     // its 1-σ ([`AxisSigma`]), which then hides it. The near section, fitted alone, has
     // neither.
-    let refused = first_departure(&prof, seg).is_none()
-        && (fit.shared_along_axis || matches!(fit.status, crate::check::FitStatus::LackOfFit(_)));
+    let refused = first_departure(&prof, seg).is_none() && misfits(&fit);
     let at_start = departs_at_start(&prof, seg);
     if refused || at_start {
         // Taken when it finds a straight section: after a departure at the start, one
@@ -465,7 +472,8 @@ pub fn segment(
         // nearest 85 % departed at the start).
         let (restart, tried) = restart_from_near(pts, method, options, seg, |r, wider| {
             !departs_at_start(&r.profile, seg)
-                && (first_departure(&r.profile, seg).is_some() || (at_start && !wider))
+                && (first_departure(&r.profile, seg).is_some()
+                    || (at_start && !wider && !misfits(&r.fit)))
         });
         rounds += tried;
         if let Some(r) = restart {
@@ -1019,7 +1027,9 @@ fn tee(mut s: Segmentation, points: &[[f64; 3]], seg: &SegmentOptions) -> Survey
         // centimetre: [`opening_slice`] looks back two slices), the wall's window holds
         // it and its spread hides the step: then the two slices before.
         let edge = edge_before(near).or_else(|| edge_before(near - 2.0 * seg.slice_m));
-        if edge.is_some_and(|e| e.far_open_share > RING_SHARE) {
+        if edge.is_some_and(|e| e.far_open_share > RING_SHARE)
+            || widens_all_around(&s.profile, i, seg)
+        {
             s.layout = Layout::Straight;
         }
         let (at, sd) = edge.map_or((near, seg.slice_m / 12f64.sqrt()), |e| (e.at_m, e.sigma_m));
@@ -1031,6 +1041,69 @@ fn tee(mut s: Segmentation, points: &[[f64; 3]], seg: &SegmentOptions) -> Survey
         ..Survey::plain(s)
     }
 }
+
+/// Whether the departing run from slice `i` reads wider all around, as no branch
+/// opening or bend makes it ([`Slice::least_half_m`]): over its first 8 departing slices
+/// (as [`classify`] looks), the sum of their least halves' excess over the straight
+/// slices before it (the median of their c₀, as the fit's own diameter error is common to
+/// every slice) exceeds the one-sided normal critical value at [`SURVEY_FALSE_ALARM`] of
+/// its standard error. Under an opening or a bend each excess has a mean ≤ 0 (the least
+/// half, a minimum over rotations, errs low), so a tee or a bend is taken for a ring with
+/// probability below the survey's false-alarm rate. Medians see what the exceedances of
+/// [`crate::scene::edge::open_share`] miss: a multipath band that reads 2.5σ long moves a
+/// point by a fraction of σ across the wall, yet 12 sector medians of hundreds of points
+/// each by many of their standard errors (numpy frames of a 30" pipe at 320 × 240,
+/// `test_straight_false_alarms.py`: the band's slices ≈ 15 mm out all around, ≈ 0.25 mm
+/// standard error).
+fn widens_all_around(profile: &[Slice], i: usize, o: &SegmentOptions) -> bool {
+    let judged = |s: &&Slice| s.n_sectors >= MIN_SECTORS_TESTED && s.widening_m.is_finite();
+    let mut before: Vec<f64> = profile[..i.min(profile.len())]
+        .iter()
+        .filter(judged)
+        .map(|s| s.widening_m)
+        .collect();
+    let var_before: Vec<f64> = profile[..i.min(profile.len())]
+        .iter()
+        .filter(judged)
+        .map(|s| s.widening_var_m2)
+        .collect();
+    let m = before.len();
+    let reference = crate::check::quantile(&mut before, 0.5);
+    // Var(median of m) ≈ (π/2)·(mean variance)/m.
+    let var_reference = if m == 0 {
+        0.0
+    } else {
+        std::f64::consts::FRAC_PI_2 * var_before.iter().sum::<f64>() / (m * m) as f64
+    };
+    let reference = if m == 0 { 0.0 } else { reference };
+    let run: Vec<&Slice> = profile[i.min(profile.len())..]
+        .iter()
+        .take(8)
+        .filter(|s| s.departs(o) && s.least_half_m.is_finite() && s.least_half_var_m2.is_finite())
+        .collect();
+    if run.is_empty() {
+        return false;
+    }
+    let n = run.len() as f64;
+    let excess: f64 = run.iter().map(|s| s.least_half_m - reference).sum();
+    let var: f64 = run.iter().map(|s| s.least_half_var_m2).sum::<f64>() + n * n * var_reference;
+    let departure: f64 = run.iter().map(|s| s.shift().max(s.bump_m)).sum();
+    excess > crate::fit::form::normal_upper_quantile(SURVEY_FALSE_ALARM) * var.sqrt()
+        && excess >= RING_WIDENING_SHARE * departure
+}
+
+/// The least share of a departing run's size (the sum over its slices of the larger of
+/// the shift and the bump) that its wall's least half must lie out for
+/// [`widens_all_around`]. An opening's or a bend's least half stays on the wall or goes
+/// in, whatever the departure's size (share ≤ 0, up to the model's misfit); a ring of
+/// range error, past the edge where it crosses the sectors one by one, lies out all
+/// around by more than its slices shift (share ≥ 1: multipath numpy frames of a 30" pipe,
+/// 0.95–30 over their runs, `test_straight_false_alarms.py`). The boundary lies halfway.
+/// Without it tof-sim's 20" tee 0.5 m ahead under the Helios2 model's noise read as a
+/// ring: its slices' least half 0.1–0.2 mm out at 7 standard errors (a misfit of
+/// the straight model far below the camera's noise), beside bumps of 15–120 mm (`a_close_tee_under_the_cameras_noise_is_found_or_withheld`,
+/// crates/epd-frame/tests/segmentation.rs).
+const RING_WIDENING_SHARE: f64 = 0.5;
 
 /// Slices back on the straight pipe, in a row, that show the wall resumes after a
 /// departure.

@@ -357,3 +357,51 @@ fn a_lone_shifting_slice_starts_at_its_edge() {
         );
     }
 }
+
+/// A run whose wall's least half lies out, by more than half the run's departure and many
+/// of its standard errors, reads wider all around (`widens_all_around`); an opening
+/// (a bump, the rest of the wall on it), a bend (a shift, its far half in), an opening
+/// beside a least half out by a sliver of its size, and a ring within its noise do not.
+#[test]
+fn only_a_wall_out_all_around_is_a_ring() {
+    let o = SegmentOptions::default();
+    // Eight straight slices, then eight departing ones of `shift`, `bump` and least half
+    // `least` (m), its standard error `se` (m).
+    let run = |shift: f64, bump: f64, least: f64, se: f64| -> Vec<Slice> {
+        (0..16)
+            .map(|k| {
+                let x = 0.4 + 0.05 * k as f64;
+                let (s, b, l, v) = if k < 8 {
+                    (0.0, 0.0, 0.0, 1e-8)
+                } else {
+                    (shift, bump, least, se * se)
+                };
+                Slice {
+                    least_half_m: l,
+                    least_half_var_m2: v,
+                    widening_var_m2: 1e-8,
+                    ..slice(x, s, b)
+                }
+            })
+            .collect()
+    };
+    let departs_at_8 = |p: &[Slice]| assert!(p[8].departs(&o) && !p[7].departs(&o));
+    let ring = run(0.004, 0.0, 0.015, 1e-4);
+    departs_at_8(&ring);
+    assert!(widens_all_around(&ring, 8, &o), "a ring");
+    let opening = run(0.0, 0.05, 0.0, 1e-4);
+    departs_at_8(&opening);
+    assert!(!widens_all_around(&opening, 8, &o), "an opening");
+    let bend = run(0.004, 0.0, -0.004, 1e-4);
+    assert!(!widens_all_around(&bend, 8, &o), "a bend");
+    // 0.2 mm out at 20 standard errors beside a 50 mm bump: a misfit, not a ring.
+    let sliver = run(0.0, 0.05, 0.0002, 1e-5);
+    assert!(
+        !widens_all_around(&sliver, 8, &o),
+        "a sliver beside an opening"
+    );
+    // 15 mm out with a standard error of 30 mm per slice: 1.4 standard errors over eight.
+    let noisy = run(0.004, 0.0, 0.015, 0.03);
+    departs_at_8(&noisy);
+    assert!(!widens_all_around(&noisy, 8, &o), "a ring within its noise");
+}
