@@ -853,8 +853,9 @@ fn least_half(by_sector: &[f64], var_by_sector: &[f64]) -> (f64, f64) {
             continue;
         }
         let mean = sum / n as f64;
+        let var = var / (n * n) as f64;
         if !(mean >= least.0) {
-            least = (mean, var / (n * n) as f64);
+            least = (mean, var);
         }
     }
     least

@@ -42,7 +42,7 @@ use crate::error::EpdError;
 use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
 use crate::params::Params;
 pub use crate::scene::select::straight_mask;
-use crate::scene::select::{axial_select, select_where};
+use crate::scene::select::{axial_select, model_axial, select_where};
 
 pub use crate::scene::profile::{
     AxisSigma, MIN_SECTORS_TESTED, SURVEY_FALSE_ALARM, Slice, departure_evidence, profile,
@@ -361,7 +361,9 @@ fn misfits(fit: &Estimate) -> bool {
 }
 
 /// The near windows [`restart_from_near`] fits: the nearest 85 %, then 60 %, of the
-/// frame's points by their forward coordinate (SCS x). Shares of the points, not reaches
+/// frame's points, ordered by their rays' angle to the sensor's forward axis (largest
+/// first; a cut on the ray, not on the measured point, see [`restart_from_near`]).
+/// Shares of the points, not reaches
 /// in metres, so that they hold for any pipe and camera: the windows were 1.0 and 0.6 m,
 /// measured on the paper's 20" pipe, where they hold these shares of a full Helios2 frame
 /// (`epd simulate --frames 10 --seed 3`: 86 % of the points within 1.0 m, 61 % within
@@ -382,7 +384,8 @@ const RESTART_MIN_POINTS: usize = 2000;
 /// hid what lies ahead: start again from the near points only (those within each reach of
 /// [`RESTART_NEAREST_SHARE`] in turn) and keep the first start whose fit its checks do
 /// not refuse (status `implausible`) and that `finds` what is sought (told whether a
-/// wider window's fit departed at its start);
+/// wider window's fit departed at its start), with the PCS axial coordinate where the
+/// window's points end (their largest, [`model_axial`] of its fit);
 /// `None` when none does (the frame keeps its first verdict). Also the fits made.
 fn restart_from_near(
     pts: &[[f64; 3]],
@@ -390,14 +393,23 @@ fn restart_from_near(
     options: &EstimateOptions,
     seg: &SegmentOptions,
     finds: impl Fn(&Refined, bool) -> bool,
-) -> (Option<Refined>, usize) {
+) -> (Option<(Refined, f64)>, usize) {
     let mut rounds = 0;
-    let mut forward: Vec<f64> = pts.iter().map(|p| p[0]).collect();
+    // The windows are cut on each ray's direction, not on the measured point: range
+    // noise moves a point along its ray, mostly along the axis where the wall is grazed,
+    // so a cut on the measured forward coordinate keeps the near edge's points whose
+    // noise is short and drops those whose noise is long, and the fit on them reads the
+    // wall inward (numpy multipath frames, σ = 0.02 m: windows cut at x ≤ reach gave
+    // Dmax and Dmin 1–3 of their 1-σ low). The cosine of a ray's angle to the sensor's
+    // forward axis orders the wall's rays as x does for a camera looking along a pipe
+    // (x = ρ / tan θ on a wall ρ from the sensor), whatever the range noise.
+    let cosine = |p: &[f64; 3]| p[0] / (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+    let mut forward: Vec<f64> = pts.iter().map(cosine).collect();
     // Whether a wider window's fit departed at its start too.
     let mut departed_at_start = false;
     for share in RESTART_NEAREST_SHARE {
         let reach = crate::check::quantile(&mut forward, share);
-        let close = select_where(pts, |p| p[0] <= reach);
+        let close = select_where(pts, |p| cosine(p) <= reach);
         if close.len() < RESTART_MIN_POINTS {
             continue;
         }
@@ -412,7 +424,11 @@ fn restart_from_near(
         rounds += r.rounds;
         // A start whose fit its own checks refuse did not find a straight section.
         if !matches!(r.fit.status, FitStatus::Implausible(_)) && finds(&r, departed_at_start) {
-            return (Some(r), rounds);
+            let end = match model_axial(&r.fit.params) {
+                Some(axial) => close.iter().map(axial).fold(f64::NEG_INFINITY, f64::max),
+                None => close.iter().map(|p| p[0]).fold(f64::NEG_INFINITY, f64::max),
+            };
+            return (Some((r, end)), rounds);
         }
         departed_at_start |= departs_at_start(&r.profile, seg);
     }
@@ -460,30 +476,54 @@ pub fn segment(
     // its 1-σ ([`AxisSigma`]), which then hides it. The near section, fitted alone, has
     // neither.
     let refused = first_departure(&prof, seg).is_none() && misfits(&fit);
+    // Where the near window taken ends, when its fit shows no end of its own.
+    let mut window_end: Option<f64> = None;
     let at_start = departs_at_start(&prof, seg);
     if refused || at_start {
-        // Taken when it finds a straight section: after a departure at the start, one
-        // that departs later or nowhere; after a fit on every point that found no end,
-        // the end that fit hid (a straight pipe keeps its fit on every point). When a
-        // wider window departed at its start too, a narrower one must find the end: two
-        // fits that see the departure at the start outweigh a shorter one that sees
-        // none, whose extrapolated fit may lack the power to (a Helios2-model frame at an
-        // elbow's start plane read `straight` from its nearest 60 %, 0.49 m, after the
-        // nearest 85 % departed at the start).
+        // Taken when it finds a straight section: one that does not depart at its start
+        // and finds the end, or finds none while its own fit holds (`misfits`: neither
+        // Welch's test nor the form test refuses it) — the near section of a frame whose
+        // fit on every point misfits, or of one that departed at the start. When a wider
+        // window departed at its start too, a narrower one must find the end with a fit
+        // that holds: two fits that see the departure at the start outweigh a shorter one
+        // that sees none or a later end, whose fit may lack the power to or be drawn by
+        // the bend (a Helios2-model frame at an elbow's start plane read `straight` from
+        // its nearest 60 %, 0.49 m, after the nearest 85 % departed at the start; cut on
+        // the rays' direction, its 60 % found an end at 0.36 m with a fit 10 mm off that
+        // the form test refused). Before a window's fit had to hold when it found no
+        // end, the numpy multipath frame 147 of `test_straight_false_alarms.py` was
+        // answered from a window reaching into the band, 29.4 mm off at 5.4σ̂.
         let (restart, tried) = restart_from_near(pts, method, options, seg, |r, wider| {
+            let holds = !misfits(&r.fit);
             !departs_at_start(&r.profile, seg)
-                && (first_departure(&r.profile, seg).is_some()
-                    || (at_start && !wider && !misfits(&r.fit)))
+                && if first_departure(&r.profile, seg).is_some() {
+                    holds || !wider
+                } else {
+                    holds && (refused || (at_start && !wider))
+                }
         });
         rounds += tried;
-        if let Some(r) = restart {
+        if let Some((r, end)) = restart {
+            let no_end = first_departure(&r.profile, seg).is_none();
             (fit, prof, cut) = (r.fit, r.profile, r.cut);
+            if no_end {
+                // A near section that fits the straight model although the frame does
+                // not, and shows no end: its estimate uses its own points, so the
+                // straight section it reports ends where they do (and is not refitted).
+                window_end = Some(end);
+                cut = Some(end);
+            }
         }
     }
-    let departure = first_departure(&prof, seg);
-    let straight_until = departure.map(|i| locate_end(&prof, i, seg));
-    let direction = departure.map(|i| departure_direction(&prof[i..], seg));
     let x_first = prof.first().map_or(0.0, |s| s.start_m);
+    // A departure at the start whose wall lies out, or in, all around is no bend the
+    // sensor is in: a band of range error (multipath) holds the near view, or the fit
+    // that the band drew. The frame keeps its straight verdict, and its fit its status.
+    let departure = first_departure(&prof, seg).filter(|&i| {
+        locate_end(&prof, i, seg) > x_first + seg.slice_m || !widens_all_around(&prof, i, seg)
+    });
+    let straight_until = departure.map(|i| locate_end(&prof, i, seg)).or(window_end);
+    let direction = departure.map(|i| departure_direction(&prof[i..], seg));
     let layout = match (departure, straight_until) {
         (None, _) | (_, None) => Layout::Straight,
         (Some(_), Some(x)) if x <= x_first + seg.slice_m => Layout::InBend,
@@ -1044,52 +1084,38 @@ fn tee(mut s: Segmentation, points: &[[f64; 3]], seg: &SegmentOptions) -> Survey
 
 /// Whether the departing run from slice `i` reads wider all around, as no branch
 /// opening or bend makes it ([`Slice::least_half_m`]): over its first 8 departing slices
-/// (as [`classify`] looks), the sum of their least halves' excess over the straight
-/// slices before it (the median of their c₀, as the fit's own diameter error is common to
-/// every slice) exceeds the one-sided normal critical value at [`SURVEY_FALSE_ALARM`] of
-/// its standard error. Under an opening or a bend each excess has a mean ≤ 0 (the least
-/// half, a minimum over rotations, errs low), so a tee or a bend is taken for a ring with
-/// probability below the survey's false-alarm rate. Medians see what the exceedances of
+/// (as [`classify`] looks), the sum of their least halves exceeds the one-sided normal
+/// critical value at [`SURVEY_FALSE_ALARM`] of its standard error, and
+/// [`RING_WIDENING_SHARE`] of the run's size. Under an opening or a bend each least half
+/// has a mean ≤ 0 (it lies on the wall or in, and as a minimum over rotations errs low),
+/// so a tee or a bend is taken for a ring with probability below the survey's
+/// false-alarm rate. The least halves are taken from the wall the straight fit gives, not
+/// from the slices before the departure: at an elbow's start plane (tof-sim's Helios2
+/// model, `cargo test -p bench-harness --test pipeline`) a near window's slices before its
+/// departure lay 18 mm in, and measured from them the bend's slices read a ring. Medians see what the exceedances of
 /// [`crate::scene::edge::open_share`] miss: a multipath band that reads 2.5σ long moves a
 /// point by a fraction of σ across the wall, yet 12 sector medians of hundreds of points
 /// each by many of their standard errors (numpy frames of a 30" pipe at 320 × 240,
 /// `test_straight_false_alarms.py`: the band's slices ≈ 15 mm out all around, ≈ 0.25 mm
 /// standard error).
 fn widens_all_around(profile: &[Slice], i: usize, o: &SegmentOptions) -> bool {
-    let judged = |s: &&Slice| s.n_sectors >= MIN_SECTORS_TESTED && s.widening_m.is_finite();
-    let mut before: Vec<f64> = profile[..i.min(profile.len())]
-        .iter()
-        .filter(judged)
-        .map(|s| s.widening_m)
-        .collect();
-    let var_before: Vec<f64> = profile[..i.min(profile.len())]
-        .iter()
-        .filter(judged)
-        .map(|s| s.widening_var_m2)
-        .collect();
-    let m = before.len();
-    let reference = crate::check::quantile(&mut before, 0.5);
-    // Var(median of m) ≈ (π/2)·(mean variance)/m.
-    let var_reference = if m == 0 {
-        0.0
-    } else {
-        std::f64::consts::FRAC_PI_2 * var_before.iter().sum::<f64>() / (m * m) as f64
-    };
-    let reference = if m == 0 { 0.0 } else { reference };
-    let run: Vec<&Slice> = profile[i.min(profile.len())..]
+    let i = i.min(profile.len());
+    // (least half, its variance, the slice's size: the larger of shift and bump).
+    let run: Vec<(f64, f64, f64)> = profile[i..]
         .iter()
         .take(8)
-        .filter(|s| s.departs(o) && s.least_half_m.is_finite() && s.least_half_var_m2.is_finite())
+        .filter(|s| s.departs(o))
+        .map(|s| (s.least_half_m, s.least_half_var_m2, s.shift().max(s.bump_m)))
+        .filter(|(h, v, _)| h.is_finite() && v.is_finite())
         .collect();
     if run.is_empty() {
         return false;
     }
-    let n = run.len() as f64;
-    let excess: f64 = run.iter().map(|s| s.least_half_m - reference).sum();
-    let var: f64 = run.iter().map(|s| s.least_half_var_m2).sum::<f64>() + n * n * var_reference;
-    let departure: f64 = run.iter().map(|s| s.shift().max(s.bump_m)).sum();
+    let excess: f64 = run.iter().map(|r| r.0).sum();
+    let var: f64 = run.iter().map(|r| r.1).sum();
+    let size: f64 = run.iter().map(|r| r.2).sum();
     excess > crate::fit::form::normal_upper_quantile(SURVEY_FALSE_ALARM) * var.sqrt()
-        && excess >= RING_WIDENING_SHARE * departure
+        && excess >= RING_WIDENING_SHARE * size
 }
 
 /// The least share of a departing run's size (the sum over its slices of the larger of
