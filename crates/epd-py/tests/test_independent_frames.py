@@ -271,7 +271,7 @@ def test_no_multipath_frame_of_a_small_pipe_is_answered_far_off(epd_bin, tmp_pat
 @pytest.mark.xfail(
     strict=True,
     reason=(
-        "1 of 85 answered far off (frame 21 of seed 121, a 784 mm pipe: Dmax +31.2 mm at "
+        "1 of 82 answered far off (frame 21 of seed 121, a 784 mm pipe: Dmax +31.2 mm at "
         "18σ̂) since the survey's near windows are cut on the rays' direction "
         "(epd_core::segment::restart_from_near, 2026-12-06): of the informed choice, which "
         "favours the far rays, the nearest 60 % holds part of the band and finds the band's "

@@ -361,9 +361,7 @@ fn misfits(fit: &Estimate) -> bool {
 }
 
 /// The near windows [`restart_from_near`] fits: the nearest 85 %, then 60 %, of the
-/// frame's points, ordered by their rays' angle to the sensor's forward axis (largest
-/// first; a cut on the ray, not on the measured point, see [`restart_from_near`]).
-/// Shares of the points, not reaches
+/// frame's points by their forward coordinate (SCS x). Shares of the points, not reaches
 /// in metres, so that they hold for any pipe and camera: the windows were 1.0 and 0.6 m,
 /// measured on the paper's 20" pipe, where they hold these shares of a full Helios2 frame
 /// (`epd simulate --frames 10 --seed 3`: 86 % of the points within 1.0 m, 61 % within
@@ -395,21 +393,19 @@ fn restart_from_near(
     finds: impl Fn(&Refined, bool) -> bool,
 ) -> (Option<(Refined, f64)>, usize) {
     let mut rounds = 0;
-    // The windows are cut on each ray's direction, not on the measured point: range
-    // noise moves a point along its ray, mostly along the axis where the wall is grazed,
-    // so a cut on the measured forward coordinate keeps the near edge's points whose
-    // noise is short and drops those whose noise is long, and the fit on them reads the
-    // wall inward (numpy multipath frames, σ = 0.02 m: windows cut at x ≤ reach gave
-    // Dmax and Dmin 1–3 of their 1-σ low). The cosine of a ray's angle to the sensor's
-    // forward axis orders the wall's rays as x does for a camera looking along a pipe
-    // (x = ρ / tan θ on a wall ρ from the sensor), whatever the range noise.
-    let cosine = |p: &[f64; 3]| p[0] / (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-    let mut forward: Vec<f64> = pts.iter().map(cosine).collect();
+    // The windows are cut on the measured forward coordinate. A cut on the rays' angle to
+    // the sensor's axis (range noise moves a point along its ray, so a cut on the measured
+    // x keeps the window edge's short ranges: the windows' fits read 1–3 of their 1-σ low on
+    // numpy multipath frames) was tried on 2026-12-06 and not kept: with it the Helios2
+    // model's frame with the elbow 0.6 m ahead (`scenarios/pipeline_run.toml`) read
+    // `in_bend`, its narrower window refused by the form test, where the cut on x reads
+    // `bend_ahead` 0.1 mm from the truth.
+    let mut forward: Vec<f64> = pts.iter().map(|p| p[0]).collect();
     // Whether a wider window's fit departed at its start too.
     let mut departed_at_start = false;
     for share in RESTART_NEAREST_SHARE {
         let reach = crate::check::quantile(&mut forward, share);
-        let close = select_where(pts, |p| cosine(p) <= reach);
+        let close = select_where(pts, |p| p[0] <= reach);
         if close.len() < RESTART_MIN_POINTS {
             continue;
         }
@@ -482,29 +478,23 @@ pub fn segment(
     if refused || at_start {
         // Taken when it finds a straight section: one that does not depart at its start
         // and finds the end, or, after a departure at the start, finds none while its own
-        // fit holds (`misfits`: neither Welch's test nor the form test refuses it). After a
+        // fit holds (`misfits`: neither Welch's test nor the form test refuses it; before
+        // it had to, the numpy multipath frame 147 of `test_straight_false_alarms.py` was
+        // answered from a window reaching into the band, 29.4 mm off at 5.4σ̂). After a
         // fit on every point that found no end, a window must find one: a window that
         // finds none answers with a shorter view of the same pipe, and under a periodic
         // range error (tof-sim's wiggling, 6 mm) such answers were far off in 55 of 120
-        // straight frames (`scenarios/straight_false_alarm.toml`), where the fit on every
-        // point averages the error and carries it in its 1-σ. When a wider
-        // window departed at its start too, a narrower one must find the end with a fit
-        // that holds: two fits that see the departure at the start outweigh a shorter one
-        // that sees none or a later end, whose fit may lack the power to or be drawn by
-        // the bend (a Helios2-model frame at an elbow's start plane read `straight` from
-        // its nearest 60 %, 0.49 m, after the nearest 85 % departed at the start; cut on
-        // the rays' direction, its 60 % found an end at 0.36 m with a fit 10 mm off that
-        // the form test refused). Before a window's fit had to hold when it found no
-        // end, the numpy multipath frame 147 of `test_straight_false_alarms.py` was
-        // answered from a window reaching into the band, 29.4 mm off at 5.4σ̂.
+        // straight frames (`scenarios/straight_false_alarm.toml`, tried 2026-12-06), where
+        // the fit on every point averages the error and carries it in its 1-σ. When a
+        // wider window departed at its start too, a narrower one must find the end: two
+        // fits that see the departure at the start outweigh a shorter one that sees none,
+        // whose extrapolated fit may lack the power to (a Helios2-model frame at an elbow's
+        // start plane read `straight` from its nearest 60 %, 0.49 m, after the nearest
+        // 85 % departed at the start).
         let (restart, tried) = restart_from_near(pts, method, options, seg, |r, wider| {
-            let holds = !misfits(&r.fit);
             !departs_at_start(&r.profile, seg)
-                && if first_departure(&r.profile, seg).is_some() {
-                    holds || !wider
-                } else {
-                    holds && at_start && !wider
-                }
+                && (first_departure(&r.profile, seg).is_some()
+                    || (!misfits(&r.fit) && at_start && !wider))
         });
         rounds += tried;
         if let Some((r, end)) = restart {
