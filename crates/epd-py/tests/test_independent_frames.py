@@ -192,10 +192,9 @@ COVERAGE_FLOOR = 0.95 - 4 * math.sqrt(0.95 * 0.05 / FRAMES)
 # predecessor was too wide on round pipes). Multipath (seed 24): 40 of 200 answered, coverage 0.925/0.900, none
 # far off, since the 1-σ carries the covariance of the range error the slices share
 # (`add_shared_offsets` in epd-core); 3 of 200 were far off before it (seed 25: 39
-# answered, 0.897/0.974, none far off). Since the survey's near windows are cut on the
-# rays' direction, not on the measured points (2026-12-06: a cut on the points kept the
-# near edge's short noise and read the wall inward): multipath (seed 24) 46 of 200
-# answered, coverage 0.913/0.913, none far off.
+# answered, 0.897/0.974, none far off). At 448cd07 (the survey's rings and near windows
+# of 2026-12-06): multipath (seed 24) 47 of 200 answered, coverage 0.915/0.894, none far
+# off.
 
 @pytest.mark.parametrize(
     "model, seed",
@@ -268,18 +267,6 @@ def test_no_multipath_frame_of_a_small_pipe_is_answered_far_off(epd_bin, tmp_pat
     assert not far, f"multipath, 8 in: {len(far)} converged far off: {far[:5]}"
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "1 of 82 answered far off (frame 21 of seed 121, a 784 mm pipe: Dmax +31.2 mm at "
-        "18σ̂) since the survey's near windows are cut on the rays' direction "
-        "(epd_core::segment::restart_from_near, 2026-12-06): of the informed choice, which "
-        "favours the far rays, the nearest 60 % holds part of the band and finds the band's "
-        "far edge (1.71 m) as an end, read as a dent at 1.93 m; the straight pipe refitted "
-        "on the 1 788 chosen points before 1.19 m is 31 mm off with a 1-σ of 1.7 mm. Before, "
-        "the fit on all 20 000 chosen points: +10.7 mm at 0.8σ̂. Not met."
-    ),
-)
 def test_no_multipath_frame_is_answered_far_off_with_max_points(epd_bin, tmp_path):
     """`--max-points 20000` on 320 × 240 frames (76 800 rays; the choice keeps about a
     quarter of the points in range) with a multipath band. The informed choice favours
