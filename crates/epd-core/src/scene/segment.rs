@@ -42,7 +42,7 @@ use crate::error::EpdError;
 use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
 use crate::params::Params;
 pub use crate::scene::select::straight_mask;
-use crate::scene::select::{axial_select, model_axial, select_where};
+use crate::scene::select::{axial_select, select_where};
 
 pub use crate::scene::profile::{
     AxisSigma, MIN_SECTORS_TESTED, SURVEY_FALSE_ALARM, Slice, departure_evidence, profile,
@@ -382,8 +382,7 @@ const RESTART_MIN_POINTS: usize = 2000;
 /// hid what lies ahead: start again from the near points only (those within each reach of
 /// [`RESTART_NEAREST_SHARE`] in turn) and keep the first start whose fit its checks do
 /// not refuse (status `implausible`) and that `finds` what is sought (told whether a
-/// wider window's fit departed at its start), with the PCS axial coordinate where the
-/// window's points end (their largest, [`model_axial`] of its fit);
+/// wider window's fit departed at its start);
 /// `None` when none does (the frame keeps its first verdict). Also the fits made.
 fn restart_from_near(
     pts: &[[f64; 3]],
@@ -391,7 +390,7 @@ fn restart_from_near(
     options: &EstimateOptions,
     seg: &SegmentOptions,
     finds: impl Fn(&Refined, bool) -> bool,
-) -> (Option<(Refined, f64)>, usize) {
+) -> (Option<Refined>, usize) {
     let mut rounds = 0;
     // The windows are cut on the measured forward coordinate. A cut on the rays' angle to
     // the sensor's axis (range noise moves a point along its ray, so a cut on the measured
@@ -420,11 +419,7 @@ fn restart_from_near(
         rounds += r.rounds;
         // A start whose fit its own checks refuse did not find a straight section.
         if !matches!(r.fit.status, FitStatus::Implausible(_)) && finds(&r, departed_at_start) {
-            let end = match model_axial(&r.fit.params) {
-                Some(axial) => close.iter().map(axial).fold(f64::NEG_INFINITY, f64::max),
-                None => close.iter().map(|p| p[0]).fold(f64::NEG_INFINITY, f64::max),
-            };
-            return (Some((r, end)), rounds);
+            return (Some(r), rounds);
         }
         departed_at_start |= departs_at_start(&r.profile, seg);
     }
@@ -472,8 +467,6 @@ pub fn segment(
     // its 1-σ ([`AxisSigma`]), which then hides it. The near section, fitted alone, has
     // neither.
     let refused = first_departure(&prof, seg).is_none() && misfits(&fit);
-    // Where the near window taken ends, when its fit shows no end of its own.
-    let mut window_end: Option<f64> = None;
     let at_start = departs_at_start(&prof, seg);
     if refused || at_start {
         // Taken when it finds a straight section: one that does not depart at its start
@@ -497,26 +490,18 @@ pub fn segment(
                     || (!misfits(&r.fit) && at_start && !wider))
         });
         rounds += tried;
-        if let Some((r, end)) = restart {
-            let no_end = first_departure(&r.profile, seg).is_none();
+        if let Some(r) = restart {
             (fit, prof, cut) = (r.fit, r.profile, r.cut);
-            if no_end {
-                // A near section that fits the straight model although the frame does
-                // not, and shows no end: its estimate uses its own points, so the
-                // straight section it reports ends where they do (and is not refitted).
-                window_end = Some(end);
-                cut = Some(end);
-            }
         }
     }
     let x_first = prof.first().map_or(0.0, |s| s.start_m);
-    // A departure at the start whose wall lies out, or in, all around is no bend the
-    // sensor is in: a band of range error (multipath) holds the near view, or the fit
-    // that the band drew. The frame keeps its straight verdict, and its fit its status.
+    // A departure at the start whose wall lies out all around is no bend the sensor is
+    // in: a band of range error (multipath) holds the near view. The frame keeps its
+    // straight verdict, and its fit its status.
     let departure = first_departure(&prof, seg).filter(|&i| {
         locate_end(&prof, i, seg) > x_first + seg.slice_m || !widens_all_around(&prof, i, seg)
     });
-    let straight_until = departure.map(|i| locate_end(&prof, i, seg)).or(window_end);
+    let straight_until = departure.map(|i| locate_end(&prof, i, seg));
     let direction = departure.map(|i| departure_direction(&prof[i..], seg));
     let layout = match (departure, straight_until) {
         (None, _) | (_, None) => Layout::Straight,
