@@ -22,9 +22,6 @@ pub struct Slice {
     pub n_sectors: usize,
     /// Mean radial deviation c₀ (m).
     pub widening_m: f64,
-    /// Variance of `widening_m` (m²): from the medians' independent-point variances,
-    /// then (`calibrate_tests`) scaled by κ̂ as the shift's is. NaN without a fit.
-    pub widening_var_m2: f64,
     /// The least mean deviation of the wall's halves (m): over the `sectors` rotations
     /// of a half of the circumference (⌊sectors/2⌋ consecutive sectors, at least half of
     /// them with medians), the least mean of the sector medians. A branch opening or a
@@ -173,7 +170,6 @@ impl Slice {
             n_points: 0,
             n_sectors: 0,
             widening_m: f64::NAN,
-            widening_var_m2: f64::NAN,
             least_half_m: f64::NAN,
             least_half_var_m2: f64::NAN,
             shift_m: [f64::NAN; 2],
@@ -589,7 +585,6 @@ pub(crate) fn calibrate_tests(
         s.shift_se_m = shift_se(s.shift_m, s.shift_cov_m2);
         s.shift_f = shift_f(s.shift_m, s.shift_cov_m2);
         s.bump_se_m *= kappa.sqrt();
-        s.widening_var_m2 *= kappa;
         s.least_half_var_m2 *= kappa;
         s.variance_scale = kappa;
         s.critical_f = critical_f;
@@ -803,7 +798,6 @@ pub(crate) fn slice_stats<C: AsRef<[f32]>>(
     };
     let c = inv * rhs;
     out.widening_m = c[0];
-    out.widening_var_m2 = inv[(0, 0)];
     out.shift_m = [c[1], c[2]];
     out.shift_cov_m2 = [inv[(1, 1)], inv[(1, 2)], inv[(2, 2)]];
     out.shift_se_m = shift_se(out.shift_m, out.shift_cov_m2);

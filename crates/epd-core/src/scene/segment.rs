@@ -498,10 +498,10 @@ pub fn segment(
     // A departure at the start whose wall lies out all around is no bend the sensor is
     // in: a band of range error (multipath) holds the near view. The frame keeps its
     // straight verdict, and its fit its status.
-    let departure = first_departure(&prof, seg).filter(|&i| {
-        locate_end(&prof, i, seg) > x_first + seg.slice_m || !widens_all_around(&prof, i, seg)
-    });
-    let straight_until = departure.map(|i| locate_end(&prof, i, seg));
+    let (departure, straight_until) = first_departure(&prof, seg)
+        .map(|i| (i, locate_end(&prof, i, seg)))
+        .filter(|&(i, x)| x > x_first + seg.slice_m || !widens_all_around(&prof, i, seg))
+        .unzip();
     let direction = departure.map(|i| departure_direction(&prof[i..], seg));
     let layout = match (departure, straight_until) {
         (None, _) | (_, None) => Layout::Straight,

@@ -379,7 +379,6 @@ fn only_a_wall_out_all_around_is_a_ring() {
                 Slice {
                     least_half_m: l,
                     least_half_var_m2: v,
-                    widening_var_m2: 1e-8,
                     ..slice(x, s, b)
                 }
             })
