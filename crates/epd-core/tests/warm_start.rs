@@ -80,7 +80,9 @@ fn a_start_reaches_the_same_least_squares_minimum() {
     }
 }
 
-/// The same with the robust loss `epd estimate` uses (Cauchy, scale from the data): the
+/// The same with the robust loss `epd estimate` uses (Cauchy, scale from the data),
+/// started at the pilot directly or through a first stage on twice its points
+/// (`EstimateOptions::with_start_fitted_on`, as `--max-points` starts): the
 /// scale is measured at the start instead of at the subsample stage's fit, 1.4826·median|r|
 /// of the same points at two β a fraction of σ̂ apart, so it differs by a few per cent and
 /// the minimum moves by a small part of σ̂; the two fits stay within 0.5σ̂ per parameter.
@@ -97,23 +99,29 @@ fn a_start_reaches_the_robust_minimum_too() {
         let pts = common::cloud(&truth, 160, 120, 6.0, 0.02, 0, 200 + k);
         let cold = estimate(&pts, Method::MlEpd, &robust).expect("cold");
         let start = pilot(&pts, 16, Method::MlEpd, &robust);
-        let warm = estimate(
-            &pts,
-            Method::MlEpd,
-            &robust.with_start(start).expect("start"),
-        )
-        .expect("warm");
-        assert!(warm.status.is_converged(), "frame {k}: {:?}", warm.status);
-        let (a, b) = (cold.params.to_array(), warm.params.to_array());
-        for j in [0, 1, 3, 4, 5, 6] {
-            let s = cold.sigma[j].expect("1-σ");
-            worst = worst.max((a[j] - b[j]).abs() / s);
-            assert!(
-                (a[j] - b[j]).abs() <= 0.5 * s,
-                "frame {k} parameter {j}: cold {} warm {} 1-σ {s}",
-                a[j],
-                b[j]
-            );
+        // Started there directly, and (as `--max-points` starts from its pilot) through a
+        // first stage on twice the pilot's points.
+        let pilot_points = pts.len().div_ceil(16);
+        for opts in [
+            robust.with_start(start).expect("start"),
+            robust
+                .with_start_fitted_on(start, pilot_points)
+                .expect("start"),
+        ] {
+            let warm = estimate(&pts, Method::MlEpd, &opts).expect("warm");
+            assert!(warm.status.is_converged(), "frame {k}: {:?}", warm.status);
+            assert_eq!(warm.initial, start);
+            let (a, b) = (cold.params.to_array(), warm.params.to_array());
+            for j in [0, 1, 3, 4, 5, 6] {
+                let s = cold.sigma[j].expect("1-σ");
+                worst = worst.max((a[j] - b[j]).abs() / s);
+                assert!(
+                    (a[j] - b[j]).abs() <= 0.5 * s,
+                    "frame {k} parameter {j}: cold {} warm {} 1-σ {s}",
+                    a[j],
+                    b[j]
+                );
+            }
         }
     }
     eprintln!("largest |warm − cold| / σ̂: {worst:.3}");

@@ -728,6 +728,18 @@ impl Stages<'_, '_> {
         // then taken again for the final stage. Starting from a previous fit, no refit.
         let kind = self.method.residual();
         let auto = self.auto();
+        // From a fit of a smaller sample ([`EstimateOptions::with_start_fitted_on`]):
+        // first on a strided subsample of twice its points.
+        if warm && let Some(m) = options.warm_stage_points(n) {
+            let sub = self.cloud.strided(n / m);
+            let rep = minimize(
+                &problem(sub.view(), kind, self.loss_at(kind, &x), fixed),
+                x,
+                &options.lm,
+            );
+            iterations += rep.iterations;
+            x = rep.x;
+        }
         if auto && !warm && stage_pts.len() != n {
             let rep = minimize(
                 &problem(stage_pts, kind, self.loss_at(kind, &x), fixed),

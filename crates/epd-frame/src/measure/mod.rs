@@ -332,7 +332,10 @@ fn measure_chosen(
         .and_then(|p| p.pilot)
         .filter(|_| cfg.calibration.is_none());
     let whole = match pilot {
-        Some(beta) => cfg.options.with_start(beta).unwrap_or(cfg.options),
+        Some(beta) => cfg
+            .options
+            .with_start_fitted_on(beta, crate::sampling::PILOT_POINTS)
+            .unwrap_or(cfg.options),
         None => cfg.options,
     };
     if cfg.calibration.is_some() {
