@@ -485,14 +485,23 @@ fn fill<R: Records + ?Sized>(
 ) -> Result<Option<Vec<u32>>, String> {
     let mut out: Vec<u32> = Vec::with_capacity(k + BLOCK);
     let mut take = |blocks: &[usize], out: &mut Vec<u32>| -> Result<(), String> {
-        let mut idx: Vec<u32> = blocks.iter().flat_map(|&b| heads.block(b)).collect();
-        idx.sort_unstable();
+        // The blocks in file order (their heads ascend with the block, and blocks do not
+        // overlap), each with where its records begin in the read.
+        let mut sorted: Vec<(usize, usize)> = blocks.iter().map(|&b| (b, 0)).collect();
+        sorted.sort_unstable();
+        let mut idx: Vec<u32> = Vec::with_capacity(blocks.len() * BLOCK);
+        for (b, at) in &mut sorted {
+            *at = idx.len();
+            idx.extend(heads.block(*b));
+        }
         let pts = records.points(&idx)?;
         for &b in blocks {
-            for i in heads.block(b) {
-                if let Ok(at) = idx.binary_search(&i)
-                    && pts.get(at).is_some_and(usable)
-                {
+            let Ok(j) = sorted.binary_search_by_key(&b, |&(b, _)| b) else {
+                continue;
+            };
+            let at = sorted[j].1;
+            for (m, i) in heads.block(b).enumerate() {
+                if pts.get(at + m).is_some_and(usable) {
                     out.push(i);
                 }
             }
