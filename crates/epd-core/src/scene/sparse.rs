@@ -24,6 +24,8 @@
 //! The p-values are adjusted by Bonferroni over every sector tested in the frame, and a
 //! slice *opens* when its least adjusted p-value is below [`OPENING_FALSE_ALARM`].
 
+use rayon::prelude::*;
+
 use crate::scene::edge::{EXCEEDANCE_SIGMAS, MIN_WALL_POINTS, OPEN_RATE};
 use crate::scene::profile::{MIN_SECTORS_TESTED, Slice};
 use crate::segment::SegmentOptions;
@@ -75,7 +77,7 @@ pub const MIN_SECTORS_IN_VIEW: usize = MIN_SECTORS_TESTED;
 /// `opening_p` and `opening_psi` (and `departure_p` to the least of its own and
 /// `opening_p`): `cells` holds each slice's sectors' deviations (slice-major, `sectors` per
 /// slice), as `profile` binned them.
-pub(crate) fn test_openings<C: AsRef<[f32]>>(
+pub(crate) fn test_openings<C: AsRef<[f32]> + Sync>(
     slices: &mut [Slice],
     cells: &[C],
     o: &SegmentOptions,
@@ -96,14 +98,16 @@ pub(crate) fn test_openings<C: AsRef<[f32]>>(
     }
     let cell = |i: usize, k: usize| cells[i * sectors + k].as_ref();
     // Per slice tested, per sector: (points, exceedances); (0, 0) for a cell left to the
-    // medians.
-    let mut counts: Vec<Vec<(usize, usize)>> = Vec::with_capacity(sparse.len());
-    // Every cell's (points, exceedances) of the slices tested, the medians' too: the
-    // wall's rate.
-    let (mut n_all, mut e_all) = (0usize, 0usize);
-    for &i in &sparse {
-        counts.push(
-            (0..sectors)
+    // medians. With every cell's (points, exceedances) of the slices tested, the medians'
+    // too: the wall's rate. Slice by slice on all cores (each cell's limit is a median
+    // and a MAD of its neighbourhood; the sums are of whole numbers, the same in any
+    // order).
+    let judged: &[Slice] = slices;
+    let rows: Vec<SliceCounts> = sparse
+        .par_iter()
+        .map(|&i| {
+            let (mut n, mut e_sum) = (0usize, 0usize);
+            let row = (0..sectors)
                 .map(|k| {
                     let d = cell(i, k);
                     if d.is_empty() {
@@ -112,17 +116,22 @@ pub(crate) fn test_openings<C: AsRef<[f32]>>(
                     }
                     let limit = sector_limit(cells, sectors, i, k, o.min_shift_m);
                     let e = d.iter().filter(|&&v| f64::from(v) > limit).count();
-                    n_all += d.len();
-                    e_all += e;
+                    n += d.len();
+                    e_sum += e;
                     // A cell whose median the medians' tests use is theirs.
-                    if slices[i].n_sectors >= MIN_SECTORS_TESTED && d.len() >= min_points {
+                    if judged[i].n_sectors >= MIN_SECTORS_TESTED && d.len() >= min_points {
                         return (0, 0);
                     }
                     (d.len(), e)
                 })
-                .collect(),
-        );
-    }
+                .collect();
+            (row, n, e_sum)
+        })
+        .collect();
+    let (n_all, e_all) = rows
+        .iter()
+        .fold((0usize, 0usize), |(n, e), r| (n + r.1, e + r.2));
+    let counts: Vec<Vec<(usize, usize)>> = rows.into_iter().map(|r| r.0).collect();
     // The wall's rate: the pooled rate of every cell of the slices tested (an opening
     // raises it, which only makes the test more conservative), at least ten times the
     // Gaussian tail, as the edge's ring test takes it ([`OPEN_RATE`]: a camera's systematic
@@ -197,6 +206,10 @@ pub(crate) fn test_openings<C: AsRef<[f32]>>(
         slices[i].departure_p = if p.is_nan() { o } else { p.min(o) };
     }
 }
+
+/// One tested slice's (points, exceedances) per sector ((0, 0) for a cell left to the
+/// medians), and its points and exceedances over every cell ([`test_openings`]).
+type SliceCounts = (Vec<(usize, usize)>, usize, usize);
 
 /// The lengths, in slices, of the windows the opening test pools a sector's counts over:
 /// an opening seen by a coarse camera may leave one or two exceeding points per slice
