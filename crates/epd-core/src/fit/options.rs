@@ -219,12 +219,13 @@ impl EstimateOptions {
     /// converges on an evenly strided subsample of about m of them
     /// ([`warm_stage_points`](Self::warm_stage_points)), then iterates on all points. A
     /// fit of n points lies about √(N/n) of the final fit's standard deviations from the
-    /// final minimum (24 of them in 7 dimensions for the pilot of 1024 points before a
-    /// fit of 20 000: `epd estimate --max-points 20000` on `epd simulate --seed 3`
-    /// frames), and from there the solver took 8–10 passes over all points, each step
-    /// short of the minimum where the robust loss's weights move with the step; a stage on
-    /// 2n points (half the start's variance, at 2n/N of a pass per iteration) took ~7
-    /// cheap passes, and the passes over all points from it 3–4.
+    /// final minimum (its first step measured 24 of them, in 7 dimensions, from the pilot
+    /// of 1024 points to the fit of 20 000: `epd estimate --max-points 20000` on a frame of
+    /// `epd simulate --seed 3`, solver traced), and from there the solver evaluated the
+    /// cost over all points 8 times, each step short of the minimum where the robust
+    /// loss's weights move with the step; with a stage on 2n points (half the start's
+    /// variance, at 2n/N of a pass per evaluation), 7 evaluations over its 2 223 points
+    /// and 3 over all.
     pub fn with_start_fitted_on(self, beta: Params, n: usize) -> Result<Self, EpdError> {
         let mut o = self.with_start(beta)?;
         o.start_points = Some(n);
