@@ -90,9 +90,10 @@ fn read_otherwise(pick: u64, base: u64, od_in: f64) -> Vec<(u64, &'static str, O
 /// beyond their standard errors: the wall reads wider all around, as neither a branch
 /// opening nor a bend makes it (`epd_core::segment`, `widens_all_around`), and the frame
 /// reads straight, its straight section ending where the band begins. The same bound as
-/// there (fails at 5 or more of 100). Measured: 2 of 100, both `in_bend` (no result; the
-/// band's edge departs at the start of the view); 7 of 100 (5 `tee_ahead`) without the
-/// test of the wall's least half.
+/// there (fails at 5 or more of 100). Measured: 0 of 100; 2 of 100, both `in_bend` (no
+/// result; the band's edge departs at the start of the view), before the straight pipe was
+/// refitted without the ring (`ring_refit`); 7 of 100 (5 `tee_ahead`) without the test of
+/// the wall's least half.
 #[test]
 fn a_band_across_a_wide_pipe_is_no_fitting() {
     let misread = read_otherwise(30, 7000, 30.0);

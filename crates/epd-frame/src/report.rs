@@ -101,7 +101,7 @@ pub fn columns() -> Vec<&'static str> {
 }
 
 /// The fields after the estimate's, without the final `error`.
-const CONTEXT_KEYS: [&str; 26] = [
+const CONTEXT_KEYS: [&str; 29] = [
     "n_read",
     "n_out_of_range",
     "n_calibrated",
@@ -125,6 +125,9 @@ const CONTEXT_KEYS: [&str; 26] = [
     "dent_at_m",
     "dent_clock_deg",
     "dent_depth_mm",
+    "ring_from_m",
+    "ring_to_m",
+    "ring_widening_mm",
     "n_sampled",
     "sampling",
     "calibration_outside",
@@ -334,6 +337,10 @@ impl FileReport {
                 f.push(("dent_at_m", opt(dent.map(|d| d.at_m))));
                 f.push(("dent_clock_deg", opt(dent.map(|d| d.clock_deg))));
                 f.push(("dent_depth_mm", opt(dent.map(|d| d.depth_mm))));
+                let ring = g.and_then(|g| g.ring);
+                f.push(("ring_from_m", opt(ring.map(|r| r.from_m))));
+                f.push(("ring_to_m", opt(ring.map(|r| r.to_m))));
+                f.push(("ring_widening_mm", opt(ring.map(|r| r.widening_mm))));
                 f.push((
                     "n_sampled",
                     e.sampled.map_or(Field::Null, |(n, _)| Field::Int(n as u64)),
@@ -562,6 +569,14 @@ impl GeometryReport {
             )),
             _ => {}
         }
+        if let Some(r) = self.ring {
+            t.push_str(&format!(
+                "\n  ring: the wall from {:.3} to {:.3} m ahead reads {:.1} mm out all around \
+                 (multipath over a band of ranges, a calibration error or a wider stretch \
+                 of pipe); the estimate leaves its points out",
+                r.from_m, r.to_m, r.widening_mm
+            ));
+        }
         if let (Some(r), Some(a), Some(c)) = (
             self.bend_radius_mm,
             self.bend_angle_deg,
@@ -750,6 +765,7 @@ mod tests {
             straight_withheld: false,
             bend_withheld: None,
             dent: None,
+            ring: None,
         }
     }
 
@@ -822,6 +838,49 @@ mod tests {
             plain
                 .iter()
                 .any(|(k, v)| *k == "dent_depth_mm" && *v == Field::Null)
+        );
+    }
+
+    /// A ring left out of the straight estimate: its three keys and a text line that says
+    /// its points were left out; null keys without one.
+    #[test]
+    fn a_ring_is_reported_where_and_how_far_out() {
+        let mut r = ok_report();
+        if let Ok(e) = &mut r.outcome {
+            e.geometry = Some(GeometryReport {
+                layout: "straight",
+                straight_until_m: None,
+                ring: Some(crate::scene::RingReport {
+                    from_m: 0.825,
+                    to_m: 1.975,
+                    widening_mm: 11.5,
+                }),
+                ..bend_ahead()
+            });
+        }
+        let f = r.fields();
+        let get = |k: &str| f.iter().find(|(n, _)| *n == k).unwrap().1.clone();
+        for (key, value) in [
+            ("ring_from_m", 0.825),
+            ("ring_to_m", 1.975),
+            ("ring_widening_mm", 11.5),
+        ] {
+            assert!(
+                matches!(get(key), Field::Num(v) if v == value),
+                "{key}: {:?}",
+                get(key)
+            );
+        }
+        let text = r.text();
+        assert!(
+            text.contains("from 0.825 to 1.975 m ahead reads 11.5 mm out all around"),
+            "{text}"
+        );
+        let plain = ok_report().fields();
+        assert!(
+            plain
+                .iter()
+                .any(|(k, v)| *k == "ring_widening_mm" && *v == Field::Null)
         );
     }
 

@@ -96,6 +96,21 @@ pub struct GeometryReport {
     /// angle seen from the sensor (deg: 0 up, 90 right) and its depth (mm). The straight
     /// estimate then uses the points before it (`straight_until_m` is where it starts).
     pub dent: Option<DentReport>,
+    /// A ring of the wall that reads wider all around than the straight pipe before and
+    /// after it (`epd_core::segment::Ring`: multipath over a band of ranges, a calibration
+    /// error, a local widening), left out of the straight estimate.
+    pub ring: Option<RingReport>,
+}
+
+/// A ring in a report (keys `ring_from_m`, `ring_to_m`, `ring_widening_mm`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RingReport {
+    /// Axial distance from the sensor to where it begins (m).
+    pub from_m: f64,
+    /// Axial distance to where it ends (m).
+    pub to_m: f64,
+    /// How far its wall reads out all around against the straight fit (mm).
+    pub widening_mm: f64,
 }
 
 /// A dent in a report (keys `dent_at_m`, `dent_clock_deg`, `dent_depth_mm`).
@@ -168,6 +183,11 @@ impl GeometryReport {
                 at_m: d.at_m,
                 clock_deg: d.clock_deg,
                 depth_mm: d.depth_m * 1e3,
+            }),
+            ring: seg.ring.map(|r| RingReport {
+                from_m: r.from_m,
+                to_m: r.to_m,
+                widening_mm: r.widening_m * 1e3,
             }),
         }
     }
@@ -245,6 +265,7 @@ mod tests {
             straight_withheld: true,
             bend_withheld: None,
             dent,
+            ring: None,
         }
     }
 

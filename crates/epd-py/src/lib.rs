@@ -175,7 +175,9 @@ enum Input<'py> {
 /// `sigma_bend_radius_mm` (mm), `bend_angle_deg`,
 /// `bend_direction_deg` (degrees), `bend_withheld`, `dent_at_m` (m), `dent_clock_deg`
 /// (degrees), `dent_depth_mm` (mm; a dent, debris or an obstacle on a straight pipe's
-/// wall), `n_sampled` and `sampling` (with `max_points`; `sampling` is "uniform" where
+/// wall), `ring_from_m`, `ring_to_m` (m) and `ring_widening_mm` (mm; a stretch of wall
+/// read out all around, multipath over a band of ranges, left out of the estimate),
+/// `n_sampled` and `sampling` (with `max_points`; `sampling` is "uniform" where
 /// the informed choice's fit disagreed with its pilot and the frame was measured again
 /// on uniform points), `calibration_outside` (the fraction of the points outside an incidence
 /// table's support, with `calibration`), `error`, `stamp_ns`, `frame_id` (a bag

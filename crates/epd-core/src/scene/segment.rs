@@ -31,6 +31,13 @@
 //! band of ranges read long: 18 of 800 straight frames read `tee_ahead` when the wider fit
 //! was kept, 7 with the refit's verdict; docs/bends-and-tees.md).
 //!
+//! A frame read as the sensor in a bend, or a straight pipe whose fit lacks fit, has a
+//! second candidate: a straight pipe seen through a ring of range error (a multipath band
+//! of ranges that reads the wall out all around, `ring_run`). The straight pipe is
+//! refitted without the ring and taken when the wall before and after it holds the same
+//! straight pipe at the survey's false-alarm rate (`ring_refit`); the ring is reported
+//! ([`Ring`]).
+//!
 //! A bend and a tee differ on the far side: a bend pulls the opposite wall in (its
 //! sector's median goes negative with the shift), a tee leaves it on the cylinder.
 
@@ -169,10 +176,26 @@ pub struct Segmentation {
     /// the PCS +Y (major) axis toward +Z (rad); for a bend, toward its centre of
     /// curvature; for a tee, toward its branch.
     pub direction: Option<f64>,
+    /// A ring of range error left out of the straight estimate ([`Ring`]).
+    pub ring: Option<Ring>,
     /// The departure profile of the last round.
     pub profile: Vec<Slice>,
     /// Fits made.
     pub rounds: usize,
+}
+
+/// A stretch of the wall that reads wider all around than the straight pipe before and
+/// after it — a multipath band of ranges, a calibration error over some ranges, or a
+/// local widening of the pipe — whose points the straight estimate leaves out
+/// (`ring_refit`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ring {
+    /// Where it begins (PCS x of the straight fit, m).
+    pub from_m: f64,
+    /// Where it ends (m).
+    pub to_m: f64,
+    /// Its slices' mean widening against the straight fit ([`Slice::widening_m`], m).
+    pub widening_m: f64,
 }
 
 /// The first slice of the first run of `persistence` departing slices, counting only
@@ -508,6 +531,29 @@ pub fn segment(
         (Some(_), Some(x)) if x <= x_first + seg.slice_m => Layout::InBend,
         (Some(i), Some(_)) => classify(&prof[i..], seg),
     };
+    // The sensor in a bend, against a straight pipe whose wall a ring of range error
+    // holds ([`ring_refit`]): the second when its straight pipe holds without the ring.
+    // A straight pipe whose fit the straight model refuses (lack of fit) although no end
+    // was found, against the same pipe through a ring: the second when its fit holds
+    // (converged), on numpy multipath frames (320 × 240, `test_straight_false_alarms.py`'s
+    // 200) 46 frames more answered, ±1.96σ̂ covering Dmax and Dmin in 0.960 and 0.984 of
+    // the 124, none beyond 5σ̂.
+    let ring = match layout {
+        Layout::InBend => ring_refit(pts, &fit, &prof, method, options, seg),
+        Layout::Straight if matches!(fit.status, FitStatus::LackOfFit(_)) => {
+            ring_refit(pts, &fit, &prof, method, options, seg)
+                .filter(|(r, _)| r.fit.status.is_converged())
+        }
+        _ => None,
+    };
+    let (ring, (departure, straight_until, direction, layout)) = match ring {
+        Some((r, ring)) => {
+            (fit, prof, cut) = (r.fit, r.profile, r.cut);
+            rounds += r.rounds;
+            (Some(ring), (None, None, None, Layout::Straight))
+        }
+        None => (None, (departure, straight_until, direction, layout)),
+    };
     // The straight estimate must come from the straight section's points alone. When
     // the last refit could not be cut at the end found (too few points before it, or
     // none within the range gate), try once more; failing that, the estimate is
@@ -552,6 +598,7 @@ pub fn segment(
         straight_withheld: withheld,
         beyond,
         direction,
+        ring,
         profile: prof,
         rounds,
     })
@@ -1059,6 +1106,112 @@ fn tee(mut s: Segmentation, points: &[[f64; 3]], seg: &SegmentOptions) -> Survey
         straight_until_sigma: sigma,
         ..Survey::plain(s)
     }
+}
+
+/// The slices (indices into `prof`, first and one past the last) of the longest run of
+/// a ring of range error: consecutive slices tested all around ([`MIN_SECTORS_TESTED`]
+/// sectors or more) whose every half of the wall lies outside the fitted wall
+/// ([`Slice::least_half_m`] above the one-sided normal critical value at
+/// [`SURVEY_FALSE_ALARM`] of its standard error) by at least [`RING_WIDENING_SHARE`] of the
+/// slice's size (the larger of its shift and bump, as [`widens_all_around`] asks of a
+/// run), at least `persistence` of them: what a multipath band of ranges makes and no
+/// bend or branch opening does (each moves at most half the wall outward; a numpy tee 0.5
+/// m ahead in a 42" pipe, its opening filling a partial view of 5–8 sectors, had least
+/// halves 9–37 mm out beside shifts of 130–220 mm); grown on each side by the departing
+/// slices next to it, where the band's edge crosses the sectors one by one (the camera
+/// off the pipe's axis sees one range at different axial positions around the wall) and
+/// the fit, pulled by the band, departs beside it.
+fn ring_run(prof: &[Slice], seg: &SegmentOptions) -> Option<(usize, usize)> {
+    let z = crate::fit::form::normal_upper_quantile(SURVEY_FALSE_ALARM);
+    let out = |s: &Slice| {
+        s.n_sectors >= MIN_SECTORS_TESTED
+            && s.least_half_m > z * s.least_half_var_m2.sqrt()
+            && s.least_half_m >= RING_WIDENING_SHARE * s.shift().max(s.bump_m)
+    };
+    let mut best: Option<(usize, usize)> = None;
+    let mut k = 0;
+    while k < prof.len() {
+        if !out(&prof[k]) {
+            k += 1;
+            continue;
+        }
+        let start = k;
+        while k < prof.len() && out(&prof[k]) {
+            k += 1;
+        }
+        if best.is_none_or(|(a, b)| k - start > b - a) {
+            best = Some((start, k));
+        }
+    }
+    let (mut a, mut b) = best.filter(|&(a, b)| b - a >= seg.persistence)?;
+    while a > 0 && prof[a - 1].departs(seg) {
+        a -= 1;
+    }
+    while b < prof.len() && prof[b].departs(seg) {
+        b += 1;
+    }
+    Some((a, b))
+}
+
+/// A straight pipe seen through a ring of range error, in place of a sensor in a bend:
+/// the straight pipe refitted on the points outside the ring ([`ring_run`] of the
+/// profile `prof` of `fit`, with a slice's margin on each side), taken when its fit is
+/// not refused as implausible, the profile of its own points departs nowhere
+/// ([`first_departure`], at the survey's false-alarm rate), and at least `persistence`
+/// slices tested lie beyond the ring: the wall comes back onto the same straight pipe
+/// after it, as it never does past a bend's start. A multipath band over the ranges
+/// where a 42" pipe's wall fills most of the view pulls the fit on every point off the
+/// pipe, and its near slices then depart at the start: 8 of the 120 straight 42" frames
+/// under tof-sim's band (1–2 m, +5 cm) read `in_bend` (`scenarios/straight_false_alarm.toml`).
+/// `None` when there is no ring or its refit does not hold; else the refit (its profile
+/// over every point) and the ring.
+fn ring_refit(
+    pts: &[[f64; 3]],
+    fit: &Estimate,
+    prof: &[Slice],
+    method: Method,
+    options: &EstimateOptions,
+    seg: &SegmentOptions,
+) -> Option<(Refined, Ring)> {
+    let (a, b) = ring_run(prof, seg)?;
+    let from = prof[a].start_m - seg.slice_m;
+    let to = prof.get(b).map_or(f64::INFINITY, |s| s.start_m) + seg.slice_m;
+    let kept = axial_select(pts, &fit.params, |x| x < from || x >= to);
+    if kept.len() < RESTART_MIN_POINTS {
+        return None;
+    }
+    let refit = estimate(&kept, method, options).ok()?;
+    if matches!(refit.status, FitStatus::Implausible(_)) {
+        return None;
+    }
+    let axis = AxisSigma::of(&refit);
+    let own = profile(&kept, &refit.params, &axis, seg);
+    let beyond = own
+        .iter()
+        .filter(|s| s.start_m >= to && s.n_sectors >= MIN_SECTORS_TESTED)
+        .count();
+    if first_departure(&own, seg).is_some() || beyond < seg.persistence {
+        return None;
+    }
+    let all = profile(pts, &refit.params, &axis, seg);
+    let within: Vec<f64> = all
+        .iter()
+        .filter(|s| s.start_m >= prof[a].start_m && s.start_m < to - seg.slice_m)
+        .map(|s| s.widening_m)
+        .filter(|w| w.is_finite())
+        .collect();
+    let ring = Ring {
+        from_m: prof[a].start_m,
+        to_m: to - seg.slice_m,
+        widening_m: within.iter().sum::<f64>() / within.len().max(1) as f64,
+    };
+    let refined = Refined {
+        profile: all,
+        fit: refit,
+        rounds: 1,
+        cut: None,
+    };
+    Some((refined, ring))
 }
 
 /// Whether the departing run from slice `i` reads wider all around, as no branch

@@ -404,3 +404,55 @@ fn only_a_wall_out_all_around_is_a_ring() {
     departs_at_8(&noisy);
     assert!(!widens_all_around(&noisy, 8, &o), "a ring within its noise");
 }
+
+/// A ring of range error's run (`ring_run`): the slices whose every half lies out, grown
+/// by the departing slices beside it; none for a bend (its far half in), for an opening
+/// (the rest of its wall on it), for a ring shorter than the persistence or within its
+/// noise.
+#[test]
+fn a_ring_run_is_the_wall_out_all_around_and_its_departing_edges() {
+    let o = SegmentOptions::default();
+    // Slices 0–2 on the wall, 3 departing by a shift (the band's edge), 4–9 out all
+    // around by 12 mm at `se`, 10 departing, 11–15 on the wall.
+    let profile = |least: f64, se: f64, shift: f64, bump: f64| -> Vec<Slice> {
+        (0..16)
+            .map(|k| {
+                let x = 0.5 + 0.05 * k as f64;
+                let (s, b, l) = match k {
+                    3 | 10 => (0.005, 0.0, 0.0),
+                    4..=9 => (shift, bump, least),
+                    _ => (0.0, 0.0, 0.0),
+                };
+                Slice {
+                    least_half_m: l,
+                    least_half_var_m2: se * se,
+                    ..slice(x, s, b)
+                }
+            })
+            .collect()
+    };
+    assert_eq!(ring_run(&profile(0.012, 5e-4, 0.0, 0.0), &o), Some((3, 11)));
+    assert_eq!(
+        ring_run(&profile(-0.004, 5e-4, 0.004, 0.0), &o),
+        None,
+        "a bend"
+    );
+    assert_eq!(
+        ring_run(&profile(0.0, 5e-4, 0.0, 0.05), &o),
+        None,
+        "an opening"
+    );
+    // 12 mm out beside a 100 mm shift: an opening seen in part (least halves of a few
+    // sectors), not a ring.
+    assert_eq!(
+        ring_run(&profile(0.012, 5e-4, 0.1, 0.0), &o),
+        None,
+        "a partial opening"
+    );
+    // 12 mm with a standard error of 10 mm per slice: within its noise.
+    assert_eq!(ring_run(&profile(0.012, 0.01, 0.0, 0.0), &o), None, "noise");
+    // One slice out: shorter than the persistence.
+    let mut short = profile(0.0, 5e-4, 0.0, 0.0);
+    short[6].least_half_m = 0.012;
+    assert_eq!(ring_run(&short, &o), None, "one slice");
+}
