@@ -31,7 +31,8 @@
 //! band of ranges read long: 18 of 800 straight frames read `tee_ahead` when the wider fit
 //! was kept, 7 with the refit's verdict; docs/bends-and-tees.md).
 //!
-//! A frame read as the sensor in a bend, or a straight pipe whose fit lacks fit, has a
+//! A frame read as the sensor in a bend, or a straight pipe whose fit lacks fit or whose
+//! refit is implausible, has a
 //! second candidate: a straight pipe seen through a ring of range error (a multipath band
 //! of ranges that reads the wall out all around, `ring_run`). The straight pipe is
 //! refitted without the ring and taken when the wall before and after it holds the same
@@ -535,13 +536,22 @@ pub fn segment(
     // holds ([`ring_refit`]): the second when its straight pipe holds without the ring.
     // A straight pipe whose fit the straight model refuses (lack of fit) although no end
     // was found, against the same pipe through a ring: the second when its fit holds
-    // (converged), on numpy multipath frames (320 × 240, `test_straight_false_alarms.py`'s
-    // 200) 46 frames more answered, ±1.96σ̂ covering Dmax and Dmin in 0.960 and 0.984 of
-    // the 124, none beyond 5σ̂.
+    // (converged). On the numpy multipath frames (320 × 240, `test_straight_false_alarms.py`'s
+    // 200) this and the case below answer 52 frames more, ±1.96σ̂ covering Dmax and Dmin in
+    // 0.954 and 0.985 of the 130, none beyond 5σ̂ (docs/bends-and-tees.md, "A ring of range
+    // error").
     let ring = match layout {
         Layout::InBend => ring_refit(pts, &fit, &prof, method, options, seg),
         Layout::Straight if matches!(fit.status, FitStatus::LackOfFit(_)) => {
             ring_refit(pts, &fit, &prof, method, options, seg)
+                .filter(|(r, _)| r.fit.status.is_converged())
+        }
+        // A refit the straight model's checks refuse as implausible (a partial view before
+        // a band's edge taken for an end, a fit that left the model), after which the
+        // departure vanished: the ring is sought on the fit on every point.
+        Layout::Straight if matches!(fit.status, FitStatus::Implausible(_)) => {
+            let first_profile = profile(pts, &first.params, &AxisSigma::of(&first), seg);
+            ring_refit(pts, &first, &first_profile, method, options, seg)
                 .filter(|(r, _)| r.fit.status.is_converged())
         }
         _ => None,
