@@ -492,7 +492,22 @@ pub fn segment(
     // neither.
     let refused = first_departure(&prof, seg).is_none() && misfits(&fit);
     let at_start = departs_at_start(&prof, seg);
-    if refused || at_start {
+    // A fit that finds no end and lacks fit: first, a straight pipe seen through a ring of
+    // range error ([`ring_refit`], below), taken when its fit converges. Its refit without
+    // the ring would show an end the misfit hid, so the near windows need not be tried: on
+    // the Helios2 model's frames, whose misfit a ring of its range error makes, they were
+    // two fits (≈ 70 ms) never taken.
+    let mut early_ring = None;
+    if refused
+        && matches!(fit.status, FitStatus::LackOfFit(_))
+        && let Some((r, ring)) = ring_refit(pts, &fit, &prof, method, options, seg)
+            .filter(|(r, _)| r.fit.status.is_converged())
+    {
+        (fit, prof, cut) = (r.fit, r.profile, r.cut);
+        rounds += r.rounds;
+        early_ring = Some(ring);
+    }
+    if early_ring.is_none() && (refused || at_start) {
         // Taken when it finds a straight section: one that does not depart at its start
         // and finds the end, or, after a departure at the start, finds none while its own
         // fit holds (`misfits`: neither Welch's test nor the form test refuses it; before
@@ -523,6 +538,7 @@ pub fn segment(
     // in: a band of range error (multipath) holds the near view. The frame keeps its
     // straight verdict, and its fit its status.
     let (departure, straight_until) = first_departure(&prof, seg)
+        .filter(|_| early_ring.is_none())
         .map(|i| (i, locate_end(&prof, i, seg)))
         .filter(|&(i, x)| x > x_first + seg.slice_m || !widens_all_around(&prof, i, seg))
         .unzip();
@@ -541,6 +557,7 @@ pub fn segment(
     // 0.954 and 0.985 of the 130, none beyond 5σ̂ (docs/bends-and-tees.md, "A ring of range
     // error").
     let ring = match layout {
+        _ if early_ring.is_some() => None,
         Layout::InBend => ring_refit(pts, &fit, &prof, method, options, seg),
         Layout::Straight if matches!(fit.status, FitStatus::LackOfFit(_)) => {
             ring_refit(pts, &fit, &prof, method, options, seg)
@@ -562,7 +579,7 @@ pub fn segment(
             rounds += r.rounds;
             (Some(ring), (None, None, None, Layout::Straight))
         }
-        None => (None, (departure, straight_until, direction, layout)),
+        None => (early_ring, (departure, straight_until, direction, layout)),
     };
     // The straight estimate must come from the straight section's points alone. When
     // the last refit could not be cut at the end found (too few points before it, or
