@@ -5,7 +5,7 @@
 //! the camera's error.
 
 use epd_core::calibration::DepthTable;
-use epd_core::segment::{SegmentOptions, Survey, straight_mask, survey};
+use epd_core::segment::{SegmentOptions, Survey, outside_ring_mask, straight_mask, survey};
 use epd_core::{EpdError, EstimateOptions, Method};
 
 /// What the scene step found in one frame ([`FrameScene::survey`]).
@@ -16,8 +16,11 @@ pub struct FrameScene {
     /// Its report (the keys `geometry`, `straight_until_m`, `bend_*`).
     pub geometry: GeometryReport,
     /// When something lies ahead: which points belong to the straight section (those
-    /// whose ray meets the straight wall before its end, less the survey's margin);
-    /// `None` when every point does.
+    /// whose ray meets the straight wall before its end, less the survey's margin); with
+    /// a ring of range error left out, those outside it (`epd_core::segment::Ring`); with
+    /// an answer refitted before a departure that vanished or from a near window, its
+    /// points (`epd_core::segment::Segmentation::fitted_before_m`, `window_m`); `None`
+    /// when every point does.
     pub straight: Option<Vec<bool>>,
     /// The bend's radius as fitted (mm), before any withholding.
     pub bend_radius_fit_mm: Option<f64>,
@@ -45,14 +48,36 @@ impl FrameScene {
             bend_table_coverage(&survey, points, raw_range_m, intensity, t)
         });
         geometry.check_bend_against_table(bend_table_coverage);
-        let straight = survey.segmentation.straight_until.map(|end| {
-            straight_mask(
+        let seg = &survey.segmentation;
+        let defaults = SegmentOptions::default();
+        let straight = match (seg.straight_until, &seg.ring) {
+            (Some(end), _) => Some(straight_mask(
                 points,
-                &survey.segmentation.straight.params,
+                &seg.straight.params,
                 end,
-                SegmentOptions::default().margin_m,
-            )
-        });
+                defaults.margin_m,
+            )),
+            // The ring's points are not the straight section's: its estimate left them
+            // out, and so must a weighted or calibrated refit and the RMS residual.
+            (None, Some(ring)) => Some(outside_ring_mask(
+                points,
+                &seg.straight.params,
+                ring,
+                defaults.slice_m,
+            )),
+            // An answer refitted on the points before a departure that vanished, or
+            // from a near window that found no end: those points alone.
+            (None, None) => match (seg.fitted_before_m, seg.window_m) {
+                (Some(end), _) => Some(straight_mask(
+                    points,
+                    &seg.straight.params,
+                    end,
+                    defaults.margin_m,
+                )),
+                (None, Some(reach)) => Some(points.iter().map(|p| p[0] <= reach).collect()),
+                (None, None) => None,
+            },
+        };
         Ok(Self {
             survey,
             geometry,

@@ -63,8 +63,9 @@ fn frame(pipe: &Pipe, k: u64) -> (Params, Vec<[f64; 3]>) {
 }
 
 /// A frame's verdict: its index, `geometry`, and `None` when answered (`converged`, the
-/// estimate not withheld), else its status.
-type Verdict = (u64, Option<&'static str>, Option<&'static str>);
+/// estimate not withheld), else its status; and for an answer, its RMS range residual
+/// over its 1-σ for σ = 0.02 m and its points, σ/√(2n) (the RMS of n Gaussian residuals).
+type Verdict = (u64, Option<&'static str>, Option<&'static str>, Option<f64>);
 
 /// An answered diameter far off: frame, diameter, error (mm), error over its 1-σ.
 type FarOff = (u64, &'static str, f64, f64);
@@ -87,10 +88,14 @@ fn measured(pipe: &Pipe, n: u64) -> (Vec<Verdict>, Vec<FarOff>) {
         let layout = m.geometry.as_ref().map(|g| g.layout);
         let e = &m.estimate;
         if !e.status.is_converged() || m.geometry.as_ref().and_then(|g| g.withheld()).is_some() {
-            frames.push((k, layout, Some(e.status.name())));
+            frames.push((k, layout, Some(e.status.name()), None));
             continue;
         }
-        frames.push((k, layout, None));
+        let rms_z = m.rms_residual_mm.map(|rms| {
+            let sigma = 20.0;
+            (rms - sigma) / (sigma / (2.0 * e.n_points as f64).sqrt())
+        });
+        frames.push((k, layout, None, rms_z));
         let err = errors_against(&e.params, &truth);
         for (name, err, sigma) in [
             ("Dmax", err.d_max, e.sigma[0]),
@@ -146,13 +151,22 @@ fn critical_count(n: u64, p: f64, alpha: f64) -> u64 {
 /// frames of `scenarios/straight_false_alarm.toml`). None of those answered `converged`
 /// lies more than max(5σ̂, 0.5 mm) off in Dmax or Dmin (issue 22's goal). And at least
 /// half are answered: 3 of 40 converged before the ring's refit (the others `in_bend`,
-/// `lack_of_fit` or `implausible`), 40 with it.
+/// `lack_of_fit` or `implausible`), 40 with it. And each answer's RMS range residual
+/// is its own points': within 5 standard errors of σ (44 mm before the ring's points,
+/// or the points beyond a refit's cut, were left out of it).
 #[test]
 fn a_ring_of_multipath_in_a_large_pipe_is_no_bend() {
     let n = 40;
     let (frames, far) = measured(&LARGE, n);
     let misread: Vec<_> = frames.iter().filter(|f| f.1 != Some("straight")).collect();
     let refused: Vec<_> = frames.iter().filter(|f| f.2.is_some()).collect();
+    // The straight section's RMS residual is its points' (the ring's left out): within 5
+    // of its standard errors of σ (with the ring's points in, 44 mm).
+    let off: Vec<_> = frames
+        .iter()
+        .filter(|f| f.3.is_some_and(|z| z.abs() > 5.0))
+        .collect();
+    assert!(off.is_empty(), "RMS residual off σ: {off:?}");
     let converged = n as usize - refused.len();
     assert!(
         2 * converged >= n as usize,

@@ -49,8 +49,8 @@ use crate::cloud::clean;
 use crate::error::EpdError;
 use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
 use crate::params::Params;
-pub use crate::scene::select::straight_mask;
 use crate::scene::select::{axial_select, select_where};
+pub use crate::scene::select::{outside_ring_mask, straight_mask};
 
 pub use crate::scene::profile::{
     AxisSigma, MIN_SECTORS_TESTED, SURVEY_FALSE_ALARM, Slice, departure_evidence, profile,
@@ -179,6 +179,14 @@ pub struct Segmentation {
     pub direction: Option<f64>,
     /// A ring of range error left out of the straight estimate ([`Ring`]).
     pub ring: Option<Ring>,
+    /// The reach (SCS x, m) of the near window whose points alone the straight estimate
+    /// used, when the survey answered from a window that found no end (`restart_from_near`):
+    /// the points with x at most this are the straight section's. `None` otherwise.
+    pub window_m: Option<f64>,
+    /// Where (PCS x of the straight fit, m) the points of the straight estimate end,
+    /// less the margin, when it was refitted on the points before a departure that then
+    /// vanished (`refine`) and no end is reported. `None` otherwise.
+    pub fitted_before_m: Option<f64>,
     /// The departure profile of the last round.
     pub profile: Vec<Slice>,
     /// Fits made.
@@ -414,7 +422,7 @@ fn restart_from_near(
     options: &EstimateOptions,
     seg: &SegmentOptions,
     finds: impl Fn(&Refined, bool) -> bool,
-) -> (Option<Refined>, usize) {
+) -> (Option<(Refined, Option<f64>)>, usize) {
     let mut rounds = 0;
     // The windows are cut on the measured forward coordinate. A cut on the rays' angle to
     // the sensor's axis (range noise moves a point along its ray, so a cut on the measured
@@ -443,7 +451,9 @@ fn restart_from_near(
         rounds += r.rounds;
         // A start whose fit its own checks refuse did not find a straight section.
         if !matches!(r.fit.status, FitStatus::Implausible(_)) && finds(&r, departed_at_start) {
-            return (Some(r), rounds);
+            // A window whose fit was not cut again used the window's points alone.
+            let window = r.cut.is_none().then_some(reach);
+            return (Some((r, window)), rounds);
         }
         departed_at_start |= departs_at_start(&r.profile, seg);
     }
@@ -498,6 +508,8 @@ pub fn segment(
     // the Helios2 model's frames, whose misfit a ring of its range error makes, they were
     // two fits (≈ 70 ms) never taken.
     let mut early_ring = None;
+    // The near window's reach (SCS x, m) when its fit, on its points alone, is the answer.
+    let mut window = None;
     if refused
         && matches!(fit.status, FitStatus::LackOfFit(_))
         && let Some((r, ring)) = ring_refit(pts, &fit, &prof, method, options, seg)
@@ -529,8 +541,9 @@ pub fn segment(
                     || (!misfits(&r.fit) && at_start && !wider))
         });
         rounds += tried;
-        if let Some(r) = restart {
+        if let Some((r, reach)) = restart {
             (fit, prof, cut) = (r.fit, r.profile, r.cut);
+            window = reach;
         }
     }
     let x_first = prof.first().map_or(0.0, |s| s.start_m);
@@ -626,6 +639,8 @@ pub fn segment(
         beyond,
         direction,
         ring,
+        window_m: window.filter(|_| ring.is_none() && straight_until.is_none()),
+        fitted_before_m: cut.filter(|_| ring.is_none() && straight_until.is_none()),
         profile: prof,
         rounds,
     })

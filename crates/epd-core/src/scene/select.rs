@@ -54,6 +54,28 @@ pub(crate) fn select_where(points: &[[f64; 3]], keep: impl Fn(&[f64; 3]) -> bool
     out
 }
 
+/// Which points (SCS) lie outside a ring of range error ([`crate::segment::Ring`]) that
+/// the straight estimate leaves out: those whose ray meets the wall of `beta` before
+/// `ring.from_m − margin` or from `ring.to_m + margin` on (the margin the survey's refit
+/// left on each side, a slice). All `false` when β leaves the model.
+pub fn outside_ring_mask(
+    points: &[[f64; 3]],
+    beta: &Params,
+    ring: &crate::segment::Ring,
+    margin: f64,
+) -> Vec<bool> {
+    match model_axial(beta) {
+        Some(axial) => points
+            .iter()
+            .map(|p| {
+                let x = axial(p);
+                x < ring.from_m - margin || x >= ring.to_m + margin
+            })
+            .collect(),
+        None => vec![false; points.len()],
+    }
+}
+
 /// Which points (SCS) belong to the straight section that ends at `end` (PCS x of the
 /// straight fit `beta`, m): those whose ray meets the fitted wall before `end − margin`
 /// (the ray's model crossing, not the noisy point). All `false` when β leaves the model.
