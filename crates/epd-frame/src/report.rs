@@ -769,6 +769,17 @@ mod tests {
         }
     }
 
+    /// Asserts that each of `expected`'s keys holds its number in the report's fields.
+    fn assert_numbers(fields: &[(&str, Field)], expected: &[(&str, f64)]) {
+        for &(key, value) in expected {
+            let got = fields.iter().find(|(n, _)| *n == key).map(|(_, v)| v);
+            assert!(
+                matches!(got, Some(Field::Num(v)) if *v == value),
+                "{key}: {got:?}"
+            );
+        }
+    }
+
     /// The scene's uncertainty and evidence reach the report: the keys carry the
     /// survey's values, the text gives the ± as 1-σ, and a withheld bend withholds its
     /// radius's 1-σ too (tested in `a_bend_the_table_did_not_observe_is_withheld`).
@@ -779,18 +790,14 @@ mod tests {
             e.geometry = Some(bend_ahead());
         }
         let f = r.fields();
-        let get = |k: &str| f.iter().find(|(n, _)| *n == k).unwrap().1.clone();
-        for (key, value) in [
-            ("geometry_evidence", 307.0),
-            ("sigma_straight_until_m", 0.004),
-            ("sigma_bend_radius_mm", 3.5),
-        ] {
-            assert!(
-                matches!(get(key), Field::Num(v) if v == value),
-                "{key}: {:?}",
-                get(key)
-            );
-        }
+        assert_numbers(
+            &f,
+            &[
+                ("geometry_evidence", 307.0),
+                ("sigma_straight_until_m", 0.004),
+                ("sigma_bend_radius_mm", 3.5),
+            ],
+        );
         let text = r.text();
         assert!(
             text.contains("(±0.004 m, 1-σ)") && text.contains("(±4 mm, 1-σ)"),
@@ -818,17 +825,14 @@ mod tests {
         let f = r.fields();
         let get = |k: &str| f.iter().find(|(n, _)| *n == k).unwrap().1.clone();
         assert_eq!(get("geometry"), Field::Text("straight".into()));
-        for (key, value) in [
-            ("dent_at_m", 1.05),
-            ("dent_clock_deg", 180.0),
-            ("dent_depth_mm", 21.5),
-        ] {
-            assert!(
-                matches!(get(key), Field::Num(v) if v == value),
-                "{key}: {:?}",
-                get(key)
-            );
-        }
+        assert_numbers(
+            &f,
+            &[
+                ("dent_at_m", 1.05),
+                ("dent_clock_deg", 180.0),
+                ("dent_depth_mm", 21.5),
+            ],
+        );
         let text = r.text();
         assert!(text.contains("22 mm inside the wall at 180°"), "{text}");
         assert!(text.contains("up to 0.700 m"), "{text}");
@@ -859,18 +863,14 @@ mod tests {
             });
         }
         let f = r.fields();
-        let get = |k: &str| f.iter().find(|(n, _)| *n == k).unwrap().1.clone();
-        for (key, value) in [
-            ("ring_from_m", 0.825),
-            ("ring_to_m", 1.975),
-            ("ring_widening_mm", 11.5),
-        ] {
-            assert!(
-                matches!(get(key), Field::Num(v) if v == value),
-                "{key}: {:?}",
-                get(key)
-            );
-        }
+        assert_numbers(
+            &f,
+            &[
+                ("ring_from_m", 0.825),
+                ("ring_to_m", 1.975),
+                ("ring_widening_mm", 11.5),
+            ],
+        );
         let text = r.text();
         assert!(
             text.contains("from 0.825 to 1.975 m ahead reads 11.5 mm out all around"),

@@ -510,8 +510,10 @@ pub fn segment(
     let mut early_ring = None;
     // The near window's reach (SCS x, m) when its fit, on its points alone, is the answer.
     let mut window = None;
-    if refused
-        && matches!(fit.status, FitStatus::LackOfFit(_))
+    // Whether the ring was sought on the fit that is still the frame's (then it is not
+    // sought again below).
+    let mut ring_sought = refused && matches!(fit.status, FitStatus::LackOfFit(_));
+    if ring_sought
         && let Some((r, ring)) = ring_refit(pts, &fit, &prof, method, options, seg)
             .filter(|(r, _)| r.fit.status.is_converged())
     {
@@ -544,6 +546,7 @@ pub fn segment(
         if let Some((r, reach)) = restart {
             (fit, prof, cut) = (r.fit, r.profile, r.cut);
             window = reach;
+            ring_sought = false;
         }
     }
     let x_first = prof.first().map_or(0.0, |s| s.start_m);
@@ -572,7 +575,7 @@ pub fn segment(
     let ring = match layout {
         _ if early_ring.is_some() => None,
         Layout::InBend => ring_refit(pts, &fit, &prof, method, options, seg),
-        Layout::Straight if matches!(fit.status, FitStatus::LackOfFit(_)) => {
+        Layout::Straight if matches!(fit.status, FitStatus::LackOfFit(_)) && !ring_sought => {
             ring_refit(pts, &fit, &prof, method, options, seg)
                 .filter(|(r, _)| r.fit.status.is_converged())
         }
