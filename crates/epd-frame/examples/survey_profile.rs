@@ -19,12 +19,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let s = survey(&cloud.points, cfg.method, &cfg.options, &o)?;
     let seg = &s.segmentation;
     let first = epd_core::estimate(&cloud.points, cfg.method, &cfg.options)?;
-    let first_profile = epd_core::segment::profile(
+    let axis = epd_core::segment::axis_under_straight_pipe(
         &cloud.points,
-        &first.params,
-        &epd_core::segment::AxisSigma::of(&first),
-        &o,
+        &first,
+        cfg.method,
+        &cfg.options.without_start(),
     );
+    let first_profile = epd_core::segment::profile(&cloud.points, &axis.0, &axis.1, &o);
     let which = std::env::args().nth(2).unwrap_or_default();
     let shown = if which == "first" {
         &first_profile

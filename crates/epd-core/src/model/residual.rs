@@ -105,6 +105,11 @@ fn sum_lanes(rest: &[[f64; 3]], lanes: [f64; 4], residual: impl Fn(&[f64; 3]) ->
     total
 }
 
+/// How many points of `points` have |residual| > `limit`.
+fn count_beyond(points: &[[f64; 3]], limit: f64, residual: impl Fn(&[f64; 3]) -> f64) -> usize {
+    points.iter().filter(|p| residual(p).abs() > limit).count()
+}
+
 impl Geometry {
     /// The shared geometry at β, or `None` when β is outside the model's domain:
     /// a non-positive or non-finite diameter, or the sensor origin not strictly inside
@@ -458,6 +463,19 @@ impl Geometry {
         })
     }
 
+    /// How many points of `chunk` (SCS, m) have a range residual ([`residual`](Self::residual)
+    /// with [`Residual::Range`]) beyond ±`limit` (m); four points at a time in AVX2
+    /// registers on a CPU that has them (the same residuals as the scalar code's).
+    pub fn count_range_beyond(&self, chunk: &[[f64; 3]], limit: f64) -> usize {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU has AVX2 and FMA.
+            return unsafe { self.count_range_beyond_avx2(chunk, limit) };
+        }
+        count_beyond(chunk, limit, |p| self.residual(Residual::Range, p))
+    }
+
     /// (x, Y, Z, d) of [`wall_deviation`](Self::wall_deviation) from the wall point
     /// (x, Y, Z), its line parameter t and the rotated coordinates (u, v) of the measured
     /// point.
@@ -518,6 +536,26 @@ mod tests {
                     assert_eq!(fast[i].map(f64::to_bits), one, "{kind:?} point {i}");
                     assert_eq!(plain[i].map(f64::to_bits), one, "{kind:?} point {i}");
                 }
+            }
+        }
+    }
+
+    /// The count of range residuals beyond a limit (AVX2 where the CPU has it) is the
+    /// scalar residuals' count, at limits between and around them, over a count of points
+    /// that leaves a remainder.
+    #[test]
+    fn count_beyond_is_the_scalar_count() {
+        let pts = points();
+        for b in random_betas(20) {
+            let g = Geometry::new(&b).unwrap();
+            let mut r: Vec<f64> = pts
+                .iter()
+                .map(|p| g.residual(Residual::Range, p).abs())
+                .collect();
+            r.sort_by(f64::total_cmp);
+            for limit in r.iter().map(|v| 0.999 * v).chain([0.0, 1e9]) {
+                let want = r.iter().filter(|&&v| v > limit).count();
+                assert_eq!(g.count_range_beyond(&pts, limit), want, "limit {limit}");
             }
         }
     }

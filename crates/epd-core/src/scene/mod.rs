@@ -1,8 +1,10 @@
 //! What lies ahead of the sensor: the survey of a frame near a bend or a tee
 //! (`segment`, on the departure profile of `profile`), the torus of a bend with its exact ray cast (`torus`) and the bend's fit
 //! (`bend`), where an opening begins (`edge`), and the opening test of the slices too
-//! sparse for the medians (`sparse`); which points belong to which part (`select`).
+//! sparse for the medians (`sparse`); which points belong to which part (`select`); the
+//! uncertainty of the straight fit's axis the profile tests against (`axis`).
 
+pub mod axis;
 pub mod bend;
 pub mod edge;
 pub mod profile;

@@ -49,6 +49,7 @@ use crate::cloud::clean;
 use crate::error::EpdError;
 use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
 use crate::params::Params;
+pub use crate::scene::axis::axis_under_straight_pipe;
 use crate::scene::select::{axial_select, select_where};
 pub use crate::scene::select::{outside_ring_mask, straight_mask};
 
@@ -330,6 +331,7 @@ struct Refined {
 fn refine(
     pts: &[[f64; 3]],
     mut fit: Estimate,
+    against: &(Params, AxisSigma),
     method: Method,
     options: &EstimateOptions,
     seg: &SegmentOptions,
@@ -337,7 +339,7 @@ fn refine(
     let mut end: Option<f64> = None;
     let mut cut: Option<f64> = None;
     let mut rounds = 1;
-    let mut prof = profile(pts, &fit.params, &AxisSigma::of(&fit), seg);
+    let mut prof = profile(pts, &against.0, &against.1, seg);
     loop {
         let departure = first_departure(&prof, seg);
         let found = departure.map(|i| locate_end(&prof, i, seg));
@@ -445,7 +447,14 @@ fn restart_from_near(
         };
         // A start that cannot be refined (its cut leaves too few points) is one that did
         // not find a straight section.
-        let Ok(r) = refine(pts, start, method, options, seg) else {
+        let Ok(r) = refine(
+            pts,
+            start,
+            &(start.params, AxisSigma::of(&start)),
+            method,
+            options,
+            seg,
+        ) else {
             continue;
         };
         rounds += r.rounds;
@@ -489,12 +498,15 @@ pub fn segment(
     // Every later fit is of a part of the frame: it starts from its own points, not from
     // a start given for the whole frame ([`EstimateOptions::with_start`]).
     let options = &options.without_start();
+    // The profile of the fit on every point tests its slices against the straight pipe's
+    // uncertainty of the axis, not against what a fitting ahead does to the fit.
+    let first_axis = axis_under_straight_pipe(pts, &first, method, options);
     let Refined {
         mut fit,
         profile: mut prof,
         mut rounds,
         mut cut,
-    } = refine(pts, first, method, options, seg)?;
+    } = refine(pts, first, &first_axis, method, options, seg)?;
     // A fit on every point whose profile finds no end although its wall differs along
     // the axis (Welch's test of the estimate, at 10⁻³) or the straight model does not fit
     // it (its form test): what lies ahead may have biased the fit and, through the misfit,
@@ -583,7 +595,7 @@ pub fn segment(
         // a band's edge taken for an end, a fit that left the model), after which the
         // departure vanished: the ring is sought on the fit on every point.
         Layout::Straight if matches!(fit.status, FitStatus::Implausible(_)) => {
-            let first_profile = profile(pts, &first.params, &AxisSigma::of(&first), seg);
+            let first_profile = profile(pts, &first_axis.0, &first_axis.1, seg);
             ring_refit(pts, &first, &first_profile, method, options, seg)
                 .filter(|(r, _)| r.fit.status.is_converged())
         }

@@ -204,19 +204,40 @@ impl Geometry {
     #[target_feature(enable = "avx2,fma")]
     pub(super) fn range_sum_of_squares_avx2(&self, chunk: &[[f64; 3]]) -> f64 {
         let mut lanes = [0.0; 4];
+        let rest = self.range_residual_blocks_avx2(chunk, |l, r| lanes[l] += r * r);
+        super::sum_lanes(rest, lanes, |p| self.residual(Residual::Range, p))
+    }
+
+    /// [`count_range_beyond`](Self::count_range_beyond) compiled for AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) fn count_range_beyond_avx2(&self, chunk: &[[f64; 3]], limit: f64) -> usize {
+        let mut n = 0;
+        let rest = self.range_residual_blocks_avx2(chunk, |_, r| n += usize::from(r.abs() > limit));
+        n + super::count_beyond(rest, limit, |p| self.residual(Residual::Range, p))
+    }
+
+    /// The range residual r = (1 − t)·‖p‖ of each point in the whole blocks of four of
+    /// `chunk`, t by [`wall_points_avx2`](Self::wall_points_avx2) (t = 1 off the wall
+    /// gives the scalar code's 0 for a finite point), handed to `each` with its lane, block
+    /// by block in order; returns the points after the last whole block.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn range_residual_blocks_avx2<'a>(
+        &self,
+        chunk: &'a [[f64; 3]],
+        mut each: impl FnMut(usize, f64),
+    ) -> &'a [[f64; 3]] {
         let mut blocks = chunk.chunks_exact(4);
         for b in &mut blocks {
             let arr: &[[f64; 3]; 4] = b.try_into().expect("chunks_exact yields 4 points");
             // SAFETY: this function runs only where the CPU has AVX2.
             let (_, t, _, _) = unsafe { self.wall_points_avx2(arr) };
-            for l in 0..4 {
-                let r = (1.0 - t[l]) * dot(&arr[l], &arr[l]).sqrt();
-                lanes[l] += r * r;
+            for (l, p) in arr.iter().enumerate() {
+                each(l, (1.0 - t[l]) * dot(p, p).sqrt());
             }
         }
-        super::sum_lanes(blocks.remainder(), lanes, |p| {
-            self.residual(Residual::Range, p)
-        })
+        blocks.remainder()
     }
 
     /// [`wall_deviations`](Self::wall_deviations) compiled for AVX2: the wall points by
