@@ -170,7 +170,7 @@ pub fn normal_upper_quantile(alpha: f64) -> f64 {
 
 /// The complementary error function (Numerical Recipes' erfcc, fractional error < 1.2e-7,
 /// then good enough for the Newton steps of [`normal_upper_quantile`] to converge on it).
-fn erfc(x: f64) -> f64 {
+pub(crate) fn erfc(x: f64) -> f64 {
     let z = x.abs();
     let t = 1.0 / (1.0 + 0.5 * z);
     let r = t

@@ -105,9 +105,20 @@ fn sum_lanes(rest: &[[f64; 3]], lanes: [f64; 4], residual: impl Fn(&[f64; 3]) ->
     total
 }
 
-/// How many points of `points` have |residual| > `limit`.
-fn count_beyond(points: &[[f64; 3]], limit: f64, residual: impl Fn(&[f64; 3]) -> f64) -> usize {
-    points.iter().filter(|p| residual(p).abs() > limit).count()
+/// How many points of `points` have |residual| beyond each of `limits`.
+fn count_beyond<const K: usize>(
+    points: &[[f64; 3]],
+    limits: &[f64; K],
+    residual: impl Fn(&[f64; 3]) -> f64,
+) -> [usize; K] {
+    let mut n = [0; K];
+    for p in points {
+        let r = residual(p).abs();
+        for (c, l) in n.iter_mut().zip(limits) {
+            *c += usize::from(r > *l);
+        }
+    }
+    n
 }
 
 impl Geometry {
@@ -464,16 +475,20 @@ impl Geometry {
     }
 
     /// How many points of `chunk` (SCS, m) have a range residual ([`residual`](Self::residual)
-    /// with [`Residual::Range`]) beyond ±`limit` (m); four points at a time in AVX2
-    /// registers on a CPU that has them (the same residuals as the scalar code's).
-    pub fn count_range_beyond(&self, chunk: &[[f64; 3]], limit: f64) -> usize {
+    /// with [`Residual::Range`]) beyond ±each of `limits` (m); four points at a time in
+    /// AVX2 registers on a CPU that has them (the same residuals as the scalar code's).
+    pub fn count_range_beyond<const K: usize>(
+        &self,
+        chunk: &[[f64; 3]],
+        limits: &[f64; K],
+    ) -> [usize; K] {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
         {
             // SAFETY: the CPU has AVX2 and FMA.
-            return unsafe { self.count_range_beyond_avx2(chunk, limit) };
+            return unsafe { self.count_range_beyond_avx2(chunk, limits) };
         }
-        count_beyond(chunk, limit, |p| self.residual(Residual::Range, p))
+        count_beyond(chunk, limits, |p| self.residual(Residual::Range, p))
     }
 
     /// (x, Y, Z, d) of [`wall_deviation`](Self::wall_deviation) from the wall point
@@ -555,7 +570,12 @@ mod tests {
             r.sort_by(f64::total_cmp);
             for limit in r.iter().map(|v| 0.999 * v).chain([0.0, 1e9]) {
                 let want = r.iter().filter(|&&v| v > limit).count();
-                assert_eq!(g.count_range_beyond(&pts, limit), want, "limit {limit}");
+                let half = r.iter().filter(|&&v| v > 0.5 * limit).count();
+                assert_eq!(
+                    g.count_range_beyond(&pts, &[limit, 0.5 * limit]),
+                    [want, half],
+                    "limit {limit}"
+                );
             }
         }
     }

@@ -39,9 +39,10 @@ pub const OFF_WALL_TAIL: f64 = 1e-4;
 /// The straight pipe (β and its axis's uncertainty) to test the profile of `fit` against,
 /// `fit` a fit on every point of `pts` (SCS, m): `fit`'s own ([`AxisSigma::of`]), unless
 /// more points lie off its wall ([`OFF_WALL_TAIL`]) than Gaussian noise puts there at the
-/// survey's false-alarm rate — a binomial count of N trials at 10⁻⁴ exceeded with
-/// probability below [`SURVEY_FALSE_ALARM`], so that a straight frame under Gaussian noise
-/// keeps its fit's own in all but 10⁻³ of frames. Then the fit on the points within the
+/// survey's false-alarm rate — a binomial count of N trials at the Gaussian tail of the
+/// whole frame's median ([`gaussian_tail`], about 10⁻⁴) exceeded with probability below
+/// [`SURVEY_FALSE_ALARM`], so that a straight frame under Gaussian noise keeps its fit's
+/// own in all but 10⁻³ of frames. Then the fit on the points within the
 /// limit, started from `fit`'s β. A straight frame with stray returns (far outliers,
 /// flying pixels, a multipath band) takes the second too: measured on
 /// `scenarios/straight_false_alarm.toml`'s 1080 frames and on the numpy caster's 4000
@@ -57,17 +58,27 @@ pub fn axis_under_straight_pipe(
     if matches!(fit.status, FitStatus::LackOfFit(_)) {
         return own;
     }
-    let Some(limit) = off_wall_limit(fit) else {
+    let Some(s) = fit
+        .diagnostics
+        .as_ref()
+        .map(|d| d.residual_scale)
+        .filter(|s| *s > 0.0 && s.is_finite())
+    else {
         return own;
     };
     let Some(geom) = Geometry::new(&fit.params) else {
         return own;
     };
-    let off: usize = pts
+    let limit = normal_upper_quantile(0.5 * OFF_WALL_TAIL) * s;
+    let limits = [MEDIAN_Z * s, limit];
+    let counts = pts
         .par_chunks(crate::problem::CHUNK)
-        .map(|c| geom.count_range_beyond(c, limit))
-        .sum();
-    if !(binomial_upper_tail(off, pts.len(), OFF_WALL_TAIL) < SURVEY_FALSE_ALARM) {
+        .map(|c| geom.count_range_beyond(c, &limits))
+        .reduce(|| [0, 0], |a, b| [a[0] + b[0], a[1] + b[1]]);
+    let Some(tail) = gaussian_tail(pts.len(), counts[0], limit, limits[0]) else {
+        return own;
+    };
+    if !(binomial_upper_tail(counts[1], pts.len(), tail) < SURVEY_FALSE_ALARM) {
         return own;
     }
     let within = select_where(pts, |p| geom.residual(Residual::Range, p).abs() <= limit);
@@ -77,11 +88,26 @@ pub fn axis_under_straight_pipe(
     estimate(&within, method, &start).map_or(own, |e| (e.params, AxisSigma::of(&e)))
 }
 
-/// z·s of [`OFF_WALL_TAIL`] for `fit` (m), or `None` without a positive, finite scale.
-fn off_wall_limit(fit: &Estimate) -> Option<f64> {
-    let s = fit.diagnostics.as_ref()?.residual_scale;
-    let z = normal_upper_quantile(0.5 * OFF_WALL_TAIL);
-    (s > 0.0 && s.is_finite()).then_some(z * s)
+/// Φ⁻¹(3/4): the median of |r| for N(0, s²) residuals is `MEDIAN_Z`·s.
+const MEDIAN_Z: f64 = 0.674_489_750_196_081_7;
+
+/// The share of N(0, ŝ²) residuals beyond ±`limit`, 2Φ(−limit/ŝ), with ŝ the Gaussian
+/// scale for which `beyond_median` of the `n` residuals lie beyond ±`median_limit`:
+/// ŝ = `median_limit` / Φ⁻¹(1 − q/2), q = `beyond_median`/n. The robust scale s of the fit's
+/// diagnostics is the median of a subsample (8192 points, a relative standard error of
+/// about 1.3 %), and 3.89 scales out an error δ in s changes the expected count by a
+/// factor e^(z²δ) (1.5 at δ = 2.6 %): enough to make clean frames look as if they had
+/// stray returns (2 of 10 plain tof-sim frames did). q is counted over every point (its
+/// standard error 0.5/√N, 0.1 % on a full frame), so ŝ carries the whole frame's median.
+/// `None` without a usable count.
+fn gaussian_tail(n: usize, beyond_median: usize, limit: f64, median_limit: f64) -> Option<f64> {
+    let q = beyond_median as f64 / n as f64;
+    if !(q > 0.0 && q < 1.0) {
+        return None;
+    }
+    let s_hat = median_limit / normal_upper_quantile(0.5 * q);
+    let tail = crate::fit::form::erfc(limit / s_hat / std::f64::consts::SQRT_2);
+    (tail > 0.0 && tail < 1.0).then_some(tail)
 }
 
 /// P(X ≥ k) for X ~ Binomial(n, p): I_p(k, n − k + 1) (Abramowitz & Stegun 26.5.24); 1 for
@@ -127,10 +153,25 @@ mod tests {
         assert!((47..=52).contains(&k), "{k}");
     }
 
-    /// z·s: z = 3.891 (Φ⁻¹(1 − 5·10⁻⁵), tables of the normal distribution).
+    /// z = 3.891 (Φ⁻¹(1 − 5·10⁻⁵), tables of the normal distribution); Φ⁻¹(3/4).
     #[test]
-    fn the_limit_is_z_noise_scales() {
+    fn the_limits_are_normal_quantiles() {
         let z = normal_upper_quantile(0.5 * OFF_WALL_TAIL);
         assert!((z - 3.8906).abs() < 1e-3, "{z}");
+        assert!((normal_upper_quantile(0.25) - MEDIAN_Z).abs() < 1e-6); // erfc to 1.2e-7
+    }
+
+    /// With the median's count at one half the scale is s itself and the tail 2Φ(−z) =
+    /// 10⁻⁴; a scale 2.6 % low (the count beyond 0.6745·s is then that of 0.6745·1.026·ŝ,
+    /// 0.5138) puts the tail beyond z·s at 1.5·10⁻⁴ (e^(z²·0.026) ≈ 1.48).
+    #[test]
+    fn the_tail_follows_the_whole_frames_median() {
+        let n = 1_000_000;
+        let z = normal_upper_quantile(0.5 * OFF_WALL_TAIL);
+        let tail = gaussian_tail(n, n / 2, z, MEDIAN_Z).unwrap();
+        assert!((tail / OFF_WALL_TAIL - 1.0).abs() < 1e-4, "{tail}"); // erfc to 1.2e-7, times z²
+        let q = crate::fit::form::erfc(MEDIAN_Z / 1.026 / std::f64::consts::SQRT_2);
+        let low = gaussian_tail(n, (q * n as f64) as usize, z, MEDIAN_Z).unwrap();
+        assert!((low / OFF_WALL_TAIL - 1.48).abs() < 0.03, "{low}");
     }
 }

@@ -211,10 +211,22 @@ impl Geometry {
     /// [`count_range_beyond`](Self::count_range_beyond) compiled for AVX2.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
-    pub(super) fn count_range_beyond_avx2(&self, chunk: &[[f64; 3]], limit: f64) -> usize {
-        let mut n = 0;
-        let rest = self.range_residual_blocks_avx2(chunk, |_, r| n += usize::from(r.abs() > limit));
-        n + super::count_beyond(rest, limit, |p| self.residual(Residual::Range, p))
+    pub(super) fn count_range_beyond_avx2<const K: usize>(
+        &self,
+        chunk: &[[f64; 3]],
+        limits: &[f64; K],
+    ) -> [usize; K] {
+        let mut n = [0; K];
+        let rest = self.range_residual_blocks_avx2(chunk, |_, r| {
+            for (c, l) in n.iter_mut().zip(limits) {
+                *c += usize::from(r.abs() > *l);
+            }
+        });
+        let tail = super::count_beyond(rest, limits, |p| self.residual(Residual::Range, p));
+        for (c, t) in n.iter_mut().zip(tail) {
+            *c += t;
+        }
+        n
     }
 
     /// The range residual r = (1 − t)·‖p‖ of each point in the whole blocks of four of
