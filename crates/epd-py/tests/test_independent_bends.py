@@ -176,9 +176,9 @@ def test_an_elbow_1m_ahead_of_a_small_noisy_pipe_is_read_as_a_bend(
     no slice departed and the frame read `straight` (6 of 40 read right,
     `scripts/approach-grid-numpy.py --only elbow,8in,0.05`); the profile now tests the
     slices against the axis's uncertainty under the straight pipe
-    (`epd_core::scene::axis`). Measured since: MEASURED_RIGHT of 40. The test asserts at
-    least 5 of 10: a true rate of 0.8 fails it with probability 0.006, the former 0.15
-    passes it with probability 0.01 (binomial tails)."""
+    (`epd_core::scene::axis`). Measured since: 36 of 40 (the grid script at c228302). The
+    test asserts at least 5 of 10: a true rate of 0.8 fails it with probability 0.006, the
+    former 0.15 passes it with probability 0.01 (binomial tails)."""
     import sys
 
     monkeypatch.setattr(sys.modules[__name__], "SIGMA_M", 0.05)
