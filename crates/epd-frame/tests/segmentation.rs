@@ -103,6 +103,36 @@ fn mean_diameter_error_mm(est: &Params, truth: &Params) -> f64 {
     0.5e3 * ((est.d_max + est.d_min) - (truth.d_max + truth.d_min))
 }
 
+/// tof-sim's 8" pipe (8.2 mm wall, 2 % ovality) under σ = 0.05 m of range noise, half its
+/// radius, with `feature` ahead; frames of seed `seed`.
+fn small_noisy_pipe(
+    seed: u64,
+    feature: tof_sim::settings::Feature,
+) -> tof_sim::settings::Simulator {
+    use tof_sim::settings::{PoseOverride, SimulateSettings, Simulator};
+    Simulator::new(&SimulateSettings {
+        seed,
+        sigma: 0.05,
+        od_in: 8.0,
+        ovality: 0.02,
+        wall_mm: 8.2,
+        points: None,
+        outliers: 0.0,
+        noise: tof_sim::NoiseModel::Range,
+        helios2: false,
+        pose: PoseOverride::default(),
+        feature: Some(feature),
+    })
+    .unwrap()
+}
+
+/// `epd estimate`'s options: the Cauchy loss, its scale from the points.
+fn cli_defaults() -> EstimateOptions {
+    epd_frame::EstimateConfig::new(&epd_frame::EstimateSettings::default())
+        .unwrap()
+        .options
+}
+
 /// Noise-free frames recover the elbow: its start, radius, tube and direction.
 #[test]
 fn noise_free_elbow_is_recovered() {
@@ -464,26 +494,9 @@ fn a_close_tee_under_the_cameras_noise_is_found_or_withheld() {
 /// power, and that fit's Dmin is 5.8 of its 1-σ off. ≈ 20 s of CPU.
 #[test]
 fn a_close_elbow_in_a_small_noisy_pipe_is_not_fitted_as_straight() {
-    use tof_sim::NoiseModel;
-    use tof_sim::settings::{Feature, PoseOverride, SimulateSettings, Simulator};
-    let sim = Simulator::new(&SimulateSettings {
-        seed: 31,
-        sigma: 0.05,
-        od_in: 8.0,
-        ovality: 0.02,
-        wall_mm: 8.2,
-        points: None,
-        outliers: 0.0,
-        noise: NoiseModel::Range,
-        helios2: false,
-        pose: PoseOverride::default(),
-        feature: Some(Feature::BendAt(0.5)),
-    })
-    .unwrap();
-    // `epd estimate`'s options: the Cauchy loss, its scale from the points.
-    let defaults = epd_frame::EstimateConfig::new(&epd_frame::EstimateSettings::default())
-        .unwrap()
-        .options;
+    use tof_sim::settings::Feature;
+    let sim = small_noisy_pipe(31, Feature::BendAt(0.5));
+    let defaults = cli_defaults();
     let read: Vec<(Layout, bool, bool)> = (0..20u64)
         .into_par_iter()
         .map(|k| {
@@ -663,30 +676,11 @@ fn dented_survey(seed: u64, k: u64, depth: f64, clock_rad: f64) -> (Survey, Para
 #[test]
 fn the_profile_tests_against_the_straight_walls_axis() {
     use epd_core::segment::{AxisSigma, axis_under_straight_pipe};
-    use tof_sim::NoiseModel;
-    use tof_sim::settings::{Feature, PoseOverride, SimulateSettings, Simulator};
-    let defaults = epd_frame::EstimateConfig::new(&epd_frame::EstimateSettings::default())
-        .unwrap()
-        .options;
-    let sim = |feature| {
-        Simulator::new(&SimulateSettings {
-            seed: 41,
-            sigma: 0.05,
-            od_in: 8.0,
-            ovality: 0.02,
-            wall_mm: 8.2,
-            points: None,
-            outliers: 0.0,
-            noise: NoiseModel::Range,
-            helios2: false,
-            pose: PoseOverride::default(),
-            feature,
-        })
-        .unwrap()
-    };
+    use tof_sim::settings::{Feature, Simulator};
+    let defaults = cli_defaults();
     let (elbow, straight) = (
-        sim(Some(Feature::BendAt(1.0))),
-        sim(Some(Feature::BendAt(9.0))),
+        small_noisy_pipe(41, Feature::BendAt(1.0)),
+        small_noisy_pipe(41, Feature::BendAt(9.0)),
     );
     let se_at_1m = |a: &AxisSigma| {
         let [vy, vz] = a.lateral_variance(1.0);

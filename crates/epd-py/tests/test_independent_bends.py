@@ -154,8 +154,9 @@ def test_no_frame_of_a_small_noisy_pipe_with_a_bend_ahead_is_answered_far_off(
     the elbow 0.5 m ahead, 20 frames at 320 × 240: since the fit's checks judge the
     noise by the points' scatter across the axis these frames are answered (they were
     all refused before), so the bound of issue 22 must hold for them too. Measured on 40
-    such frames (`scripts/approach-grid-numpy.py`): 10 read `bend_ahead`, 29 `straight`
-    converged with Dmax 2.6–4.9 mm low at 0.7–2.0σ̂, none beyond the bound."""
+    such frames (`scripts/approach-grid-numpy.py`): at dd7a63f 10 read `bend_ahead`, 29
+    `straight` converged with Dmax 2.6–4.9 mm low at 0.7–2.0σ̂; at 76613b3 36
+    `bend_ahead`; none beyond the bound."""
     import sys
 
     monkeypatch.setattr(sys.modules[__name__], "SIGMA_M", 0.05)

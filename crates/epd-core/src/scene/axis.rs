@@ -47,7 +47,7 @@ pub const OFF_WALL_TAIL: f64 = 1e-4;
 /// flying pixels, a multipath band) takes the second too: measured on
 /// `scenarios/straight_false_alarm.toml`'s 1080 frames and on the numpy caster's 4000
 /// straight frames (`crates/epd-py/tests/test_straight_false_alarms.py`), none more read
-/// otherwise than with the fit's own (docs/bends-and-tees.md, "In small, noisy pipes").
+/// otherwise than with the fit's own (docs/bends-and-tees.md, "What the profile tests against").
 pub fn axis_under_straight_pipe(
     pts: &[[f64; 3]],
     fit: &Estimate,
