@@ -12,7 +12,7 @@ range noise N(0, σ²) is added along the ray. Nothing here is tof-sim's mesh or
 
 Measured and printed per distance: how many frames read `bend_ahead` with
 `straight_until_m` within 5 cm of x0 (8 of 8 at every distance from 0.75 to 2 m at
-160 × 120, and at 3 m 7 of 8 since c228302 — `NOT_MET`; 6 of 6 at 3 m in 640 × 480 frames; a rate of
+160 × 120, 3 m included; 6 of 6 at 3 m in 640 × 480 frames; a rate of
 99 % reads all 8 right with probability 0.92), so the test asserts it; it also asserts that
 no frame with a bend ahead is answered far off.
 """
@@ -94,6 +94,10 @@ def bend_frame(rng, x0, diameter, bend_r, theta_b, w=None, h=None):
 # (At 3.0 m 7 of 8 between the sparse cells' per-sector limits and the torus started from
 # more than one side: one frame's opening departed on the bend's far side, and read
 # `tee_ahead`.)
+# (At 3.0 m 7 of 8 from c228302 until the torus's starts were weighed by their fit: one
+# frame's departure side, 270° for a bend toward 90°, started a torus of R = 231 mm that
+# the acceptance let through at 12× the noise, its start 0.28 m late; of the four starts
+# the best fitting is now taken, and that frame's start is 3.000 m.)
 # Before the opening test of the sparse cells (`epd_core::scene::sparse`) 1.5 m was 0 of 8
 # (refused `lack_of_fit` with geometry `straight`) and 2.0 and 3.0 m 0 of 8 (`straight`:
 # the bend holds too few of this camera's points for the medians' tests, 12 points per
@@ -102,12 +106,6 @@ def bend_frame(rng, x0, diameter, bend_r, theta_b, w=None, h=None):
 # 3 mm in 6 of 6 frames at 1.5, 2.0 and 3.0 m (2 each). Before the axis's lateral
 # covariance (`epd_core::estimate::AxisCov`) this round pipe's roll-coupled pose 1-σ hid
 # the bend's shift: 0.75 m 7 of 8, and 3 of the 6 full frames read `tee_ahead`.
-NOT_MET = {
-    3.0: "since c228302 (the survey's profile tests against the straight wall's fit, "
-    "epd_core::scene::axis) 7 of 8: one frame's start is placed 0.28 m late (3.276 m; "
-    "3.000 before) by the bend's torus, its straight estimate and its profile's departure "
-    "(3.02 m) the same as before; docs/bends-and-tees.md, 'What the profile tests against'",
-}
 
 
 def run_bends(epd_bin, tmp_path, ahead, w=None, h=None, frames=FRAMES):
@@ -121,10 +119,7 @@ def run_bends(epd_bin, tmp_path, ahead, w=None, h=None, frames=FRAMES):
 
 @pytest.mark.parametrize(
     "ahead",
-    [
-        pytest.param(a, marks=pytest.mark.xfail(reason=NOT_MET[a])) if a in NOT_MET else a
-        for a in (0.75, 1.0, 1.5, 2.0, 3.0)
-    ],
+    (0.75, 1.0, 1.5, 2.0, 3.0),
 )
 def test_a_bend_ahead_is_read_as_a_bend(epd_bin, tmp_path, ahead):
     """A 90° long-radius elbow (R_b = 1.5·D) `ahead` metres in front of the sensor:

@@ -1004,9 +1004,10 @@ pub fn survey(
             && b.geometry.radius < 100.0 * d_mean
             && b.angle_seen > 0.0
     };
-    // The torus is started toward the departure's side, then, when that side is a sparse
-    // opening's and it does not fit from there, from the three other quarters
-    // ([`BEND_START_TURNS`]); the first that fits is taken.
+    // The torus is started toward the departure's side and, when that side is a sparse
+    // opening's, from the three other quarters too ([`BEND_START_TURNS`]); of the starts
+    // that fit, the one whose residuals' robust σ is least is taken (the same points,
+    // so the same scale of comparison).
     let sparse_side =
         first_departure(&s.profile, seg).is_some_and(|i| s.profile[i].side_is_opening());
     let turns = if sparse_side {
@@ -1014,12 +1015,15 @@ pub fn survey(
     } else {
         &BEND_START_TURNS[..1]
     };
-    let accepted = turns.iter().find_map(|turn| {
-        let start = crate::bend::start_from(&beta, end, dir + turn, 1.5 * d_mean);
-        crate::bend::fit_bend(&s.beyond, &beta, &start)
-            .ok()
-            .filter(fits)
-    });
+    let accepted = turns
+        .iter()
+        .filter_map(|turn| {
+            let start = crate::bend::start_from(&beta, end, dir + turn, 1.5 * d_mean);
+            crate::bend::fit_bend(&s.beyond, &beta, &start)
+                .ok()
+                .filter(fits)
+        })
+        .min_by(|a, b| a.residual_sigma.total_cmp(&b.residual_sigma));
     match accepted {
         Some(b) => {
             s.layout = Layout::BendAhead;
@@ -1040,13 +1044,18 @@ pub fn survey(
     })
 }
 
-/// The turns (rad) from the departure's side at which the bend's torus is started, in
-/// turn until one fits: the side first, then its opposite and the two quarters. Far
+/// The turns (rad) from the departure's side at which the bend's torus is started: the
+/// side alone when it is a shift's, all four when it is a sparse opening's. Far
 /// ahead a coarse camera's departure is an opening of sparse cells, whose side is that
 /// of a few exceeding points and can be the bend's far side: a numpy elbow 3 m ahead at
 /// 160 × 120 departed at 285° for a bend toward 90°, the torus started there settled on
 /// a radius of the tube's, and the frame read `tee_ahead` (`test_independent_bends.py`).
 /// A tee has no torus to fit from any side; the acceptance is the same for each start.
+/// Of the starts that fit, the one whose residuals' robust σ is least is taken, not the
+/// first: the same numpy elbow frame's departure side, 270° for a bend toward 90°, gave
+/// a torus that its acceptance's second rule (residuals within half the straight wall's
+/// continued) let through at 12× the noise, R = 231 mm (0.91·D) and its start 0.28 m
+/// late, where the start from the opposite side fits at the noise.
 /// A shift's side is the fitted direction of a slice's medians and is not doubted: with
 /// the other starts tried for every departure, two straight numpy frames under a
 /// multipath band read `bend_ahead` (`test_straight_false_alarms.py`, 320 × 240).
