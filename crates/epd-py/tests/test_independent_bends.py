@@ -168,28 +168,37 @@ def test_no_frame_of_a_small_noisy_pipe_with_a_bend_ahead_is_answered_far_off(
     assert not far, far
 
 
-def test_an_elbow_1m_ahead_of_a_small_noisy_pipe_is_read_as_a_bend(
-    epd_bin, tmp_path, monkeypatch
+@pytest.mark.parametrize("ahead", [1.0, 3.0])
+def test_an_elbow_ahead_of_a_small_noisy_pipe_is_read_as_a_bend(
+    epd_bin, tmp_path, monkeypatch, ahead
 ):
-    """The same 8" pipe under σ = 0.05 m with the elbow 1 m ahead, 10 frames at 320 × 240.
-    The elbow's points, off the straight wall by 2 to 34 noise scales, widened the fit's
-    1-σ of its axis (pitch ±2°) and with it every slice's standard error of its shift, so
-    no slice departed and the frame read `straight` (6 of 40 read right,
+    """The same 8" pipe under σ = 0.05 m with the elbow 1 m or 3 m ahead, 10 frames at
+    320 × 240, each within 5 cm of the elbow's start.
+
+    1 m: the elbow's points, off the straight wall by 2 to 34 noise scales, widened the
+    fit's 1-σ of its axis (pitch ±2°) and with it every slice's standard error of its
+    shift, so no slice departed and the frame read `straight` (6 of 40 read right,
     `scripts/approach-grid-numpy.py --only elbow,8in,0.05`); the profile now tests the
     slices against the axis's uncertainty under the straight pipe
-    (`epd_core::scene::axis`). Measured since: 36 of 40 (the grid script at c228302). The
-    test asserts at least 5 of 10: a true rate of 0.8 fails it with probability 0.006, the
-    former 0.15 passes it with probability 0.01 (binomial tails)."""
+    (`epd_core::scene::axis`): 36 of 40 since (the grid script at c228302).
+
+    3 m: the elbow lies past the profile's reach (its last slice with medians ends near
+    1.1 m) and shows only as 160–180 returns short of the straight wall where its outer
+    wall blocks the view: 0 of 40 read right until `epd_core::scene::blocked`.
+
+    The test asserts at least 5 of 10: a true rate of 0.8 fails it with probability
+    0.006, the former rates (0.15 at 1 m, 0 at 3 m) pass it with probability 0.01 and 0
+    (binomial tails)."""
     import sys
 
     monkeypatch.setattr(sys.modules[__name__], "SIGMA_M", 0.05)
     d = 8.625 * 0.0254 - 2 * 0.322 * 0.0254
-    rng = np.random.default_rng(1005)
-    drawn = [bend_frame(rng, 1.0, d, 1.5 * d, math.pi / 2, 320, 240) for _ in range(10)]
+    rng = np.random.default_rng(int(ahead * 1000) + 5)
+    drawn = [bend_frame(rng, ahead, d, 1.5 * d, math.pi / 2, 320, 240) for _ in range(10)]
     rows = estimate_frames(epd_bin, tmp_path, "bend8", drawn)
     seen = [(r["status"], r["geometry"], r["straight_until_m"]) for r in rows]
-    right = sum(r["geometry"] == "bend_ahead" for r in rows)
-    print(f"8 in, sigma 0.05 m, elbow 1 m ahead: {right} of 10 bend_ahead;", seen)
+    right = len(read_ahead(rows, "bend_ahead", ahead))
+    print(f"8 in, sigma 0.05 m, elbow {ahead} m ahead: {right} of 10 within 5 cm;", seen)
     assert right >= 5, seen
     far = answered_far_off(rows, d)
     assert not far, far

@@ -55,37 +55,70 @@ pub fn axis_under_straight_pipe(
     options: &EstimateOptions,
 ) -> (Params, AxisSigma) {
     let own = (fit.params, AxisSigma::of(fit));
-    if matches!(fit.status, FitStatus::LackOfFit(_)) {
-        return own;
-    }
-    let Some(s) = fit
-        .diagnostics
-        .as_ref()
-        .map(|d| d.residual_scale)
-        .filter(|s| *s > 0.0 && s.is_finite())
-    else {
+    let Some(off) = OffWall::count(pts, fit).filter(|o| o.excess(o.beyond, o.tail)) else {
         return own;
     };
-    let Some(geom) = Geometry::new(&fit.params) else {
-        return own;
-    };
-    let limit = normal_upper_quantile(0.5 * OFF_WALL_TAIL) * s;
-    let limits = [MEDIAN_Z * s, limit];
-    let counts = pts
-        .par_chunks(crate::problem::CHUNK)
-        .map(|c| geom.count_range_beyond(c, &limits))
-        .reduce(|| [0, 0], |a, b| [a[0] + b[0], a[1] + b[1]]);
-    let Some(tail) = gaussian_tail(pts.len(), counts[0], limit, limits[0]) else {
-        return own;
-    };
-    if !(binomial_upper_tail(counts[1], pts.len(), tail) < SURVEY_FALSE_ALARM) {
-        return own;
-    }
-    let within = select_where(pts, |p| geom.residual(Residual::Range, p).abs() <= limit);
+    let within = select_where(pts, |p| {
+        off.geom.residual(Residual::Range, p).abs() <= off.limit
+    });
     let Ok(start) = options.with_start(fit.params) else {
         return own;
     };
     estimate(&within, method, &start).map_or(own, |e| (e.params, AxisSigma::of(&e)))
+}
+
+/// The count of a fit's points off its wall ([`OFF_WALL_TAIL`]) and what Gaussian noise
+/// puts there.
+pub(crate) struct OffWall {
+    /// The fit's wall.
+    pub geom: Geometry,
+    /// z·s (m): a point whose range residual exceeds it in size is off the wall.
+    pub limit: f64,
+    /// How many of the `n` points are.
+    pub beyond: usize,
+    /// Of how many points.
+    pub n: usize,
+    /// The two-sided Gaussian share beyond ±`limit` at the whole frame's scale
+    /// ([`gaussian_tail`]).
+    pub tail: f64,
+}
+
+impl OffWall {
+    /// The count over `pts` (SCS, m) off the wall of `fit`; `None` for a fit the form test
+    /// refused (lack of fit: its scale is not the noise's), without a usable scale, or
+    /// without a usable count.
+    pub fn count(pts: &[[f64; 3]], fit: &Estimate) -> Option<Self> {
+        if matches!(fit.status, FitStatus::LackOfFit(_)) {
+            return None;
+        }
+        let s = fit
+            .diagnostics
+            .as_ref()
+            .map(|d| d.residual_scale)
+            .filter(|s| *s > 0.0 && s.is_finite())?;
+        let geom = Geometry::new(&fit.params)?;
+        let limit = normal_upper_quantile(0.5 * OFF_WALL_TAIL) * s;
+        let limits = [MEDIAN_Z * s, limit];
+        let counts = pts
+            .par_chunks(crate::problem::CHUNK)
+            .map(|c| geom.count_range_beyond(c, &limits))
+            .reduce(|| [0, 0], |a, b| [a[0] + b[0], a[1] + b[1]]);
+        let tail = gaussian_tail(pts.len(), counts[0], limit, limits[0])?;
+        Some(Self {
+            geom,
+            limit,
+            beyond: counts[1],
+            n: pts.len(),
+            tail,
+        })
+    }
+
+    /// Whether `k` of the `n` points beyond a limit that Gaussian noise passes with
+    /// probability `p` are more than it puts there at the survey's false-alarm rate: a
+    /// binomial count exceeded with probability below [`SURVEY_FALSE_ALARM`].
+    pub fn excess(&self, k: usize, p: f64) -> bool {
+        binomial_upper_tail(k, self.n, p) < SURVEY_FALSE_ALARM
+    }
 }
 
 /// Φ⁻¹(3/4): the median of |r| for N(0, s²) residuals is `MEDIAN_Z`·s.
@@ -112,7 +145,7 @@ fn gaussian_tail(n: usize, beyond_median: usize, limit: f64, median_limit: f64) 
 
 /// P(X ≥ k) for X ~ Binomial(n, p): I_p(k, n − k + 1) (Abramowitz & Stegun 26.5.24); 1 for
 /// k = 0, 0 for k > n.
-fn binomial_upper_tail(k: usize, n: usize, p: f64) -> f64 {
+pub(crate) fn binomial_upper_tail(k: usize, n: usize, p: f64) -> f64 {
     if k == 0 {
         return 1.0;
     }

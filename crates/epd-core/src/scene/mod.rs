@@ -2,10 +2,12 @@
 //! (`segment`, on the departure profile of `profile`), the torus of a bend with its exact ray cast (`torus`) and the bend's fit
 //! (`bend`), where an opening begins (`edge`), and the opening test of the slices too
 //! sparse for the medians (`sparse`); which points belong to which part (`select`); the
-//! uncertainty of the straight fit's axis the profile tests against (`axis`).
+//! uncertainty of the straight fit's axis the profile tests against (`axis`); a bend far
+//! ahead seen where it blocks the view (`blocked`).
 
 pub mod axis;
 pub mod bend;
+pub mod blocked;
 pub mod edge;
 pub mod profile;
 pub mod segment;

@@ -979,6 +979,9 @@ pub fn survey(
     let (Some(end), Some(dir), Layout::BendAhead | Layout::TeeAhead) =
         (s.straight_until, s.direction, s.layout)
     else {
+        if s.layout == Layout::Straight && !s.straight_withheld {
+            return Ok(bend_across_view(s, points, method, options, seg));
+        }
         return Ok(Survey::plain(s));
     };
     // An opening is at most the branch's diameter long, and a branch is no wider than
@@ -1042,6 +1045,82 @@ pub fn survey(
         bend: accepted,
         ..Survey::plain(s)
     })
+}
+
+/// A frame the profile reads `straight`: a bend far ahead where its outer wall blocks the
+/// view down the pipe ([`crate::scene::blocked`]), when the returns short of the straight
+/// wall are in excess and a torus started at them fits as a bend at residuals within
+/// twice the straight fit's robust scale (the straight fit's RMS residual, which those
+/// returns swell, is not the noise's). Then the straight section is refitted on the
+/// points before the torus's start, kept unless its checks refuse it.
+fn bend_across_view(
+    mut s: Segmentation,
+    points: &[[f64; 3]],
+    method: Method,
+    options: &EstimateOptions,
+    seg: &SegmentOptions,
+) -> Survey {
+    // The reach of the profile: the far edge of its last slice with medians to test.
+    let Some(reach) = s
+        .profile
+        .iter()
+        .rev()
+        .find(|sl| sl.n_sectors >= MIN_SECTORS_TESTED)
+        .map(|sl| sl.start_m + seg.slice_m)
+    else {
+        return Survey::plain(s);
+    };
+    let Some(short) = crate::scene::blocked::short_returns(points, &s.straight, reach) else {
+        return Survey::plain(s);
+    };
+    let beta = s.straight.params;
+    let d_mean = 0.5 * (beta.d_max + beta.d_min);
+    let Some(noise) = s
+        .straight
+        .diagnostics
+        .as_ref()
+        .map(|d| d.residual_scale)
+        .filter(|v| *v > 0.0)
+    else {
+        return Survey::plain(s);
+    };
+    let beyond = axial_select(points, &beta, |x| x >= short.near_m - d_mean);
+    // The outer wall's nearest returns lie on the side away from the centre of
+    // curvature.
+    let side = short.side + std::f64::consts::PI;
+    let accepted = BEND_START_TURNS
+        .iter()
+        .filter_map(|turn| {
+            let start = crate::bend::start_from(&beta, short.near_m, side + turn, 1.5 * d_mean);
+            crate::bend::fit_bend(&beyond, &beta, &start)
+                .ok()
+                .filter(|b| {
+                    b.status.is_converged()
+                        && b.residual_sigma <= 2.0 * noise
+                        && b.geometry.radius > 1.05 * b.geometry.tube_radius
+                        && b.geometry.radius < 100.0 * d_mean
+                        && b.angle_seen > 0.0
+                })
+        })
+        .min_by(|a, b| a.residual_sigma.total_cmp(&b.residual_sigma));
+    let Some(b) = accepted else {
+        return Survey::plain(s);
+    };
+    if let Some(refit) = refit_before(points, &beta, b.geometry.start, false, method, options, seg)
+        .filter(|e| !matches!(e.status, FitStatus::Implausible(_)))
+    {
+        s.straight = refit;
+        s.rounds += 1;
+    }
+    s.layout = Layout::BendAhead;
+    s.straight_until = Some(b.geometry.start);
+    s.direction = Some(b.geometry.direction);
+    s.beyond = beyond;
+    Survey {
+        straight_until_sigma: Some(b.start_sigma).filter(|v| v.is_finite()),
+        bend: Some(b),
+        ..Survey::plain(s)
+    }
 }
 
 /// The turns (rad) from the departure's side at which the bend's torus is started: the
