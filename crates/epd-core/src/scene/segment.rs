@@ -1008,9 +1008,8 @@ pub fn survey(
             && b.angle_seen > 0.0
     };
     // The torus is started toward the departure's side and, when that side is a sparse
-    // opening's, from the three other quarters too ([`BEND_START_TURNS`]); of the starts
-    // that fit, the one whose residuals' robust σ is least is taken (the same points,
-    // so the same scale of comparison).
+    // opening's, from the three other quarters too ([`BEND_START_TURNS`]); the best
+    // fitting start that fits is taken ([`crate::bend::fit_best_bend`]).
     let sparse_side =
         first_departure(&s.profile, seg).is_some_and(|i| s.profile[i].side_is_opening());
     let turns = if sparse_side {
@@ -1018,15 +1017,11 @@ pub fn survey(
     } else {
         &BEND_START_TURNS[..1]
     };
-    let accepted = turns
+    let starts: Vec<_> = turns
         .iter()
-        .filter_map(|turn| {
-            let start = crate::bend::start_from(&beta, end, dir + turn, 1.5 * d_mean);
-            crate::bend::fit_bend(&s.beyond, &beta, &start)
-                .ok()
-                .filter(fits)
-        })
-        .min_by(|a, b| a.residual_sigma.total_cmp(&b.residual_sigma));
+        .map(|turn| crate::bend::start_from(&beta, end, dir + turn, 1.5 * d_mean))
+        .collect();
+    let accepted = crate::bend::fit_best_bend(&s.beyond, &beta, &starts, fits);
     match accepted {
         Some(b) => {
             s.layout = Layout::BendAhead;
@@ -1088,21 +1083,17 @@ fn bend_across_view(
     // The outer wall's nearest returns lie on the side away from the centre of
     // curvature.
     let side = short.side + std::f64::consts::PI;
-    let accepted = BEND_START_TURNS
+    let starts: Vec<_> = BEND_START_TURNS
         .iter()
-        .filter_map(|turn| {
-            let start = crate::bend::start_from(&beta, short.near_m, side + turn, 1.5 * d_mean);
-            crate::bend::fit_bend(&beyond, &beta, &start)
-                .ok()
-                .filter(|b| {
-                    b.status.is_converged()
-                        && b.residual_sigma <= 2.0 * noise
-                        && b.geometry.radius > 1.05 * b.geometry.tube_radius
-                        && b.geometry.radius < 100.0 * d_mean
-                        && b.angle_seen > 0.0
-                })
-        })
-        .min_by(|a, b| a.residual_sigma.total_cmp(&b.residual_sigma));
+        .map(|turn| crate::bend::start_from(&beta, short.near_m, side + turn, 1.5 * d_mean))
+        .collect();
+    let accepted = crate::bend::fit_best_bend(&beyond, &beta, &starts, |b| {
+        b.status.is_converged()
+            && b.residual_sigma <= 2.0 * noise
+            && b.geometry.radius > 1.05 * b.geometry.tube_radius
+            && b.geometry.radius < 100.0 * d_mean
+            && b.angle_seen > 0.0
+    });
     let Some(b) = accepted else {
         return Survey::plain(s);
     };
@@ -1130,8 +1121,8 @@ fn bend_across_view(
 /// 160 × 120 departed at 285° for a bend toward 90°, the torus started there settled on
 /// a radius of the tube's, and the frame read `tee_ahead` (`test_independent_bends.py`).
 /// A tee has no torus to fit from any side; the acceptance is the same for each start.
-/// Of the starts that fit, the one whose residuals' robust σ is least is taken, not the
-/// first: the same numpy elbow frame's departure side, 270° for a bend toward 90°, gave
+/// Of the starts that fit, the best fitting is taken ([`crate::bend::fit_best_bend`]),
+/// not the first: the same numpy elbow frame's departure side, 270° for a bend toward 90°, gave
 /// a torus that its acceptance's second rule (residuals within half the straight wall's
 /// continued) let through at 12× the noise, R = 231 mm (0.91·D) and its start 0.28 m
 /// late, where the start from the opposite side fits at the noise.
