@@ -23,8 +23,8 @@
 //! at the nearest of them (their 5th percentile along the axis, so that a few stray
 //! returns nearer do not place it) is fitted to the points from a diameter before it on,
 //! from the four sides ([`BEND_START_TURNS`](crate::segment)), the best fitting taken;
-//! it must fit as a bend beyond a departure must ([`crate::segment::survey`]), at
-//! residuals within twice the straight section's.
+//! it must be shaped as a bend beyond a departure must ([`crate::segment::survey`]), at
+//! residuals within twice the straight fit's robust scale.
 
 use nalgebra::Vector3;
 use rayon::prelude::*;

@@ -1000,12 +1000,9 @@ pub fn survey(
     let d_mean = 0.5 * (beta.d_max + beta.d_min);
     let straight_sigma = s.straight.rms_residual;
     let fits = |b: &crate::bend::BendFit| {
-        b.status.is_converged()
+        is_bend_shaped(b, d_mean)
             && (b.residual_sigma <= 2.0 * straight_sigma.max(1e-4)
                 || b.residual_sigma <= 0.5 * b.straight_sigma)
-            && b.geometry.radius > 1.05 * b.geometry.tube_radius
-            && b.geometry.radius < 100.0 * d_mean
-            && b.angle_seen > 0.0
     };
     // The torus is started toward the departure's side and, when that side is a sparse
     // opening's, from the three other quarters too ([`BEND_START_TURNS`]); the best
@@ -1088,11 +1085,7 @@ fn bend_across_view(
         .map(|turn| crate::bend::start_from(&beta, short.near_m, side + turn, 1.5 * d_mean))
         .collect();
     let accepted = crate::bend::fit_best_bend(&beyond, &beta, &starts, |b| {
-        b.status.is_converged()
-            && b.residual_sigma <= 2.0 * noise
-            && b.geometry.radius > 1.05 * b.geometry.tube_radius
-            && b.geometry.radius < 100.0 * d_mean
-            && b.angle_seen > 0.0
+        is_bend_shaped(b, d_mean) && b.residual_sigma <= 2.0 * noise
     });
     let Some(b) = accepted else {
         return Survey::plain(s);
@@ -1112,6 +1105,16 @@ fn bend_across_view(
         bend: Some(b),
         ..Survey::plain(s)
     }
+}
+
+/// Whether a torus fit is shaped as a bend of a pipe of mean diameter `d_mean` (m), as
+/// both of the survey's bend acceptances ask before their residual rules: converged, a
+/// ring torus (R above 1.05 tube radii), R below 100·D, and some angle of it seen.
+fn is_bend_shaped(b: &crate::bend::BendFit, d_mean: f64) -> bool {
+    b.status.is_converged()
+        && b.geometry.radius > 1.05 * b.geometry.tube_radius
+        && b.geometry.radius < 100.0 * d_mean
+        && b.angle_seen > 0.0
 }
 
 /// The turns (rad) from the departure's side at which the bend's torus is started: the
