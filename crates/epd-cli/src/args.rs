@@ -193,7 +193,8 @@ pub struct FitArgs {
     /// Fit every point as one straight pipe, without looking for a bend or a tee ahead.
     /// By default the frame is surveyed first (JSON keys `geometry`, `geometry_evidence`,
     /// `straight_until_m`, `sigma_straight_until_m`, `bend_radius_mm`,
-    /// `sigma_bend_radius_mm`, `bend_angle_deg`, `bend_direction_deg`, `bend_withheld`): the estimate then uses
+    /// `sigma_bend_radius_mm`, `bend_angle_deg`, `sigma_bend_angle_deg`, `bend_direction_deg`,
+    /// `bend_withheld`): the estimate then uses
     /// the straight section's points only, and a sensor already in a bend gets no result.
     #[arg(long)]
     pub straight_only: bool,

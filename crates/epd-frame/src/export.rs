@@ -385,6 +385,7 @@ mod tests {
             direction: 0.7,
             radius: 0.75,
             tube_radius: 0.24,
+            angle: epd_core::bend::OPEN_ANGLE,
         };
         let t = b.torus().unwrap();
         let m = torus_mesh(&p, &b, PI / 2.0);

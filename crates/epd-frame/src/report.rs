@@ -84,7 +84,8 @@ pub struct FileEstimate {
     /// error shared by every point in its 1-σ; said in `status_reason`.
     pub uncorrected: Option<crate::measure::UncorrectedFrame>,
     /// The survey's bend ahead, when it found one: its placement in the pipe frame of the
-    /// survey's straight fit (those parameters first) and the angle seen so far (rad);
+    /// survey's straight fit (those parameters first) and its angle (rad: the fitted
+    /// angle when its end is in view, else the angle seen so far);
     /// not a key of the report (`epd estimate --export-fit` meshes it as a torus).
     pub bend_fit: Option<(epd_core::Params, epd_core::bend::BendGeometry, f64)>,
 }
@@ -101,7 +102,7 @@ pub fn columns() -> Vec<&'static str> {
 }
 
 /// The fields after the estimate's, without the final `error`.
-const CONTEXT_KEYS: [&str; 29] = [
+const CONTEXT_KEYS: [&str; 30] = [
     "n_read",
     "n_out_of_range",
     "n_calibrated",
@@ -120,6 +121,7 @@ const CONTEXT_KEYS: [&str; 29] = [
     "bend_radius_mm",
     "sigma_bend_radius_mm",
     "bend_angle_deg",
+    "sigma_bend_angle_deg",
     "bend_direction_deg",
     "bend_withheld",
     "dent_at_m",
@@ -324,6 +326,10 @@ impl FileReport {
                     opt(g.and_then(|g| g.sigma_bend_radius_mm)),
                 ));
                 f.push(("bend_angle_deg", opt(g.and_then(|g| g.bend_angle_deg))));
+                f.push((
+                    "sigma_bend_angle_deg",
+                    opt(g.and_then(|g| g.sigma_bend_angle_deg)),
+                ));
                 f.push((
                     "bend_direction_deg",
                     opt(g.and_then(|g| g.bend_direction_deg)),
@@ -585,8 +591,13 @@ impl GeometryReport {
             let sd = self
                 .sigma_bend_radius_mm
                 .map_or(String::new(), |s| format!(" (±{s:.0} mm, 1-σ)"));
+            let angle = self
+                .sigma_bend_angle_deg
+                .map_or(format!("{a:.0}° seen so far"), |s| {
+                    format!("{a:.0}° (±{s:.0}°, 1-σ) to its end")
+                });
             t.push_str(&format!(
-                "\n  bend: radius {r:.0} mm{sd}, {a:.0}° seen so far, toward {c:.0}° \
+                "\n  bend: radius {r:.0} mm{sd}, {angle}, toward {c:.0}° \
                  (clock angle from the sensor: 0 up, 90 right)"
             ));
         }
@@ -761,6 +772,7 @@ mod tests {
             bend_radius_mm: Some(762.0),
             sigma_bend_radius_mm: Some(3.5),
             bend_angle_deg: Some(60.0),
+            sigma_bend_angle_deg: Some(2.5),
             bend_direction_deg: Some(90.0),
             straight_withheld: false,
             bend_withheld: None,
@@ -796,11 +808,14 @@ mod tests {
                 ("geometry_evidence", 307.0),
                 ("sigma_straight_until_m", 0.004),
                 ("sigma_bend_radius_mm", 3.5),
+                ("sigma_bend_angle_deg", 2.5),
             ],
         );
         let text = r.text();
         assert!(
-            text.contains("(±0.004 m, 1-σ)") && text.contains("(±4 mm, 1-σ)"),
+            text.contains("(±0.004 m, 1-σ)")
+                && text.contains("(±4 mm, 1-σ)")
+                && text.contains("60° (±2°, 1-σ) to its end"),
             "{text}"
         );
     }
@@ -951,6 +966,7 @@ mod tests {
             (None, None, None)
         );
         assert_eq!(g.sigma_bend_radius_mm, None);
+        assert_eq!(g.sigma_bend_angle_deg, None);
         let why = "only 12 % of the bend's points lie where the depth table observed";
         assert!(g.bend_withheld.as_ref().is_some_and(|t| t.contains(why)));
         let mut flagged = ok_report();

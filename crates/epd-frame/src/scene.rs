@@ -106,8 +106,12 @@ pub struct GeometryReport {
     pub bend_radius_mm: Option<f64>,
     /// Its 1-σ (mm) (`epd_core::bend::BendFit::radius_sigma`).
     pub sigma_bend_radius_mm: Option<f64>,
-    /// The bend angle seen so far (deg).
+    /// The bend angle (deg): the fitted angle Θ when the bend's end is in view
+    /// (`epd_core::bend::BendFit::end_seen`), else the angle seen so far (a lower bound).
     pub bend_angle_deg: Option<f64>,
+    /// The fitted angle's 1-σ (deg) when the bend's end is in view; `None` otherwise
+    /// (`bend_angle_deg` is then the angle seen so far).
+    pub sigma_bend_angle_deg: Option<f64>,
     /// The bend's direction as a clock angle seen from the sensor (deg: 0 up, 90 right).
     pub bend_direction_deg: Option<f64>,
     /// Whether the straight estimate is withheld (in a bend, or too little straight
@@ -198,7 +202,18 @@ impl GeometryReport {
                 .bend
                 .map(|b| b.radius_sigma * 1e3)
                 .filter(|v| v.is_finite()),
-            bend_angle_deg: s.bend.map(|b| b.angle_seen.to_degrees()),
+            bend_angle_deg: s.bend.map(|b| {
+                if b.end_seen {
+                    b.geometry.angle.to_degrees()
+                } else {
+                    b.angle_seen.to_degrees()
+                }
+            }),
+            sigma_bend_angle_deg: s
+                .bend
+                .filter(|b| b.end_seen)
+                .map(|b| b.angle_sigma.to_degrees())
+                .filter(|v| v.is_finite()),
             bend_direction_deg: s
                 .bend
                 .map(|b| epd_core::segment::clock_angle_deg(&beta, b.geometry.direction)),
@@ -232,6 +247,7 @@ impl GeometryReport {
         self.bend_radius_mm = None;
         self.sigma_bend_radius_mm = None;
         self.bend_angle_deg = None;
+        self.sigma_bend_angle_deg = None;
         self.bend_direction_deg = None;
         self.bend_withheld = Some(format!(
             "bend radius, angle and direction not reported: only {:.0} % of the bend's points \
@@ -286,6 +302,7 @@ mod tests {
             bend_radius_mm: None,
             sigma_bend_radius_mm: None,
             bend_angle_deg: None,
+            sigma_bend_angle_deg: None,
             bend_direction_deg: None,
             straight_withheld: true,
             bend_withheld: None,

@@ -172,8 +172,8 @@ enum Input<'py> {
 /// `geometry_evidence` (−log₁₀ of the departure test's adjusted p-value; 3 or more is a
 /// departure at the survey's false-alarm rate of 10⁻³ per frame), `straight_until_m` (m)
 /// and its 1-σ `sigma_straight_until_m` (m), `bend_radius_mm` and its 1-σ
-/// `sigma_bend_radius_mm` (mm), `bend_angle_deg`,
-/// `bend_direction_deg` (degrees), `bend_withheld`, `dent_at_m` (m), `dent_clock_deg`
+/// `sigma_bend_radius_mm` (mm), `bend_angle_deg` and its 1-σ `sigma_bend_angle_deg` (null
+/// while the bend's end is not in view), `bend_direction_deg` (degrees), `bend_withheld`, `dent_at_m` (m), `dent_clock_deg`
 /// (degrees), `dent_depth_mm` (mm; a dent, debris or an obstacle on a straight pipe's
 /// wall), `ring_from_m`, `ring_to_m` (m) and `ring_widening_mm` (mm; a stretch of wall
 /// read out all around, multipath over a band of ranges, left out of the estimate),

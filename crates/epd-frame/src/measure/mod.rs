@@ -407,7 +407,11 @@ fn measure_chosen(
         Some((
             s.survey.segmentation.straight.params,
             b.geometry,
-            b.angle_seen,
+            if b.end_seen {
+                b.geometry.angle
+            } else {
+                b.angle_seen
+            },
         ))
     });
     Ok(FileEstimate {

@@ -6,7 +6,11 @@
 //! toward +Z) with centreline radius R has its centre of curvature at c = (x₀, R cos φ,
 //! R sin φ) and the bend plane's normal a = (0, −sin φ, cos φ); its wall is the torus of
 //! major radius R and tube radius r ([`Torus`]). The bend continues the straight pipe
-//! tangentially, so four parameters θ = (x₀, φ, R, r) place it.
+//! tangentially, so four parameters (x₀, φ, R, r) place it; a fifth, the bend angle Θ,
+//! ends it: past α = Θ the pipe runs straight again along the bend's tangent there
+//! ([`wall`]). θ = (x₀, φ, R, r, Θ). While nothing past the end is seen, Θ has no
+//! information ([`OPEN_ANGLE`]: the torus runs on); a 45° bend seen with its outlet fitted
+//! as an open torus had R 10–57 % long (numpy caster, 20" pipe, 0.5–3 m ahead).
 //!
 //! The residual is the range error along the sensing line, as ML-EPD's: with the ray
 //! o + τ·d from the sensor (o = [0, δy, δz], d the unit direction of the measured point
@@ -17,7 +21,7 @@
 //! (points of what follows the bend weigh little) by [`minimize`], the Jacobian by
 //! central differences.
 
-use nalgebra::{SVector, Unit, Vector3};
+use nalgebra::{SMatrix, SVector, Unit, Vector3};
 
 use crate::error::EpdError;
 use crate::lm::{LmOptions, NormalEquations, NormalEquationsProblem, Status, minimize};
@@ -25,7 +29,14 @@ use crate::loss::Loss;
 use crate::params::Params;
 use crate::torus::Torus;
 
-/// A bend's placement θ = (x₀, φ, R, r) in the PCS of a straight fit.
+mod wall;
+
+pub use wall::{BendWall, OPEN_ANGLE, Piece};
+
+/// The number of a bend's parameters θ = (x₀, φ, R, r, Θ).
+const NP: usize = 5;
+
+/// A bend's placement θ = (x₀, φ, R, r, Θ) in the PCS of a straight fit.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BendGeometry {
     /// Axial coordinate of the bend's start (m): where the straight section ends.
@@ -37,20 +48,35 @@ pub struct BendGeometry {
     pub radius: f64,
     /// Tube radius r (m): half the pipe's diameter in the bend.
     pub tube_radius: f64,
+    /// Bend angle Θ (rad): where the torus ends and the straight outlet begins;
+    /// [`OPEN_ANGLE`] (π) for a bend whose end is not modelled.
+    pub angle: f64,
 }
 
 impl BendGeometry {
-    fn to_vector(self) -> SVector<f64, 4> {
-        SVector::from([self.start, self.direction, self.radius, self.tube_radius])
+    fn to_vector(self) -> SVector<f64, NP> {
+        SVector::from([
+            self.start,
+            self.direction,
+            self.radius,
+            self.tube_radius,
+            self.angle,
+        ])
     }
 
-    fn from_vector(v: &SVector<f64, 4>) -> Self {
+    fn from_vector(v: &SVector<f64, NP>) -> Self {
         Self {
             start: v[0],
             direction: v[1],
             radius: v[2],
             tube_radius: v[3],
+            angle: v[4].min(OPEN_ANGLE),
         }
+    }
+
+    /// The wall of this placement ([`BendWall::new`]).
+    pub fn wall(&self) -> Option<BendWall> {
+        BendWall::new(self)
     }
 
     /// The bend's torus in the PCS, or `None` when R ≤ r (not a ring torus) or a value
@@ -108,6 +134,11 @@ pub struct BendFit {
     pub start_sigma: f64,
     /// 1-σ of the centreline radius R (m), as `start_sigma`.
     pub radius_sigma: f64,
+    /// Whether the bend's end is seen: the fit placed its end Θ among the points (its
+    /// outlet holds some of them), so Θ is estimated rather than open.
+    pub end_seen: bool,
+    /// 1-σ of the bend angle Θ (rad), as `start_sigma`; NaN when the end is not seen.
+    pub angle_sigma: f64,
 }
 
 /// At most this many (evenly strided) points enter the bend fit.
@@ -160,8 +191,11 @@ pub fn fit_best_bend(
         .find(|b| accept(b))
 }
 
-/// A bend's rays: (PCS point, unit direction from the sensor) pairs.
-type Rays = Vec<(Vector3<f64>, Vector3<f64>)>;
+/// A bend's ray: (PCS point, unit direction from the sensor).
+type Ray = (Vector3<f64>, Vector3<f64>);
+
+/// A bend's rays.
+type Rays = Vec<Ray>;
 
 /// The rays of at most [`BEND_POINTS`] (evenly strided) of `beyond` in the PCS of
 /// `straight`; too few (< 50) is an error.
@@ -191,7 +225,7 @@ fn bend_rays(beyond: &[[f64; 3]], straight: &Params) -> Result<Rays, EpdError> {
 /// A first-order fit from one start: its report, its loss, and the robust σ of its
 /// residuals (NaN without any).
 struct FirstOrder {
-    report: crate::lm::LmReport<4>,
+    report: crate::lm::LmReport<NP>,
     loss: Loss,
     sigma: f64,
 }
@@ -225,6 +259,32 @@ fn first_order(
 /// From a first-order fit: the exact range error's fit (unbiased when the noise is not
 /// small against the tube), its 1-σ and its diagnostics.
 fn finish(rays: &[(Vector3<f64>, Vector3<f64>)], straight: &Params, first: FirstOrder) -> BendFit {
+    if let Some(ended) = with_end(rays, straight, &first) {
+        // The test of the end first on the first-order fit (its jackknife costs a
+        // fraction of the exact stage's), then on the exact fit.
+        let g = BendGeometry::from_vector(&ended.report.x);
+        let problem = BendProblem::new(rays, straight, ended.loss, false);
+        let angle_sigma = problem
+            .jackknife_covariance(&ended.report.x)
+            .map_or(f64::NAN, |c| c[(NP - 1, NP - 1)].max(0.0).sqrt());
+        let (seen, _) = angle_seen(rays, &g, ended.sigma);
+        if end_is_seen(&g, angle_sigma, seen) {
+            let fit = exact_fit(rays, straight, ended);
+            if fit.end_seen {
+                return fit;
+            }
+        }
+    }
+    exact_fit(rays, straight, first)
+}
+
+/// The exact stage from a first-order fit, its 1-σ and its diagnostics; the end is read
+/// as seen by [`end_is_seen`].
+fn exact_fit(
+    rays: &[(Vector3<f64>, Vector3<f64>)],
+    straight: &Params,
+    first: FirstOrder,
+) -> BendFit {
     let problem = BendProblem::new(rays, straight, first.loss, true);
     let refined = minimize(&problem, first.report.x, &LmOptions::default());
     let rep = if refined.status.is_converged() {
@@ -238,6 +298,8 @@ fn finish(rays: &[(Vector3<f64>, Vector3<f64>)], straight: &Params, first: First
     let sigma = robust_sigma(rays, &geometry).unwrap_or(f64::NAN);
     let straight_sigma = straight_robust_sigma(rays, (0.5 * straight.d_max, 0.5 * straight.d_min));
     let (angle_seen, n_inliers) = angle_seen(rays, &geometry, sigma);
+    let angle_sigma = sd(4);
+    let end_seen = end_is_seen(&geometry, angle_sigma, angle_seen);
     BendFit {
         geometry,
         angle_seen,
@@ -248,7 +310,113 @@ fn finish(rays: &[(Vector3<f64>, Vector3<f64>)], straight: &Params, first: First
         status: rep.status,
         start_sigma: sd(0),
         radius_sigma: sd(2),
+        end_seen,
+        angle_sigma: if end_seen { angle_sigma } else { f64::NAN },
     }
+}
+
+/// Whether a fit's bend end Θ̂ (1-σ `angle_sigma`) lies within what the points show,
+/// the turned angle `seen` that its inliers reach ([`angle_seen`]): Θ̂ + z·σ_Θ < seen,
+/// z the standard normal's upper quantile at [`SURVEY_FALSE_ALARM`] (3.09). If the bend
+/// runs on past every point (no end in view, Θ ≥ seen), a Θ̂ normal about it passes with
+/// probability at most that rate. A torus whose end the fit placed among the last few
+/// points to follow their noise or the wall's facets has a σ_Θ of the order of the
+/// angle they span, and fails: on tof-sim's 8" 90° elbows 1 m ahead (seen to 59–64°)
+/// the end was placed at 59.2 ± 2.7° and 64.1 ± 13.4°.
+fn end_is_seen(geometry: &BendGeometry, angle_sigma: f64, seen: f64) -> bool {
+    let z = crate::fit::form::normal_upper_quantile(crate::scene::profile::SURVEY_FALSE_ALARM);
+    geometry.angle < OPEN_ANGLE
+        && angle_sigma.is_finite()
+        && angle_sigma > 0.0
+        && geometry.angle + z * angle_sigma < seen
+}
+
+/// The first-order fit with the bend's end free, from the `open` one (Θ = π), when the
+/// points past some end ask for one ([`end_scan`]): Θ started there, the outlet's points
+/// pull it to where the torus fits them better (the residual is C¹ in Θ: the outlet
+/// continues the torus's tangent plane). Taken when it converges with an end (Θ < π) and
+/// a robust σ below the open fit's (the models are nested: Θ ≥ every point's turned
+/// angle is the open fit); `None` otherwise.
+fn with_end(
+    rays: &[(Vector3<f64>, Vector3<f64>)],
+    straight: &Params,
+    open: &FirstOrder,
+) -> Option<FirstOrder> {
+    if !open.sigma.is_finite() {
+        return None;
+    }
+    let mut x = open.report.x;
+    x[4] = end_scan(rays, open)?;
+    let problem = BendProblem::new(rays, straight, open.loss, false);
+    let report = minimize(&problem, x, &LmOptions::default());
+    let sigma = robust_sigma(rays, &BendGeometry::from_vector(&report.x)).unwrap_or(f64::NAN);
+    (report.status.is_converged() && sigma < open.sigma && report.x[4] < OPEN_ANGLE).then_some(
+        FirstOrder {
+            report,
+            loss: open.loss,
+            sigma,
+        },
+    )
+}
+
+/// The ends scanned ([`end_scan`]): Θ_k = k/8 of the angle the open fit sees, k = 1…7.
+const END_SCAN: usize = 8;
+
+/// A screening score test for an end of the open fit's bend, the other parameters held:
+/// for each Θ_k ([`END_SCAN`]) the change of the fit's cost if the points past Θ_k were
+/// the outlet's, ΔC_k = Σ_{αᵢ > Θ_k} c(e_out,i) − c(e_torus,i) (c the fit's loss, c(e) ≈ e²
+/// near 0), over its standard deviation were the open torus right and its residuals
+/// independent noise of the fit's robust σ: to first order ΔC = Σ 2eᵢδᵢ + δᵢ² with
+/// δᵢ = e_out,i − e_torus,i, sd 2σ·√Σδᵢ². The Θ_k of the least z_k = ΔC_k/sd_k, when
+/// z_k < −z at [`SURVEY_FALSE_ALARM`] over the seven (Bonferroni: 3.63): an outlet fits
+/// the far points better than the torus beyond noise, and the fit with an end is started
+/// there. `None` otherwise — most bends whose end is out of view, which then pay no fit
+/// with an end (on tof-sim's 8" 90° elbows three such fits, started at 1/4, 1/2 and 3/4
+/// of the angle seen, doubled the time of the frame). Errors correlated between
+/// neighbouring points make the sd too small, and the screen passes more often: the
+/// decision is the test of the fitted end ([`end_is_seen`]), whose 1-σ is the cluster
+/// jackknife's.
+fn end_scan(rays: &[(Vector3<f64>, Vector3<f64>)], open: &FirstOrder) -> Option<f64> {
+    use crate::scene::profile::SURVEY_FALSE_ALARM;
+    let g = BendGeometry::from_vector(&open.report.x);
+    let (seen, _) = angle_seen(rays, &g, open.sigma);
+    if !(seen > 0.0) {
+        return None;
+    }
+    let torus = g.wall()?;
+    // (turned angle, residual to the open torus, ray) of the points past the first Θ_k.
+    let far: Vec<(f64, f64, &Ray)> = rays
+        .iter()
+        .filter_map(|ray| {
+            let a = g.turned(&ray.0);
+            (a > seen / END_SCAN as f64)
+                .then(|| residual(&torus, &ray.0, &ray.1).map(|e| (a, e, ray)))
+                .flatten()
+        })
+        .collect();
+    let z = crate::fit::form::normal_upper_quantile(SURVEY_FALSE_ALARM / (END_SCAN - 1) as f64);
+    let mut best: Option<(f64, f64)> = None;
+    for k in 1..END_SCAN {
+        let theta = seen * k as f64 / END_SCAN as f64;
+        let wall = BendGeometry { angle: theta, ..g }.wall()?;
+        let (mut dc, mut dd) = (0.0, 0.0);
+        for (_, e0, (q, d)) in far.iter().filter(|(a, _, _)| *a > theta) {
+            let Some(e1) = residual(&wall, q, d) else {
+                continue;
+            };
+            let (c0, _, _) = open.loss.cost_and_weights(*e0);
+            let (c1, _, _) = open.loss.cost_and_weights(e1);
+            dc += c1 - c0;
+            dd += (e1 - e0).powi(2);
+        }
+        if dd > 0.0 {
+            let zk = dc / (2.0 * open.sigma * dd.sqrt());
+            if best.is_none_or(|(_, b)| zk < b) {
+                best = Some((theta, zk));
+            }
+        }
+    }
+    best.filter(|(_, zk)| *zk < -z).map(|(theta, _)| theta)
 }
 
 /// The bend angle seen so far (rad) and the number of inliers: the 98th percentile of
@@ -259,12 +427,12 @@ fn angle_seen(
     geometry: &BendGeometry,
     sigma: f64,
 ) -> (f64, usize) {
-    let torus = geometry.torus();
+    let wall = geometry.wall();
     let mut turned: Vec<f64> = rays
         .iter()
         .filter(|(q, d)| {
-            torus
-                .and_then(|t| residual(&t, q, d))
+            wall.as_ref()
+                .and_then(|t| residual(t, q, d))
                 .is_some_and(|e| e.abs() <= 3.0 * sigma)
         })
         .map(|(q, _)| geometry.turned(q))
@@ -303,7 +471,7 @@ fn mad_sigma(mut e: Vec<f64>) -> Option<f64> {
 }
 
 /// eᵢ = s(q)/|n·d|: the distance along the ray from q to the wall, to first order.
-fn residual(t: &Torus, q: &Vector3<f64>, d: &Vector3<f64>) -> Option<f64> {
+fn residual(t: &BendWall, q: &Vector3<f64>, d: &Vector3<f64>) -> Option<f64> {
     let s = t.signed_distance(q);
     let n = t.normal(q)?;
     let cos = n.dot(d).abs().max(0.05);
@@ -312,7 +480,7 @@ fn residual(t: &Torus, q: &Vector3<f64>, d: &Vector3<f64>) -> Option<f64> {
 }
 
 fn robust_sigma(rays: &[(Vector3<f64>, Vector3<f64>)], g: &BendGeometry) -> Option<f64> {
-    let t = g.torus()?;
+    let t = g.wall()?;
     let e: Vec<f64> = rays
         .iter()
         .filter_map(|(q, d)| residual(&t, q, d))
@@ -350,9 +518,9 @@ impl<'a> BendProblem<'a> {
     }
 }
 
-impl NormalEquationsProblem<4> for BendProblem<'_> {
-    fn normal_equations(&self, x: &SVector<f64, 4>) -> Option<NormalEquations<4>> {
-        let (g, t0, shifted) = tori_at(x)?;
+impl NormalEquationsProblem<NP> for BendProblem<'_> {
+    fn normal_equations(&self, x: &SVector<f64, NP>) -> Option<NormalEquations<NP>> {
+        let (g, t0, shifted) = walls_at(x)?;
         let mut eq = NormalEquations::zero();
         for (q, d) in self.rays {
             let Some((e, j)) = self.residual_and_gradient(&g, &t0, &shifted, TORUS_STEP, q, d)
@@ -363,32 +531,32 @@ impl NormalEquationsProblem<4> for BendProblem<'_> {
             eq.push_weighted(e, &j, c, wg, wh);
         }
         eq.symmetrize();
-        (eq.n_residuals > 4).then_some(eq)
+        (eq.n_residuals > NP).then_some(eq)
     }
 }
 
 /// The step of the central differences of ∂s/∂θ at a fixed point: 0.1 mm for lengths,
-/// 10⁻⁴ rad for the direction — small against a bend's size, large against rounding of
-/// distances of order 1 m (10⁻¹⁶ relative).
+/// 10⁻⁴ rad for the direction and the angle — small against a bend's size, large against
+/// rounding of distances of order 1 m (10⁻¹⁶ relative).
 const TORUS_STEP: f64 = 1e-4;
 
-/// A placement, its torus and the tori at x ± [`TORUS_STEP`]·e_k.
-type ToriAt = (BendGeometry, Torus, Vec<(Torus, Torus)>);
+/// A placement, its wall and the walls at x ± [`TORUS_STEP`]·e_k.
+type WallsAt = (BendGeometry, BendWall, Vec<(BendWall, BendWall)>);
 
-/// The placement at `x`, its torus and the tori at x ± [`TORUS_STEP`]·e_k; `None` when
-/// any of them is not a ring torus.
-fn tori_at(x: &SVector<f64, 4>) -> Option<ToriAt> {
+/// The placement at `x`, its wall and the walls at x ± [`TORUS_STEP`]·e_k; `None` when
+/// any of them is not a ring torus or has Θ ≤ 0.
+fn walls_at(x: &SVector<f64, NP>) -> Option<WallsAt> {
     let g = BendGeometry::from_vector(x);
-    let t0 = g.torus()?;
-    let shifted = (0..4)
+    let t0 = g.wall()?;
+    let shifted = (0..NP)
         .map(|k| {
             let mut a = *x;
             let mut b = *x;
             a[k] += TORUS_STEP;
             b[k] -= TORUS_STEP;
             Some((
-                BendGeometry::from_vector(&a).torus()?,
-                BendGeometry::from_vector(&b).torus()?,
+                BendGeometry::from_vector(&a).wall()?,
+                BendGeometry::from_vector(&b).wall()?,
             ))
         })
         .collect::<Option<_>>()?;
@@ -406,16 +574,19 @@ impl BendProblem<'_> {
     /// length, so that errors correlated between neighbouring pixels stay within a cell
     /// and the variance survives them. `None` when H or a leave-one-out H − H_g is
     /// singular (a parameter the points do not determine) or fewer than two cells hold
-    /// points.
-    fn jackknife_covariance(&self, x: &SVector<f64, 4>) -> Option<nalgebra::Matrix4<f64>> {
+    /// points. The bend angle Θ has no information at all (its row of H exactly 0) while
+    /// no point lies within a difference step of the bend's end: its row and column are
+    /// then left out (a unit diagonal put in their place changes no other d_g, whose
+    /// scores have a zero Θ entry) and its variance reads 0.
+    fn jackknife_covariance(&self, x: &SVector<f64, NP>) -> Option<SMatrix<f64, NP, NP>> {
         use crate::fit::estimate::{AXIAL_CELLS, CLOCK_SECTORS};
-        let (g, t0, shifted) = tori_at(x)?;
+        let (g, t0, shifted) = walls_at(x)?;
         let mut axial: Vec<f64> = self.rays.iter().map(|(q, _)| q.x).collect();
         axial.sort_by(f64::total_cmp);
         let edges: Vec<f64> = (1..AXIAL_CELLS)
             .map(|k| axial[k * axial.len() / AXIAL_CELLS])
             .collect();
-        let mut cells = vec![NormalEquations::<4>::zero(); AXIAL_CELLS * CLOCK_SECTORS];
+        let mut cells = vec![NormalEquations::<NP>::zero(); AXIAL_CELLS * CLOCK_SECTORS];
         for (q, d) in self.rays {
             let Some((e, j)) = self.residual_and_gradient(&g, &t0, &shifted, TORUS_STEP, q, d)
             else {
@@ -428,17 +599,20 @@ impl BendProblem<'_> {
             cells[bin * CLOCK_SECTORS + sector.min(CLOCK_SECTORS - 1)]
                 .push_weighted(e, &j, c, wg, wh);
         }
-        let mut h = nalgebra::Matrix4::zeros();
+        let mut h = SMatrix::<f64, NP, NP>::zeros();
         for c in &mut cells {
             c.symmetrize();
             h += c.jtj;
         }
-        let used: Vec<&NormalEquations<4>> = cells.iter().filter(|c| c.n_residuals > 0).collect();
+        let used: Vec<&NormalEquations<NP>> = cells.iter().filter(|c| c.n_residuals > 0).collect();
         if used.len() < 2 {
             return None;
         }
+        if h.row(NP - 1).iter().all(|v| *v == 0.0) {
+            h[(NP - 1, NP - 1)] = 1.0;
+        }
         h.try_inverse()?;
-        let mut v = nalgebra::Matrix4::zeros();
+        let mut v = SMatrix::<f64, NP, NP>::zeros();
         for c in &used {
             let d = (h - c.jtj).try_inverse()? * c.jtr;
             v += d * d.transpose();
@@ -447,15 +621,16 @@ impl BendProblem<'_> {
         Some(v * ((n - 1.0) / n))
     }
 
-    /// One ray's residual and its gradient in θ, given the torus `t0` at θ and the tori
+    /// One ray's residual and its gradient in θ, given the wall `t0` at θ and the walls
     /// `shifted` at θ ± h·e_k.
     ///
     /// Exact stage: the range error to the wall the ray meets ([`Self::range_error`]).
     /// On the straight pipe it does not depend on θ (gradient 0); on the joint step,
     /// e = ‖q − o‖ − (x₀ − o_x)/d_x, so ∂e/∂x₀ = −1/d_x; on the torus the hit moves along
     /// the ray as the wall moves: t(θ) with s(o + t·d; θ) = 0, so ∂t/∂θ = −(∂s/∂θ)/(n·d)
-    /// and ∂e/∂θ = −∂t/∂θ. A ray that meets the torus at a grazing angle (|n·d| < 0.05) or
-    /// not at all takes the first-order error (a point never leaves the sum because its
+    /// and ∂e/∂θ = −∂t/∂θ; likewise on the outlet, with its cylinder's s. A ray that meets
+    /// the torus or the outlet at a grazing angle (|n·d| < 0.05) or neither takes the
+    /// first-order error (a point never leaves the sum because its
     /// ray misses: the fit could otherwise lower its cost by turning rays away).
     ///
     /// First-order stage (and that fallback): eᵢ = s(qᵢ)/|n·d| to the torus, or to the
@@ -463,24 +638,24 @@ impl BendProblem<'_> {
     fn residual_and_gradient(
         &self,
         g: &BendGeometry,
-        t0: &Torus,
-        shifted: &[(Torus, Torus)],
+        t0: &BendWall,
+        shifted: &[(BendWall, BendWall)],
         h: f64,
         q: &Vector3<f64>,
         d: &Vector3<f64>,
-    ) -> Option<(f64, [f64; 4])> {
+    ) -> Option<(f64, [f64; NP])> {
         if self.exact
             && let Some((e, hit, wall)) = self.range_error(g, t0, q, d)
         {
             match wall {
-                Wall::Straight => return Some((e, [0.0; 4])),
-                Wall::Step => return Some((e, [-1.0 / d.x, 0.0, 0.0, 0.0])),
-                Wall::Torus => {
+                Wall::Straight => return Some((e, [0.0; NP])),
+                Wall::Step => return Some((e, [-1.0 / d.x, 0.0, 0.0, 0.0, 0.0])),
+                Wall::Torus | Wall::Outlet => {
                     if let Some(nd) = t0.normal(&hit).map(|n| n.dot(d))
                         && nd.abs() >= 0.05
                     {
-                        let mut j = [0.0; 4];
-                        for (k, (a, b)) in shifted.iter().enumerate() {
+                        let mut j = [0.0; NP];
+                        for (k, (a, b)) in shifted.iter().take(varied(g)).enumerate() {
                             let ds =
                                 (a.signed_distance(&hit) - b.signed_distance(&hit)) / (2.0 * h);
                             j[k] = ds / nd;
@@ -493,11 +668,11 @@ impl BendProblem<'_> {
         if self.leaves_straight_before(g, d) {
             let (s, cos) = straight_offset(q, d, self.semi_axes)?;
             let e = s / cos.max(0.05);
-            return e.is_finite().then_some((e, [0.0; 4]));
+            return e.is_finite().then_some((e, [0.0; NP]));
         }
         let e = residual(t0, q, d)?;
-        let mut j = [0.0; 4];
-        for (k, (a, b)) in shifted.iter().enumerate() {
+        let mut j = [0.0; NP];
+        for (k, (a, b)) in shifted.iter().take(varied(g)).enumerate() {
             j[k] = (residual(a, q, d)? - residual(b, q, d)?) / (2.0 * h);
         }
         Some((e, j))
@@ -530,14 +705,16 @@ impl BendProblem<'_> {
     /// - the joint step in that plane where the ray crosses it inside the ellipse but
     ///   outside the bend's circular tube (an oval pipe steps from its ellipse to the
     ///   bend's circle there, as tof-sim's pipelines do);
-    /// - else the nearest crossing of the ring torus where the ray leaves the tube
-    ///   (n·d > 0) at a turned angle in [0, π] (the ring's other parts are not the bend).
+    /// - else where the ray leaves the bend's wall ([`BendWall::ray_exit`]): the nearest
+    ///   crossing of the ring torus where the ray leaves the tube (n·d > 0) at a turned
+    ///   angle in [0, Θ] (the ring's other parts are not the bend), or the outlet's
+    ///   cylinder past Θ.
     ///
-    /// `None` when no torus crossing within three times the measured range qualifies.
+    /// `None` when no crossing within three times the measured range qualifies.
     fn range_error(
         &self,
         geometry: &BendGeometry,
-        t: &Torus,
+        t: &BendWall,
         q: &Vector3<f64>,
         d: &Vector3<f64>,
     ) -> Option<(f64, Vector3<f64>, Wall)> {
@@ -554,15 +731,21 @@ impl BendProblem<'_> {
                 return Some((range - tau, w, Wall::Step));
             }
         }
-        let crossings = t.ray_crossings(&self.origin, d, 3.0 * range);
-        let hit = crossings.as_slice().iter().find_map(|&tau| {
-            let w = self.origin + d * tau;
-            let leaving = t.normal(&w).is_some_and(|n| n.dot(d) > 0.0);
-            let a = geometry.turned(&w);
-            (leaving && (0.0..=std::f64::consts::PI).contains(&a)).then_some(tau)
-        })?;
-        Some((range - hit, self.origin + d * hit, Wall::Torus))
+        let (hit, piece) = t.ray_exit(&self.origin, d, 3.0 * range)?;
+        let wall = match piece {
+            Piece::Torus => Wall::Torus,
+            Piece::Outlet => Wall::Outlet,
+        };
+        Some((range - hit, self.origin + d * hit, wall))
     }
+}
+
+/// How many of θ's parameters a residual's gradient is taken in: all but Θ for an open
+/// bend, whose wall has no outlet and whose residuals do not depend on Θ (its column is
+/// exactly 0, as the shifted wall at π − h puts its outlet past every point's turned
+/// angle but those within h of π).
+fn varied(g: &BendGeometry) -> usize {
+    if g.angle >= OPEN_ANGLE { NP - 1 } else { NP }
 }
 
 /// The wall a ray meets in the bend's model ([`BendProblem::range_error`]).
@@ -574,6 +757,8 @@ enum Wall {
     Step,
     /// The bend's torus.
     Torus,
+    /// The straight outlet past the bend's end.
+    Outlet,
 }
 
 /// The first-order offset of the PCS point q from the elliptic cylinder
@@ -595,6 +780,7 @@ pub fn start_from(straight: &Params, end: f64, direction: f64, radius: f64) -> B
         direction,
         radius,
         tube_radius: 0.25 * (straight.d_max + straight.d_min),
+        angle: OPEN_ANGLE,
     }
 }
 
@@ -602,14 +788,19 @@ pub fn start_from(straight: &Params, end: f64, direction: f64, radius: f64) -> B
 mod tests {
     use super::*;
 
-    /// An oval 20" pipe (semi-axes 250 / 245 mm) whose 90°-type bend (R = 762 mm, round
-    /// tube r = 247.5 mm) starts 1 m ahead toward φ = 0.7 rad; the sensor off the axis.
-    fn problem(rays: &[(Vector3<f64>, Vector3<f64>)]) -> (BendProblem<'_>, BendGeometry) {
+    /// An oval 20" pipe (semi-axes 250 / 245 mm) whose bend (R = 762 mm, round tube
+    /// r = 247.5 mm) starts 1 m ahead toward φ = 0.7 rad and turns by `angle`; the sensor
+    /// off the axis.
+    fn problem_with_angle(
+        rays: &[(Vector3<f64>, Vector3<f64>)],
+        angle: f64,
+    ) -> (BendProblem<'_>, BendGeometry) {
         let g = BendGeometry {
             start: 1.0,
             direction: 0.7,
             radius: 0.762,
             tube_radius: 0.2475,
+            angle,
         };
         let p = BendProblem {
             origin: Vector3::new(0.0, 0.01, -0.02),
@@ -621,10 +812,19 @@ mod tests {
         (p, g)
     }
 
-    /// Rays from the sensor toward `targets`, their measured points 1 cm past the wall.
-    fn rays_toward(targets: &[Vector3<f64>]) -> Vec<(Vector3<f64>, Vector3<f64>)> {
-        let (p, g) = problem(&[]);
-        let t = g.torus().unwrap();
+    /// [`problem_with_angle`] with the bend open (no outlet).
+    fn problem(rays: &[(Vector3<f64>, Vector3<f64>)]) -> (BendProblem<'_>, BendGeometry) {
+        problem_with_angle(rays, OPEN_ANGLE)
+    }
+
+    /// Rays from the sensor toward `targets`, their measured points 1 cm past the wall
+    /// of the bend of `angle`.
+    fn rays_toward_angle(
+        targets: &[Vector3<f64>],
+        angle: f64,
+    ) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+        let (p, g) = problem_with_angle(&[], angle);
+        let t = g.wall().unwrap();
         targets
             .iter()
             .filter_map(|w| {
@@ -636,10 +836,15 @@ mod tests {
             .collect()
     }
 
+    /// [`rays_toward_angle`] for the open bend.
+    fn rays_toward(targets: &[Vector3<f64>]) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+        rays_toward_angle(targets, OPEN_ANGLE)
+    }
+
     /// Each wall's gradient of the exact range error matches central differences of the
     /// range error itself (the ray re-cast at θ ± h), and every kind of wall is met: the
     /// straight pipe, the joint step (inside the ellipse, outside the round tube) and the
-    /// torus.
+    /// torus; for a bend of 0.8 rad also its outlet.
     #[test]
     fn range_error_gradients_match_finite_differences() {
         let mut targets = vec![
@@ -652,22 +857,53 @@ mod tests {
             let a = k as f64 * std::f64::consts::TAU / 12.0;
             targets.push(Vector3::new(1.4, 0.3 * a.cos() + 0.2, 0.3 * a.sin() + 0.2));
         }
-        let rays = rays_toward(&targets);
-        let (p, g) = problem(&rays);
-        let t0 = g.torus().unwrap();
+        let seen = gradients_match(&targets, OPEN_ANGLE);
+        assert_eq!(
+            seen,
+            [true, true, true, false],
+            "straight, step and torus rays"
+        );
+        // The bend of 0.8 rad: its outlet's wall all around, 0.2–1 m past its end.
+        let (_, g) = problem_with_angle(&[], 0.8);
+        let (sd, cd) = g.direction.sin_cos();
+        let u = Vector3::new(0.0, cd, sd);
+        let normal = Vector3::new(0.0, -sd, cd);
+        let (sa, ca) = g.angle.sin_cos();
+        let centre = Vector3::new(g.start, 0.0, 0.0) + g.radius * u;
+        let end = centre + g.radius * (-ca * u + sa * Vector3::x());
+        let tangent = ca * Vector3::x() + sa * u;
+        let inward = ca * u - sa * Vector3::x();
+        for t in [0.2, 0.5, 1.0] {
+            for k in 0..12 {
+                let psi = k as f64 * std::f64::consts::TAU / 12.0;
+                let off = psi.cos() * inward + psi.sin() * normal;
+                targets.push(end + t * tangent + g.tube_radius * off);
+            }
+        }
+        let seen = gradients_match(&targets, 0.8);
+        assert_eq!(seen, [true; 4], "straight, step, torus and outlet rays");
+    }
+
+    /// For the bend of `angle`, rays toward `targets` ([`rays_toward_angle`]): the exact
+    /// residual's gradient matches central differences of re-cast range errors; which
+    /// walls were met (straight, step, torus, outlet).
+    fn gradients_match(targets: &[Vector3<f64>], angle: f64) -> [bool; 4] {
+        let rays = rays_toward_angle(targets, angle);
+        let (p, g) = problem_with_angle(&rays, angle);
+        let t0 = g.wall().unwrap();
         let h = 1e-4;
         let x = g.to_vector();
-        let shifted: Vec<(Torus, Torus)> = (0..4)
+        let shifted: Vec<(BendWall, BendWall)> = (0..NP)
             .map(|k| {
                 let (mut a, mut b) = (x, x);
                 a[k] += h;
                 b[k] -= h;
                 let ga = BendGeometry::from_vector(&a);
                 let gb = BendGeometry::from_vector(&b);
-                (ga.torus().unwrap(), gb.torus().unwrap())
+                (ga.wall().unwrap(), gb.wall().unwrap())
             })
             .collect();
-        let mut seen = [false; 3];
+        let mut seen = [false; 4];
         for (q, d) in &rays {
             let (_, _, wall) = p.range_error(&g, &t0, q, d).unwrap();
             seen[wall as usize] = true;
@@ -677,13 +913,13 @@ mod tests {
             let (e_direct, _, _) = p.range_error(&g, &t0, q, d).unwrap();
             assert_eq!(e, e_direct, "{wall:?}");
             let step = 1e-6;
-            for k in 0..4 {
+            for k in 0..NP {
                 let (mut a, mut b) = (x, x);
                 a[k] += step;
                 b[k] -= step;
                 let (ga, gb) = (BendGeometry::from_vector(&a), BendGeometry::from_vector(&b));
-                let (ea, _, wa) = p.range_error(&ga, &ga.torus().unwrap(), q, d).unwrap();
-                let (eb, _, wb) = p.range_error(&gb, &gb.torus().unwrap(), q, d).unwrap();
+                let (ea, _, wa) = p.range_error(&ga, &ga.wall().unwrap(), q, d).unwrap();
+                let (eb, _, wb) = p.range_error(&gb, &gb.wall().unwrap(), q, d).unwrap();
                 assert_eq!((wa, wb), (wall, wall), "the ray stays on its wall");
                 let fd = (ea - eb) / (2.0 * step);
                 assert!(
@@ -693,7 +929,83 @@ mod tests {
                 );
             }
         }
-        assert_eq!(seen, [true; 3], "straight, step and torus rays");
+        seen
+    }
+
+    /// Noise-free points of a bend of 0.8 rad (46°) whose end is in view: rays toward its
+    /// wall at turned angles 0.1–0.78 rad and toward its outlet 0.05–1 m past the end,
+    /// all around. From a start 5 cm early with R 8 % short and the bend open, the fit
+    /// recovers x₀, R, r and Θ to 10⁻⁴ and reads the end as seen, with a 1-σ of Θ; the
+    /// same points fitted with the end held open (the model before Θ) miss R by more than
+    /// 1 %.
+    #[test]
+    fn a_bend_whose_end_is_seen_is_fitted_with_its_angle() {
+        let angle = 0.8;
+        let (p, g) = problem_with_angle(&[], angle);
+        let t = g.torus().unwrap();
+        let (sd, cd) = g.direction.sin_cos();
+        let u = Vector3::new(0.0, cd, sd);
+        let normal = t.axis.into_inner();
+        let (sa, ca) = angle.sin_cos();
+        let end = t.centre + g.radius * (-ca * u + sa * Vector3::x());
+        let tangent = ca * Vector3::x() + sa * u;
+        let inward = ca * u - sa * Vector3::x();
+        let mut targets = Vec::new();
+        for i in 0..16 {
+            let turned = 0.1 + 0.68 * i as f64 / 15.0;
+            let along = -turned.cos() * u + turned.sin() * Vector3::x();
+            let centre = t.centre + g.radius * along;
+            for k in 0..24 {
+                let psi = k as f64 * std::f64::consts::TAU / 24.0;
+                targets.push(centre + t.minor_radius * (psi.cos() * along + psi.sin() * normal));
+            }
+        }
+        for i in 0..16 {
+            let l = 0.05 + 0.95 * i as f64 / 15.0;
+            for k in 0..24 {
+                let psi = k as f64 * std::f64::consts::TAU / 24.0;
+                let off = psi.cos() * inward + psi.sin() * normal;
+                targets.push(end + l * tangent + g.tube_radius * off);
+            }
+        }
+        let rays = rays_toward_angle(&targets, angle);
+        let straight = Params {
+            d_max: 2.0 * p.semi_axes.0,
+            d_min: 2.0 * p.semi_axes.1,
+            roll: 0.0,
+            pitch: 0.0,
+            yaw: 0.0,
+            dy: p.origin.y,
+            dz: p.origin.z,
+        };
+        let beyond: Vec<[f64; 3]> = rays
+            .iter()
+            .map(|(q, d)| {
+                let w = q - d * 0.01 - p.origin;
+                [w.x, w.y, w.z]
+            })
+            .collect();
+        let start = BendGeometry {
+            start: 0.95,
+            radius: 0.7,
+            tube_radius: 0.245,
+            angle: OPEN_ANGLE,
+            ..g
+        };
+        let b = fit_bend(&beyond, &straight, &start).expect("a bend");
+        let e = b.geometry;
+        assert!((e.start - g.start).abs() < 1e-4, "{e:?}");
+        assert!((e.radius - g.radius).abs() < 1e-4, "{e:?}");
+        assert!((e.tube_radius - g.tube_radius).abs() < 1e-4, "{e:?}");
+        assert!((e.angle - angle).abs() < 1e-4, "{e:?}");
+        assert!(b.end_seen && b.angle_sigma.is_finite(), "{b:?}");
+        // Held open, as before the angle was fitted.
+        let rays = bend_rays(&beyond, &straight).unwrap();
+        let open = first_order(&rays, &straight, &start).unwrap();
+        let problem = BendProblem::new(&rays, &straight, open.loss, true);
+        let held = minimize(&problem, open.report.x, &LmOptions::default());
+        let r_open = BendGeometry::from_vector(&held.x).radius;
+        assert!((r_open / g.radius - 1.0).abs() > 0.01, "open R {r_open}");
     }
 
     /// Noise-free points of the bend of [`problem`] (rays toward its wall at turned
@@ -747,6 +1059,7 @@ mod tests {
                 direction: g.direction + k * std::f64::consts::FRAC_PI_2,
                 radius: 0.7,
                 tube_radius: 0.245,
+                angle: OPEN_ANGLE,
             })
             .collect();
         let best = fit_best_bend(&beyond, &straight, &starts, |b| b.status.is_converged())
