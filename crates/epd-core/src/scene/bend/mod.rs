@@ -8,7 +8,7 @@
 //! major radius R and tube radius r ([`Torus`]). The bend continues the straight pipe
 //! tangentially, so four parameters (x₀, φ, R, r) place it; a fifth, the bend angle Θ,
 //! ends it: past α = Θ the pipe runs straight again along the bend's tangent there
-//! ([`wall`]). θ = (x₀, φ, R, r, Θ). While nothing past the end is seen, Θ has no
+//! ([`BendWall`]). θ = (x₀, φ, R, r, Θ). While nothing past the end is seen, Θ has no
 //! information ([`OPEN_ANGLE`]: the torus runs on); a 45° bend seen with its outlet fitted
 //! as an open torus had R 10–57 % long (numpy caster, 20" pipe, 0.5–3 m ahead).
 //!
@@ -317,7 +317,7 @@ fn exact_fit(
 
 /// Whether a fit's bend end Θ̂ (1-σ `angle_sigma`) lies within what the points show,
 /// the turned angle `seen` that its inliers reach ([`angle_seen`]): Θ̂ + z·σ_Θ < seen,
-/// z the standard normal's upper quantile at [`SURVEY_FALSE_ALARM`] (3.09). If the bend
+/// z the standard normal's upper quantile at [`SURVEY_FALSE_ALARM`](crate::scene::profile::SURVEY_FALSE_ALARM) (3.09). If the bend
 /// runs on past every point (no end in view, Θ ≥ seen), a Θ̂ normal about it passes with
 /// probability at most that rate. A torus whose end the fit placed among the last few
 /// points to follow their noise or the wall's facets has a σ_Θ of the order of the
@@ -368,7 +368,7 @@ const END_SCAN: usize = 8;
 /// near 0), over its standard deviation were the open torus right and its residuals
 /// independent noise of the fit's robust σ: to first order ΔC = Σ 2eᵢδᵢ + δᵢ² with
 /// δᵢ = e_out,i − e_torus,i, sd 2σ·√Σδᵢ². The Θ_k of the least z_k = ΔC_k/sd_k, when
-/// z_k < −z at [`SURVEY_FALSE_ALARM`] over the seven (Bonferroni: 3.63): an outlet fits
+/// z_k < −z at [`SURVEY_FALSE_ALARM`](crate::scene::profile::SURVEY_FALSE_ALARM) over the seven (Bonferroni: 3.63): an outlet fits
 /// the far points better than the torus beyond noise, and the fit with an end is started
 /// there. `None` otherwise — most bends whose end is out of view, which then pay no fit
 /// with an end (on tof-sim's 8" 90° elbows three such fits, started at 1/4, 1/2 and 3/4
