@@ -836,6 +836,47 @@ mod tests {
             .collect()
     }
 
+    /// The straight fit of [`problem`]'s pipe (zero angles, the sensor at its origin) and
+    /// the rays' points in its SCS (PCS − (0, δy, δz)), backed off the 1 cm of
+    /// [`rays_toward_angle`].
+    fn straight_and_beyond(
+        p: &BendProblem<'_>,
+        rays: &[(Vector3<f64>, Vector3<f64>)],
+    ) -> (Params, Vec<[f64; 3]>) {
+        let straight = Params {
+            d_max: 2.0 * p.semi_axes.0,
+            d_min: 2.0 * p.semi_axes.1,
+            roll: 0.0,
+            pitch: 0.0,
+            yaw: 0.0,
+            dy: p.origin.y,
+            dz: p.origin.z,
+        };
+        let beyond = rays
+            .iter()
+            .map(|(q, d)| {
+                let w = q - d * 0.01 - p.origin;
+                [w.x, w.y, w.z]
+            })
+            .collect();
+        (straight, beyond)
+    }
+
+    /// A bend's end E, the outlet's direction T, the in-plane direction toward the centre
+    /// of curvature across the outlet, and the bend plane's normal.
+    fn outlet_frame(g: &BendGeometry) -> (Vector3<f64>, Vector3<f64>, Vector3<f64>, Vector3<f64>) {
+        let (sd, cd) = g.direction.sin_cos();
+        let u = Vector3::new(0.0, cd, sd);
+        let (sa, ca) = g.angle.sin_cos();
+        let centre = Vector3::new(g.start, 0.0, 0.0) + g.radius * u;
+        (
+            centre + g.radius * (-ca * u + sa * Vector3::x()),
+            ca * Vector3::x() + sa * u,
+            ca * u - sa * Vector3::x(),
+            Vector3::new(0.0, -sd, cd),
+        )
+    }
+
     /// [`rays_toward_angle`] for the open bend.
     fn rays_toward(targets: &[Vector3<f64>]) -> Vec<(Vector3<f64>, Vector3<f64>)> {
         rays_toward_angle(targets, OPEN_ANGLE)
@@ -865,14 +906,7 @@ mod tests {
         );
         // The bend of 0.8 rad: its outlet's wall all around, 0.2–1 m past its end.
         let (_, g) = problem_with_angle(&[], 0.8);
-        let (sd, cd) = g.direction.sin_cos();
-        let u = Vector3::new(0.0, cd, sd);
-        let normal = Vector3::new(0.0, -sd, cd);
-        let (sa, ca) = g.angle.sin_cos();
-        let centre = Vector3::new(g.start, 0.0, 0.0) + g.radius * u;
-        let end = centre + g.radius * (-ca * u + sa * Vector3::x());
-        let tangent = ca * Vector3::x() + sa * u;
-        let inward = ca * u - sa * Vector3::x();
+        let (end, tangent, inward, normal) = outlet_frame(&g);
         for t in [0.2, 0.5, 1.0] {
             for k in 0..12 {
                 let psi = k as f64 * std::f64::consts::TAU / 12.0;
@@ -943,13 +977,8 @@ mod tests {
         let angle = 0.8;
         let (p, g) = problem_with_angle(&[], angle);
         let t = g.torus().unwrap();
-        let (sd, cd) = g.direction.sin_cos();
-        let u = Vector3::new(0.0, cd, sd);
-        let normal = t.axis.into_inner();
-        let (sa, ca) = angle.sin_cos();
-        let end = t.centre + g.radius * (-ca * u + sa * Vector3::x());
-        let tangent = ca * Vector3::x() + sa * u;
-        let inward = ca * u - sa * Vector3::x();
+        let u = Vector3::new(0.0, g.direction.cos(), g.direction.sin());
+        let (end, tangent, inward, normal) = outlet_frame(&g);
         let mut targets = Vec::new();
         for i in 0..16 {
             let turned = 0.1 + 0.68 * i as f64 / 15.0;
@@ -969,22 +998,7 @@ mod tests {
             }
         }
         let rays = rays_toward_angle(&targets, angle);
-        let straight = Params {
-            d_max: 2.0 * p.semi_axes.0,
-            d_min: 2.0 * p.semi_axes.1,
-            roll: 0.0,
-            pitch: 0.0,
-            yaw: 0.0,
-            dy: p.origin.y,
-            dz: p.origin.z,
-        };
-        let beyond: Vec<[f64; 3]> = rays
-            .iter()
-            .map(|(q, d)| {
-                let w = q - d * 0.01 - p.origin;
-                [w.x, w.y, w.z]
-            })
-            .collect();
+        let (straight, beyond) = straight_and_beyond(&p, &rays);
         let start = BendGeometry {
             start: 0.95,
             radius: 0.7,
@@ -1035,23 +1049,7 @@ mod tests {
             }
         }
         let rays = rays_toward(&targets);
-        let straight = Params {
-            d_max: 2.0 * p.semi_axes.0,
-            d_min: 2.0 * p.semi_axes.1,
-            roll: 0.0,
-            pitch: 0.0,
-            yaw: 0.0,
-            dy: p.origin.y,
-            dz: p.origin.z,
-        };
-        // SCS = PCS − (0, δy, δz) at zero angles; back off the 1 cm of `rays_toward`.
-        let beyond: Vec<[f64; 3]> = rays
-            .iter()
-            .map(|(q, d)| {
-                let w = q - d * 0.01 - p.origin;
-                [w.x, w.y, w.z]
-            })
-            .collect();
+        let (straight, beyond) = straight_and_beyond(&p, &rays);
         let starts: Vec<BendGeometry> = [2.0, 0.0, 1.0, 3.0]
             .iter()
             .map(|k| BendGeometry {
