@@ -295,7 +295,7 @@ pub fn write_fit_ply<W: Write>(
         ));
         if let Some((_, b, angle)) = &f.bend {
             head.push_str(&format!(
-                "comment epd bend radius_mm {} tube_radius_mm {} angle_seen_deg {}\n",
+                "comment epd bend radius_mm {} tube_radius_mm {} angle_deg {} (fitted to the end when seen, else the angle seen)\n",
                 b.radius * 1e3,
                 b.tube_radius * 1e3,
                 angle.to_degrees()

@@ -594,7 +594,7 @@ impl GeometryReport {
             let angle = self
                 .sigma_bend_angle_deg
                 .map_or(format!("{a:.0}° seen so far"), |s| {
-                    format!("{a:.0}° (±{s:.0}°, 1-σ) to its end")
+                    format!("{a:.1}° (±{s:.1}°, 1-σ) to its end")
                 });
             t.push_str(&format!(
                 "\n  bend: radius {r:.0} mm{sd}, {angle}, toward {c:.0}° \
@@ -815,7 +815,7 @@ mod tests {
         assert!(
             text.contains("(±0.004 m, 1-σ)")
                 && text.contains("(±4 mm, 1-σ)")
-                && text.contains("60° (±2°, 1-σ) to its end"),
+                && text.contains("60.0° (±2.5°, 1-σ) to its end"),
             "{text}"
         );
     }
