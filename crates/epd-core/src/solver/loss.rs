@@ -202,12 +202,6 @@ impl Loss {
 /// |s| ≤ 0.1716: the series to s²⁰ leaves a relative error below 10⁻¹⁷.
 #[inline(always)]
 pub fn ln_1p_nonneg(q: f64) -> f64 {
-    /// The bits of √½: mantissas from it upward map to exponent k.
-    const SQRT_HALF_BITS: u64 = 0x3fe6_a09e_667f_3bcd;
-    const ONE_BITS: u64 = 0x3ff0_0000_0000_0000;
-    // ln 2 = LN2_HI + LN2_LO, the high part with its low 32 bits zero (fdlibm's split).
-    const LN2_HI: f64 = f64::from_bits(0x3fe6_2e42_fee0_0000);
-    const LN2_LO: f64 = f64::from_bits(0x3dea_39ef_3579_3c76);
     let x = 1.0 + q;
     let e = (q - (x - 1.0)) / x;
     let ix = x.to_bits().wrapping_add(ONE_BITS - SQRT_HALF_BITS);
@@ -218,27 +212,128 @@ pub fn ln_1p_nonneg(q: f64) -> f64 {
     let s = f / (2.0 + f);
     let z = s * s;
     // Σ_{j=0..10} z^j/(2j + 1) by Horner.
-    const C: [f64; 11] = [
-        1.0,
-        1.0 / 3.0,
-        1.0 / 5.0,
-        1.0 / 7.0,
-        1.0 / 9.0,
-        1.0 / 11.0,
-        1.0 / 13.0,
-        1.0 / 15.0,
-        1.0 / 17.0,
-        1.0 / 19.0,
-        1.0 / 21.0,
-    ];
-    let mut p = C[10];
-    for c in C[..10].iter().rev() {
+    let mut p = ATANH_SERIES[10];
+    for c in ATANH_SERIES[..10].iter().rev() {
         p = p * z + c;
     }
     // ln(1 + q) = k·ln 2 + 2s·Σ + e, with k·ln 2 split in a high and a low part.
     let ln = k * LN2_HI + (2.0 * s * p + (k * LN2_LO + e));
     // ∞ and NaN pass through (a select, not a branch).
     if q.is_finite() { ln } else { q }
+}
+
+/// The bits of √½ ([`ln_1p_nonneg`]): mantissas from it upward map to exponent k.
+const SQRT_HALF_BITS: u64 = 0x3fe6_a09e_667f_3bcd;
+/// The bits of 1.0.
+const ONE_BITS: u64 = 0x3ff0_0000_0000_0000;
+/// ln 2's high part, its low 32 bits zero (fdlibm's split).
+const LN2_HI: f64 = f64::from_bits(0x3fe6_2e42_fee0_0000);
+/// ln 2 − [`LN2_HI`].
+const LN2_LO: f64 = f64::from_bits(0x3dea_39ef_3579_3c76);
+/// The series of [`ln_1p_nonneg`]: 1/(2j + 1), j = 0..10.
+const ATANH_SERIES: [f64; 11] = [
+    1.0,
+    1.0 / 3.0,
+    1.0 / 5.0,
+    1.0 / 7.0,
+    1.0 / 9.0,
+    1.0 / 11.0,
+    1.0 / 13.0,
+    1.0 / 15.0,
+    1.0 / 17.0,
+    1.0 / 19.0,
+    1.0 / 21.0,
+];
+
+/// [`ln_1p_nonneg`] of four lanes in AVX2 registers: each operation the scalar code's,
+/// in its order, so the same bits (tested).
+///
+/// # Safety
+/// Only where the CPU has AVX2; inlined into a function compiled for it.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) unsafe fn ln_1p_nonneg_m256(
+    q: std::arch::x86_64::__m256d,
+) -> std::arch::x86_64::__m256d {
+    // SAFETY: the CPU has AVX2 (the caller's contract).
+    unsafe {
+        use std::arch::x86_64::*;
+        use {
+            _mm256_add_pd as add, _mm256_castpd_si256 as bits, _mm256_castsi256_pd as from_bits,
+            _mm256_div_pd as div, _mm256_mul_pd as mul, _mm256_set1_pd as splat,
+            _mm256_sub_pd as sub,
+        };
+        let one = splat(1.0);
+        let x = add(one, q);
+        let e = div(sub(q, sub(x, one)), x);
+        let ix = _mm256_add_epi64(
+            bits(x),
+            _mm256_set1_epi64x((ONE_BITS - SQRT_HALF_BITS) as i64),
+        );
+        let k_bits = _mm256_or_si256(
+            _mm256_srli_epi64::<52>(ix),
+            _mm256_set1_epi64x(0x4330_0000_0000_0000),
+        );
+        let k = sub(
+            sub(from_bits(k_bits), splat(4_503_599_627_370_496.0)),
+            splat(1023.0),
+        );
+        let m = from_bits(_mm256_add_epi64(
+            _mm256_and_si256(ix, _mm256_set1_epi64x(0x000f_ffff_ffff_ffff)),
+            _mm256_set1_epi64x(SQRT_HALF_BITS as i64),
+        ));
+        let f = sub(m, one);
+        let s = div(f, add(splat(2.0), f));
+        let z = mul(s, s);
+        let mut p = splat(ATANH_SERIES[10]);
+        for c in ATANH_SERIES[..10].iter().rev() {
+            p = add(mul(p, z), splat(*c));
+        }
+        let ln = add(
+            mul(k, splat(LN2_HI)),
+            add(mul(mul(splat(2.0), s), p), add(mul(k, splat(LN2_LO)), e)),
+        );
+        // q finite: |q| < ∞ (false for NaN).
+        let abs = _mm256_andnot_pd(splat(-0.0), q);
+        let finite = _mm256_cmp_pd::<_CMP_LT_OQ>(abs, splat(f64::INFINITY));
+        _mm256_blendv_pd(q, ln, finite)
+    }
+}
+
+/// The Cauchy loss's (c(r), w_g, w_H) of four residuals in AVX2 registers, as
+/// [`Loss::cost_and_weights`] (`exact` false: the curvature clipped at zero) or
+/// [`Loss::cost_and_exact_weights`] (`exact` true) computes them, the same operations
+/// in the same order, so the same bits (tested in `problem`).
+///
+/// # Safety
+/// Only where the CPU has AVX2; inlined into a function compiled for it.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) unsafe fn cauchy_m256(
+    k: f64,
+    r: std::arch::x86_64::__m256d,
+    exact: bool,
+) -> [std::arch::x86_64::__m256d; 3] {
+    // SAFETY: the CPU has AVX2 (the caller's contract).
+    unsafe {
+        use std::arch::x86_64::*;
+        use {
+            _mm256_add_pd as add, _mm256_div_pd as div, _mm256_mul_pd as mul,
+            _mm256_set1_pd as splat, _mm256_sub_pd as sub,
+        };
+        let one = splat(1.0);
+        let rk = div(r, splat(k));
+        let q = mul(rk, rk);
+        let w = div(one, add(one, q));
+        let c = mul(splat(k * k), ln_1p_nonneg_m256(q));
+        let curvature = mul(mul(sub(one, q), w), w);
+        let wh = if exact {
+            curvature
+        } else {
+            _mm256_max_pd(curvature, _mm256_setzero_pd())
+        };
+        [c, w, wh]
+    }
 }
 
 #[cfg(test)]
@@ -315,6 +410,89 @@ mod tests {
         assert!(mad_sigma(&mut []).is_nan());
         let (m, s) = median_and_mad_sigma(&mut []);
         assert!(m.is_nan() && s.is_nan());
+    }
+
+    /// The AVX2 ln(1 + q) and Cauchy weights against the scalar code, to the bit, over
+    /// 60 decades and at the edges (powers of two and their neighbours, subnormals,
+    /// huge, ∞, NaN). Skipped on a CPU without AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn the_avx2_loss_gives_the_scalar_bits() {
+        if !(std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("fma"))
+        {
+            return;
+        }
+        let mut q: Vec<f64> = (0..4000)
+            .map(|i| 10f64.powf(-30.0 + 60.0 * i as f64 / 4000.0))
+            .collect();
+        for k in -60..60 {
+            let p = 2f64.powi(k);
+            q.extend([p, p * (1.0 - f64::EPSILON), p * (1.0 + f64::EPSILON)]);
+        }
+        q.extend([
+            0.0,
+            5e-324,
+            1e-310,
+            1e300,
+            f64::MAX,
+            f64::INFINITY,
+            f64::NAN,
+        ]);
+        // Residuals of both signs around the knee, and past it.
+        let r: Vec<f64> = q
+            .iter()
+            .flat_map(|&v| [v.sqrt() * 0.02, -(v.sqrt()) * 0.03])
+            .collect();
+        /// The four lanes of `f` applied to `x`.
+        #[target_feature(enable = "avx2,fma")]
+        fn lanes<const M: usize>(
+            x: &[f64; 4],
+            f: impl Fn(std::arch::x86_64::__m256d) -> [std::arch::x86_64::__m256d; M],
+        ) -> [[f64; 4]; M] {
+            use std::arch::x86_64::*;
+            // SAFETY: compiled for AVX2, run only where the CPU has it (checked above);
+            // each array holds 4 f64.
+            unsafe {
+                f(_mm256_loadu_pd(x.as_ptr())).map(|v| {
+                    let mut a = [0.0; 4];
+                    _mm256_storeu_pd(a.as_mut_ptr(), v);
+                    a
+                })
+            }
+        }
+        for block in q.chunks_exact(4) {
+            let x: &[f64; 4] = block.try_into().expect("4 lanes");
+            // SAFETY: the CPU has AVX2 (checked above).
+            let [got] = unsafe { lanes(x, |v| [ln_1p_nonneg_m256(v)]) };
+            for l in 0..4 {
+                assert_eq!(
+                    got[l].to_bits(),
+                    ln_1p_nonneg(x[l]).to_bits(),
+                    "q = {:e}",
+                    x[l]
+                );
+            }
+        }
+        for block in r.chunks_exact(4) {
+            let x: &[f64; 4] = block.try_into().expect("4 lanes");
+            for exact in [false, true] {
+                let k = 0.02;
+                // SAFETY: the CPU has AVX2 (checked above).
+                let got = unsafe { lanes(x, |v| cauchy_m256(k, v, exact)) };
+                for l in 0..4 {
+                    let loss = Loss::Cauchy { scale: k };
+                    let (c, wg, wh) = if exact {
+                        loss.cost_and_exact_weights(x[l])
+                    } else {
+                        loss.cost_and_weights(x[l])
+                    };
+                    let want = [c, wg, wh].map(f64::to_bits);
+                    let have = [got[0][l], got[1][l], got[2][l]].map(f64::to_bits);
+                    assert_eq!(have, want, "r = {:e}, exact {exact}", x[l]);
+                }
+            }
+        }
     }
 
     /// The fast ln(1 + q) against the standard library over 60 decades and at the

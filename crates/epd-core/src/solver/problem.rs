@@ -371,8 +371,7 @@ const LANES: usize = 4;
 /// points at a time with one accumulator per lane (summed in a fixed order at the end).
 /// `WEIGHTED`: each point's residual and gradient are multiplied by its scale sᵢ from
 /// `scales` (one per point); otherwise `scales` is ignored and no multiplication is
-/// compiled in. With `avx2` (only from [`accumulate_avx2`], on a CPU with AVX2) the
-/// residuals and gradients come from [`Geometry::residuals_and_gradients_avx2`].
+/// compiled in. The portable kernel; [`accumulate_avx2`] gives its sums to the bit.
 #[inline(always)]
 fn accumulate_lanes<const WEIGHTED: bool, const EXACT: bool>(
     geom: &Geometry,
@@ -380,9 +379,7 @@ fn accumulate_lanes<const WEIGHTED: bool, const EXACT: bool>(
     loss: Loss,
     chunk: &[[f64; 3]],
     scales: &[f64],
-    avx2: bool,
 ) -> Sums {
-    const NT: usize = N_PARAMS * (N_PARAMS + 1) / 2;
     let mut cost = [0.0; LANES];
     let mut raw = [0.0; LANES];
     let mut jtr = [[0.0; LANES]; N_PARAMS];
@@ -391,19 +388,7 @@ fn accumulate_lanes<const WEIGHTED: bool, const EXACT: bool>(
     let mut scale_blocks = scales.chunks_exact(LANES);
     for block in &mut blocks {
         let pts: &[[f64; 3]; LANES] = block.try_into().expect("chunks_exact yields LANES points");
-        #[cfg(target_arch = "x86_64")]
-        let (mut r, mut g) = if avx2 {
-            // SAFETY: `avx2` is set only by `accumulate_avx2`, run where the CPU has AVX2
-            // and FMA.
-            unsafe { geom.residuals_and_gradients_avx2(kind, pts) }
-        } else {
-            geom.residuals_and_gradients::<LANES>(kind, pts)
-        };
-        #[cfg(not(target_arch = "x86_64"))]
-        let (mut r, mut g) = {
-            let _ = avx2;
-            geom.residuals_and_gradients::<LANES>(kind, pts)
-        };
+        let (mut r, mut g) = geom.residuals_and_gradients::<LANES>(kind, pts);
         if WEIGHTED {
             let s: &[f64; LANES] = scale_blocks
                 .next()
@@ -453,10 +438,55 @@ fn accumulate_lanes<const WEIGHTED: bool, const EXACT: bool>(
             }
         }
     }
+    let lanes = LaneSums {
+        cost,
+        raw,
+        jtr,
+        jtj,
+    };
+    finish_sums::<WEIGHTED, EXACT>(
+        geom,
+        kind,
+        loss,
+        (blocks.remainder(), scale_blocks.remainder()),
+        &lanes,
+        chunk.len(),
+    )
+}
+
+/// Upper-triangle entries of H.
+const NT: usize = N_PARAMS * (N_PARAMS + 1) / 2;
+
+/// The per-lane sums of a chunk's whole blocks of `LANES` points.
+struct LaneSums {
+    /// Σ c(rᵢ).
+    cost: [f64; LANES],
+    /// Σ rᵢ² (robust losses only).
+    raw: [f64; LANES],
+    /// Σ w_g r J.
+    jtr: [[f64; LANES]; N_PARAMS],
+    /// Σ w_H J Jᵀ, upper triangle row by row.
+    jtj: [[f64; LANES]; NT],
+}
+
+/// The chunk's sums: the points after its last whole block (`rest` and their scales)
+/// into the total first, then the lanes in order — the one order both kernels share.
+fn finish_sums<const WEIGHTED: bool, const EXACT: bool>(
+    geom: &Geometry,
+    kind: Residual,
+    loss: Loss,
+    (rest, rest_scales): (&[[f64; 3]], &[f64]),
+    lanes: &LaneSums,
+    n: usize,
+) -> Sums {
+    let LaneSums {
+        cost,
+        raw,
+        jtr,
+        jtj,
+    } = lanes;
     let mut eq = NormalEquations::<N_PARAMS>::zero();
     let mut raw_cost = 0.0;
-    let rest = blocks.remainder();
-    let rest_scales = scale_blocks.remainder();
     for (i, p) in rest.iter().enumerate() {
         let (mut r, mut g) = geom.residual_and_gradient(kind, p);
         if WEIGHTED {
@@ -488,10 +518,16 @@ fn accumulate_lanes<const WEIGHTED: bool, const EXACT: bool>(
             }
         }
     }
-    eq.n_residuals = chunk.len();
+    eq.n_residuals = n;
     Sums { eq, raw_cost }
 }
 
+/// [`accumulate_lanes`]'s sums with every lane's residual, gradient and sums in AVX2
+/// registers ([`Geometry::residuals_and_gradients_m256`]): each operation the portable
+/// kernel's on four lanes, in its order, so the same bits (tested below). The Cauchy
+/// loss's weights in registers too ([`crate::loss::cauchy_m256`]), Huber's lane by lane by
+/// the scalar code. With the squared loss the weights are 1 and their products (exact)
+/// are left out.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn accumulate_avx2<const WEIGHTED: bool, const EXACT: bool>(
@@ -501,7 +537,211 @@ fn accumulate_avx2<const WEIGHTED: bool, const EXACT: bool>(
     chunk: &[[f64; 3]],
     scales: &[f64],
 ) -> Sums {
-    accumulate_lanes::<WEIGHTED, EXACT>(geom, kind, loss, chunk, scales, true)
+    use std::arch::x86_64::*;
+    let zero = _mm256_setzero_pd();
+    let mut acc = LaneRegisters {
+        cost: zero,
+        raw: zero,
+        jtr: [zero; N_PARAMS],
+        jtj: [zero; NT],
+    };
+    // Two blocks at a time: their robust weights (a serial chain of divisions and a
+    // polynomial each) are computed before either is summed, so that the two chains
+    // overlap; the sums still take block after block, in order.
+    let mut pairs = chunk.chunks_exact(2 * LANES);
+    let mut scale_pairs = scales.chunks_exact(2 * LANES);
+    for pair in &mut pairs {
+        let s = if WEIGHTED { scale_pairs.next() } else { None };
+        let half = |h: usize| {
+            let pts: &[[f64; 3]; LANES] = pair[h * LANES..(h + 1) * LANES]
+                .try_into()
+                .expect("a pair holds two blocks");
+            (pts, s.map(|s| &s[h * LANES..(h + 1) * LANES]))
+        };
+        // SAFETY: this function is compiled for AVX2 and runs only where the CPU has it.
+        unsafe {
+            let a = block_m256::<WEIGHTED>(geom, kind, half(0));
+            let b = block_m256::<WEIGHTED>(geom, kind, half(1));
+            if loss == Loss::Squared {
+                acc.add_squared(&a);
+                acc.add_squared(&b);
+            } else {
+                let (wa, wb) = (
+                    weights_m256::<EXACT>(loss, a.0),
+                    weights_m256::<EXACT>(loss, b.0),
+                );
+                acc.add_robust(&a, &wa);
+                acc.add_robust(&b, &wb);
+            }
+        }
+    }
+    // One more whole block, if any, then the points after it.
+    let rest = pairs.remainder();
+    let rest_scales = scale_pairs.remainder();
+    let (rest, rest_scales) = if rest.len() >= LANES {
+        let pts: &[[f64; 3]; LANES] = rest[..LANES].try_into().expect("LANES points");
+        let s = WEIGHTED.then(|| &rest_scales[..LANES]);
+        // SAFETY: as above.
+        unsafe {
+            let a = block_m256::<WEIGHTED>(geom, kind, (pts, s));
+            if loss == Loss::Squared {
+                acc.add_squared(&a);
+            } else {
+                acc.add_robust(&a, &weights_m256::<EXACT>(loss, a.0));
+            }
+        }
+        (
+            &rest[LANES..],
+            if WEIGHTED {
+                &rest_scales[LANES..]
+            } else {
+                rest_scales
+            },
+        )
+    } else {
+        (rest, rest_scales)
+    };
+    let out = |v: __m256d| {
+        let mut a = [0.0; LANES];
+        // SAFETY: `a` holds LANES = 4 f64.
+        unsafe { _mm256_storeu_pd(a.as_mut_ptr(), v) };
+        a
+    };
+    let lanes = LaneSums {
+        cost: out(acc.cost),
+        raw: out(acc.raw),
+        jtr: acc.jtr.map(out),
+        jtj: acc.jtj.map(out),
+    };
+    finish_sums::<WEIGHTED, EXACT>(geom, kind, loss, (rest, rest_scales), &lanes, chunk.len())
+}
+
+/// A block's residuals and gradients in registers.
+#[cfg(target_arch = "x86_64")]
+type BlockM256 = (
+    std::arch::x86_64::__m256d,
+    [std::arch::x86_64::__m256d; N_PARAMS],
+);
+
+/// The residuals and gradients of one block of `LANES` points, times their scales when
+/// `WEIGHTED` (`s`: one per point), as [`accumulate_lanes`] takes them.
+///
+/// # Safety
+/// Only where the CPU has AVX2; inlined into a function compiled for it.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn block_m256<const WEIGHTED: bool>(
+    geom: &Geometry,
+    kind: Residual,
+    (pts, s): (&[[f64; 3]; LANES], Option<&[f64]>),
+) -> BlockM256 {
+    // SAFETY: the CPU has AVX2 (the caller's contract); `s` holds LANES = 4 f64.
+    unsafe {
+        use std::arch::x86_64::*;
+        let (mut r, mut g) = geom.residuals_and_gradients_m256(kind, pts);
+        if WEIGHTED {
+            let s = s.filter(|s| s.len() == LANES).expect("one scale per point");
+            let s = _mm256_loadu_pd(s.as_ptr());
+            r = _mm256_mul_pd(r, s);
+            for ga in &mut g {
+                *ga = _mm256_mul_pd(*ga, s);
+            }
+        }
+        (r, g)
+    }
+}
+
+/// The robust loss's (c(r), w_g, w_H) of a block's residuals in registers: the Cauchy
+/// loss's computed there ([`crate::loss::cauchy_m256`]), Huber's lane by lane by the
+/// scalar code.
+///
+/// # Safety
+/// Only where the CPU has AVX2; inlined into a function compiled for it.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn weights_m256<const EXACT: bool>(
+    loss: Loss,
+    r: std::arch::x86_64::__m256d,
+) -> [std::arch::x86_64::__m256d; 3] {
+    // SAFETY: the CPU has AVX2 (the caller's contract); each array holds LANES = 4 f64.
+    unsafe {
+        use std::arch::x86_64::*;
+        if let Loss::Cauchy { scale } = loss {
+            return crate::loss::cauchy_m256(scale, r, EXACT);
+        }
+        let mut rl = [0.0; LANES];
+        _mm256_storeu_pd(rl.as_mut_ptr(), r);
+        let mut w = [[0.0; LANES]; 3];
+        for l in 0..LANES {
+            (w[0][l], w[1][l], w[2][l]) = if EXACT {
+                loss.cost_and_exact_weights(rl[l])
+            } else {
+                loss.cost_and_weights(rl[l])
+            };
+        }
+        w.map(|a| _mm256_loadu_pd(a.as_ptr()))
+    }
+}
+
+/// [`LaneSums`] in AVX2 registers.
+#[cfg(target_arch = "x86_64")]
+struct LaneRegisters {
+    cost: std::arch::x86_64::__m256d,
+    raw: std::arch::x86_64::__m256d,
+    jtr: [std::arch::x86_64::__m256d; N_PARAMS],
+    jtj: [std::arch::x86_64::__m256d; NT],
+}
+
+#[cfg(target_arch = "x86_64")]
+impl LaneRegisters {
+    /// A block's terms under the squared loss: its weights are 1, whose products are
+    /// exact and left out.
+    ///
+    /// # Safety
+    /// Only where the CPU has AVX2; inlined into a function compiled for it.
+    #[inline(always)]
+    unsafe fn add_squared(&mut self, (r, g): &BlockM256) {
+        // SAFETY: the CPU has AVX2 (the caller's contract).
+        unsafe {
+            use std::arch::x86_64::{_mm256_add_pd as add, _mm256_mul_pd as mul};
+            self.cost = add(self.cost, mul(*r, *r));
+            let mut idx = 0;
+            for a in 0..N_PARAMS {
+                self.jtr[a] = add(self.jtr[a], mul(g[a], *r));
+                for b in a..N_PARAMS {
+                    self.jtj[idx] = add(self.jtj[idx], mul(g[a], g[b]));
+                    idx += 1;
+                }
+            }
+        }
+    }
+
+    /// A block's terms under a robust loss with its (c, w_g, w_H).
+    ///
+    /// # Safety
+    /// Only where the CPU has AVX2; inlined into a function compiled for it.
+    #[inline(always)]
+    unsafe fn add_robust(
+        &mut self,
+        (r, g): &BlockM256,
+        [c, wg, wh]: &[std::arch::x86_64::__m256d; 3],
+    ) {
+        // SAFETY: the CPU has AVX2 (the caller's contract).
+        unsafe {
+            use std::arch::x86_64::{_mm256_add_pd as add, _mm256_mul_pd as mul};
+            self.cost = add(self.cost, *c);
+            self.raw = add(self.raw, mul(*r, *r));
+            let mut idx = 0;
+            for a in 0..N_PARAMS {
+                self.jtr[a] = add(self.jtr[a], mul(mul(*wg, g[a]), *r));
+                let hg = mul(*wh, g[a]);
+                for b in a..N_PARAMS {
+                    self.jtj[idx] = add(self.jtj[idx], mul(hg, g[b]));
+                    idx += 1;
+                }
+            }
+        }
+    }
 }
 
 /// [`accumulate_lanes`] compiled for AVX2 + FMA when the CPU has them; weighted when
@@ -531,10 +771,10 @@ fn accumulate_chunk(
         };
     }
     match (weighted, exact) {
-        (true, true) => accumulate_lanes::<true, true>(geom, kind, loss, chunk, scales, false),
-        (true, false) => accumulate_lanes::<true, false>(geom, kind, loss, chunk, scales, false),
-        (false, true) => accumulate_lanes::<false, true>(geom, kind, loss, chunk, scales, false),
-        (false, false) => accumulate_lanes::<false, false>(geom, kind, loss, chunk, scales, false),
+        (true, true) => accumulate_lanes::<true, true>(geom, kind, loss, chunk, scales),
+        (true, false) => accumulate_lanes::<true, false>(geom, kind, loss, chunk, scales),
+        (false, true) => accumulate_lanes::<false, true>(geom, kind, loss, chunk, scales),
+        (false, false) => accumulate_lanes::<false, false>(geom, kind, loss, chunk, scales),
     }
 }
 
@@ -586,7 +826,7 @@ mod tests {
                 dz: 0.05 * r(),
             };
             let geom = Geometry::new(&beta).expect("inside");
-            let mut pts: Vec<[f64; 3]> = (0..1003)
+            let mut pts: Vec<[f64; 3]> = (0..1007)
                 .map(|_| [3.0 * (r() + 1.0) + 0.1, 0.3 * r(), 0.3 * r()])
                 .collect();
             // Rays along the model axis: the sensor's position along R's X row.
@@ -600,23 +840,34 @@ mod tests {
                     Loss::Huber { scale: 0.02 },
                     Loss::Cauchy { scale: 0.02 },
                 ] {
-                    for sc in [&[][..], &scales[..]] {
+                    for (n, sc, exact) in [
+                        (1003, &[][..], false),
+                        (1003, &scales[..1003], false),
+                        (1007, &[][..], true),
+                        (1007, &scales[..1007], true),
+                        (1005, &scales[..1005], false),
+                        (7, &[][..], true),
+                    ] {
+                        let pts = &pts[..n];
                         // SAFETY: the CPU has AVX2 and FMA (checked above).
                         let (fast, plain) = unsafe {
-                            if sc.is_empty() {
-                                (
-                                    accumulate_avx2::<false, false>(&geom, kind, loss, &pts, sc),
-                                    accumulate_lanes::<false, false>(
-                                        &geom, kind, loss, &pts, sc, false,
-                                    ),
-                                )
-                            } else {
-                                (
-                                    accumulate_avx2::<true, false>(&geom, kind, loss, &pts, sc),
-                                    accumulate_lanes::<true, false>(
-                                        &geom, kind, loss, &pts, sc, false,
-                                    ),
-                                )
+                            match (sc.is_empty(), exact) {
+                                (true, false) => (
+                                    accumulate_avx2::<false, false>(&geom, kind, loss, pts, sc),
+                                    accumulate_lanes::<false, false>(&geom, kind, loss, pts, sc),
+                                ),
+                                (false, false) => (
+                                    accumulate_avx2::<true, false>(&geom, kind, loss, pts, sc),
+                                    accumulate_lanes::<true, false>(&geom, kind, loss, pts, sc),
+                                ),
+                                (true, true) => (
+                                    accumulate_avx2::<false, true>(&geom, kind, loss, pts, sc),
+                                    accumulate_lanes::<false, true>(&geom, kind, loss, pts, sc),
+                                ),
+                                (false, true) => (
+                                    accumulate_avx2::<true, true>(&geom, kind, loss, pts, sc),
+                                    accumulate_lanes::<true, true>(&geom, kind, loss, pts, sc),
+                                ),
                             }
                         };
                         let bits = |s: &Sums| -> Vec<u64> {
@@ -629,7 +880,7 @@ mod tests {
                         assert_eq!(
                             bits(&fast),
                             bits(&plain),
-                            "trial {trial} {kind:?} {loss:?} weighted {}",
+                            "trial {trial} {kind:?} {loss:?} {n} points, weighted {}, exact {exact}",
                             !sc.is_empty()
                         );
                     }

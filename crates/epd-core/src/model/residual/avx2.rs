@@ -8,15 +8,26 @@
 
 use super::{Geometry, N_PARAMS, Residual, dot};
 
+/// The coordinates of 4 points (SCS, m) lane by lane: [x, y, z] of points 0–3.
+///
+/// # Safety
+/// Only where the CPU has AVX2; inlined into a function compiled for it.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) unsafe fn points_m256(p: &[[f64; 3]; 4]) -> [std::arch::x86_64::__m256d; 3] {
+    // SAFETY: the CPU has AVX2 (the caller's contract).
+    unsafe {
+        use std::arch::x86_64::_mm256_set_pd as set;
+        std::array::from_fn(|k| set(p[3][k], p[2][k], p[1][k], p[0][k]))
+    }
+}
+
 impl Geometry {
-    /// [`residuals_and_gradients`](Self::residuals_and_gradients) of 4 points with the
-    /// wall's root, its divisions and square roots in AVX2 registers (the compiler leaves
-    /// them scalar, lane by lane, in the generic code), the same operations in the same
-    /// order, so the same bits.
+    /// [`residuals_and_gradients`](Self::residuals_and_gradients) of 4 points, out of
+    /// the registers of [`residuals_and_gradients_m256`](Self::residuals_and_gradients_m256).
     ///
     /// # Safety
-    /// Only where the CPU has AVX2. Its intrinsics are inlined where it is inlined into
-    /// a function compiled for AVX2 (`problem`'s `accumulate_avx2`, its only caller).
+    /// Only where the CPU has AVX2; inlined into a function compiled for it.
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
     pub(crate) unsafe fn residuals_and_gradients_avx2(
@@ -24,21 +35,127 @@ impl Geometry {
         kind: Residual,
         p: &[[f64; 3]; 4],
     ) -> ([f64; 4], [[f64; 4]; N_PARAMS]) {
-        let (u, v, du, dv) = self.projections(p);
-        let (r, g_prim) = match kind {
-            Residual::Canonical => self.primitives(kind, p, &u, &v),
-            Residual::ErrorBased | Residual::Range => {
-                // SAFETY: the caller runs only where the CPU has AVX2.
-                unsafe { self.wall_primitives_avx2(kind, p, &u, &v) }
+        // SAFETY: the CPU has AVX2 (the caller's contract); every store is of an array
+        // of 4 f64.
+        unsafe {
+            use std::arch::x86_64::_mm256_storeu_pd as store;
+            let (rv, gv) = self.residuals_and_gradients_m256(kind, p);
+            let mut r = [0.0; 4];
+            let mut g = [[0.0; 4]; N_PARAMS];
+            store(r.as_mut_ptr(), rv);
+            for (out, v) in g.iter_mut().zip(gv) {
+                store(out.as_mut_ptr(), v);
             }
-        };
-        self.chain(r, g_prim, &du, &dv)
+            (r, g)
+        }
+    }
+
+    /// [`residuals_and_gradients`](Self::residuals_and_gradients) of 4 points held in
+    /// AVX2 registers from the points' load to the gradients over β: the projections,
+    /// the residual's primitives (the wall's root, its divisions and square roots) and
+    /// the chain rule, each line the scalar code's operation on four lanes in its order
+    /// (no fused multiply-adds), so the same bits. Written out because the generic code,
+    /// compiled for AVX2, kept each lane's dot products scalar and passed its arrays
+    /// through memory: one pass of the normal equations over 306 000 points took 6 ms
+    /// whatever the residual (the canonical one, without a root, included).
+    ///
+    /// # Safety
+    /// Only where the CPU has AVX2; inlined into a function compiled for it.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    pub(crate) unsafe fn residuals_and_gradients_m256(
+        &self,
+        kind: Residual,
+        p: &[[f64; 3]; 4],
+    ) -> (
+        std::arch::x86_64::__m256d,
+        [std::arch::x86_64::__m256d; N_PARAMS],
+    ) {
+        // SAFETY: the CPU has AVX2 (the caller's contract).
+        unsafe {
+            use std::arch::x86_64::*;
+            use {_mm256_add_pd as add, _mm256_mul_pd as mul, _mm256_set1_pd as splat};
+            let [x, y, z] = points_m256(p);
+            // dot(a, p) = a₀x + a₁y + a₂z, left to right.
+            let dot3 = |a: &[f64; 3]| {
+                add(
+                    add(mul(splat(a[0]), x), mul(splat(a[1]), y)),
+                    mul(splat(a[2]), z),
+                )
+            };
+            let (u, v) = (dot3(&self.r_y), dot3(&self.r_z));
+            let du = [
+                dot3(&self.dr_y[0]),
+                dot3(&self.dr_y[1]),
+                dot3(&self.dr_y[2]),
+            ];
+            let dv = [
+                dot3(&self.dr_z[0]),
+                dot3(&self.dr_z[1]),
+                dot3(&self.dr_z[2]),
+            ];
+            let (r, [g_alpha, g_gamma, g_y0, g_z0, g_u, g_v]) = match kind {
+                Residual::Canonical => self.canonical_primitives_m256(u, v),
+                Residual::ErrorBased | Residual::Range => {
+                    // ‖p‖² = x² + y² + z², left to right (`dot(p, p)`).
+                    let p2 = add(add(mul(x, x), mul(y, y)), mul(z, z));
+                    self.wall_primitives_avx2(kind, p2, u, v)
+                }
+            };
+            // The chain rule (`chain`).
+            let chain = |k: usize| add(mul(g_u, du[k]), mul(g_v, dv[k]));
+            let g = [
+                mul(g_alpha, splat(self.dalpha)),
+                mul(g_gamma, splat(self.dgamma)),
+                chain(0),
+                chain(1),
+                chain(2),
+                g_y0,
+                g_z0,
+            ];
+            (r, g)
+        }
+    }
+
+    /// Eq. (6)'s residual and its gradients over the primitives for 4 points with
+    /// rotated coordinates (u, v) in registers, as `primitives` computes them.
+    ///
+    /// # Safety
+    /// Only where the CPU has AVX2; inlined into a function compiled for it.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn canonical_primitives_m256(
+        &self,
+        u: std::arch::x86_64::__m256d,
+        v: std::arch::x86_64::__m256d,
+    ) -> (std::arch::x86_64::__m256d, [std::arch::x86_64::__m256d; 6]) {
+        // SAFETY: the CPU has AVX2 (the caller's contract).
+        unsafe {
+            use std::arch::x86_64::*;
+            use {
+                _mm256_add_pd as add, _mm256_mul_pd as mul, _mm256_set1_pd as splat,
+                _mm256_sub_pd as sub,
+            };
+            let y = add(splat(self.y0), u);
+            let z = add(splat(self.z0), v);
+            let r = sub(
+                add(
+                    mul(mul(splat(self.alpha), y), y),
+                    mul(mul(splat(self.gamma), z), z),
+                ),
+                splat(1.0),
+            );
+            let gy = mul(splat(2.0 * self.alpha), y);
+            let gz = mul(splat(2.0 * self.gamma), z);
+            (r, [mul(y, y), mul(z, z), gy, gz, gy, gz])
+        }
     }
 
     /// [`primitives`](Self::primitives) of the wall's range residuals (ML-EPD's and the
-    /// range's) for 4 points in AVX2 registers: each line is the scalar code's operation
-    /// on four lanes, in its order (no fused multiply-adds), so each lane's result is the
-    /// scalar code's to the bit (tested: `problem`'s kernels agree bit for bit).
+    /// range's) for 4 points in AVX2 registers, given ‖p‖² and the rotated coordinates
+    /// (u, v): each line is the scalar code's operation on four lanes, in its order (no
+    /// fused multiply-adds), so each lane's result is the scalar code's to the bit
+    /// (tested: `problem`'s kernels agree bit for bit).
     ///
     /// # Safety
     /// Only where the CPU has AVX2 (see [`residuals_and_gradients_avx2`](Self::residuals_and_gradients_avx2)).
@@ -47,20 +164,17 @@ impl Geometry {
     unsafe fn wall_primitives_avx2(
         &self,
         kind: Residual,
-        p: &[[f64; 3]; 4],
-        u: &[f64; 4],
-        v: &[f64; 4],
-    ) -> ([f64; 4], [[f64; 4]; 6]) {
-        // SAFETY: the CPU has AVX2 (the caller's contract); every load and store is of
-        // an array of 4 f64.
+        p2: std::arch::x86_64::__m256d,
+        uu: std::arch::x86_64::__m256d,
+        vv: std::arch::x86_64::__m256d,
+    ) -> (std::arch::x86_64::__m256d, [std::arch::x86_64::__m256d; 6]) {
+        // SAFETY: the CPU has AVX2 (the caller's contract).
         unsafe {
             use std::arch::x86_64::*;
             use {
                 _mm256_add_pd as add, _mm256_div_pd as div, _mm256_mul_pd as mul,
                 _mm256_set1_pd as splat, _mm256_sub_pd as sub,
             };
-            // u and v hold 4 f64 each.
-            let (uu, vv) = (_mm256_loadu_pd(u.as_ptr()), _mm256_loadu_pd(v.as_ptr()));
             let (alpha, gamma, c) = (splat(self.alpha), splat(self.gamma), splat(self.c));
             let zero = _mm256_setzero_pd();
             let one = splat(1.0);
@@ -96,8 +210,7 @@ impl Geometry {
             let scale = if kind == Residual::ErrorBased {
                 _mm256_sqrt_pd(add(mul(uu, uu), mul(vv, vv)))
             } else {
-                let range: [f64; 4] = std::array::from_fn(|l| dot(&p[l], &p[l]));
-                _mm256_sqrt_pd(_mm256_loadu_pd(range.as_ptr()))
+                _mm256_sqrt_pd(p2)
             };
             // −x as the scalar code negates: the sign bit flipped.
             let neg_scale = _mm256_xor_pd(scale, splat(-0.0));
@@ -110,14 +223,11 @@ impl Geometry {
                 gp[4] = add(gp[4], mul(w, uu));
                 gp[5] = add(gp[5], mul(w, vv));
             }
-            // Invalid lanes give 0 (+0.0, as the scalar code), then out of the registers.
-            let mut r = [0.0; 4];
-            let mut g = [[0.0; 4]; 6];
-            _mm256_storeu_pd(r.as_mut_ptr(), _mm256_and_pd(mul(one_t, scale), valid));
-            for k in 0..6 {
-                _mm256_storeu_pd(g[k].as_mut_ptr(), _mm256_and_pd(gp[k], valid));
+            // Invalid lanes give 0 (+0.0, as the scalar code).
+            for g in &mut gp {
+                *g = _mm256_and_pd(*g, valid);
             }
-            (r, g)
+            (_mm256_and_pd(mul(one_t, scale), valid), gp)
         }
     }
 
@@ -160,20 +270,56 @@ impl Geometry {
         &self,
         p: &[[f64; 3]; 4],
     ) -> ([[f64; 4]; 3], [f64; 4], [f64; 4], [f64; 4]) {
-        use std::arch::x86_64::*;
-        let qx: [f64; 4] = std::array::from_fn(|l| dot(&self.r_x, &p[l]));
-        let u: [f64; 4] = std::array::from_fn(|l| dot(&self.r_y, &p[l]));
-        let v: [f64; 4] = std::array::from_fn(|l| dot(&self.r_z, &p[l]));
-        let mut w = [[0.0; 4]; 3];
-        let mut ts = [0.0; 4];
-        // SAFETY: the CPU has AVX2 (the caller's contract); every load and store is of
-        // an array of 4 f64.
+        // SAFETY: the CPU has AVX2 (the caller's contract); every store is of an array
+        // of 4 f64.
         unsafe {
+            use std::arch::x86_64::_mm256_storeu_pd as store;
+            let (wv, tv, uv, vv) = self.wall_points_m256(p);
+            let mut w = [[0.0; 4]; 3];
+            for (out, v) in w.iter_mut().zip(wv) {
+                store(out.as_mut_ptr(), v);
+            }
+            let (mut t, mut u, mut v) = ([0.0; 4], [0.0; 4], [0.0; 4]);
+            store(t.as_mut_ptr(), tv);
+            store(u.as_mut_ptr(), uv);
+            store(v.as_mut_ptr(), vv);
+            (w, t, u, v)
+        }
+    }
+
+    /// [`wall_points_avx2`](Self::wall_points_avx2) held in registers: the wall points
+    /// [x, Y, Z], t, u and v of 4 points, the projections taken in registers too.
+    ///
+    /// # Safety
+    /// Only where the CPU has AVX2; inlined into a function compiled for it.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    #[allow(clippy::type_complexity)]
+    pub(crate) unsafe fn wall_points_m256(
+        &self,
+        p: &[[f64; 3]; 4],
+    ) -> (
+        [std::arch::x86_64::__m256d; 3],
+        std::arch::x86_64::__m256d,
+        std::arch::x86_64::__m256d,
+        std::arch::x86_64::__m256d,
+    ) {
+        // SAFETY: the CPU has AVX2 (the caller's contract).
+        unsafe {
+            use std::arch::x86_64::*;
             use {
                 _mm256_add_pd as add, _mm256_div_pd as div, _mm256_mul_pd as mul,
                 _mm256_set1_pd as splat, _mm256_sub_pd as sub,
             };
-            let (uu, vv) = (_mm256_loadu_pd(u.as_ptr()), _mm256_loadu_pd(v.as_ptr()));
+            let [x, y, z] = points_m256(p);
+            // dot(a, p) = a₀x + a₁y + a₂z, left to right.
+            let dot3 = |a: &[f64; 3]| {
+                add(
+                    add(mul(splat(a[0]), x), mul(splat(a[1]), y)),
+                    mul(splat(a[2]), z),
+                )
+            };
+            let (qx, uu, vv) = (dot3(&self.r_x), dot3(&self.r_y), dot3(&self.r_z));
             let zero = _mm256_setzero_pd();
             // `wall_root`: A, B, S and the cancellation-free root; t = 1 off the wall.
             let a = add(
@@ -189,12 +335,13 @@ impl Geometry {
             let pos = _mm256_cmp_pd::<_CMP_GT_OQ>(b, zero);
             let root = _mm256_blendv_pd(div(sub(sq, b), a), div(splat(-self.c), add(b, sq)), pos);
             let t = _mm256_blendv_pd(splat(1.0), root, valid);
-            _mm256_storeu_pd(ts.as_mut_ptr(), t);
-            _mm256_storeu_pd(w[0].as_mut_ptr(), mul(t, _mm256_loadu_pd(qx.as_ptr())));
-            _mm256_storeu_pd(w[1].as_mut_ptr(), add(splat(self.y0), mul(t, uu)));
-            _mm256_storeu_pd(w[2].as_mut_ptr(), add(splat(self.z0), mul(t, vv)));
+            let w = [
+                mul(t, qx),
+                add(splat(self.y0), mul(t, uu)),
+                add(splat(self.z0), mul(t, vv)),
+            ];
+            (w, t, uu, vv)
         }
-        (w, ts, u, v)
     }
 
     /// [`range_sum_of_squares`](Self::range_sum_of_squares) compiled for AVX2: t by
@@ -258,13 +405,32 @@ impl Geometry {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
     pub(super) fn wall_deviations_avx2(&self, points: &[[f64; 3]], out: &mut Vec<[f64; 4]>) {
+        use std::arch::x86_64::*;
+        use {
+            _mm256_div_pd as div, _mm256_mul_pd as mul, _mm256_set1_pd as splat,
+            _mm256_sub_pd as sub,
+        };
         let mut blocks = points.chunks_exact(4);
         for b in &mut blocks {
             let arr: &[[f64; 3]; 4] = b.try_into().expect("chunks_exact yields 4 points");
-            // SAFETY: this function runs only where the CPU has AVX2.
-            let ([x, y, z], t, u, v) = unsafe { self.wall_points_avx2(arr) };
+            // SAFETY: this function runs only where the CPU has AVX2; every store is of
+            // an array of 4 f64.
+            let cols = unsafe {
+                let ([x, y, z], t, u, v) = self.wall_points_m256(arr);
+                // `deviation_at`: d = (1 − t)·|nY·u + nZ·v| / √(nY² + nZ²).
+                let (ny, nz) = (mul(splat(self.alpha), y), mul(splat(self.gamma), z));
+                let dot = _mm256_add_pd(mul(ny, u), mul(nz, v));
+                let abs = _mm256_andnot_pd(splat(-0.0), dot);
+                let norm = _mm256_sqrt_pd(_mm256_add_pd(mul(ny, ny), mul(nz, nz)));
+                let d = div(mul(sub(splat(1.0), t), abs), norm);
+                [x, y, z, d].map(|c| {
+                    let mut a = [0.0; 4];
+                    _mm256_storeu_pd(a.as_mut_ptr(), c);
+                    a
+                })
+            };
             for l in 0..4 {
-                out.push(self.deviation_at(x[l], y[l], z[l], t[l], u[l], v[l]));
+                out.push([cols[0][l], cols[1][l], cols[2][l], cols[3][l]]);
             }
         }
         out.extend(blocks.remainder().iter().map(|p| self.wall_deviation(p)));
