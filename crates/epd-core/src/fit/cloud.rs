@@ -64,7 +64,8 @@ pub fn clean(points: &[[f64; 3]]) -> CleanCloud<'_> {
             dropped: 0,
         };
     }
-    let kept: Vec<[f64; 3]> = points.par_iter().copied().filter(usable).collect();
+    let mut kept: Vec<[f64; 3]> = Vec::with_capacity(points.len());
+    kept.extend(points.iter().copied().filter(usable));
     CleanCloud {
         dropped: points.len() - kept.len(),
         points: Cow::Owned(kept),
