@@ -244,22 +244,25 @@ impl WallCells {
         let geom = Geometry::new(beta)?;
         let g = cells.len();
         let indexer = cells.indexer();
-        // On at most FORM_POINTS evenly strided points, in two passes so that the
-        // residuals are held once, grouped by cell in one buffer: first each point's cell
-        // (and the sums of each cell's axial distances and clock-angle sines and
-        // cosines), then each residual written to its cell's part of the buffer.
+        // On at most FORM_POINTS evenly strided points, in one pass: each point's cell and
+        // residual (and the sums of each cell's axial distances and clock-angle sines and
+        // cosines), then the residuals grouped by cell in one buffer, in their order
+        // (a counting sort). At most FORM_POINTS of each are held (1.5 MiB at 2¹⁶);
+        // a second pass over the points to write the residuals cost 0.7 ms a full frame.
         let stride = points.len().div_ceil(FORM_POINTS).max(1);
         let scale_of = |i: usize| scales.and_then(|s| s.get(i)).copied().unwrap_or(1.0);
         let mut cell_of: Vec<u32> = Vec::with_capacity(points.len().div_ceil(stride));
+        let mut value_of: Vec<f64> = Vec::with_capacity(points.len().div_ceil(stride));
         let mut counts = vec![0usize; g];
         let mut centre = vec![[0.0f64; 3]; g];
         for_each_range_and_cell(&geom, &indexer, points, stride, |i, r, c, [x, y, z]| {
-            if !(scale_of(i) * r).is_finite() {
-                cell_of.push(u32::MAX);
+            let value = scale_of(i) * r;
+            if !value.is_finite() {
                 return;
             }
             // Cells number far below 2³² (axial bins × sectors of a few hundred at most).
             cell_of.push(u32::try_from(c).unwrap_or(u32::MAX));
+            value_of.push(value);
             counts[c] += 1;
             // sin and cos of the clock angle atan2(y, z); ρ by a plain square root, not
             // `hypot` (which guards against overflow, impossible for a wall point, at a
@@ -283,15 +286,13 @@ impl WallCells {
         }
         let mut residuals = vec![0.0f64; n_all];
         let mut fill = start.clone();
-        let mut k = 0;
-        for_each_range_and_cell(&geom, &indexer, points, stride, |i, r, _, _| {
-            if let Some(slot) = cell_of.get(k).and_then(|&c| fill.get_mut(c as usize)) {
-                residuals[*slot] = scale_of(i) * r;
+        for (&c, &value) in cell_of.iter().zip(&value_of) {
+            if let Some(slot) = fill.get_mut(c as usize) {
+                residuals[*slot] = value;
                 *slot += 1;
             }
-            k += 1;
-        });
-        drop(cell_of);
+        }
+        drop((cell_of, value_of));
         let mut tested = Vec::new();
         let mut dev = Vec::new();
         for (id, c) in centre.iter().enumerate() {

@@ -403,6 +403,8 @@ struct CellStore {
     blocks: Vec<Vec<u32>>,
     /// Each cell's deviations.
     len: Vec<usize>,
+    /// Where each cell's last block starts in `data`.
+    tail: Vec<usize>,
 }
 
 impl CellStore {
@@ -414,18 +416,19 @@ impl CellStore {
             data: Vec::with_capacity(blocks * CELL_BLOCK),
             blocks: vec![Vec::new(); cells],
             len: vec![0; cells],
+            tail: vec![0; cells],
         }
     }
 
     fn push(&mut self, c: usize, d: f32) {
         let k = self.len[c] % CELL_BLOCK;
         if k == 0 {
-            self.blocks[c].push((self.data.len() / CELL_BLOCK) as u32);
+            let b = self.data.len() / CELL_BLOCK;
+            self.blocks[c].push(b as u32);
+            self.tail[c] = b * CELL_BLOCK;
             self.data.resize(self.data.len() + CELL_BLOCK, 0.0);
         }
-        if let Some(&b) = self.blocks[c].last() {
-            self.data[b as usize * CELL_BLOCK + k] = d;
-        }
+        self.data[self.tail[c] + k] = d;
         self.len[c] += 1;
     }
 
