@@ -297,15 +297,19 @@ pub fn profile(
     let watch = crate::cancel::watch();
     let ns = o.sectors;
     let clock = ClockSectors::new(ns);
-    // The (x, Y, Z, d) of a chunk's points that count: x, d and ψ finite (as `deviation`
-    // keeps them); none once a stop is asked for.
-    let counted = |chunk: &[[f64; 3]]| {
-        let mut walls = Vec::new();
+    // The (x, Y, Z, d) of a chunk's points that count, handed to `f` in order: x, d and ψ
+    // finite (as `deviation` keeps them); none once a stop is asked for. Nothing is held:
+    // writing every point's deviation to a buffer and reading it back cost more than
+    // computing it.
+    let counted = |chunk: &[[f64; 3]], mut f: &mut dyn FnMut([f64; 4])| {
         if !watch.stopped() {
-            geom.wall_deviations(chunk, &mut walls);
+            geom.for_each_wall_deviation(chunk, |w| {
+                let [x, y, z, d] = w;
+                if x.is_finite() && d.is_finite() && !(y.is_nan() || z.is_nan()) {
+                    (&mut f)(w);
+                }
+            });
         }
-        walls.retain(|&[x, y, z, d]| x.is_finite() && d.is_finite() && !(y.is_nan() || z.is_nan()));
-        walls
     };
     // Pass 1: the axial extent of the counted points, which places the slices.
     // Also how many of them lie at x ≥ 0: those that pass 2 bins (x ≥ x_min = max(the
@@ -314,10 +318,11 @@ pub fn profile(
     let (x_min, x_max, n_binned) = points
         .par_chunks(PROFILE_CHUNK)
         .map(|chunk| {
-            counted(chunk).iter().fold(
-                (f64::INFINITY, f64::NEG_INFINITY, 0usize),
-                |(lo, hi, n), w| (lo.min(w[0]), hi.max(w[0]), n + usize::from(w[0] >= 0.0)),
-            )
+            let (mut lo, mut hi, mut n) = (f64::INFINITY, f64::NEG_INFINITY, 0usize);
+            counted(chunk, &mut |w| {
+                (lo, hi, n) = (lo.min(w[0]), hi.max(w[0]), n + usize::from(w[0] >= 0.0));
+            });
+            (lo, hi, n)
         })
         .reduce(
             || (f64::INFINITY, f64::NEG_INFINITY, 0),
@@ -337,16 +342,14 @@ pub fn profile(
         let binned: Vec<Vec<(u32, f32)>> = batch
             .par_chunks(PROFILE_CHUNK)
             .map(|chunk| {
-                // Borrowed, not consumed: a collect in place would keep the deviations'
-                // 32-byte slots for the 16-byte pairs.
-                counted(chunk)
-                    .iter()
-                    .filter(|w| w[0] >= x_min)
-                    .map(|&[x, y, z, d]| {
+                let mut pairs = Vec::with_capacity(chunk.len());
+                counted(chunk, &mut |[x, y, z, d]| {
+                    if x >= x_min {
                         let i = (((x - x_min) / o.slice_m) as usize).min(n_slices - 1);
-                        ((i * ns + clock.of(y, z)) as u32, d as f32)
-                    })
-                    .collect()
+                        pairs.push(((i * ns + clock.of(y, z)) as u32, d as f32));
+                    }
+                });
+                pairs
             })
             .collect();
         crate::cancel::checkpoint();

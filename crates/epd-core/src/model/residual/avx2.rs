@@ -6,7 +6,7 @@
 //! `target_feature` attribute are `inline(always)`: their intrinsics are inlined where
 //! they are inlined into a function compiled for AVX2, their only callers.
 
-use super::{Geometry, N_PARAMS, Residual, dot};
+use super::{Geometry, N_PARAMS, Residual};
 
 /// The coordinates of 4 points (SCS, m) lane by lane: [x, y, z] of points 0–3.
 ///
@@ -333,8 +333,11 @@ impl Geometry {
             );
             let sq = _mm256_sqrt_pd(_mm256_max_pd(sub(mul(b, b), mul(a, splat(self.c))), zero));
             let pos = _mm256_cmp_pd::<_CMP_GT_OQ>(b, zero);
-            let root = _mm256_blendv_pd(div(sub(sq, b), a), div(splat(-self.c), add(b, sq)), pos);
-            let t = _mm256_blendv_pd(splat(1.0), root, valid);
+            // One division of the root's two forms' operands chosen lane by lane: the same
+            // quotient as either form's own.
+            let num = _mm256_blendv_pd(sub(sq, b), splat(-self.c), pos);
+            let den = _mm256_blendv_pd(a, add(b, sq), pos);
+            let t = _mm256_blendv_pd(splat(1.0), div(num, den), valid);
             let w = [
                 mul(t, qx),
                 add(splat(self.y0), mul(t, uu)),
@@ -387,24 +390,36 @@ impl Geometry {
         chunk: &'a [[f64; 3]],
         mut each: impl FnMut(usize, f64),
     ) -> &'a [[f64; 3]] {
+        use std::arch::x86_64::*;
+        use {_mm256_add_pd as add, _mm256_mul_pd as mul};
         let mut blocks = chunk.chunks_exact(4);
         for b in &mut blocks {
             let arr: &[[f64; 3]; 4] = b.try_into().expect("chunks_exact yields 4 points");
-            // SAFETY: this function runs only where the CPU has AVX2.
-            let (_, t, _, _) = unsafe { self.wall_points_avx2(arr) };
-            for (l, p) in arr.iter().enumerate() {
-                each(l, (1.0 - t[l]) * dot(p, p).sqrt());
+            let mut r = [0.0; 4];
+            // SAFETY: this function runs only where the CPU has AVX2; `r` holds 4 f64.
+            unsafe {
+                let (_, t, _, _) = self.wall_points_m256(arr);
+                let [x, y, z] = points_m256(arr);
+                // (1 − t)·‖p‖, ‖p‖² = x² + y² + z² left to right (`dot(p, p)`).
+                let range = _mm256_sqrt_pd(add(add(mul(x, x), mul(y, y)), mul(z, z)));
+                _mm256_storeu_pd(
+                    r.as_mut_ptr(),
+                    mul(_mm256_sub_pd(_mm256_set1_pd(1.0), t), range),
+                );
+            }
+            for (l, v) in r.into_iter().enumerate() {
+                each(l, v);
             }
         }
         blocks.remainder()
     }
 
-    /// [`wall_deviations`](Self::wall_deviations) compiled for AVX2: the wall points by
+    /// [`for_each_wall_deviation`](Self::for_each_wall_deviation) compiled for AVX2: the wall points by
     /// [`wall_points_avx2`](Self::wall_points_avx2), then d as in
     /// [`wall_deviation`](Self::wall_deviation).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
-    pub(super) fn wall_deviations_avx2(&self, points: &[[f64; 3]], out: &mut Vec<[f64; 4]>) {
+    pub(super) fn wall_deviations_avx2(&self, points: &[[f64; 3]], mut each: impl FnMut([f64; 4])) {
         use std::arch::x86_64::*;
         use {
             _mm256_div_pd as div, _mm256_mul_pd as mul, _mm256_set1_pd as splat,
@@ -430,9 +445,12 @@ impl Geometry {
                 })
             };
             for l in 0..4 {
-                out.push([cols[0][l], cols[1][l], cols[2][l], cols[3][l]]);
+                each([cols[0][l], cols[1][l], cols[2][l], cols[3][l]]);
             }
         }
-        out.extend(blocks.remainder().iter().map(|p| self.wall_deviation(p)));
+        blocks
+            .remainder()
+            .iter()
+            .for_each(|p| each(self.wall_deviation(p)));
     }
 }
