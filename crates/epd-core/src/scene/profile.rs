@@ -301,12 +301,12 @@ pub fn profile(
     // finite (as `deviation` keeps them); none once a stop is asked for. Nothing is held:
     // writing every point's deviation to a buffer and reading it back cost more than
     // computing it.
-    let counted = |chunk: &[[f64; 3]], mut f: &mut dyn FnMut([f64; 4])| {
+    let counted = |chunk: &[[f64; 3]], f: &mut dyn FnMut([f64; 4])| {
         if !watch.stopped() {
             geom.for_each_wall_deviation(chunk, |w| {
                 let [x, y, z, d] = w;
                 if x.is_finite() && d.is_finite() && !(y.is_nan() || z.is_nan()) {
-                    (&mut f)(w);
+                    f(w);
                 }
             });
         }
