@@ -2,7 +2,9 @@
 //! each line is the scalar code's operation on four lanes, in its order and without fused
 //! multiply-adds, so each lane's result is the scalar code's to the bit (tested in the
 //! parent module and in `problem`). The compiler had left the wall's root, its divisions
-//! and its square roots scalar, lane by lane. The `unsafe` functions without a
+//! and its square roots scalar, lane by lane, and each lane's dot products too, passing
+//! the arrays between them through memory: the points are loaded into registers once
+//! ([`points_m256`]) and stay there. The `unsafe` functions without a
 //! `target_feature` attribute are `inline(always)`: their intrinsics are inlined where
 //! they are inlined into a function compiled for AVX2, their only callers.
 
