@@ -247,8 +247,10 @@ impl WallCells {
         // On at most FORM_POINTS evenly strided points, in one pass: each point's cell and
         // residual (and the sums of each cell's axial distances and clock-angle sines and
         // cosines), then the residuals grouped by cell in one buffer, in their order
-        // (a counting sort). At most FORM_POINTS of each are held (1.5 MiB at 2¹⁶);
-        // a second pass over the points to write the residuals cost 0.7 ms a full frame.
+        // (a counting sort). At most FORM_POINTS of each are held, 12 B a point beside
+        // the grouped residuals' 8 B (1.31 MB at 2¹⁶: the estimate's largest part,
+        // `tests/memory.rs`); a second pass over the points to write the residuals
+        // instead cost 0.7 ms a full frame.
         let stride = points.len().div_ceil(FORM_POINTS).max(1);
         let scale_of = |i: usize| scales.and_then(|s| s.get(i)).copied().unwrap_or(1.0);
         let mut cell_of: Vec<u32> = Vec::with_capacity(points.len().div_ceil(stride));
