@@ -1,7 +1,7 @@
 //! Diagnostics on standard error that never stop a program: `eprintln!` panics when
 //! standard error is a pipe whose reader has gone ("failed printing to stderr: Broken
 //! pipe", exit 101), which would lose the outputs and the exit code of the run that
-//! printed it. [`line`] (and the [`stderr_line!`](crate::stderr_line) macro over it)
+//! printed it. `line` (and the [`stderr_line!`](crate::stderr_line) macro over it)
 //! writes the line and ignores a failure: a diagnostic nobody can read is dropped, the
 //! run goes on and exits with its own code.
 

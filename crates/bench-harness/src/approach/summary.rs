@@ -44,7 +44,7 @@ pub struct ApproachRow {
     /// Largest |error| of the bend radius (%).
     pub bend_radius_err_max_pct: f64,
     /// Share of the frames with a `straight_until_m` and its 1-σ whose ±1.96σ holds the
-    /// truth ([`cover95`]).
+    /// truth (`cover95`).
     pub straight_until_cover95: f64,
     /// The same for the bend radius.
     pub bend_radius_cover95: f64,

@@ -12,7 +12,7 @@
 //!
 //! The checks of the shards before anything is read are in `merge/check.rs`; each
 //! shard's records file is then checked against the length and SHA-256 its manifest
-//! records ([`verify_records`]), and each record against itself as it is read
+//! records (`verify_records`), and each record against itself as it is read
 //! ([`TrialRecord::check_consistent`]): an edited or swapped records file is refused,
 //! naming the file and, where it can be found, the line.
 

@@ -299,7 +299,7 @@ impl DepthTable {
     }
 
     /// For each bin, the filled bin whose values it holds: itself when filled, else the
-    /// one [`Self::fill_empty_bins`] copied (the nearest filled bin of its range row, else
+    /// one `Self::fill_empty_bins` copied (the nearest filled bin of its range row, else
     /// that bin of the nearest filled row); `None` when no bin is filled.
     pub fn source_bins(&self) -> Option<Vec<usize>> {
         let (nr, ni) = (self.range.n, self.log_intensity.n);

@@ -106,7 +106,7 @@ pub fn rms_range_residual(points: &[[f64; 3]], beta: &Params) -> Option<f64> {
 const RMS_BATCH_CHUNKS: usize = 16;
 
 /// [`rms_range_residual`] of the points an iterator yields (the unusable ones skipped),
-/// without holding them: they pass through a buffer of [`RMS_BATCH_CHUNKS`] solver
+/// without holding them: they pass through a buffer of `RMS_BATCH_CHUNKS` solver
 /// chunks, so that the RMS of a selection (a straight section, a range gate) costs no
 /// copy of it (issue 27), and the sum is the one of the selection held in one slice, bit
 /// for bit: the chunks' sums in order (tested against [`rms_range_residual`]).

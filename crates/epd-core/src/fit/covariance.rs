@@ -155,7 +155,7 @@ fn hold_roll(sigma: &mut Sigmas, beta: &Params, cov: &Mat7) {
 /// other angles and offsets compensate leaves the axis where it is (A and B have no
 /// component along that turn), where their 1-σ taken one by one carry it in full (a round
 /// 20" pipe: pitch and yaw 2°, δz 44 mm; the reported ones are held at the reported roll,
-/// [`hold_roll`]).
+/// `hold_roll`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AxisCov {
     /// P (m²).

@@ -593,7 +593,7 @@ fn solve_cloud(
 }
 
 /// The level of the test whether slices found off the wall move the diameters
-/// ([`shared_misfit`]): it is asked only of frames whose slices already failed the slice
+/// (`shared_misfit`): it is asked only of frames whose slices already failed the slice
 /// form test at [`crate::fit::form::LACK_OF_FIT_ALPHA`], so a frame whose errors are independent is refused
 /// by it at a rate below 10⁻³ whatever this level; this level is the rate at which a frame
 /// with a real but harmless shared error (a depth table's residual at the nearest ranges)

@@ -217,7 +217,7 @@ impl EstimateOptions {
     /// [`with_start`](Self::with_start) from a fit of `n` points of a sample of the
     /// frame (the informed choice's pilot): a fit of N > 2m points, m = 2n, then first
     /// converges on an evenly strided subsample of about m of them
-    /// ([`warm_stage_points`](Self::warm_stage_points)), then iterates on all points. A
+    /// (`warm_stage_points`), then iterates on all points. A
     /// fit of n points lies about √(N/n) of the final fit's standard deviations from the
     /// final minimum (its first step measured 24 of them, in 7 dimensions, from the pilot
     /// of 1024 points to the fit of 20 000: `epd estimate --max-points 20000` on a frame of

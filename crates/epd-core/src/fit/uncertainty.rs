@@ -83,7 +83,7 @@ pub(crate) fn jackknife_covariance(
     sigmas_of(&v, &keep)
 }
 
-/// The level of the per-parameter test of [`slice_check`], applied only once the cells'
+/// The level of the per-parameter test of `slice_check`, applied only once the cells'
 /// medians have shown an error shared along the pipe at the level
 /// `form::SHARED_ERROR_ALPHA` (10⁻³ per frame): a parameter then takes its 1-σ from the
 /// slices when its slice jackknife exceeds the cells' beyond this level, so a shared

@@ -40,7 +40,7 @@ pub const OFF_WALL_TAIL: f64 = 1e-4;
 /// `fit` a fit on every point of `pts` (SCS, m): `fit`'s own ([`AxisSigma::of`]), unless
 /// more points lie off its wall ([`OFF_WALL_TAIL`]) than Gaussian noise puts there at the
 /// survey's false-alarm rate — a binomial count of N trials at the Gaussian tail of the
-/// whole frame's median ([`gaussian_tail`], about 10⁻⁴) exceeded with probability below
+/// whole frame's median (`gaussian_tail`, about 10⁻⁴) exceeded with probability below
 /// [`SURVEY_FALSE_ALARM`], so that a straight frame under Gaussian noise keeps its fit's
 /// own in all but 10⁻³ of frames. Then the fit on the points within the
 /// limit, started from `fit`'s β. A straight frame with stray returns (far outliers,

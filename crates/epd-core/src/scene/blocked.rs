@@ -13,7 +13,7 @@
 //! The test: the points whose range residual lies below −z·s ([`OFF_WALL_TAIL`](crate::scene::axis::OFF_WALL_TAIL), the
 //! straight fit's scale) — short of the wall — counted against the one-sided Gaussian
 //! share at the whole frame's scale, a binomial count exceeded with probability below the
-//! survey's false-alarm rate ([`OffWall::excess`]), and against the points as far off on
+//! survey's false-alarm rate (`OffWall::excess`), and against the points as far off on
 //! the long side (a sign test: errors symmetric about the wall, whatever their tails —
 //! range-dependent noise, wiggling, correlated noise — put a point off the wall short or
 //! long with probability ½; the short ones must exceed half at the same rate).
@@ -55,7 +55,7 @@ const NEAR_QUANTILE: f64 = 0.05;
 /// `from_m` along its axis (PCS x, m; the reach of the survey's profile, whose slices'
 /// medians judge the wall before it), when more of them lie there than Gaussian noise
 /// puts there at the survey's false-alarm rate (the one-sided share, half the two-sided
-/// tail of [`OffWall`], of the points past `from_m`) and than lie as far off long there
+/// tail of `OffWall`, of the points past `from_m`) and than lie as far off long there
 /// (the sign test); `None` otherwise.
 pub fn short_returns(pts: &[[f64; 3]], fit: &Estimate, from_m: f64) -> Option<ShortReturns> {
     let off = OffWall::count(pts, fit)?;

@@ -31,7 +31,7 @@ pub struct Edge {
     /// the first after it.
     pub at_m: f64,
     /// Its 1-σ (m): the RMS distance from `at_m` of the change point under its profile
-    /// likelihood ([`change_point`]), at least the spacing of the two points it falls
+    /// likelihood (`change_point`), at least the spacing of the two points it falls
     /// between over √12 (a uniform position between them).
     pub sigma_m: f64,
     /// The share of the clock sectors tested (those with [`MIN_WALL_POINTS`] of wall
@@ -61,7 +61,7 @@ pub struct Edge {
 /// ramp of length L = ρ̄(1 − cos(half_width/2)) (ρ̄ the fit's mean radius), and a single
 /// step fitted to a rate that rises over a ramp lies within it: taken as uniform there,
 /// the edge is the step less L/2, and its 1-σ adds L/√12 to the change point's
-/// ([`change_point`]). (On tof-sim's tees, `tee_pass`, the step without that correction
+/// (`change_point`). (On tof-sim's tees, `tee_pass`, the step without that correction
 /// lay +1.6 to +7.8 mm past the true edge from 0.75 to 3 m, with L/2 = 4.3 mm.) `None`
 /// without points on both sides or without an exceedance.
 pub fn opening_edge(

@@ -81,7 +81,7 @@ pub struct Slice {
     /// See `critical_f`.
     pub critical_t: f64,
     /// The slice's departure p-value, adjusted as the critical values are
-    /// ([`departure_p`]): the least of 2n·P(F(2, ν̂) > `shift_f`) and
+    /// (`departure_p`): the least of 2n·P(F(2, ν̂) > `shift_f`) and
     /// 2n·K·P(t(ν̂) > `bump_m`/`bump_se_m`) (n slices tested, K sectors), at most 1. A
     /// slice departs only when it is below [`SURVEY_FALSE_ALARM`] (and its shift or bump
     /// exceeds `min_shift_m`). NaN for a slice not tested (fewer than six sectors).

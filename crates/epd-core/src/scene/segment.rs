@@ -394,7 +394,7 @@ fn misfits(fit: &Estimate) -> bool {
     fit.shared_along_axis || matches!(fit.status, FitStatus::LackOfFit(_))
 }
 
-/// The near windows [`restart_from_near`] fits: the nearest 85 %, then 60 %, of the
+/// The near windows `restart_from_near` fits: the nearest 85 %, then 60 %, of the
 /// frame's points by their forward coordinate (SCS x). Shares of the points, not reaches
 /// in metres, so that they hold for any pipe and camera: the windows were 1.0 and 0.6 m,
 /// measured on the paper's 20" pipe, where they hold these shares of a full Helios2 frame
@@ -872,7 +872,7 @@ fn inward(run: &[Slice], beta: &Params, o: &SegmentOptions) -> Option<Dent> {
 }
 
 /// The level at which a slice before an inward departure's first departing slice is
-/// taken as part of it ([`inward_start`]): 1 % per slice. Each such slice is tested on
+/// taken as part of it (`inward_start`): 1 % per slice. Each such slice is tested on
 /// its own (the departure is already found at the survey's false-alarm rate), and a
 /// false alarm only moves the straight section's end one slice nearer.
 pub const DENT_EDGE_ALPHA: f64 = 0.01;
@@ -913,7 +913,7 @@ pub struct Survey {
     /// The bend's fit, for [`Layout::BendAhead`].
     pub bend: Option<crate::bend::BendFit>,
     /// A local inward departure that the wall comes back from — a dent, debris or an
-    /// obstacle on the wall ([`inward`]); the layout is then [`Layout::Straight`] and the
+    /// obstacle on the wall (`inward`); the layout is then [`Layout::Straight`] and the
     /// straight section's estimate uses the points before it.
     pub dent: Option<Dent>,
     /// 1-σ (m) of `segmentation.straight_until`: for a bend, its start's from the bend's

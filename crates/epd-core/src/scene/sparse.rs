@@ -12,7 +12,7 @@
 //! many σ outside the straight wall; a wall point does so only as the noise's tail. In
 //! each sparse cell, a point *exceeds* when its deviation is above the local wall's
 //! median + [`EXCEEDANCE_SIGMAS`]·1.4826·MAD (taken over the sector's points in the slice
-//! and its neighbours, at least [`LOCAL_WALL_POINTS`] points: [`sector_limit`]). A sector of n points with e exceedances is
+//! and its neighbours, at least [`LOCAL_WALL_POINTS`] points: `sector_limit`). A sector of n points with e exceedances is
 //! tested against the wall's rate p₀ by the binomial upper tail P(X ≥ e), X ~ Bin(n, p₀),
 //! with the points' correlation taken into account by their design effect κ(n) (a
 //! cluster of n correlated points carries the information of n/κ independent ones):

@@ -326,9 +326,9 @@ pub const MAX_STRETCH: f64 = 4.0;
 
 /// Minimise F(x) = Σ rᵢ² from `x0` by Levenberg–Marquardt.
 ///
-/// A short loop over [`Solver`]'s steps: at each accepted point, the tests that need no
-/// step ([`Solver::stop_at_point`]); then damped steps ([`Solver::damped_step`]) until
-/// one is accepted ([`Solver::try_step`]) or a test ends the run.
+/// A short loop over `Solver`'s steps: at each accepted point, the tests that need no
+/// step (`Solver::stop_at_point`); then damped steps (`Solver::damped_step`) until
+/// one is accepted (`Solver::try_step`) or a test ends the run.
 pub fn minimize<const N: usize, P: NormalEquationsProblem<N>>(
     problem: &P,
     x0: SVector<f64, N>,

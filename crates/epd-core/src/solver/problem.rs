@@ -209,7 +209,7 @@ impl PipeFit<'_> {
     /// ([`wall_point_pcs`]), or `None` outside the model's domain. Scales and held
     /// parameters as in [`sandwich_at`](Self::sandwich_at).
     ///
-    /// One pass in at most [`CLUSTER_PARTS`] parts, each in blocks of [`CLUSTER_BLOCK`]
+    /// One pass in at most `CLUSTER_PARTS` parts, each in blocks of `CLUSTER_BLOCK`
     /// points: a block's points are put in cell order and every cell's run is summed by
     /// the SIMD kernel of the solver's own normal equations (its Jᵀr is the cell's score,
     /// its JᵀJ the cell's bread). Parts and blocks are cut by the point count alone and

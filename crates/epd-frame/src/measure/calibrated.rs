@@ -23,7 +23,7 @@ pub const REFUSE_OUTSIDE: f64 = 0.9;
 /// ([`REFUSE_OUTSIDE`]): it is fitted on its raw points, and the camera's error, which
 /// the table measured only where its rigs looked, enters the 1-σ as one error shared by
 /// every point, of standard deviation the largest offset the rigs showed, max |offset|
-/// over the table's observed bins ([`largest_offset_m`]).
+/// over the table's observed bins (`largest_offset_m`).
 ///
 /// The assumption, stated: the camera's error where the rigs did not look is no larger
 /// than anywhere they did. Under it the error's effect on the diameters is at most that
@@ -231,7 +231,7 @@ pub(super) fn calibrate(
 }
 
 /// A frame corrected in place by a version-1 (range × intensity) table and its scene, as
-/// `epd estimate --calibration` makes them ([`calibrate`]; the bench harness's pipeline
+/// `epd estimate --calibration` makes them (`calibrate`; the bench harness's pipeline
 /// run makes the same): every point the table's axes hold moved along its ray, then the
 /// scene surveyed on the corrected points, a bend checked against the table when
 /// `raw_range_m` (each point's measured range, m; empty for none) is given. `weighted`:
@@ -284,7 +284,7 @@ pub enum PlainFrameError {
 }
 
 /// A frame to be corrected by a version-2 (incidence) table, as `epd estimate
-/// --calibration` makes it ([`calibrate`]; the bench harness's pipeline run makes the
+/// --calibration` makes it (`calibrate`; the bench harness's pipeline run makes the
 /// same): the scene surveyed on the points corrected by the table's plain range ×
 /// intensity part, then the incidence rounds ([`incidence_rounds`]) on the raw points of
 /// the straight section it found (the others left out, NaN).

@@ -132,7 +132,7 @@ pub enum MergeError {
     /// Shards missing.
     #[error("{count} of {n} shards missing: {} (given {given} folders)", list(missing, *count, *n))]
     Missing {
-        /// The first [`SHOWN_MISSING`] missing K's.
+        /// The first `SHOWN_MISSING` missing K's.
         missing: Vec<u64>,
         /// How many are missing.
         count: u64,

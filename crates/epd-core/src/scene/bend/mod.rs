@@ -129,7 +129,7 @@ pub struct BendFit {
     /// How the solver ended.
     pub status: Status,
     /// 1-σ of the bend's start (m), of `geometry.start`, from the cluster jackknife over
-    /// the bend's points ([`BendProblem::jackknife_covariance`]); NaN when undetermined.
+    /// the bend's points (`BendProblem::jackknife_covariance`); NaN when undetermined.
     /// It holds the straight fit's β fixed, whose own uncertainty it leaves out.
     pub start_sigma: f64,
     /// 1-σ of the centreline radius R (m), as `start_sigma`.
