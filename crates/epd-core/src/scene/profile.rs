@@ -297,20 +297,6 @@ pub fn profile(
     let watch = crate::cancel::watch();
     let ns = o.sectors;
     let clock = ClockSectors::new(ns);
-    // The (x, Y, Z, d) of a chunk's points that count, handed to `f` in order: x, d and ψ
-    // finite (as `deviation` keeps them); none once a stop is asked for. Nothing is held:
-    // writing every point's deviation to a buffer and reading it back cost more than
-    // computing it.
-    let counted = |chunk: &[[f64; 3]], f: &mut dyn FnMut([f64; 4])| {
-        if !watch.stopped() {
-            geom.for_each_wall_deviation(chunk, |w| {
-                let [x, y, z, d] = w;
-                if x.is_finite() && d.is_finite() && !(y.is_nan() || z.is_nan()) {
-                    f(w);
-                }
-            });
-        }
-    };
     // Pass 1: the axial extent of the counted points, which places the slices.
     // Also how many of them lie at x ≥ 0: those that pass 2 bins (x ≥ x_min = max(the
     // least x, 0) holds for every point at x ≥ 0 when the least x is ≥ 0, and selects
@@ -319,9 +305,11 @@ pub fn profile(
         .par_chunks(PROFILE_CHUNK)
         .map(|chunk| {
             let (mut lo, mut hi, mut n) = (f64::INFINITY, f64::NEG_INFINITY, 0usize);
-            counted(chunk, &mut |w| {
-                (lo, hi, n) = (lo.min(w[0]), hi.max(w[0]), n + usize::from(w[0] >= 0.0));
-            });
+            if !watch.stopped() {
+                for_each_counted(&geom, chunk, |w| {
+                    (lo, hi, n) = (lo.min(w[0]), hi.max(w[0]), n + usize::from(w[0] >= 0.0));
+                });
+            }
             (lo, hi, n)
         })
         .reduce(
@@ -343,12 +331,14 @@ pub fn profile(
             .par_chunks(PROFILE_CHUNK)
             .map(|chunk| {
                 let mut pairs = Vec::with_capacity(chunk.len());
-                counted(chunk, &mut |[x, y, z, d]| {
-                    if x >= x_min {
-                        let i = (((x - x_min) / o.slice_m) as usize).min(n_slices - 1);
-                        pairs.push(((i * ns + clock.of(y, z)) as u32, d as f32));
-                    }
-                });
+                if !watch.stopped() {
+                    for_each_counted(&geom, chunk, |[x, y, z, d]| {
+                        if x >= x_min {
+                            let i = (((x - x_min) / o.slice_m) as usize).min(n_slices - 1);
+                            pairs.push(((i * ns + clock.of(y, z)) as u32, d as f32));
+                        }
+                    });
+                }
                 pairs
             })
             .collect();
@@ -387,6 +377,18 @@ pub fn profile(
         }
     }
     slices
+}
+
+/// The (x, Y, Z, d) of the points of `chunk` (SCS, m) that the profile counts, handed to
+/// `f` in order: x, d and ψ finite (as `deviation` keeps them). Nothing is held: writing
+/// every point's deviation to a buffer and reading it back cost more than computing it.
+fn for_each_counted(geom: &Geometry, chunk: &[[f64; 3]], mut f: impl FnMut([f64; 4])) {
+    geom.for_each_wall_deviation(chunk, |w| {
+        let [x, y, z, d] = w;
+        if x.is_finite() && d.is_finite() && !(y.is_nan() || z.is_nan()) {
+            f(w);
+        }
+    });
 }
 
 /// Deviations per block of [`CellStore`]: 64 (256 B), so that the cells' slack, at most

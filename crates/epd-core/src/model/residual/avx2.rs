@@ -20,7 +20,49 @@ pub(crate) unsafe fn points_m256(p: &[[f64; 3]; 4]) -> [std::arch::x86_64::__m25
     // SAFETY: the CPU has AVX2 (the caller's contract).
     unsafe {
         use std::arch::x86_64::_mm256_set_pd as set;
-        std::array::from_fn(|k| set(p[3][k], p[2][k], p[1][k], p[0][k]))
+        // Written out, not by `array::from_fn`: a closure inlined into a generic function
+        // not compiled for AVX2 would take its intrinsics out of line.
+        [
+            set(p[3][0], p[2][0], p[1][0], p[0][0]),
+            set(p[3][1], p[2][1], p[1][1], p[0][1]),
+            set(p[3][2], p[2][2], p[1][2], p[0][2]),
+        ]
+    }
+}
+
+/// dot(a, p) = a₀x + a₁y + a₂z of 4 points in registers, left to right (`dot`).
+///
+/// # Safety
+/// Only where the CPU has AVX2; inlined into a function compiled for it.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn dot_m256(
+    a: &[f64; 3],
+    [x, y, z]: &[std::arch::x86_64::__m256d; 3],
+) -> std::arch::x86_64::__m256d {
+    // SAFETY: the CPU has AVX2 (the caller's contract).
+    unsafe {
+        use std::arch::x86_64::{
+            _mm256_add_pd as add, _mm256_mul_pd as mul, _mm256_set1_pd as splat,
+        };
+        add(
+            add(mul(splat(a[0]), *x), mul(splat(a[1]), *y)),
+            mul(splat(a[2]), *z),
+        )
+    }
+}
+
+/// ‖p‖² = x² + y² + z² of 4 points in registers, left to right (`dot(p, p)`).
+///
+/// # Safety
+/// Only where the CPU has AVX2; inlined into a function compiled for it.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn norm2_m256([x, y, z]: &[std::arch::x86_64::__m256d; 3]) -> std::arch::x86_64::__m256d {
+    // SAFETY: the CPU has AVX2 (the caller's contract).
+    unsafe {
+        use std::arch::x86_64::{_mm256_add_pd as add, _mm256_mul_pd as mul};
+        add(add(mul(*x, *x), mul(*y, *y)), mul(*z, *z))
     }
 }
 
@@ -77,14 +119,8 @@ impl Geometry {
         unsafe {
             use std::arch::x86_64::*;
             use {_mm256_add_pd as add, _mm256_mul_pd as mul, _mm256_set1_pd as splat};
-            let [x, y, z] = points_m256(p);
-            // dot(a, p) = a₀x + a₁y + a₂z, left to right.
-            let dot3 = |a: &[f64; 3]| {
-                add(
-                    add(mul(splat(a[0]), x), mul(splat(a[1]), y)),
-                    mul(splat(a[2]), z),
-                )
-            };
+            let xyz = points_m256(p);
+            let dot3 = |a: &[f64; 3]| dot_m256(a, &xyz);
             let (u, v) = (dot3(&self.r_y), dot3(&self.r_z));
             let du = [
                 dot3(&self.dr_y[0]),
@@ -99,9 +135,7 @@ impl Geometry {
             let (r, [g_alpha, g_gamma, g_y0, g_z0, g_u, g_v]) = match kind {
                 Residual::Canonical => self.canonical_primitives_m256(u, v),
                 Residual::ErrorBased | Residual::Range => {
-                    // ‖p‖² = x² + y² + z², left to right (`dot(p, p)`).
-                    let p2 = add(add(mul(x, x), mul(y, y)), mul(z, z));
-                    self.wall_primitives_avx2(kind, p2, u, v)
+                    self.wall_primitives_avx2(kind, norm2_m256(&xyz), u, v)
                 }
             };
             // The chain rule (`chain`).
@@ -177,23 +211,9 @@ impl Geometry {
                 _mm256_add_pd as add, _mm256_div_pd as div, _mm256_mul_pd as mul,
                 _mm256_set1_pd as splat, _mm256_sub_pd as sub,
             };
-            let (alpha, gamma, c) = (splat(self.alpha), splat(self.gamma), splat(self.c));
             let zero = _mm256_setzero_pd();
             let one = splat(1.0);
-            // A t² + 2B t + C = 0 (see `primitives`).
-            let a_raw = add(mul(mul(alpha, uu), uu), mul(mul(gamma, vv), vv));
-            let valid = _mm256_cmp_pd::<_CMP_GT_OQ>(a_raw, splat(1e-300));
-            let a = _mm256_blendv_pd(one, a_raw, valid);
-            let b = add(
-                mul(splat(self.alpha * self.y0), uu),
-                mul(splat(self.gamma * self.z0), vv),
-            );
-            // max(x, 0) as f64::max: 0 for NaN (the second operand is returned then).
-            let sq = _mm256_sqrt_pd(_mm256_max_pd(sub(mul(b, b), mul(a, c)), zero));
-            let pos = _mm256_cmp_pd::<_CMP_GT_OQ>(b, zero);
-            let num = _mm256_blendv_pd(sub(sq, b), splat(-self.c), pos);
-            let den = _mm256_blendv_pd(a, add(b, sq), pos);
-            let t = div(num, den);
+            let (t, sq, valid) = self.root_m256(uu, vv);
             let inv_s = div(one, sq);
             let wy = add(splat(self.y0), mul(t, uu));
             let wz = add(splat(self.z0), mul(t, vv));
@@ -276,7 +296,7 @@ impl Geometry {
         // of 4 f64.
         unsafe {
             use std::arch::x86_64::_mm256_storeu_pd as store;
-            let (wv, tv, uv, vv) = self.wall_points_m256(p);
+            let (wv, tv, uv, vv) = self.wall_points_m256(&points_m256(p));
             let mut w = [[0.0; 4]; 3];
             for (out, v) in w.iter_mut().zip(wv) {
                 store(out.as_mut_ptr(), v);
@@ -299,9 +319,51 @@ impl Geometry {
     #[allow(clippy::type_complexity)]
     pub(crate) unsafe fn wall_points_m256(
         &self,
-        p: &[[f64; 3]; 4],
+        xyz: &[std::arch::x86_64::__m256d; 3],
     ) -> (
         [std::arch::x86_64::__m256d; 3],
+        std::arch::x86_64::__m256d,
+        std::arch::x86_64::__m256d,
+        std::arch::x86_64::__m256d,
+    ) {
+        // SAFETY: the CPU has AVX2 (the caller's contract).
+        unsafe {
+            use std::arch::x86_64::*;
+            use {_mm256_add_pd as add, _mm256_mul_pd as mul, _mm256_set1_pd as splat};
+            let (qx, uu, vv) = (
+                dot_m256(&self.r_x, xyz),
+                dot_m256(&self.r_y, xyz),
+                dot_m256(&self.r_z, xyz),
+            );
+            // `wall_root`; t = 1 off the wall.
+            let (root, _, valid) = self.root_m256(uu, vv);
+            let t = _mm256_blendv_pd(splat(1.0), root, valid);
+            let w = [
+                mul(t, qx),
+                add(splat(self.y0), mul(t, uu)),
+                add(splat(self.z0), mul(t, vv)),
+            ];
+            (w, t, uu, vv)
+        }
+    }
+
+    /// The positive root t of eq. (22) for 4 lines with rotated directions (u, v), as
+    /// `wall_root` and `primitives` compute it: A t² + 2B t + C = 0 with A = αu² + γv²,
+    /// B = α y0 u + γ z0 v, S = √(B² − AC) and the cancellation-free form, −C/(B + S) for
+    /// B > 0, else (S − B)/A — one division of the form's operands chosen lane by lane,
+    /// the same quotient as either form's own. Returns (t, S, valid): a lane whose A is
+    /// not above 10⁻³⁰⁰ (a line along the model axis, which never meets the wall) is not
+    /// valid, and its t and S are taken with A = 1 (finite, to be masked by the caller).
+    ///
+    /// # Safety
+    /// Only where the CPU has AVX2; inlined into a function compiled for it.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn root_m256(
+        &self,
+        uu: std::arch::x86_64::__m256d,
+        vv: std::arch::x86_64::__m256d,
+    ) -> (
         std::arch::x86_64::__m256d,
         std::arch::x86_64::__m256d,
         std::arch::x86_64::__m256d,
@@ -313,39 +375,23 @@ impl Geometry {
                 _mm256_add_pd as add, _mm256_div_pd as div, _mm256_mul_pd as mul,
                 _mm256_set1_pd as splat, _mm256_sub_pd as sub,
             };
-            let [x, y, z] = points_m256(p);
-            // dot(a, p) = a₀x + a₁y + a₂z, left to right.
-            let dot3 = |a: &[f64; 3]| {
-                add(
-                    add(mul(splat(a[0]), x), mul(splat(a[1]), y)),
-                    mul(splat(a[2]), z),
-                )
-            };
-            let (qx, uu, vv) = (dot3(&self.r_x), dot3(&self.r_y), dot3(&self.r_z));
             let zero = _mm256_setzero_pd();
-            // `wall_root`: A, B, S and the cancellation-free root; t = 1 off the wall.
-            let a = add(
+            let a_raw = add(
                 mul(mul(splat(self.alpha), uu), uu),
                 mul(mul(splat(self.gamma), vv), vv),
             );
-            let valid = _mm256_cmp_pd::<_CMP_GT_OQ>(a, splat(1e-300));
+            let valid = _mm256_cmp_pd::<_CMP_GT_OQ>(a_raw, splat(1e-300));
+            let a = _mm256_blendv_pd(splat(1.0), a_raw, valid);
             let b = add(
                 mul(splat(self.alpha * self.y0), uu),
                 mul(splat(self.gamma * self.z0), vv),
             );
+            // max(x, 0) as f64::max: 0 for NaN (the second operand is returned then).
             let sq = _mm256_sqrt_pd(_mm256_max_pd(sub(mul(b, b), mul(a, splat(self.c))), zero));
             let pos = _mm256_cmp_pd::<_CMP_GT_OQ>(b, zero);
-            // One division of the root's two forms' operands chosen lane by lane: the same
-            // quotient as either form's own.
             let num = _mm256_blendv_pd(sub(sq, b), splat(-self.c), pos);
             let den = _mm256_blendv_pd(a, add(b, sq), pos);
-            let t = _mm256_blendv_pd(splat(1.0), div(num, den), valid);
-            let w = [
-                mul(t, qx),
-                add(splat(self.y0), mul(t, uu)),
-                add(splat(self.z0), mul(t, vv)),
-            ];
-            (w, t, uu, vv)
+            (div(num, den), sq, valid)
         }
     }
 
@@ -392,18 +438,18 @@ impl Geometry {
         chunk: &'a [[f64; 3]],
         mut each: impl FnMut(usize, f64),
     ) -> &'a [[f64; 3]] {
+        use _mm256_mul_pd as mul;
         use std::arch::x86_64::*;
-        use {_mm256_add_pd as add, _mm256_mul_pd as mul};
         let mut blocks = chunk.chunks_exact(4);
         for b in &mut blocks {
             let arr: &[[f64; 3]; 4] = b.try_into().expect("chunks_exact yields 4 points");
             let mut r = [0.0; 4];
             // SAFETY: this function runs only where the CPU has AVX2; `r` holds 4 f64.
             unsafe {
-                let (_, t, _, _) = self.wall_points_m256(arr);
-                let [x, y, z] = points_m256(arr);
-                // (1 − t)·‖p‖, ‖p‖² = x² + y² + z² left to right (`dot(p, p)`).
-                let range = _mm256_sqrt_pd(add(add(mul(x, x), mul(y, y)), mul(z, z)));
+                let xyz = points_m256(arr);
+                let (_, t, _, _) = self.wall_points_m256(&xyz);
+                // (1 − t)·‖p‖.
+                let range = _mm256_sqrt_pd(norm2_m256(&xyz));
                 _mm256_storeu_pd(
                     r.as_mut_ptr(),
                     mul(_mm256_sub_pd(_mm256_set1_pd(1.0), t), range),
@@ -433,18 +479,18 @@ impl Geometry {
             // SAFETY: this function runs only where the CPU has AVX2; every store is of
             // an array of 4 f64.
             let cols = unsafe {
-                let ([x, y, z], t, u, v) = self.wall_points_m256(arr);
+                let ([x, y, z], t, u, v) = self.wall_points_m256(&points_m256(arr));
                 // `deviation_at`: d = (1 − t)·|nY·u + nZ·v| / √(nY² + nZ²).
                 let (ny, nz) = (mul(splat(self.alpha), y), mul(splat(self.gamma), z));
                 let dot = _mm256_add_pd(mul(ny, u), mul(nz, v));
                 let abs = _mm256_andnot_pd(splat(-0.0), dot);
                 let norm = _mm256_sqrt_pd(_mm256_add_pd(mul(ny, ny), mul(nz, nz)));
                 let d = div(mul(sub(splat(1.0), t), abs), norm);
-                [x, y, z, d].map(|c| {
-                    let mut a = [0.0; 4];
-                    _mm256_storeu_pd(a.as_mut_ptr(), c);
-                    a
-                })
+                let mut cols = [[0.0; 4]; 4];
+                for (col, c) in cols.iter_mut().zip([x, y, z, d]) {
+                    _mm256_storeu_pd(col.as_mut_ptr(), c);
+                }
+                cols
             };
             for l in 0..4 {
                 each([cols[0][l], cols[1][l], cols[2][l], cols[3][l]]);
