@@ -139,7 +139,7 @@ pub fn torus_mesh(straight: &Params, bend: &BendGeometry, angle: f64) -> Mesh {
         let on_line = centre + bend.radius * out;
         for k in 0..MESH_AROUND {
             let psi = TAU * k as f64 / MESH_AROUND as f64;
-            let w = on_line + bend.tube_radius * (psi.cos() * out + psi.sin() * axis);
+            let w = on_line + bend.section_radius(psi) * (psi.cos() * out + psi.sin() * axis);
             let q = straight.pcs_to_scs(&Point3::from(w));
             v.push([q.x, q.y, q.z]);
         }
@@ -295,9 +295,10 @@ pub fn write_fit_ply<W: Write>(
         ));
         if let Some((_, b, angle)) = &f.bend {
             head.push_str(&format!(
-                "comment epd bend radius_mm {} tube_radius_mm {} angle_deg {} (fitted to the end when seen, else the angle seen)\n",
+                "comment epd bend radius_mm {} tube_radius_mm {} tube_ovality {} angle_deg {} (fitted to the end when seen, else the angle seen)\n",
                 b.radius * 1e3,
                 b.tube_radius * 1e3,
+                b.tube_ovality,
                 angle.to_degrees()
             ));
         }
@@ -385,6 +386,7 @@ mod tests {
             direction: 0.7,
             radius: 0.75,
             tube_radius: 0.24,
+            tube_ovality: 0.0,
             angle: epd_core::bend::OPEN_ANGLE,
         };
         let t = b.torus().unwrap();

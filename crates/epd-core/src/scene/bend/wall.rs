@@ -16,6 +16,24 @@
 //! for larger Θ (a return bend) the outlet's far part wraps and is read as torus — the
 //! model is meant for elbows up to 90°, and a bend open past everything seen (Θ = π,
 //! [`OPEN_ANGLE`]) has no outlet at all.
+//!
+//! **An oval tube.** With a tube ovality ε ≠ 0 ([`BendGeometry::tube_ovality`]) the
+//! cross-section is an ellipse of semi-axes r_y = r(1 + ε/2), r_z = r(1 − ε/2) (mean radius
+//! r, ovality (r_y − r_z)/r = ε) along the straight pipe's PCS y and z at the start, carried
+//! along the bend: a point's offset from the centreline, w along the outward radial
+//! direction ê (from the centre of curvature) and h along the plane's normal a, has the
+//! section coordinates y = −w·cos φ − h·sin φ, z = −w·sin φ + h·cos φ (at the start ê = −u
+//! and a = (0, −sin φ, cos φ), so (y, z) are the PCS coordinates there); on the outlet ê is
+//! the radial direction at Θ. The wall is g = 0 for the radial distance
+//! g = ρ_s − r_e(y, z), ρ_s = √(y² + z²) and r_e = r_y·r_z·ρ_s/√(r_z²y² + r_y²z²) the
+//! ellipse's radius toward (y, z); its gradient
+//! ∂g/∂y = y/ρ_s − K·y·z², ∂g/∂z = z/ρ_s + K·z·y², K = r_y·r_z·(r_y² − r_z²)/(ρ_s·N³),
+//! N = √(r_z²y² + r_y²z²), mapped to (w, h) by the rotation above and to the PCS by
+//! ∇w = ê, ∇h = a ([`Section::radial`]). The signed distance is g/|∇g| (first order in
+//! g, exact for a circle, where |∇g| = 1 and g = d − r) and the normal ∇g/|∇g|. A ray's
+//! exit is the round torus's (of the mean radius r) refined by Newton's method on g along
+//! the ray, and the outlet's the larger root of its ellipse's quadratic. A round tube
+//! (ε = 0) takes the torus's and the round outlet's own forms.
 
 use nalgebra::{Unit, Vector3};
 
@@ -44,6 +62,63 @@ pub struct BendWall {
     /// The outlet axis's start E (the centreline point at α = Θ) and unit direction T;
     /// `None` for an open bend (Θ ≥ π).
     outlet: Option<(Vector3<f64>, Vector3<f64>)>,
+    /// The oval tube's section; `None` for a round tube (ε = 0).
+    section: Option<Section>,
+}
+
+/// An oval tube's cross-section (see the module documentation): its semi-axes along the
+/// carried PCS y and z, and cos φ, sin φ of the turn's direction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Section {
+    ry: f64,
+    rz: f64,
+    cos: f64,
+    sin: f64,
+}
+
+impl Section {
+    /// (g, ∂g/∂w, ∂g/∂h): the radial distance g = ρ_s − r_e outside the ellipse of a
+    /// point at offset (w, h) from the centreline, and its derivatives; `None` on the
+    /// centreline (ρ_s = 0).
+    #[inline]
+    fn radial(&self, w: f64, h: f64) -> Option<(f64, f64, f64)> {
+        let (c, s) = (self.cos, self.sin);
+        let (y, z) = (-w * c - h * s, -w * s + h * c);
+        let d = y.hypot(z);
+        if !(d > 0.0 && d.is_finite()) {
+            return None;
+        }
+        let (ry2, rz2) = (self.ry * self.ry, self.rz * self.rz);
+        let n2 = rz2 * y * y + ry2 * z * z;
+        let n = n2.sqrt();
+        let re = self.ry * self.rz * d / n;
+        let k = self.ry * self.rz * (ry2 - rz2) / (d * n2 * n);
+        let gy = y / d - k * y * z * z;
+        let gz = z / d + k * z * y * y;
+        Some((d - re, -c * gy - s * gz, -s * gy + c * gz))
+    }
+
+    /// The signed distance g/|∇g| and the unit outward normal of a point at offset
+    /// (w, h), with ê the outward radial direction there and `a` the plane's normal.
+    #[inline]
+    fn distance_and_normal(
+        &self,
+        w: f64,
+        h: f64,
+        e: &Vector3<f64>,
+        a: &Vector3<f64>,
+    ) -> Option<(f64, Unit<Vector3<f64>>)> {
+        let (g, gw, gh) = self.radial(w, h)?;
+        let len = gw.hypot(gh);
+        (len > 0.0 && len.is_finite())
+            .then(|| (g / len, Unit::new_unchecked((e * gw + a * gh) / len)))
+    }
+
+    /// Whether the section point (y, z) lies outside the ellipse.
+    #[inline]
+    fn outside(&self, y: f64, z: f64) -> bool {
+        (y / self.ry).powi(2) + (z / self.rz).powi(2) > 1.0
+    }
 }
 
 impl BendWall {
@@ -61,11 +136,60 @@ impl BendWall {
             let end = torus.centre + geometry.radius * (-ca * u + sa * Vector3::x());
             (end, ca * Vector3::x() + sa * u)
         });
+        let section = (geometry.tube_ovality != 0.0).then(|| {
+            let (ry, rz) = geometry.semi_axes();
+            let (sin, cos) = geometry.direction.sin_cos();
+            Section { ry, rz, cos, sin }
+        });
         Some(Self {
             geometry: *geometry,
             torus,
             outlet,
+            section,
         })
+    }
+
+    /// The outward radial direction ê at α = Θ (the outlet's), and the plane's normal a.
+    #[inline]
+    fn outlet_axes(&self) -> (Vector3<f64>, Vector3<f64>) {
+        let (s, c) = self.geometry.direction.sin_cos();
+        let u = Vector3::new(0.0, c, s);
+        let (sa, ca) = self.geometry.angle.sin_cos();
+        (-ca * u + sa * Vector3::x(), self.torus.axis.into_inner())
+    }
+
+    /// An oval tube's signed distance and normal at `p` on its piece.
+    fn oval_distance_and_normal(
+        &self,
+        section: &Section,
+        p: &Vector3<f64>,
+    ) -> Option<(f64, Unit<Vector3<f64>>)> {
+        match self.outlet_offset(p) {
+            Some(off) => {
+                let (e, a) = self.outlet_axes();
+                section.distance_and_normal(off.dot(&e), off.dot(&a), &e, &a)
+            }
+            None => {
+                let a = self.torus.axis.into_inner();
+                let pp = p - self.torus.centre;
+                let h = pp.dot(&a);
+                let v = pp - a * h;
+                let rho = v.norm();
+                if !(rho > 0.0) {
+                    return None;
+                }
+                section.distance_and_normal(rho - self.geometry.radius, h, &(v / rho), &a)
+            }
+        }
+    }
+
+    /// Whether the point (y, z) of the start's plane (PCS, from the axis) lies outside
+    /// the tube's section there.
+    pub fn outside_section_at_start(&self, y: f64, z: f64) -> bool {
+        match &self.section {
+            Some(s) => s.outside(y, z),
+            None => y.hypot(z) > self.geometry.tube_radius,
+        }
     }
 
     /// The piece `p` belongs to: the outlet when the bend has one and α(p) > Θ.
@@ -91,19 +215,29 @@ impl BendWall {
     }
 
     /// Signed distance (m) from `p` to the wall of its piece: the torus's (exact), or
-    /// |off| − r to the outlet's cylinder; negative inside.
+    /// |off| − r to the outlet's cylinder; for an oval tube g/|∇g| (module
+    /// documentation); negative inside.
     #[inline]
     pub fn signed_distance(&self, p: &Vector3<f64>) -> f64 {
+        if let Some(section) = &self.section {
+            return self
+                .oval_distance_and_normal(section, p)
+                .map_or(f64::NAN, |(d, _)| d);
+        }
         match self.outlet_offset(p) {
             Some(off) => off.norm() - self.geometry.tube_radius,
             None => self.torus.signed_distance(p),
         }
     }
 
-    /// The unit outward normal of its piece's wall at the wall point nearest to `p`;
-    /// `None` where undefined (on the torus's centreline or axis, on the outlet's axis).
+    /// The unit outward normal of its piece's wall at the wall point nearest to `p` (for
+    /// an oval tube ∇g/|∇g|); `None` where undefined (on the torus's centreline or axis,
+    /// on the outlet's axis).
     #[inline]
     pub fn normal(&self, p: &Vector3<f64>) -> Option<Unit<Vector3<f64>>> {
+        if let Some(section) = &self.section {
+            return self.oval_distance_and_normal(section, p).map(|(_, n)| n);
+        }
         match self.outlet_offset(p) {
             Some(off) => {
                 let n = off.norm();
@@ -126,12 +260,21 @@ impl BendWall {
     ) -> Option<(f64, Piece)> {
         let angle = self.geometry.angle.min(OPEN_ANGLE);
         let crossings = self.torus.ray_crossings(origin, d, tau_max);
-        let torus = crossings.as_slice().iter().copied().find(|&tau| {
+        let torus = crossings.as_slice().iter().find_map(|&tau| {
+            // An oval tube's crossing: the round one's, refined.
+            let tau = match &self.section {
+                Some(section) => self.refine_oval(section, origin, d, tau)?,
+                None => tau,
+            };
             let w = origin + d * tau;
-            let leaving = self.torus.normal(&w).is_some_and(|n| n.dot(d) > 0.0);
+            let leaving = self.normal(&w).is_some_and(|n| n.dot(d) > 0.0);
             let a = self.geometry.turned(&w);
-            leaving && (0.0..=angle).contains(&a)
+            (leaving && (0.0..=angle).contains(&a) && tau <= tau_max).then_some(tau)
         });
+        if let Some(section) = &self.section {
+            let outlet = self.oval_outlet_exit(section, origin, d, tau_max);
+            return nearer(torus, outlet);
+        }
         let outlet = self.outlet.and_then(|(e, t)| {
             // |(o + τd − E)⊥|² = r²: a τ² + b τ + c = 0 in the plane normal to T.
             let w = origin - e;
@@ -149,12 +292,96 @@ impl BendWall {
             (tau > 0.0 && tau <= tau_max && self.piece(&(origin + d * tau)) == Piece::Outlet)
                 .then_some(tau)
         });
-        match (torus, outlet) {
-            (Some(a), Some(b)) if b < a => Some((b, Piece::Outlet)),
-            (Some(a), _) => Some((a, Piece::Torus)),
-            (None, Some(b)) => Some((b, Piece::Outlet)),
-            (None, None) => None,
+        nearer(torus, outlet)
+    }
+
+    /// Newton's method on the oval tube's radial distance g along the ray from the round
+    /// torus's crossing `tau0` (g' = ∇g·d): at most [`OVAL_NEWTON_STEPS`] steps, until a
+    /// step is below 10⁻¹² m; `None` when it does not settle there or leaves the ray.
+    fn refine_oval(
+        &self,
+        section: &Section,
+        origin: &Vector3<f64>,
+        d: &Vector3<f64>,
+        tau0: f64,
+    ) -> Option<f64> {
+        let a = self.torus.axis.into_inner();
+        let mut tau = tau0;
+        for _ in 0..OVAL_NEWTON_STEPS {
+            let pp = origin + d * tau - self.torus.centre;
+            let h = pp.dot(&a);
+            let v = pp - a * h;
+            let rho = v.norm();
+            if !(rho > 0.0) {
+                return None;
+            }
+            let (g, gw, gh) = section.radial(rho - self.geometry.radius, h)?;
+            let slope = gw * (v / rho).dot(d) + gh * a.dot(d);
+            if !(slope != 0.0 && slope.is_finite()) {
+                return None;
+            }
+            let step = g / slope;
+            tau -= step;
+            if !(tau > 0.0 && tau.is_finite()) {
+                return None;
+            }
+            if step.abs() <= 1e-12 {
+                return Some(tau);
+            }
         }
+        None
+    }
+
+    /// Where the ray leaves an oval tube's outlet: the larger root of the ellipse's
+    /// quadratic in the outlet's section coordinates (linear in τ along the ray), when
+    /// the point lies past the end.
+    fn oval_outlet_exit(
+        &self,
+        section: &Section,
+        origin: &Vector3<f64>,
+        d: &Vector3<f64>,
+        tau_max: f64,
+    ) -> Option<f64> {
+        let (end, t) = self.outlet?;
+        let (e, a) = self.outlet_axes();
+        let w = origin - end;
+        let wp = w - t * w.dot(&t);
+        let dp = d - t * d.dot(&t);
+        let (c, s) = (section.cos, section.sin);
+        // Section coordinates y = y0 + τ·y1, z = z0 + τ·z1 of the ray's offset.
+        let yz = |v: &Vector3<f64>| {
+            let (wv, hv) = (v.dot(&e), v.dot(&a));
+            (-wv * c - hv * s, -wv * s + hv * c)
+        };
+        let ((y0, z0), (y1, z1)) = (yz(&wp), yz(&dp));
+        let (ry2, rz2) = (section.ry * section.ry, section.rz * section.rz);
+        let qa = y1 * y1 / ry2 + z1 * z1 / rz2;
+        let qb = 2.0 * (y0 * y1 / ry2 + z0 * z1 / rz2);
+        let qc = y0 * y0 / ry2 + z0 * z0 / rz2 - 1.0;
+        let disc = qb * qb - 4.0 * qa * qc;
+        if !(qa > 0.0 && disc >= 0.0) {
+            return None;
+        }
+        let tau = (-qb + disc.sqrt()) / (2.0 * qa);
+        (tau > 0.0 && tau <= tau_max && self.piece(&(origin + d * tau)) == Piece::Outlet)
+            .then_some(tau)
+    }
+}
+
+/// The most Newton steps refining an oval tube's crossing from the round torus's
+/// (`BendWall::refine_oval`): the two differ by about ε·r/2 along the normal, and Newton's
+/// method converges quadratically from there — a few steps to 10⁻¹² m; 20 leaves room for
+/// grazing rays, beyond which the ray is given up (its residual then takes the first-order
+/// form).
+const OVAL_NEWTON_STEPS: usize = 20;
+
+/// The nearer of a torus exit and an outlet exit.
+fn nearer(torus: Option<f64>, outlet: Option<f64>) -> Option<(f64, Piece)> {
+    match (torus, outlet) {
+        (Some(a), Some(b)) if b < a => Some((b, Piece::Outlet)),
+        (Some(a), _) => Some((a, Piece::Torus)),
+        (None, Some(b)) => Some((b, Piece::Outlet)),
+        (None, None) => None,
     }
 }
 
@@ -170,8 +397,43 @@ mod tests {
             direction: 0.7,
             radius: 0.75,
             tube_radius: 0.24,
+            tube_ovality: 0.0,
             angle: 0.8,
         }
+    }
+
+    /// [`bend`] with an oval tube, ε = 0.1 (semi-axes 252 and 228 mm).
+    fn oval_bend() -> BendGeometry {
+        BendGeometry {
+            tube_ovality: 0.1,
+            ..bend()
+        }
+    }
+
+    /// Whether `p` lies inside an oval bend's union, from the definition of its section
+    /// by rotations (nalgebra's, not [`Section`]'s coordinates): a point of the arc turned
+    /// back about the bend's axis through the centre of curvature by its angle, or a point
+    /// past the end moved back along the outlet to the end's plane and turned back by Θ,
+    /// lands in the start's plane, where the section is the ellipse
+    /// (y/r_y)² + (z/r_z)² < 1 of its PCS y and z.
+    fn inside_oval(g: &BendGeometry, p: &Vector3<f64>) -> bool {
+        let u = Vector3::new(0.0, g.direction.cos(), g.direction.sin());
+        let axis = Unit::new_normalize(Vector3::x().cross(&u));
+        let c = Vector3::new(g.start, 0.0, 0.0) + g.radius * u;
+        let (ry, rz) = g.semi_axes();
+        let in_section =
+            |at_start: Vector3<f64>| (at_start.y / ry).powi(2) + (at_start.z / rz).powi(2) < 1.0;
+        let back = |q: Vector3<f64>, angle: f64| {
+            c + nalgebra::Rotation3::from_axis_angle(&axis, -angle) * (q - c)
+        };
+        let turned = g.turned(p);
+        if (0.0..=g.angle).contains(&turned) && in_section(back(*p, turned)) {
+            return true;
+        }
+        let end = c + g.radius * (-g.angle.cos() * u + g.angle.sin() * Vector3::x());
+        let t = g.angle.cos() * Vector3::x() + g.angle.sin() * u;
+        let along = (p - end).dot(&t);
+        along >= 0.0 && in_section(back(p - t * along, g.angle))
     }
 
     /// Whether `p` lies inside the bend's union, from its definition and nothing of
@@ -202,7 +464,66 @@ mod tests {
     /// through the torus, 136 through the outlet).
     #[test]
     fn the_ray_exit_is_where_a_ray_leaves_the_union() {
+        exits_match(&bend(), inside);
+    }
+
+    /// The same for an oval tube ([`oval_bend`]) against [`inside_oval`]: the round
+    /// torus's crossing refined by Newton's method, and the outlet's ellipse.
+    #[test]
+    fn an_oval_tubes_ray_exit_is_where_a_ray_leaves_its_union() {
+        exits_match(&oval_bend(), inside_oval);
+        // A round tube's section by the same rotations is the round union.
         let g = bend();
+        let p = Vector3::new(1.3, 0.1, 0.2);
+        assert_eq!(inside(&g, &p), inside_oval(&g, &p));
+    }
+
+    /// On both pieces of an oval tube the normal is the gradient of the signed distance
+    /// (central differences, 10⁻⁶ m) at points near the wall, and the signed distance of
+    /// a wall point displaced along its normal by δ is δ to second order.
+    #[test]
+    fn an_oval_tubes_normal_is_its_distances_gradient() {
+        let g = oval_bend();
+        let wall = BendWall::new(&g).unwrap();
+        let u = Vector3::new(0.0, g.direction.cos(), g.direction.sin());
+        let a = Vector3::x().cross(&u);
+        let c = Vector3::new(g.start, 0.0, 0.0) + g.radius * u;
+        let mut pieces = [0usize; 2];
+        for (turned, extra) in [(0.2f64, 0.0), (0.6, 0.0), (0.8, 0.3)] {
+            let radial = -turned.cos() * u + turned.sin() * Vector3::x();
+            let tangent = turned.cos() * Vector3::x() + turned.sin() * u;
+            for k in 0..16 {
+                let psi = k as f64 * std::f64::consts::TAU / 16.0;
+                let r = g.section_radius(psi);
+                let p = c
+                    + g.radius * radial
+                    + extra * tangent
+                    + r * (psi.cos() * radial + psi.sin() * a);
+                pieces[wall.piece(&p) as usize] += 1;
+                assert!(wall.signed_distance(&p).abs() < 1e-12, "on the wall");
+                let n = wall.normal(&p).unwrap().into_inner();
+                let h = 1e-6;
+                for (axis, nk) in [Vector3::x(), Vector3::y(), Vector3::z()]
+                    .iter()
+                    .zip(n.iter())
+                {
+                    let fd = (wall.signed_distance(&(p + axis * h))
+                        - wall.signed_distance(&(p - axis * h)))
+                        / (2.0 * h);
+                    assert!((fd - nk).abs() < 1e-6, "{fd} vs {nk}");
+                }
+                let delta = 2e-3;
+                let s = wall.signed_distance(&(p + n * delta));
+                assert!((s - delta).abs() < 1e-4 * delta, "{s} vs {delta}");
+            }
+        }
+        assert_eq!(pieces, [32, 16], "torus and outlet points");
+    }
+
+    /// [`BendWall::ray_exit`] against the first exit of `inside`'s union (see
+    /// [`the_ray_exit_is_where_a_ray_leaves_the_union`]).
+    fn exits_match(g: &BendGeometry, inside: fn(&BendGeometry, &Vector3<f64>) -> bool) {
+        let g = *g;
         let wall = BendWall::new(&g).unwrap();
         let u = Vector3::new(0.0, g.direction.cos(), g.direction.sin());
         let centre = Vector3::new(g.start, 0.0, 0.0) + g.radius * u;
