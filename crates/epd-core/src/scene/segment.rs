@@ -1018,7 +1018,8 @@ pub fn survey(
         .iter()
         .map(|turn| crate::bend::start_from(&beta, end, dir + turn, 1.5 * d_mean))
         .collect();
-    let accepted = crate::bend::fit_best_bend(&s.beyond, &beta, &starts, fits);
+    let axis = s.straight.axis_cov;
+    let accepted = crate::bend::fit_best_bend(&s.beyond, &beta, axis.as_ref(), &starts, fits);
     match accepted {
         Some(b) => {
             s.layout = Layout::BendAhead;
@@ -1084,7 +1085,8 @@ fn bend_across_view(
         .iter()
         .map(|turn| crate::bend::start_from(&beta, short.near_m, side + turn, 1.5 * d_mean))
         .collect();
-    let accepted = crate::bend::fit_best_bend(&beyond, &beta, &starts, |b| {
+    let axis = s.straight.axis_cov;
+    let accepted = crate::bend::fit_best_bend(&beyond, &beta, axis.as_ref(), &starts, |b| {
         is_bend_shaped(b, d_mean) && b.residual_sigma <= 2.0 * noise
     });
     let Some(b) = accepted else {

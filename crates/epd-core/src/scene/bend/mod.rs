@@ -28,6 +28,7 @@
 use nalgebra::{SMatrix, SVector, Unit, Vector3};
 
 use crate::error::EpdError;
+use crate::fit::covariance::AxisCov;
 use crate::lm::{LmOptions, NormalEquations, NormalEquationsProblem, Status, minimize};
 use crate::loss::Loss;
 use crate::params::Params;
@@ -183,14 +184,18 @@ const BEND_POINTS: usize = 8192;
 
 /// The fit of a bend to `beyond` (SCS points past the straight section, from
 /// [`crate::segment::segment`]) attached to the straight fit `straight`, from `start`.
+/// With the straight fit's axis covariance `axis`, the bend's 1-σ carries the axis's
+/// uncertainty too ([`BendProblem::axis_covariance`]); without it they hold the axis
+/// fixed.
 pub fn fit_bend(
     beyond: &[[f64; 3]],
     straight: &Params,
+    axis: Option<&AxisCov>,
     start: &BendGeometry,
 ) -> Result<BendFit, EpdError> {
     let rays = bend_rays(beyond, straight)?;
     let first = first_order(&rays, straight, start)?;
-    Ok(finish(&rays, straight, first))
+    Ok(finish(&rays, straight, axis, first))
 }
 
 /// Of the fits of a bend to `beyond` from each of `starts` (as [`fit_bend`]), the best
@@ -203,6 +208,7 @@ pub fn fit_bend(
 pub fn fit_best_bend(
     beyond: &[[f64; 3]],
     straight: &Params,
+    axis: Option<&AxisCov>,
     starts: &[BendGeometry],
     accept: impl Fn(&BendFit) -> bool,
 ) -> Option<BendFit> {
@@ -224,7 +230,7 @@ pub fn fit_best_bend(
     });
     firsts
         .into_iter()
-        .map(|f| finish(&rays, straight, f))
+        .map(|f| finish(&rays, straight, axis, f))
         .find(|b| accept(b))
 }
 
@@ -295,7 +301,12 @@ fn first_order(
 
 /// From a first-order fit: the exact range error's fit (unbiased when the noise is not
 /// small against the tube), its 1-σ and its diagnostics.
-fn finish(rays: &[(Vector3<f64>, Vector3<f64>)], straight: &Params, first: FirstOrder) -> BendFit {
+fn finish(
+    rays: &[(Vector3<f64>, Vector3<f64>)],
+    straight: &Params,
+    axis: Option<&AxisCov>,
+    first: FirstOrder,
+) -> BendFit {
     if let Some(ended) = with_end(rays, straight, &first) {
         // The test of the end first on the first-order fit (its jackknife costs a
         // fraction of the exact stage's), then on the exact fit.
@@ -306,20 +317,24 @@ fn finish(rays: &[(Vector3<f64>, Vector3<f64>)], straight: &Params, first: First
             .map_or(f64::NAN, |c| c[(NP - 1, NP - 1)].max(0.0).sqrt());
         let (seen, _) = angle_seen(rays, &g, ended.sigma);
         if end_is_seen(&g, angle_sigma, seen) {
-            let fit = exact_fit(rays, straight, ended);
+            let fit = exact_fit(rays, straight, axis, ended);
             if fit.end_seen {
                 return fit;
             }
         }
     }
-    exact_fit(rays, straight, first)
+    exact_fit(rays, straight, axis, first)
 }
 
 /// The exact stage from a first-order fit, its 1-σ and its diagnostics; the end is read
-/// as seen by [`end_is_seen`].
+/// as seen by [`end_is_seen`] on the 1-σ of the bend's own points (the cluster
+/// jackknife's): an error of the straight pipe's axis moves the fitted end and the angle
+/// its points reach together. The reported 1-σ add the axis's part when `axis` is given
+/// ([`BendProblem::axis_covariance`]).
 fn exact_fit(
     rays: &[(Vector3<f64>, Vector3<f64>)],
     straight: &Params,
+    axis: Option<&AxisCov>,
     first: FirstOrder,
 ) -> BendFit {
     let problem = BendProblem::new(rays, straight, first.loss, true);
@@ -331,12 +346,17 @@ fn exact_fit(
     };
     let geometry = BendGeometry::from_vector(&rep.x);
     let cov = problem.jackknife_covariance(&rep.x);
-    let sd = |k: usize| cov.map_or(f64::NAN, |c| c[(k, k)].max(0.0).sqrt());
+    let own = |k: usize| cov.map_or(f64::NAN, |c| c[(k, k)].max(0.0).sqrt());
+    let total = match (cov, axis) {
+        (Some(c), Some(a)) => problem.axis_covariance(&rep.x, a).map(|p| c + p),
+        _ => cov,
+    };
+    let sd = |k: usize| total.map_or(f64::NAN, |c| c[(k, k)].max(0.0).sqrt());
     let sigma = robust_sigma(rays, &geometry).unwrap_or(f64::NAN);
     let straight_sigma = straight_robust_sigma(rays, (0.5 * straight.d_max, 0.5 * straight.d_min));
     let (angle_seen, n_inliers) = angle_seen(rays, &geometry, sigma);
+    let end_seen = end_is_seen(&geometry, own(NP - 1), angle_seen);
     let angle_sigma = sd(NP - 1);
-    let end_seen = end_is_seen(&geometry, angle_sigma, angle_seen);
     BendFit {
         geometry,
         angle_seen,
@@ -658,6 +678,87 @@ impl BendProblem<'_> {
         Some(v * ((n - 1.0) / n))
     }
 
+    /// The covariance of θ̂ = `x` that the straight fit's axis carries into it, D·C·Dᵀ.
+    /// The bend is placed in the PCS of the straight fit, whose axis is uncertain: in the
+    /// PCS of the true axis, displaced laterally by a₀ + x·b from the fitted one (a₀, b in
+    /// Y and Z, covariance C = [[P, Q], [Qᵀ, R]] of [`AxisCov`]), a measured point q lies at
+    /// q − (0, a₀ + q_x·b) and the sensor at o − (0, a₀). The fit's estimating equations
+    /// Σ ψ(eᵢ)·Jᵢ = 0 then move θ̂ by D·ξ, ξ = (a₀, b), to first order:
+    /// D = −H⁻¹·Σ w_h(eᵢ)·Jᵢ·(∂eᵢ/∂ξ)ᵀ with H = Σ w_h(eᵢ)·JᵢJᵢᵀ (the jackknife's bread) and
+    /// ∂eᵢ/∂ξ by central differences of the exact range error with the rays so moved
+    /// ([`AXIS_XI_STEP`]); a ray whose wall changes within the step, or that the fit takes
+    /// in first-order form, has no derivative there and is left out of the sum (a jump of
+    /// its residual over 2·10⁻⁴ m of ξ had made D a hundred times too large on noise-free
+    /// test rays). The straight fit's points lie before the bend and its noise is
+    /// not the bend's, so this adds to the jackknife's variance. The straight pipe's
+    /// diameters, which only the rays leaving it before the bend's start see, are left
+    /// out. `None` as [`Self::jackknife_covariance`].
+    fn axis_covariance(
+        &self,
+        x: &SVector<f64, NP>,
+        axis: &AxisCov,
+    ) -> Option<SMatrix<f64, NP, NP>> {
+        let (g, t0, shifted) = walls_at(x)?;
+        let mut h = SMatrix::<f64, NP, NP>::zeros();
+        let mut c = SMatrix::<f64, NP, 4>::zeros();
+        // The exact range error of the ray to q with the sensor and q moved by ξ, and the
+        // wall it meets; `None` where the fit takes a first-order form (no wall met, or
+        // met at a grazing angle, [`Self::residual_and_gradient`]).
+        let moved = |q: &Vector3<f64>, xi: &[f64; 4]| -> Option<(f64, Wall)> {
+            let shift = |px: f64| Vector3::new(0.0, xi[0] + px * xi[2], xi[1] + px * xi[3]);
+            let origin = self.origin - shift(0.0);
+            let q = q - shift(q.x);
+            let d = (q - origin).normalize();
+            let problem = BendProblem { origin, ..*self };
+            let (e, hit, wall) = problem.range_error(&g, &t0, &q, &d)?;
+            let grazing = matches!(wall, Wall::Torus | Wall::Outlet)
+                && !t0.normal(&hit).is_some_and(|n| n.dot(&d).abs() >= 0.05);
+            (!grazing).then_some((e, wall))
+        };
+        for (q, d) in self.rays {
+            let Some((e, j)) = self.residual_and_gradient(&g, &t0, &shifted, TORUS_STEP, q, d)
+            else {
+                continue;
+            };
+            let (_, _, wh) = self.loss.cost_and_weights(e);
+            let jv = SVector::<f64, NP>::from(j);
+            h += jv * jv.transpose() * wh;
+            // A ray whose wall changes within the step (near the start's plane, the end's,
+            // a grazing angle) has a residual that jumps there: no derivative, left out.
+            let Some((_, wall)) = moved(q, &[0.0; 4]) else {
+                continue;
+            };
+            for k in 0..4 {
+                let (mut up, mut down) = ([0.0; 4], [0.0; 4]);
+                up[k] = AXIS_XI_STEP;
+                down[k] = -AXIS_XI_STEP;
+                let (Some((eu, wu)), Some((ed, wd))) = (moved(q, &up), moved(q, &down)) else {
+                    continue;
+                };
+                if (wu, wd) != (wall, wall) {
+                    continue;
+                }
+                let de = (eu - ed) / (2.0 * AXIS_XI_STEP);
+                for r in 0..NP {
+                    c[(r, k)] += wh * jv[r] * de;
+                }
+            }
+        }
+        if h.row(NP - 1).iter().all(|v| *v == 0.0) {
+            h[(NP - 1, NP - 1)] = 1.0;
+        }
+        let d = -h.try_inverse()? * c;
+        let m = |a: [[f64; 2]; 2]| nalgebra::Matrix2::new(a[0][0], a[0][1], a[1][0], a[1][1]);
+        let (p, q, r) = (m(axis.at_sensor), m(axis.cross), m(axis.slope));
+        let mut cxi = SMatrix::<f64, 4, 4>::zeros();
+        cxi.fixed_view_mut::<2, 2>(0, 0).copy_from(&p);
+        cxi.fixed_view_mut::<2, 2>(0, 2).copy_from(&q);
+        cxi.fixed_view_mut::<2, 2>(2, 0).copy_from(&q.transpose());
+        cxi.fixed_view_mut::<2, 2>(2, 2).copy_from(&r);
+        let out = d * cxi * d.transpose();
+        out.iter().all(|v| v.is_finite()).then_some(out)
+    }
+
     /// One ray's residual and its gradient in θ, given the wall `t0` at θ and the walls
     /// `shifted` at θ ± h·e_k.
     ///
@@ -776,6 +877,12 @@ impl BendProblem<'_> {
         Some((range - hit, self.origin + d * hit, wall))
     }
 }
+
+/// The central-difference step of ξ in [`BendProblem::axis_covariance`]: 10⁻⁴ m for the
+/// axis's offset, 10⁻⁴ (m/m) for its slope — against an axis's 1-σ of millimetres and
+/// milliradians small enough that the residual is linear in it (its curvature over a bend
+/// of metres is 10⁻⁴ relative), and far above the residual's rounding (10⁻¹⁶ m).
+const AXIS_XI_STEP: f64 = 1e-4;
 
 /// How many of θ's parameters a residual's gradient is taken in: all but Θ for an open
 /// bend, whose wall has no outlet and whose residuals do not depend on Θ (its column is
@@ -1081,7 +1188,7 @@ mod tests {
             angle: OPEN_ANGLE,
             ..g
         };
-        let b = fit_bend(&beyond, &straight, &start).expect("a bend");
+        let b = fit_bend(&beyond, &straight, None, &start).expect("a bend");
         let e = b.geometry;
         assert!((e.start - g.start).abs() < 1e-4, "{e:?}");
         assert!((e.radius - g.radius).abs() < 1e-4, "{e:?}");
@@ -1142,7 +1249,7 @@ mod tests {
             angle: OPEN_ANGLE,
             ..g
         };
-        let b = fit_bend(&beyond, &straight, &start).expect("a bend");
+        let b = fit_bend(&beyond, &straight, None, &start).expect("a bend");
         let e = b.geometry;
         assert!((e.start - g.start).abs() < 1e-4, "{e:?}");
         assert!((e.radius - g.radius).abs() < 1e-4, "{e:?}");
@@ -1167,6 +1274,115 @@ mod tests {
             (r_round / g.radius - 1.0).abs() > 0.005,
             "round R {r_round}"
         );
+    }
+
+    /// The axis's covariance against a moved axis: with the covariance of one known
+    /// displacement ξ = (a₀, b) of the straight axis (C = ξξᵀ), the propagated 1-σ of each
+    /// of θ's parameters is |Dξ|ₖ, which must match the change of the exact fit's θ̂ when
+    /// the rays are moved by ξ and the bend refitted (noise-free points on the wall of an
+    /// open bend seen over 0.1–0.78 rad, an oval tube; the rays that meet the torus at
+    /// more than the grazing cut before and after the move): within 5 % of the change at
+    /// a displacement of 0.2 mm. At 2 mm the refit leaves the linear regime (R moved by
+    /// −0.15 m): seen over that arc, R trades against x₀ and ε (H's eigenvalues span a
+    /// factor of 4000), a limit of the delta method this 1-σ is.
+    #[test]
+    fn the_axis_covariance_predicts_a_moved_axis() {
+        let (angle, ovality) = (OPEN_ANGLE, 0.04);
+        let (p, g) = problem_with_shape(&[], angle, ovality);
+        let t = g.torus().unwrap();
+        let u = Vector3::new(0.0, g.direction.cos(), g.direction.sin());
+        let normal = t.axis.into_inner();
+        let mut targets = Vec::new();
+        for i in 0..16 {
+            let turned = 0.1 + 0.68 * i as f64 / 15.0;
+            let along = -turned.cos() * u + turned.sin() * Vector3::x();
+            let centre = t.centre + g.radius * along;
+            for k in 0..24 {
+                let psi = k as f64 * std::f64::consts::TAU / 24.0;
+                targets.push(
+                    centre + g.section_radius(psi) * (psi.cos() * along + psi.sin() * normal),
+                );
+            }
+        }
+        // The points on the wall (not 1 cm past it), and only the rays that meet it at
+        // more than the grazing cut (whose residual is the exact range error, smooth in
+        // θ and ξ; a grazing ray's first-order form is not).
+        let (g0, t0, shifted) = walls_at(&g.to_vector()).unwrap();
+        let on_wall: Vec<(Vector3<f64>, Vector3<f64>)> =
+            rays_toward_shape(&targets, angle, ovality)
+                .into_iter()
+                .map(|(q, d)| (q - d * 0.01, d))
+                .collect();
+        let rays: Vec<(Vector3<f64>, Vector3<f64>)> = on_wall
+            .into_iter()
+            .filter(|(q, d)| {
+                let Some((_, hit, _)) = p.range_error(&g0, &t0, q, d) else {
+                    return false;
+                };
+                t0.normal(&hit).is_some_and(|n| n.dot(d).abs() >= 0.05)
+                    && p.residual_and_gradient(&g0, &t0, &shifted, TORUS_STEP, q, d)
+                        .is_some_and(|(e, _)| e.abs() < 1e-9)
+            })
+            .collect();
+        let (a0, b) = ([0.0002, -0.0001], [0.00015, 0.0001]);
+        let shift = |px: f64| Vector3::new(0.0, a0[0] + px * b[0], a0[1] + px * b[1]);
+        let origin = p.origin - shift(0.0);
+        // And of those, the rays that meet the same wall, not grazing, once moved by ξ
+        // (as the covariance takes them).
+        let moved_problem = BendProblem { origin, ..p };
+        let rays: Vec<(Vector3<f64>, Vector3<f64>)> = rays
+            .into_iter()
+            .filter(|(q, _)| {
+                let q = q - shift(q.x);
+                let d = (q - origin).normalize();
+                moved_problem
+                    .range_error(&g0, &t0, &q, &d)
+                    .is_some_and(|(_, hit, wall)| {
+                        wall == Wall::Torus
+                            && t0.normal(&hit).is_some_and(|n| n.dot(&d).abs() >= 0.05)
+                    })
+            })
+            .collect();
+        assert!(rays.len() > 300, "{} rays", rays.len());
+        let problem = BendProblem { rays: &rays, ..p };
+        let fit = minimize(&problem, g.to_vector(), &LmOptions::default());
+        let outer =
+            |x: [f64; 2], y: [f64; 2]| [[x[0] * y[0], x[0] * y[1]], [x[1] * y[0], x[1] * y[1]]];
+        let cov = AxisCov {
+            at_sensor: outer(a0, a0),
+            cross: outer(a0, b),
+            slope: outer(b, b),
+        };
+        let predicted = problem.axis_covariance(&fit.x, &cov).expect("a covariance");
+        let moved: Vec<(Vector3<f64>, Vector3<f64>)> = rays
+            .iter()
+            .map(|(q, _)| {
+                let q = q - shift(q.x);
+                (q, (q - origin).normalize())
+            })
+            .collect();
+        let refit = minimize(
+            &BendProblem {
+                origin,
+                rays: &moved,
+                ..problem
+            },
+            fit.x,
+            &LmOptions::default(),
+        );
+        let mut checked = 0;
+        for k in 0..NP {
+            let change = (refit.x[k] - fit.x[k]).abs();
+            let sd = predicted[(k, k)].sqrt();
+            if change > 1e-6 {
+                assert!(
+                    (sd / change - 1.0).abs() < 0.05,
+                    "θ{k}: 1-σ {sd} vs change {change}"
+                );
+                checked += 1;
+            }
+        }
+        assert!(checked >= 3, "{checked} parameters moved");
     }
 
     /// A bend problem with the tube's ovality held at its start (its gradient column
@@ -1225,8 +1441,10 @@ mod tests {
                 angle: OPEN_ANGLE,
             })
             .collect();
-        let best = fit_best_bend(&beyond, &straight, &starts, |b| b.status.is_converged())
-            .expect("a bend");
+        let best = fit_best_bend(&beyond, &straight, None, &starts, |b| {
+            b.status.is_converged()
+        })
+        .expect("a bend");
         let e = best.geometry;
         assert!((e.start - g.start).abs() < 1e-4, "{e:?}");
         // A direction is an angle: the start a quarter turn back may settle a full turn on.
@@ -1234,6 +1452,6 @@ mod tests {
         assert!(turn.min(std::f64::consts::TAU - turn) < 1e-4, "{e:?}");
         assert!((e.radius - g.radius).abs() < 1e-4, "{e:?}");
         assert!((e.tube_radius - g.tube_radius).abs() < 1e-4, "{e:?}");
-        assert!(fit_best_bend(&beyond, &straight, &starts, |_| false).is_none());
+        assert!(fit_best_bend(&beyond, &straight, None, &starts, |_| false).is_none());
     }
 }
