@@ -289,13 +289,9 @@ fn first_order(
     let loss = Loss::Cauchy {
         scale: crate::loss::CAUCHY_K95 * sigma0,
     };
-    let problem = BendProblem::new(rays, straight, loss, false);
-    // The bend placed with the tube held as it starts ([`HeldOvality`]).
-    let report = minimize(
-        &HeldOvality(&problem),
-        start.to_vector(),
-        &LmOptions::default(),
-    );
+    // The bend placed with the tube held as it starts ([`BendProblem::holding_ovality`]).
+    let problem = BendProblem::new(rays, straight, loss, false).holding_ovality();
+    let report = minimize(&problem, start.to_vector(), &LmOptions::default());
     let sigma = robust_sigma(rays, &BendGeometry::from_vector(&report.x)).unwrap_or(f64::NAN);
     Ok(FirstOrder {
         report,
@@ -343,7 +339,7 @@ fn exact_fit(
     first: FirstOrder,
 ) -> BendFit {
     // The tube's shape freed in the first-order form first (smooth in θ; the first-order
-    // fits held it, [`HeldOvality`]), then the exact range error: the exact cost changes
+    // fits held it, [`BendProblem::holding_ovality`]), then the exact range error: the exact cost changes
     // by jumps where a ray passes from one wall to another (the start's step, the end),
     // and from a tube of the wrong shape it stalled at such a kink (noise-free points of
     // a 4 % oval tube fitted from a round one: residuals of 2.6 mm, R 0.4 % long).
@@ -364,13 +360,13 @@ fn exact_fit(
     } else {
         first.report
     };
-    let geometry = BendGeometry::from_vector(&rep.x);
     let cov = problem.jackknife_covariance(&rep.x);
-    let own = |k: usize| cov.map_or(f64::NAN, |c| c[(k, k)].max(0.0).sqrt());
     let total = match (cov, axis) {
         (Some(c), Some(a)) => problem.axis_covariance(&rep.x, a).map(|p| c + p),
         _ => cov,
     };
+    let geometry = BendGeometry::from_vector(&rep.x);
+    let own = |k: usize| cov.map_or(f64::NAN, |c| c[(k, k)].max(0.0).sqrt());
     let sd = |k: usize| total.map_or(f64::NAN, |c| c[(k, k)].max(0.0).sqrt());
     let sigma = robust_sigma(rays, &geometry).unwrap_or(f64::NAN);
     let straight_sigma = straight_robust_sigma(rays, (0.5 * straight.d_max, 0.5 * straight.d_min));
@@ -424,8 +420,8 @@ fn with_end(
     }
     let mut x = open.report.x;
     x[NP - 1] = end_scan(rays, open)?;
-    let problem = BendProblem::new(rays, straight, open.loss, false);
-    let report = minimize(&HeldOvality(&problem), x, &LmOptions::default());
+    let problem = BendProblem::new(rays, straight, open.loss, false).holding_ovality();
+    let report = minimize(&problem, x, &LmOptions::default());
     let sigma = robust_sigma(rays, &BendGeometry::from_vector(&report.x)).unwrap_or(f64::NAN);
     (report.status.is_converged() && sigma < open.sigma && report.x[NP - 1] < OPEN_ANGLE).then_some(
         FirstOrder {
@@ -566,6 +562,7 @@ fn robust_sigma(rays: &[(Vector3<f64>, Vector3<f64>)], g: &BendGeometry) -> Opti
 }
 
 /// The bend's least squares in θ over the rays' points.
+#[derive(Clone, Copy)]
 struct BendProblem<'a> {
     /// The sensor o = [0, δy, δz] in the PCS.
     origin: Vector3<f64>,
@@ -576,6 +573,10 @@ struct BendProblem<'a> {
     exact: bool,
     rays: &'a [(Vector3<f64>, Vector3<f64>)],
     loss: Loss,
+    /// The tube's ovality ε held where θ has it: its column of every residual's gradient
+    /// is 0, so no step moves it and the 1-σ are those with ε known
+    /// ([`Self::holding_ovality`]).
+    hold_ovality: bool,
 }
 
 impl<'a> BendProblem<'a> {
@@ -591,6 +592,39 @@ impl<'a> BendProblem<'a> {
             exact,
             rays,
             loss,
+            hold_ovality: false,
+        }
+    }
+
+    /// The same problem with the tube's ovality held where it starts: the first-order
+    /// fit from a start, which finds the bend's place with the tube carried over from the
+    /// straight pipe (freed from the start, ε wandered with the far starts' first steps
+    /// on noisy small pipes: numpy 8" elbows under σ = 0.05 m had the start within 5 cm in
+    /// fewer frames than with a round tube); the exact stage frees it.
+    fn holding_ovality(self) -> Self {
+        Self {
+            hold_ovality: true,
+            ..self
+        }
+    }
+
+    /// A residual's gradient with the held parameters' entries 0.
+    fn pinned(&self, mut j: [f64; NP]) -> [f64; NP] {
+        if self.hold_ovality {
+            j[OVALITY] = 0.0;
+        }
+        j
+    }
+}
+
+/// Puts a unit diagonal in the rows of a bread H that are exactly 0 — a parameter held
+/// ([`BendProblem::holding_ovality`]) or one no residual depends on (the bend angle Θ
+/// while no point lies past the end): its step and its d_g entries are then 0 and no other
+/// entry changes, since every score's entry there is 0 too.
+fn unit_diagonal_where_empty(h: &mut SMatrix<f64, NP, NP>) {
+    for k in 0..NP {
+        if h.row(k).iter().all(|v| *v == 0.0) {
+            h[(k, k)] = 1.0;
         }
     }
 }
@@ -605,31 +639,13 @@ impl NormalEquationsProblem<NP> for BendProblem<'_> {
                 continue;
             };
             let (c, wg, wh) = self.loss.cost_and_weights(e);
-            eq.push_weighted(e, &j, c, wg, wh);
+            eq.push_weighted(e, &self.pinned(j), c, wg, wh);
         }
         eq.symmetrize();
-        (eq.n_residuals > NP).then_some(eq)
-    }
-}
-
-/// A bend problem with the tube's ovality held where it starts (its row and column of the
-/// normal equations replaced by the identity's, so no step moves it): the first-order
-/// fit from a start, which finds the bend's place with the tube carried over from the
-/// straight pipe; the exact stage then frees ε. Freed from the start, ε wandered with the
-/// far starts' first steps on noisy small pipes (numpy 8" elbows under σ = 0.05 m: the
-/// start within 5 cm in fewer frames than with a round tube).
-struct HeldOvality<'a>(&'a BendProblem<'a>);
-
-impl NormalEquationsProblem<NP> for HeldOvality<'_> {
-    fn normal_equations(&self, x: &SVector<f64, NP>) -> Option<NormalEquations<NP>> {
-        let mut eq = self.0.normal_equations(x)?;
-        for k in 0..NP {
-            eq.jtj[(OVALITY, k)] = 0.0;
-            eq.jtj[(k, OVALITY)] = 0.0;
+        if self.hold_ovality {
+            eq.jtj[(OVALITY, OVALITY)] = 1.0;
         }
-        eq.jtj[(OVALITY, OVALITY)] = 1.0;
-        eq.jtr[OVALITY] = 0.0;
-        Some(eq)
+        (eq.n_residuals > NP).then_some(eq)
     }
 }
 
@@ -697,8 +713,13 @@ impl BendProblem<'_> {
             let psi = (q.z - self.origin.z).atan2(q.y - self.origin.y);
             let sector = ((psi / std::f64::consts::TAU + 0.5) * CLOCK_SECTORS as f64) as usize;
             let (c, wg, wh) = self.loss.cost_and_weights(e);
-            cells[bin * CLOCK_SECTORS + sector.min(CLOCK_SECTORS - 1)]
-                .push_weighted(e, &j, c, wg, wh);
+            cells[bin * CLOCK_SECTORS + sector.min(CLOCK_SECTORS - 1)].push_weighted(
+                e,
+                &self.pinned(j),
+                c,
+                wg,
+                wh,
+            );
         }
         let mut h = SMatrix::<f64, NP, NP>::zeros();
         for c in &mut cells {
@@ -709,9 +730,7 @@ impl BendProblem<'_> {
         if used.len() < 2 {
             return None;
         }
-        if h.row(NP - 1).iter().all(|v| *v == 0.0) {
-            h[(NP - 1, NP - 1)] = 1.0;
-        }
+        unit_diagonal_where_empty(&mut h);
         h.try_inverse()?;
         let mut v = SMatrix::<f64, NP, NP>::zeros();
         for c in &used {
@@ -765,7 +784,7 @@ impl BendProblem<'_> {
                 continue;
             };
             let (_, _, wh) = self.loss.cost_and_weights(e);
-            let jv = SVector::<f64, NP>::from(j);
+            let jv = SVector::<f64, NP>::from(self.pinned(j));
             h += jv * jv.transpose() * wh;
             // A ray whose wall changes within the step (near the start's plane, the end's,
             // a grazing angle) has a residual that jumps there: no derivative, left out.
@@ -788,9 +807,7 @@ impl BendProblem<'_> {
                 }
             }
         }
-        if h.row(NP - 1).iter().all(|v| *v == 0.0) {
-            h[(NP - 1, NP - 1)] = 1.0;
-        }
+        unit_diagonal_where_empty(&mut h);
         let d = -h.try_inverse()? * c;
         let m = |a: [[f64; 2]; 2]| nalgebra::Matrix2::new(a[0][0], a[0][1], a[1][0], a[1][1]);
         let (p, q, r) = (m(axis.at_sensor), m(axis.cross), m(axis.slope));
@@ -1008,6 +1025,7 @@ mod tests {
             exact: true,
             rays,
             loss: Loss::Squared,
+            hold_ovality: false,
         };
         (p, g)
     }
@@ -1307,12 +1325,8 @@ mod tests {
             tube_ovality: 0.0,
             ..g
         };
-        let problem = BendProblem::new(&rays, &straight, Loss::Squared, true);
-        let held = minimize(
-            &HeldRound(&problem),
-            round.to_vector(),
-            &LmOptions::default(),
-        );
+        let problem = BendProblem::new(&rays, &straight, Loss::Squared, true).holding_ovality();
+        let held = minimize(&problem, round.to_vector(), &LmOptions::default());
         let r_round = BendGeometry::from_vector(&held.x).radius;
         assert!(
             (r_round / g.radius - 1.0).abs() > 0.005,
@@ -1427,23 +1441,6 @@ mod tests {
             }
         }
         assert!(checked >= 3, "{checked} parameters moved");
-    }
-
-    /// A bend problem with the tube's ovality held at its start (its gradient column
-    /// zeroed, so the solver never moves it).
-    struct HeldRound<'a>(&'a BendProblem<'a>);
-
-    impl NormalEquationsProblem<NP> for HeldRound<'_> {
-        fn normal_equations(&self, x: &SVector<f64, NP>) -> Option<NormalEquations<NP>> {
-            let mut eq = self.0.normal_equations(x)?;
-            for k in 0..NP {
-                eq.jtj[(4, k)] = 0.0;
-                eq.jtj[(k, 4)] = 0.0;
-            }
-            eq.jtj[(4, 4)] = 1.0;
-            eq.jtr[4] = 0.0;
-            Some(eq)
-        }
     }
 
     /// Noise-free points of the bend of [`problem`] (rays toward its wall at turned
