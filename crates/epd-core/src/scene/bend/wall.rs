@@ -38,7 +38,7 @@
 use nalgebra::{Unit, Vector3};
 
 use super::BendGeometry;
-use crate::torus::Torus;
+use crate::torus::{Torus, planar_norm};
 
 /// The angle of a bend whose end is not seen: the torus runs to α = π, no outlet.
 pub const OPEN_ANGLE: f64 = std::f64::consts::PI;
@@ -84,7 +84,7 @@ impl Section {
     fn radial(&self, w: f64, h: f64) -> Option<(f64, f64, f64)> {
         let (c, s) = (self.cos, self.sin);
         let (y, z) = (-w * c - h * s, -w * s + h * c);
-        let d = y.hypot(z);
+        let d = planar_norm(y, z);
         if !(d > 0.0 && d.is_finite()) {
             return None;
         }
@@ -109,7 +109,7 @@ impl Section {
         a: &Vector3<f64>,
     ) -> Option<(f64, Unit<Vector3<f64>>)> {
         let (g, gw, gh) = self.radial(w, h)?;
-        let len = gw.hypot(gh);
+        let len = planar_norm(gw, gh);
         (len > 0.0 && len.is_finite())
             .then(|| (g / len, Unit::new_unchecked((e * gw + a * gh) / len)))
     }
@@ -188,7 +188,7 @@ impl BendWall {
     pub fn outside_section_at_start(&self, y: f64, z: f64) -> bool {
         match &self.section {
             Some(s) => s.outside(y, z),
-            None => y.hypot(z) > self.geometry.tube_radius,
+            None => planar_norm(y, z) > self.geometry.tube_radius,
         }
     }
 
