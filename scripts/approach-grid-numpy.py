@@ -167,6 +167,21 @@ def load(out_path):
     return [json.loads(l) for l in open(out_path) if l.strip()]
 
 
+def covered(rs, z=1.96):
+    """Of the frames read right within 5 cm, in how many ±z·σ (z = 1.96: the two-sided 95 %
+    interval) holds the truth: the start (`sigma_straight_until_m`) and, for bends, the
+    radius (`sigma_bend_radius_mm`). Issue 23 asks the start's 1-σ to cover its error in
+    ≥ 90 % of frames; '—' where no frame reports the 1-σ."""
+    rs = [r for r in rs if r["right_5cm"]]
+    su = [r for r in rs if r.get("sigma_straight_until_m")]
+    parts = [f"{sum(abs(r['straight_until_m'] - r['x0']) <= z * r['sigma_straight_until_m'] for r in su)} / {len(su)}" if su else "—"]
+    br = [r for r in rs if "bend_radius_true_mm" in r and r.get("sigma_bend_radius_mm")]
+    if br:
+        hit = sum(abs(r["bend_radius_mm"] - r["bend_radius_true_mm"]) <= z * r["sigma_bend_radius_mm"] for r in br)
+        parts.append(f"{hit} / {len(br)}")
+    return ", ".join(parts)
+
+
 def radius_within(rs, share=0.02):
     """Of the frames read right within 5 cm, how many place the bend radius within
     `share` of the truth (issue 23's goal: 2 %); '—' for tees."""
@@ -183,8 +198,8 @@ def table(out_path):
     cells = {}
     for r in recs:
         cells.setdefault((r["fitting"], r["size"], r["sigma"], r["x0"]), []).append(r)
-    print("| fitting | size | σ m | x0 m | n | geometry right | right ≤5 cm | bend radius within 2 % | what the others read: count status geometry [straight_until_m range] | far-off converged | nearest wall seen (median, m) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| fitting | size | σ m | x0 m | n | geometry right | right ≤5 cm | bend radius within 2 % | ±1.96σ covers: start, radius | what the others read: count status geometry [straight_until_m range] | far-off converged | nearest wall seen (median, m) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for key in sorted(cells, key=lambda k: (k[0], k[1] != "8in", -k[2], k[3])):
         rs = cells[key]
         groups = {}
@@ -201,7 +216,7 @@ def table(out_path):
         xn = [r["x_near_m"] for r in rs if "x_near_m" in r]
         print(
             f"| {key[0]} | {key[1]} | {key[2]} | {key[3]} | {len(rs)} | "
-            f"{sum(r['geom_right'] for r in rs)} | {sum(r['right_5cm'] for r in rs)} | {radius_within(rs)} | {'; '.join(parts) or '—'} | "
+            f"{sum(r['geom_right'] for r in rs)} | {sum(r['right_5cm'] for r in rs)} | {radius_within(rs)} | {covered(rs)} | {'; '.join(parts) or '—'} | "
             f"{sum(bool(r['far']) for r in rs)}" + (f" ({'; '.join(far)})" if far else "") + " | "
             + (f"{np.median(xn):.2f}" if xn else "—") + " |"
         )
