@@ -185,8 +185,9 @@ const BEND_POINTS: usize = 8192;
 /// The fit of a bend to `beyond` (SCS points past the straight section, from
 /// [`crate::segment::segment`]) attached to the straight fit `straight`, from `start`.
 /// With the straight fit's axis covariance `axis`, the bend's 1-σ carries the axis's
-/// uncertainty too ([`BendProblem::axis_covariance`]); without it they hold the axis
-/// fixed.
+/// uncertainty too (D·C·Dᵀ added to the cluster jackknife's covariance, D the fit's
+/// linearised response to a move of the axis: docs/bends-and-tees.md, "Oval bends");
+/// without it they hold the axis fixed.
 pub fn fit_bend(
     beyond: &[[f64; 3]],
     straight: &Params,
