@@ -44,7 +44,7 @@
 
 use nalgebra::Vector3;
 
-use crate::check::{FitStatus, Implausible};
+use crate::check::{FitOutcome, FitStatus, Implausible};
 use crate::cloud::clean;
 use crate::error::EpdError;
 use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
@@ -958,6 +958,58 @@ pub struct Dent {
     pub depth_m: f64,
 }
 
+/// The straight section refitted on the points before the bend's fitted start less
+/// one slice ([`SegmentOptions::slice_m`]) and [`SegmentOptions::margin_m`], and the bend
+/// refitted from `first` to the straight fit so made and the points past that cut; taken
+/// (the refit replacing `s.straight`, its points past the cut `s.beyond`) when the bend
+/// still fits and the refit's outcome is `converged` or the same as before.
+///
+/// Why: the first straight fit takes the points before the first departing slice, and a
+/// bend leaves the straight pipe tangentially (its wall a distance s past the start lies
+/// about s²/2R off the cylinder), so the departure is seen some centimetres after the
+/// bend begins and the straight fit holds the bend's first centimetres: its axis leans
+/// toward the bend, and the bend fitted to that axis starts late. Where little straight
+/// pipe is in view the lean is large: on the numpy casters' bends
+/// (`scripts/approach-grid-numpy.py`) the start read +31 … +50 mm late on the 42" 45°
+/// bend 1 m ahead (its ±1.96σ covering 1 of 5) and +8 … +46 mm on the 20" 45° bend
+/// 0.5 m ahead. The fitted start is within a slice of the truth there (the survey
+/// resolves a departure to a slice), so a cut one slice before it leaves the bend out;
+/// with it those starts read −3 … +3 mm and −5 … +24 mm. One round: a second moved no
+/// start by more than a few millimetres on those frames.
+fn reseat_before_bend(
+    s: &mut Segmentation,
+    first: crate::bend::BendFit,
+    points: &[[f64; 3]],
+    method: Method,
+    options: &EstimateOptions,
+    seg: &SegmentOptions,
+    fits: impl Fn(&crate::bend::BendFit) -> bool,
+) -> crate::bend::BendFit {
+    let cut = first.geometry.start - seg.slice_m;
+    let Some(refit) = refit_before(points, &s.straight.params, cut, false, method, options, seg)
+    else {
+        return first;
+    };
+    let outcome = refit.status.outcome();
+    if outcome != FitOutcome::Converged && outcome != s.straight.status.outcome() {
+        return first;
+    }
+    let beyond = axial_select(points, &refit.params, |a| a >= cut);
+    match crate::bend::fit_bend(
+        &beyond,
+        &refit.params,
+        refit.axis_cov.as_ref(),
+        &first.geometry,
+    ) {
+        Ok(b) if fits(&b) => {
+            s.straight = refit;
+            s.beyond = beyond;
+            b
+        }
+        _ => first,
+    }
+}
+
 /// [`segment`], then a torus fitted to what lies beyond a departure
 /// ([`crate::bend::fit_bend`], started at the departure with a long-radius bend,
 /// R = 1.5·D): when it converges with residuals within twice the straight section's
@@ -1019,7 +1071,8 @@ pub fn survey(
         .map(|turn| crate::bend::start_from(&beta, end, dir + turn, 1.5 * d_mean))
         .collect();
     let axis = s.straight.axis_cov;
-    let accepted = crate::bend::fit_best_bend(&s.beyond, &beta, axis.as_ref(), &starts, fits);
+    let accepted = crate::bend::fit_best_bend(&s.beyond, &beta, axis.as_ref(), &starts, fits)
+        .map(|b| reseat_before_bend(&mut s, b, points, method, options, seg, fits));
     match accepted {
         Some(b) => {
             s.layout = Layout::BendAhead;
