@@ -1100,6 +1100,27 @@ mod tests {
         (straight, beyond)
     }
 
+    /// Points on the wall of `g`'s tube (its section's radius toward each angle, oval or
+    /// round): 16 turned angles over 0.1–0.78 rad × 24 angles around the section.
+    fn tube_targets(g: &BendGeometry) -> Vec<Vector3<f64>> {
+        let t = g.torus().unwrap();
+        let u = Vector3::new(0.0, g.direction.cos(), g.direction.sin());
+        let normal = t.axis.into_inner();
+        let mut targets = Vec::new();
+        for i in 0..16 {
+            let turned = 0.1 + 0.68 * i as f64 / 15.0;
+            let along = -turned.cos() * u + turned.sin() * Vector3::x();
+            let centre = t.centre + g.radius * along;
+            for k in 0..24 {
+                let psi = k as f64 * std::f64::consts::TAU / 24.0;
+                targets.push(
+                    centre + g.section_radius(psi) * (psi.cos() * along + psi.sin() * normal),
+                );
+            }
+        }
+        targets
+    }
+
     /// A bend's end E, the outlet's direction T, the in-plane direction toward the centre
     /// of curvature across the outlet, and the bend plane's normal.
     fn outlet_frame(g: &BendGeometry) -> (Vector3<f64>, Vector3<f64>, Vector3<f64>, Vector3<f64>) {
@@ -1291,17 +1312,7 @@ mod tests {
         let t = g.torus().unwrap();
         let u = Vector3::new(0.0, g.direction.cos(), g.direction.sin());
         let normal = t.axis.into_inner();
-        let mut targets = Vec::new();
-        for i in 0..16 {
-            let turned = 0.1 + 0.68 * i as f64 / 15.0;
-            let along = -turned.cos() * u + turned.sin() * Vector3::x();
-            let centre = t.centre + g.radius * along;
-            for k in 0..24 {
-                let psi = k as f64 * std::f64::consts::TAU / 24.0;
-                let r = g.section_radius(psi);
-                targets.push(centre + r * (psi.cos() * along + psi.sin() * normal));
-            }
-        }
+        let mut targets = tube_targets(&g);
         let (end, tangent, _, _) = outlet_frame(&g);
         let along_end = -angle.cos() * u + angle.sin() * Vector3::x();
         for i in 0..16 {
@@ -1358,21 +1369,7 @@ mod tests {
     fn the_axis_covariance_predicts_a_moved_axis() {
         let (angle, ovality) = (OPEN_ANGLE, 0.04);
         let (p, g) = problem_with_shape(&[], angle, ovality);
-        let t = g.torus().unwrap();
-        let u = Vector3::new(0.0, g.direction.cos(), g.direction.sin());
-        let normal = t.axis.into_inner();
-        let mut targets = Vec::new();
-        for i in 0..16 {
-            let turned = 0.1 + 0.68 * i as f64 / 15.0;
-            let along = -turned.cos() * u + turned.sin() * Vector3::x();
-            let centre = t.centre + g.radius * along;
-            for k in 0..24 {
-                let psi = k as f64 * std::f64::consts::TAU / 24.0;
-                targets.push(
-                    centre + g.section_radius(psi) * (psi.cos() * along + psi.sin() * normal),
-                );
-            }
-        }
+        let targets = tube_targets(&g);
         // The points on the wall (not 1 cm past it), and only the rays that meet it at
         // more than the grazing cut (whose residual is the exact range error, smooth in
         // θ and ξ; a grazing ray's first-order form is not).
