@@ -195,8 +195,9 @@ pub fn fit_bend(
     start: &BendGeometry,
 ) -> Result<BendFit, EpdError> {
     let rays = bend_rays(beyond, straight)?;
-    let first = first_order(&rays, straight, start)?;
-    Ok(finish(&rays, straight, axis, first))
+    let coarse = coarse_rays(&rays);
+    let first = first_order(&coarse, straight, start)?;
+    Ok(finish(&rays, &coarse, straight, axis, first))
 }
 
 /// Of the fits of a bend to `beyond` from each of `starts` (as [`fit_bend`]), the best
@@ -214,9 +215,10 @@ pub fn fit_best_bend(
     accept: impl Fn(&BendFit) -> bool,
 ) -> Option<BendFit> {
     let rays = bend_rays(beyond, straight).ok()?;
+    let coarse = coarse_rays(&rays);
     let mut firsts: Vec<FirstOrder> = starts
         .iter()
-        .filter_map(|s| first_order(&rays, straight, s).ok())
+        .filter_map(|s| first_order(&coarse, straight, s).ok())
         .collect();
     // NaN σ (no usable residuals) last.
     firsts.sort_by(|a, b| {
@@ -231,7 +233,7 @@ pub fn fit_best_bend(
     });
     firsts
         .into_iter()
-        .map(|f| finish(&rays, straight, axis, f))
+        .map(|f| finish(&rays, &coarse, straight, axis, f))
         .find(|b| accept(b))
 }
 
@@ -264,6 +266,23 @@ fn bend_rays(beyond: &[[f64; 3]], straight: &Params) -> Result<Rays, EpdError> {
         });
     }
     Ok(rays)
+}
+
+/// At most this many (evenly strided) of the bend's rays enter its first-order fits
+/// ([`coarse_rays`]): a quarter of [`BEND_POINTS`].
+const FIRST_ORDER_POINTS: usize = BEND_POINTS / 4;
+
+/// The rays of the first-order fits: every k-th of `rays`, at most [`FIRST_ORDER_POINTS`].
+/// Those fits place the bend from a far start and shape its tube; the exact stage, on
+/// every ray, makes the estimate and its 1-σ from where they end. On a quarter of the
+/// rays their end lies within 2σ_θ of the full set's (σ_θ the exact fit's 1-σ, twice its
+/// size with a quarter of the points), far inside the exact stage's basin (its cost has
+/// kinks only where a ray changes wall), at a quarter of the cost of each of their many
+/// iterations (14–100 per start on tof-sim's 20" elbows and on Helios2-model straight
+/// frames, against 3–9 for the exact stage).
+fn coarse_rays(rays: &[Ray]) -> Rays {
+    let stride = rays.len().div_ceil(FIRST_ORDER_POINTS).max(1);
+    rays.iter().step_by(stride).copied().collect()
 }
 
 /// A first-order fit from one start: its report, its loss, and the robust σ of its
@@ -305,11 +324,12 @@ fn first_order(
 /// small against the tube), its 1-σ and its diagnostics.
 fn finish(
     rays: &[(Vector3<f64>, Vector3<f64>)],
+    coarse: &[(Vector3<f64>, Vector3<f64>)],
     straight: &Params,
     axis: Option<&AxisCov>,
     first: FirstOrder,
 ) -> BendFit {
-    if let Some(ended) = with_end(rays, straight, &first) {
+    if let Some(ended) = with_end(coarse, straight, &first) {
         // The test of the end first on the first-order fit (its jackknife costs a
         // fraction of the exact stage's), then on the exact fit.
         let g = BendGeometry::from_vector(&ended.report.x);
@@ -319,13 +339,13 @@ fn finish(
             .map_or(f64::NAN, |c| c[(NP - 1, NP - 1)].max(0.0).sqrt());
         let (seen, _) = angle_seen(rays, &g, ended.sigma);
         if end_is_seen(&g, angle_sigma, seen) {
-            let fit = exact_fit(rays, straight, axis, ended);
+            let fit = exact_fit(rays, coarse, straight, axis, ended);
             if fit.end_seen {
                 return fit;
             }
         }
     }
-    exact_fit(rays, straight, axis, first)
+    exact_fit(rays, coarse, straight, axis, first)
 }
 
 /// The exact stage from a first-order fit, its 1-σ and its diagnostics; the end is read
@@ -335,6 +355,7 @@ fn finish(
 /// ([`BendProblem::axis_covariance`]).
 fn exact_fit(
     rays: &[(Vector3<f64>, Vector3<f64>)],
+    coarse: &[(Vector3<f64>, Vector3<f64>)],
     straight: &Params,
     axis: Option<&AxisCov>,
     first: FirstOrder,
@@ -345,7 +366,7 @@ fn exact_fit(
     // and from a tube of the wrong shape it stalled at such a kink (noise-free points of
     // a 4 % oval tube fitted from a round one: residuals of 2.6 mm, R 0.4 % long).
     let shaped = minimize(
-        &BendProblem::new(rays, straight, first.loss, false),
+        &BendProblem::new(coarse, straight, first.loss, false),
         first.report.x,
         &bend_lm_options(),
     );
@@ -631,16 +652,34 @@ fn unit_diagonal_where_empty(h: &mut SMatrix<f64, NP, NP>) {
 }
 
 impl NormalEquationsProblem<NP> for BendProblem<'_> {
+    /// Summed over fixed chunks of [`RAY_CHUNK`] rays, in parallel, their partial sums
+    /// added in order: the result does not depend on the number of threads.
     fn normal_equations(&self, x: &SVector<f64, NP>) -> Option<NormalEquations<NP>> {
+        use rayon::prelude::*;
         let (g, t0, shifted) = walls_at(x)?;
+        // A stop request skips the remaining chunks; the checkpoint after the pass
+        // unwinds before the partial sums are used (`crate::cancel::Watch`).
+        let watch = crate::cancel::watch();
+        let part = |chunk: &[Ray]| {
+            let mut eq = NormalEquations::zero();
+            if watch.stopped() {
+                return eq;
+            }
+            for (q, d) in chunk {
+                let Some((e, j)) = self.residual_and_gradient(&g, &t0, &shifted, TORUS_STEP, q, d)
+                else {
+                    continue;
+                };
+                let (c, wg, wh) = self.loss.cost_and_weights(e);
+                eq.push_weighted(e, &self.pinned(j), c, wg, wh);
+            }
+            eq
+        };
+        let parts: Vec<NormalEquations<NP>> = self.rays.par_chunks(RAY_CHUNK).map(part).collect();
+        crate::cancel::checkpoint();
         let mut eq = NormalEquations::zero();
-        for (q, d) in self.rays {
-            let Some((e, j)) = self.residual_and_gradient(&g, &t0, &shifted, TORUS_STEP, q, d)
-            else {
-                continue;
-            };
-            let (c, wg, wh) = self.loss.cost_and_weights(e);
-            eq.push_weighted(e, &self.pinned(j), c, wg, wh);
+        for p in &parts {
+            eq.merge(p);
         }
         eq.symmetrize();
         if self.hold_ovality {
@@ -649,6 +688,12 @@ impl NormalEquationsProblem<NP> for BendProblem<'_> {
         (eq.n_residuals > NP).then_some(eq)
     }
 }
+
+/// Rays per chunk of the bend's normal equations: an exact-stage ray costs about 1 µs
+/// (its crossing of the torus), so a chunk is about 0.5 ms of work, far above a task's
+/// cost to the thread pool, and the first-order fits' [`FIRST_ORDER_POINTS`] rays still
+/// make four chunks to share.
+const RAY_CHUNK: usize = 512;
 
 /// The solver's options for every bend fit: the defaults with the straight fit's
 /// statistical stop ([`STAT_TOL`](crate::fit::options::STAT_TOL)): a fit ends once its step
@@ -759,14 +804,13 @@ impl BendProblem<'_> {
     /// q − (0, a₀ + q_x·b) and the sensor at o − (0, a₀). The fit's estimating equations
     /// Σ ψ(eᵢ)·Jᵢ = 0 then move θ̂ by D·ξ, ξ = (a₀, b), to first order:
     /// D = −H⁻¹·Σ w_h(eᵢ)·Jᵢ·(∂eᵢ/∂ξ)ᵀ with H = Σ w_h(eᵢ)·JᵢJᵢᵀ (the jackknife's bread) and
-    /// ∂eᵢ/∂ξ by central differences of the exact range error with the rays so moved
-    /// ([`AXIS_XI_STEP`]); a ray whose wall changes within the step, or that the fit takes
-    /// in first-order form, has no derivative there and is left out of the sum (a jump of
-    /// its residual over 2·10⁻⁴ m of ξ had made D a hundred times too large on noise-free
-    /// test rays). The straight fit's points lie before the bend and its noise is
-    /// not the bend's, so this adds to the jackknife's variance. The straight pipe's
-    /// diameters, which only the rays leaving it before the bend's start see, are left
-    /// out. `None` as [`Self::jackknife_covariance`].
+    /// ∂eᵢ/∂ξ of the exact range error with the rays so moved
+    /// ([`Self::range_error_axis_gradient`]); a ray that the fit takes in first-order form
+    /// (no wall met, or a grazing angle) is left out of the sum. The straight fit's points
+    /// lie before the bend and its noise is not the bend's, so this adds to the
+    /// jackknife's variance. The straight pipe's diameters, which only the rays leaving it
+    /// before the bend's start see, are left out. `None` as
+    /// [`Self::jackknife_covariance`].
     fn axis_covariance(
         &self,
         x: &SVector<f64, NP>,
@@ -775,20 +819,6 @@ impl BendProblem<'_> {
         let (g, t0, shifted) = walls_at(x)?;
         let mut h = SMatrix::<f64, NP, NP>::zeros();
         let mut c = SMatrix::<f64, NP, 4>::zeros();
-        // The exact range error of the ray to q with the sensor and q moved by ξ, and the
-        // wall it meets; `None` where the fit takes a first-order form (no wall met, or
-        // met at a grazing angle, [`Self::residual_and_gradient`]).
-        let moved = |q: &Vector3<f64>, xi: &[f64; 4]| -> Option<(f64, Wall)> {
-            let shift = |px: f64| Vector3::new(0.0, xi[0] + px * xi[2], xi[1] + px * xi[3]);
-            let origin = self.origin - shift(0.0);
-            let q = q - shift(q.x);
-            let d = (q - origin).normalize();
-            let problem = BendProblem { origin, ..*self };
-            let (e, hit, wall) = problem.range_error(&g, &t0, &q, &d)?;
-            let grazing = matches!(wall, Wall::Torus | Wall::Outlet)
-                && !t0.normal(&hit).is_some_and(|n| n.dot(&d).abs() >= 0.05);
-            (!grazing).then_some((e, wall))
-        };
         for (q, d) in self.rays {
             let Some((e, j)) = self.residual_and_gradient(&g, &t0, &shifted, TORUS_STEP, q, d)
             else {
@@ -797,24 +827,12 @@ impl BendProblem<'_> {
             let (_, _, wh) = self.loss.cost_and_weights(e);
             let jv = SVector::<f64, NP>::from(self.pinned(j));
             h += jv * jv.transpose() * wh;
-            // A ray whose wall changes within the step (near the start's plane, the end's,
-            // a grazing angle) has a residual that jumps there: no derivative, left out.
-            let Some((_, wall)) = moved(q, &[0.0; 4]) else {
+            let Some(de) = self.range_error_axis_gradient(&g, &t0, q, d) else {
                 continue;
             };
-            for k in 0..4 {
-                let (mut up, mut down) = ([0.0; 4], [0.0; 4]);
-                up[k] = AXIS_XI_STEP;
-                down[k] = -AXIS_XI_STEP;
-                let (Some((eu, wu)), Some((ed, wd))) = (moved(q, &up), moved(q, &down)) else {
-                    continue;
-                };
-                if (wu, wd) != (wall, wall) {
-                    continue;
-                }
-                let de = (eu - ed) / (2.0 * AXIS_XI_STEP);
+            for (k, dek) in de.iter().enumerate() {
                 for r in 0..NP {
-                    c[(r, k)] += wh * jv[r] * de;
+                    c[(r, k)] += wh * jv[r] * dek;
                 }
             }
         }
@@ -831,6 +849,62 @@ impl BendProblem<'_> {
         out.iter().all(|v| v.is_finite()).then_some(out)
     }
 
+    /// ∂e/∂ξ, ξ = (a₀ᵧ, a₀_z, bᵧ, b_z), of the exact range error e = ‖q − o‖ − τ of the
+    /// ray to q ([`Self::range_error`]) when the axis moves by ξ
+    /// ([`Self::axis_covariance`]): the sensor to o − (0, a₀) and q to q − (0, a₀ + q_x·b).
+    /// With D = q − o, d = D/‖D‖, ∂‖D‖ = d·∂D, ∂d = (∂D − d(d·∂D))/‖D‖, and the wall point
+    /// o + τd held on the wall it meets (normal n there): ∂τ = −n·(∂o + τ·∂d)/(n·d). The
+    /// walls' normals: the straight pipe's (0, y/a², z/b²), the joint step's plane x̂, the
+    /// torus's and the outlet's [`BendWall::normal`]. `None` where the fit takes the
+    /// first-order form (no wall met, a grazing angle on the bend) or n·d = 0.
+    fn range_error_axis_gradient(
+        &self,
+        g: &BendGeometry,
+        t0: &BendWall,
+        q: &Vector3<f64>,
+        d: &Vector3<f64>,
+    ) -> Option<[f64; 4]> {
+        let (_, hit, wall) = self.range_error(g, t0, q, d)?;
+        let n = match wall {
+            Wall::Straight => {
+                let (a, b) = self.semi_axes;
+                Vector3::new(0.0, hit.y / (a * a), hit.z / (b * b))
+            }
+            Wall::Step => Vector3::x(),
+            Wall::Torus | Wall::Outlet => {
+                let n = t0.normal(&hit)?.into_inner();
+                if n.dot(d).abs() < 0.05 {
+                    return None;
+                }
+                n
+            }
+        };
+        let nd = n.dot(d);
+        let diff = q - self.origin;
+        let range = diff.norm();
+        if !(nd != 0.0 && range > 0.0) {
+            return None;
+        }
+        let tau = (hit - self.origin).dot(d);
+        let (y, z) = (Vector3::y(), Vector3::z());
+        // (∂o, ∂q) for each of ξ's components.
+        let moves = [
+            (-y, -y),
+            (-z, -z),
+            (Vector3::zeros(), -q.x * y),
+            (Vector3::zeros(), -q.x * z),
+        ];
+        let mut out = [0.0; 4];
+        for (k, (o_k, q_k)) in moves.iter().enumerate() {
+            let dd_k = q_k - o_k;
+            let along = d.dot(&dd_k);
+            let dir_k = (dd_k - d * along) / range;
+            let tau_k = -n.dot(&(o_k + dir_k * tau)) / nd;
+            out[k] = along - tau_k;
+        }
+        out.iter().all(|v| v.is_finite()).then_some(out)
+    }
+
     /// One ray's residual and its gradient in θ, given the wall `t0` at θ and the walls
     /// `shifted` at θ ± h·e_k.
     ///
@@ -838,7 +912,9 @@ impl BendProblem<'_> {
     /// On the straight pipe it does not depend on θ (gradient 0); on the joint step,
     /// e = ‖q − o‖ − (x₀ − o_x)/d_x, so ∂e/∂x₀ = −1/d_x; on the torus the hit moves along
     /// the ray as the wall moves: t(θ) with s(o + t·d; θ) = 0, so ∂t/∂θ = −(∂s/∂θ)/(n·d)
-    /// and ∂e/∂θ = −∂t/∂θ; likewise on the outlet, with its cylinder's s. A ray that meets
+    /// and ∂e/∂θ = −∂t/∂θ; likewise on the outlet, with its cylinder's s; ∂s/∂θ at the hit
+    /// analytically ([`BendWall::distance_normal_and_gradient`], exact on the wall: 12
+    /// fewer distance evaluations per ray than central differences). A ray that meets
     /// the torus or the outlet at a grazing angle (|n·d| < 0.05) or neither takes the
     /// first-order error (a point never leaves the sum because its
     /// ray misses: the fit could otherwise lower its cost by turning rays away).
@@ -861,16 +937,10 @@ impl BendProblem<'_> {
                 Wall::Straight => return Some((e, [0.0; NP])),
                 Wall::Step => return Some((e, [-1.0 / d.x, 0.0, 0.0, 0.0, 0.0, 0.0])),
                 Wall::Torus | Wall::Outlet => {
-                    if let Some(nd) = t0.normal(&hit).map(|n| n.dot(d))
-                        && nd.abs() >= 0.05
+                    if let Some((_, n, ds)) = t0.distance_normal_and_gradient(&hit)
+                        && n.dot(d).abs() >= 0.05
                     {
-                        let mut j = [0.0; NP];
-                        for (k, (a, b)) in shifted.iter().take(varied(g)).enumerate() {
-                            let ds =
-                                (a.signed_distance(&hit) - b.signed_distance(&hit)) / (2.0 * h);
-                            j[k] = ds / nd;
-                        }
-                        return Some((e, j));
+                        return Some((e, ds.map(|v| v / n.dot(d))));
                     }
                 }
             }
@@ -949,12 +1019,6 @@ impl BendProblem<'_> {
         Some((range - hit, self.origin + d * hit, wall))
     }
 }
-
-/// The central-difference step of ξ in [`BendProblem::axis_covariance`]: 10⁻⁴ m for the
-/// axis's offset, 10⁻⁴ (m/m) for its slope — against an axis's 1-σ of millimetres and
-/// milliradians small enough that the residual is linear in it (its curvature over a bend
-/// of metres is 10⁻⁴ relative), and far above the residual's rounding (10⁻¹⁶ m).
-const AXIS_XI_STEP: f64 = 1e-4;
 
 /// How many of θ's parameters a residual's gradient is taken in: all but Θ for an open
 /// bend, whose wall has no outlet and whose residuals do not depend on Θ (its column is
@@ -1192,6 +1256,72 @@ mod tests {
             seen, [true; 4],
             "straight, step, oval torus and outlet rays"
         );
+    }
+
+    /// The exact range error's gradient in a move ξ of the straight axis
+    /// ([`BendProblem::range_error_axis_gradient`]) matches central differences of the
+    /// range error re-cast with the sensor and the point moved (step 10⁻⁵ m and m/m;
+    /// bound 10⁻⁶ relative to derivatives of order 1: the oval crossing's Newton
+    /// refinement stops below 10⁻¹² m, 5·10⁻⁸ over the 2·10⁻⁵ of the difference, and the
+    /// truncation h²·e‴ ~ 10⁻⁹), on every wall: the straight pipe, the joint step, the
+    /// oval torus and the outlet. Rays whose wall changes within the step are not
+    /// compared (there the range error has a kink).
+    #[test]
+    fn axis_gradients_match_finite_differences() {
+        let (_, g) = problem_with_shape(&[], 0.8, 0.04);
+        let (end, tangent, inward, normal) = outlet_frame(&g);
+        let mut targets = vec![
+            Vector3::new(0.5, 0.25, 0.0),
+            Vector3::new(0.6, 0.0, -0.245),
+            Vector3::new(1.0, 0.0, 0.244),
+            Vector3::new(1.0, 0.0, -0.244),
+        ];
+        for k in 0..12 {
+            let a = k as f64 * std::f64::consts::TAU / 12.0;
+            targets.push(Vector3::new(1.4, 0.3 * a.cos() + 0.2, 0.3 * a.sin() + 0.2));
+            for t in [0.2, 0.5, 1.0] {
+                targets.push(
+                    end + t * tangent + g.tube_radius * (a.cos() * inward + a.sin() * normal),
+                );
+            }
+        }
+        let rays = rays_toward_shape(&targets, 0.8, 0.04);
+        let (p, g) = problem_with_shape(&rays, 0.8, 0.04);
+        let t0 = g.wall().unwrap();
+        let step = 1e-5;
+        let recast = |q: &Vector3<f64>, xi: [f64; 4]| {
+            let shift = |px: f64| Vector3::new(0.0, xi[0] + px * xi[2], xi[1] + px * xi[3]);
+            let origin = p.origin - shift(0.0);
+            let q = q - shift(q.x);
+            let d = (q - origin).normalize();
+            let (e, _, wall) = BendProblem { origin, ..p }
+                .range_error(&g, &t0, &q, &d)
+                .unwrap();
+            (e, wall)
+        };
+        let mut seen = [0usize; 4];
+        for (q, d) in &rays {
+            let (_, _, wall) = p.range_error(&g, &t0, q, d).unwrap();
+            let Some(de) = p.range_error_axis_gradient(&g, &t0, q, d) else {
+                continue;
+            };
+            for (k, dek) in de.iter().enumerate() {
+                let (mut up, mut down) = ([0.0; 4], [0.0; 4]);
+                up[k] = step;
+                down[k] = -step;
+                let ((eu, wu), (ed, wd)) = (recast(q, up), recast(q, down));
+                if (wu, wd) != (wall, wall) {
+                    continue;
+                }
+                seen[wall as usize] += 1;
+                let fd = (eu - ed) / (2.0 * step);
+                assert!(
+                    (dek - fd).abs() <= 1e-6 * fd.abs().max(1.0),
+                    "{wall:?} ∂e/∂ξ{k}: {dek} vs {fd}"
+                );
+            }
+        }
+        assert!(seen.iter().all(|n| *n > 0), "every wall: {seen:?}");
     }
 
     /// For the bend of `angle`, rays toward `targets` ([`rays_toward_angle`]): the exact
