@@ -174,8 +174,8 @@ pub enum Convergence {
     GradientTolerance,
     /// The last step was below `stat_tol` standard deviations of the parameters: near
     /// Gauss–Newton it is taken without a further evaluation; damped and refused, x is
-    /// kept (no step that short lowers the cost: the minimum, or a kink of the cost,
-    /// lies within it).
+    /// kept (that step did not lower the cost: the minimum, or a kink of the cost, lies
+    /// within it).
     WithinUncertainty,
 }
 
@@ -536,9 +536,10 @@ impl<'a, const N: usize, P: NormalEquationsProblem<N>> Solver<'a, N, P> {
             // A damped step below `stat_tol` standard deviations refused: on a smooth
             // cost a short enough step along a descent direction lowers it, so the
             // minimum lies within the step, or the cost has a kink there (a bend's exact
-            // range error, where rays change wall). Either way x is the estimate to within
-            // `stat_tol` σ, where more damping crept on for tens of evaluations (the bend's
-            // exact stage on a tof-sim 20" elbow: 35 more, moving no parameter by 0.01σ).
+            // range error, where rays change wall). The damped steps that follow are
+            // shorter still and at most move x by hundredths of its σ: they crept on for
+            // tens of evaluations (the bend's exact stage on a tof-sim 20" elbow: 35
+            // more, moving no parameter by 0.01σ).
             if stat > 0.0 && delta.dot(&hd) <= stat * stat * cost / dof {
                 return Trial::Stop(Status::Converged(Convergence::WithinUncertainty));
             }

@@ -195,9 +195,8 @@ pub fn fit_bend(
     start: &BendGeometry,
 ) -> Result<BendFit, EpdError> {
     let rays = bend_rays(beyond, straight)?;
-    let coarse = coarse_rays(&rays);
-    let first = first_order(&coarse, straight, start)?;
-    Ok(finish(&rays, &coarse, straight, axis, first))
+    let first = first_order(&rays, straight, start)?;
+    Ok(finish(&rays, straight, axis, first))
 }
 
 /// Of the fits of a bend to `beyond` from each of `starts` (as [`fit_bend`]), the best
@@ -215,10 +214,9 @@ pub fn fit_best_bend(
     accept: impl Fn(&BendFit) -> bool,
 ) -> Option<BendFit> {
     let rays = bend_rays(beyond, straight).ok()?;
-    let coarse = coarse_rays(&rays);
     let mut firsts: Vec<FirstOrder> = starts
         .iter()
-        .filter_map(|s| first_order(&coarse, straight, s).ok())
+        .filter_map(|s| first_order(&rays, straight, s).ok())
         .collect();
     // NaN σ (no usable residuals) last.
     firsts.sort_by(|a, b| {
@@ -233,7 +231,7 @@ pub fn fit_best_bend(
     });
     firsts
         .into_iter()
-        .map(|f| finish(&rays, &coarse, straight, axis, f))
+        .map(|f| finish(&rays, straight, axis, f))
         .find(|b| accept(b))
 }
 
@@ -266,23 +264,6 @@ fn bend_rays(beyond: &[[f64; 3]], straight: &Params) -> Result<Rays, EpdError> {
         });
     }
     Ok(rays)
-}
-
-/// At most this many (evenly strided) of the bend's rays enter its first-order fits
-/// ([`coarse_rays`]): a quarter of [`BEND_POINTS`].
-const FIRST_ORDER_POINTS: usize = BEND_POINTS / 4;
-
-/// The rays of the first-order fits: every k-th of `rays`, at most [`FIRST_ORDER_POINTS`].
-/// Those fits place the bend from a far start and shape its tube; the exact stage, on
-/// every ray, makes the estimate and its 1-σ from where they end. On a quarter of the
-/// rays their end lies within 2σ_θ of the full set's (σ_θ the exact fit's 1-σ, twice its
-/// size with a quarter of the points), far inside the exact stage's basin (its cost has
-/// kinks only where a ray changes wall), at a quarter of the cost of each of their many
-/// iterations (14–100 per start on tof-sim's 20" elbows and on Helios2-model straight
-/// frames, against 3–9 for the exact stage).
-fn coarse_rays(rays: &[Ray]) -> Rays {
-    let stride = rays.len().div_ceil(FIRST_ORDER_POINTS).max(1);
-    rays.iter().step_by(stride).copied().collect()
 }
 
 /// A first-order fit from one start: its report, its loss, and the robust σ of its
@@ -324,12 +305,11 @@ fn first_order(
 /// small against the tube), its 1-σ and its diagnostics.
 fn finish(
     rays: &[(Vector3<f64>, Vector3<f64>)],
-    coarse: &[(Vector3<f64>, Vector3<f64>)],
     straight: &Params,
     axis: Option<&AxisCov>,
     first: FirstOrder,
 ) -> BendFit {
-    if let Some(ended) = with_end(coarse, straight, &first) {
+    if let Some(ended) = with_end(rays, straight, &first) {
         // The test of the end first on the first-order fit (its jackknife costs a
         // fraction of the exact stage's), then on the exact fit.
         let g = BendGeometry::from_vector(&ended.report.x);
@@ -339,13 +319,13 @@ fn finish(
             .map_or(f64::NAN, |c| c[(NP - 1, NP - 1)].max(0.0).sqrt());
         let (seen, _) = angle_seen(rays, &g, ended.sigma);
         if end_is_seen(&g, angle_sigma, seen) {
-            let fit = exact_fit(rays, coarse, straight, axis, ended);
+            let fit = exact_fit(rays, straight, axis, ended);
             if fit.end_seen {
                 return fit;
             }
         }
     }
-    exact_fit(rays, coarse, straight, axis, first)
+    exact_fit(rays, straight, axis, first)
 }
 
 /// The exact stage from a first-order fit, its 1-σ and its diagnostics; the end is read
@@ -355,7 +335,6 @@ fn finish(
 /// ([`BendProblem::axis_covariance`]).
 fn exact_fit(
     rays: &[(Vector3<f64>, Vector3<f64>)],
-    coarse: &[(Vector3<f64>, Vector3<f64>)],
     straight: &Params,
     axis: Option<&AxisCov>,
     first: FirstOrder,
@@ -366,7 +345,7 @@ fn exact_fit(
     // and from a tube of the wrong shape it stalled at such a kink (noise-free points of
     // a 4 % oval tube fitted from a round one: residuals of 2.6 mm, R 0.4 % long).
     let shaped = minimize(
-        &BendProblem::new(coarse, straight, first.loss, false),
+        &BendProblem::new(rays, straight, first.loss, false),
         first.report.x,
         &bend_lm_options(),
     );
@@ -691,8 +670,8 @@ impl NormalEquationsProblem<NP> for BendProblem<'_> {
 
 /// Rays per chunk of the bend's normal equations: an exact-stage ray costs about 1 µs
 /// (its crossing of the torus), so a chunk is about 0.5 ms of work, far above a task's
-/// cost to the thread pool, and the first-order fits' [`FIRST_ORDER_POINTS`] rays still
-/// make four chunks to share.
+/// cost to the thread pool, and the fit's at most [`BEND_POINTS`] rays make 16 chunks to
+/// share.
 const RAY_CHUNK: usize = 512;
 
 /// The solver's options for every bend fit: the defaults with the straight fit's
