@@ -574,6 +574,31 @@ mod tests {
         assert_eq!(inside(&g, &p), inside_oval(&g, &p));
     }
 
+    /// Points at `offset` (m) off the wall of `g` along its section's radius (0: on the
+    /// wall), 16 around the section (starting `phase` sixteenths of a turn from the
+    /// outward radial direction) at each of three stations: turned 0.2 and 0.6 rad on the
+    /// torus, and 0.3 m past the end of a bend of 0.8 rad on the outlet.
+    fn around_the_wall(g: &BendGeometry, phase: f64, offset: f64) -> Vec<Vector3<f64>> {
+        let u = Vector3::new(0.0, g.direction.cos(), g.direction.sin());
+        let a = Vector3::x().cross(&u);
+        let c = Vector3::new(g.start, 0.0, 0.0) + g.radius * u;
+        let mut points = Vec::new();
+        for (turned, extra) in [(0.2f64, 0.0), (0.6, 0.0), (0.8, 0.3)] {
+            let radial = -turned.cos() * u + turned.sin() * Vector3::x();
+            let tangent = turned.cos() * Vector3::x() + turned.sin() * u;
+            for k in 0..16 {
+                let psi = (k as f64 + phase) * std::f64::consts::TAU / 16.0;
+                let towards = psi.cos() * radial + psi.sin() * a;
+                points.push(
+                    c + g.radius * radial
+                        + extra * tangent
+                        + (g.section_radius(psi) + offset) * towards,
+                );
+            }
+        }
+        points
+    }
+
     /// On both pieces of an oval tube the normal is the gradient of the signed distance
     /// (central differences, 10⁻⁶ m) at points near the wall, and the signed distance of
     /// a wall point displaced along its normal by δ is δ to second order.
@@ -581,37 +606,24 @@ mod tests {
     fn an_oval_tubes_normal_is_its_distances_gradient() {
         let g = oval_bend();
         let wall = BendWall::new(&g).unwrap();
-        let u = Vector3::new(0.0, g.direction.cos(), g.direction.sin());
-        let a = Vector3::x().cross(&u);
-        let c = Vector3::new(g.start, 0.0, 0.0) + g.radius * u;
         let mut pieces = [0usize; 2];
-        for (turned, extra) in [(0.2f64, 0.0), (0.6, 0.0), (0.8, 0.3)] {
-            let radial = -turned.cos() * u + turned.sin() * Vector3::x();
-            let tangent = turned.cos() * Vector3::x() + turned.sin() * u;
-            for k in 0..16 {
-                let psi = k as f64 * std::f64::consts::TAU / 16.0;
-                let r = g.section_radius(psi);
-                let p = c
-                    + g.radius * radial
-                    + extra * tangent
-                    + r * (psi.cos() * radial + psi.sin() * a);
-                pieces[wall.piece(&p) as usize] += 1;
-                assert!(wall.signed_distance(&p).abs() < 1e-12, "on the wall");
-                let n = wall.normal(&p).unwrap().into_inner();
-                let h = 1e-6;
-                for (axis, nk) in [Vector3::x(), Vector3::y(), Vector3::z()]
-                    .iter()
-                    .zip(n.iter())
-                {
-                    let fd = (wall.signed_distance(&(p + axis * h))
-                        - wall.signed_distance(&(p - axis * h)))
-                        / (2.0 * h);
-                    assert!((fd - nk).abs() < 1e-6, "{fd} vs {nk}");
-                }
-                let delta = 2e-3;
-                let s = wall.signed_distance(&(p + n * delta));
-                assert!((s - delta).abs() < 1e-4 * delta, "{s} vs {delta}");
+        for p in around_the_wall(&g, 0.0, 0.0) {
+            pieces[wall.piece(&p) as usize] += 1;
+            assert!(wall.signed_distance(&p).abs() < 1e-12, "on the wall");
+            let n = wall.normal(&p).unwrap().into_inner();
+            let h = 1e-6;
+            for (axis, nk) in [Vector3::x(), Vector3::y(), Vector3::z()]
+                .iter()
+                .zip(n.iter())
+            {
+                let fd = (wall.signed_distance(&(p + axis * h))
+                    - wall.signed_distance(&(p - axis * h)))
+                    / (2.0 * h);
+                assert!((fd - nk).abs() < 1e-6, "{fd} vs {nk}");
             }
+            let delta = 2e-3;
+            let s = wall.signed_distance(&(p + n * delta));
+            assert!((s - delta).abs() < 1e-4 * delta, "{s} vs {delta}");
         }
         assert_eq!(pieces, [32, 16], "torus and outlet points");
     }
@@ -642,38 +654,24 @@ mod tests {
                     )
                 })
                 .collect();
-            let u = Vector3::new(0.0, g.direction.cos(), g.direction.sin());
-            let a = Vector3::x().cross(&u);
-            let c = Vector3::new(g.start, 0.0, 0.0) + g.radius * u;
             let mut pieces = [0usize; 2];
-            for (turned, extra) in [(0.2f64, 0.0), (0.6, 0.0), (0.8, 0.3)] {
-                let radial = -turned.cos() * u + turned.sin() * Vector3::x();
-                let tangent = turned.cos() * Vector3::x() + turned.sin() * u;
-                for k in 0..16 {
-                    let psi = (k as f64 + 0.3) * std::f64::consts::TAU / 16.0;
-                    let towards = psi.cos() * radial + psi.sin() * a;
-                    for off in offsets {
-                        let p = c
-                            + g.radius * radial
-                            + extra * tangent
-                            + (g.section_radius(psi) + off) * towards;
-                        pieces[wall.piece(&p) as usize] += 1;
-                        let (s, n, grad) = wall.distance_normal_and_gradient(&p).unwrap();
-                        assert!((s - wall.signed_distance(&p)).abs() < 1e-12);
+            for off in offsets {
+                for p in around_the_wall(&g, 0.3, *off) {
+                    pieces[wall.piece(&p) as usize] += 1;
+                    let (s, n, grad) = wall.distance_normal_and_gradient(&p).unwrap();
+                    assert!((s - wall.signed_distance(&p)).abs() < 1e-12);
+                    assert!(
+                        (n.into_inner() - wall.normal(&p).unwrap().into_inner()).norm() < 1e-12
+                    );
+                    for (kk, (up, down)) in shifted.iter().enumerate() {
+                        let fd = (up.signed_distance(&p) - down.signed_distance(&p)) / (2.0 * h);
                         assert!(
-                            (n.into_inner() - wall.normal(&p).unwrap().into_inner()).norm() < 1e-12
+                            (grad[kk] - fd).abs() < 1e-8,
+                            "ε {} offset {off} piece {:?} ∂s/∂θ{kk}: {} vs {fd}",
+                            g.tube_ovality,
+                            wall.piece(&p),
+                            grad[kk]
                         );
-                        for (kk, (up, down)) in shifted.iter().enumerate() {
-                            let fd =
-                                (up.signed_distance(&p) - down.signed_distance(&p)) / (2.0 * h);
-                            assert!(
-                                (grad[kk] - fd).abs() < 1e-8,
-                                "ε {} offset {off} piece {:?} ∂s/∂θ{kk}: {} vs {fd}",
-                                g.tube_ovality,
-                                wall.piece(&p),
-                                grad[kk]
-                            );
-                        }
                     }
                 }
             }
