@@ -312,6 +312,47 @@ def test_an_oval_bend_is_read_with_its_radius(epd_bin, tmp_path, ahead):
     assert not far, far
 
 
+def test_a_large_noisy_oval_pipe_with_an_elbow_far_ahead_is_read_as_a_bend(
+    epd_bin, tmp_path, monkeypatch
+):
+    """A 42" pipe 4 % oval under σ = 0.05 m with its 90° elbow (R_b = 1.5·D) 3 m ahead,
+    the 10 frames (320 × 240) of `scripts/approach-grid-numpy.py`'s cell `elbow_oval,
+    42in, 0.05, x0 = 3` (its seed): at least 8 read `bend_ahead` within 5 cm of x0, and
+    no straight estimate converges far from the oval pipe's diameters.
+
+    3 of them read `straight` with no estimate: the fit on every point lacked fit at the
+    bend's far wall 6 m ahead, its profile departed 0.67 m ahead, the refit before that
+    saw 2 of 8 sectors and was refused as a partial view, and against that refit the
+    departure vanished. Now such a refused refit sends the survey to its near windows
+    (`epd_core::segment`), which fit the straight section without the far wall: 9 of 10
+    (the 10th reads `tee_ahead`, a departure 0.89 m ahead whose refit is not refused).
+    These frames are fixed (seeded): the binary before the change reads 7 and fails."""
+    import sys
+
+    monkeypatch.setattr(sys.modules[__name__], "SIGMA_M", 0.05)
+    d = 42 * 0.0254 - 2 * 0.5 * 0.0254
+    ahead = 3.0
+    seed = 4 * 10**6 + int(d * 1e4) * 100 + int(0.05 * 100) * 10 + int(ahead * 2)
+    rng = np.random.default_rng(seed)
+    drawn = [
+        bend_frame(rng, ahead, d, 1.5 * d, math.pi / 2, 320, 240, ovality=OVALITY)
+        for _ in range(10)
+    ]
+    rows = estimate_frames(epd_bin, tmp_path, "oval42", drawn)
+    seen = [(r["status"], r["geometry"], r["straight_until_m"]) for r in rows]
+    right = len(read_ahead(rows, "bend_ahead", ahead))
+    print(f'42 in, 4 % oval, sigma 0.05 m, elbow {ahead} m ahead: {right} of 10 within 5 cm;', seen)
+    assert right >= 8, seen
+    far = [
+        (r["file"], key, r[key], r["sigma_" + key])
+        for r in rows
+        if r["status"] == "converged" and r["d_max_mm"] is not None
+        for key, sign in (("d_max_mm", 1), ("d_min_mm", -1))
+        if abs(r[key] - d * (1 + sign * OVALITY / 2) * 1e3) > max(5 * r["sigma_" + key], 0.5)
+    ]
+    assert not far, far
+
+
 FULL_FRAMES = 6
 
 
