@@ -266,6 +266,20 @@ def test_a_45_degree_bend_is_read_with_its_angle(epd_bin, tmp_path, ahead):
 OVALITY = 0.04
 
 
+def oval_far_off(rows, diameter_m):
+    """The results answered `converged` with a diameter more than max(5σ̂, 0.5 mm) from
+    the oval pipe's D(1 ± ε/2) (`casting.answered_far_off`'s bound, for a pipe of
+    ovality `OVALITY`): (file, key, value mm, σ̂ mm)."""
+    return [
+        (r["file"], key, r[key], r["sigma_" + key])
+        for r in rows
+        if r["status"] == "converged" and r["d_max_mm"] is not None
+        for key, sign in (("d_max_mm", 1), ("d_min_mm", -1))
+        if abs(r[key] - diameter_m * (1 + sign * OVALITY / 2) * 1e3)
+        > max(5 * r["sigma_" + key], 0.5)
+    ]
+
+
 @pytest.mark.parametrize("ahead", [1.0, 3.0])
 def test_an_oval_bend_is_read_with_its_radius(epd_bin, tmp_path, ahead):
     """A 90° bend (R_b = 1.5·D) of a 20" pipe 4 % oval before and through it (flattened in
@@ -302,13 +316,7 @@ def test_an_oval_bend_is_read_with_its_radius(epd_bin, tmp_path, ahead):
         if abs(r["bend_radius_mm"] - bend_r * 1e3) <= 3.0 * r["sigma_bend_radius_mm"]
     ]
     assert len(right) == len(rows), seen
-    far = [
-        (r["file"], key, r[key], r["sigma_" + key])
-        for r in rows
-        if r["status"] == "converged" and r["d_max_mm"] is not None
-        for key, sign in (("d_max_mm", 1), ("d_min_mm", -1))
-        if abs(r[key] - DIAMETER_M * (1 + sign * OVALITY / 2) * 1e3) > max(5 * r["sigma_" + key], 0.5)
-    ]
+    far = oval_far_off(rows, DIAMETER_M)
     assert not far, far
 
 
@@ -343,13 +351,7 @@ def test_a_large_noisy_oval_pipe_with_an_elbow_far_ahead_is_read_as_a_bend(
     right = len(read_ahead(rows, "bend_ahead", ahead))
     print(f'42 in, 4 % oval, sigma 0.05 m, elbow {ahead} m ahead: {right} of 10 within 5 cm;', seen)
     assert right >= 8, seen
-    far = [
-        (r["file"], key, r[key], r["sigma_" + key])
-        for r in rows
-        if r["status"] == "converged" and r["d_max_mm"] is not None
-        for key, sign in (("d_max_mm", 1), ("d_min_mm", -1))
-        if abs(r[key] - d * (1 + sign * OVALITY / 2) * 1e3) > max(5 * r["sigma_" + key], 0.5)
-    ]
+    far = oval_far_off(rows, d)
     assert not far, far
 
 

@@ -1361,19 +1361,8 @@ mod tests {
     fn a_bend_whose_end_is_seen_is_fitted_with_its_angle() {
         let angle = 0.8;
         let (p, g) = problem_with_angle(&[], angle);
-        let t = g.torus().unwrap();
-        let u = Vector3::new(0.0, g.direction.cos(), g.direction.sin());
         let (end, tangent, inward, normal) = outlet_frame(&g);
-        let mut targets = Vec::new();
-        for i in 0..16 {
-            let turned = 0.1 + 0.68 * i as f64 / 15.0;
-            let along = -turned.cos() * u + turned.sin() * Vector3::x();
-            let centre = t.centre + g.radius * along;
-            for k in 0..24 {
-                let psi = k as f64 * std::f64::consts::TAU / 24.0;
-                targets.push(centre + t.minor_radius * (psi.cos() * along + psi.sin() * normal));
-            }
-        }
+        let mut targets = tube_targets(&g);
         for i in 0..16 {
             let l = 0.05 + 0.95 * i as f64 / 15.0;
             for k in 0..24 {
