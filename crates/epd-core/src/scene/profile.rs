@@ -767,7 +767,7 @@ pub(crate) fn slice_stats<C: AsRef<[f32]>>(
     let mut meds: Vec<(f64, f64, f64)> = Vec::new();
     let mut by_sector = vec![f64::NAN; ns];
     let mut var_by_sector = vec![f64::NAN; ns];
-    let mut v: Vec<f64> = Vec::new();
+    let (mut v, mut dev): (Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new());
     for (k, cell) in sectors.iter().enumerate() {
         let cell = cell.as_ref();
         if cell.len() < o.min_points {
@@ -776,7 +776,7 @@ pub(crate) fn slice_stats<C: AsRef<[f32]>>(
         v.clear();
         v.extend(cell.iter().map(|&d| f64::from(d)));
         let n = v.len() as f64;
-        let (m, s) = crate::loss::median_and_mad_sigma(&mut v);
+        let (m, s) = crate::loss::median_and_mad_sigma_in(&mut v, &mut dev);
         // Var(median) ≈ (π/2)·σ²/n, floored so that a noise-free slice is not infinitely
         // certain.
         let var = (std::f64::consts::FRAC_PI_2 * s * s / n).max(1e-12);

@@ -105,7 +105,7 @@ pub(crate) fn test_openings<C: AsRef<[f32]> + Sync>(
     let judged: &[Slice] = slices;
     let rows: Vec<SliceCounts> = sparse
         .par_iter()
-        .map(|&i| {
+        .map_init(Scratch::default, |scratch, &i| {
             let (mut n, mut e_sum) = (0usize, 0usize);
             let row = (0..sectors)
                 .map(|k| {
@@ -114,7 +114,7 @@ pub(crate) fn test_openings<C: AsRef<[f32]> + Sync>(
                         // No point to exceed: the limit is not needed.
                         return (0, 0);
                     }
-                    let limit = sector_limit(cells, sectors, i, k, o.min_shift_m);
+                    let limit = sector_limit(cells, sectors, i, k, o.min_shift_m, scratch);
                     let e = d.iter().filter(|&&v| f64::from(v) > limit).count();
                     n += d.len();
                     e_sum += e;
@@ -252,6 +252,7 @@ fn sector_limit<C: AsRef<[f32]>>(
     i: usize,
     k: usize,
     min_excess: f64,
+    scratch: &mut Scratch,
 ) -> f64 {
     let n_slices = cells.len() / sectors;
     let (mut lo, mut hi) = (i, i);
@@ -266,17 +267,24 @@ fn sector_limit<C: AsRef<[f32]>>(
             n += cells[hi * sectors + k].as_ref().len();
         }
     }
-    let mut d: Vec<f64> = (lo..=hi)
-        .flat_map(|j| {
+    let Scratch(d, dev) = scratch;
+    d.clear();
+    for j in lo..=hi {
+        d.extend(
             cells[j * sectors + k]
                 .as_ref()
                 .iter()
-                .map(|&v| f64::from(v))
-        })
-        .collect();
-    let (centre, sigma) = crate::loss::median_and_mad_sigma(&mut d);
+                .map(|&v| f64::from(v)),
+        );
+    }
+    let (centre, sigma) = crate::loss::median_and_mad_sigma_in(d, dev);
     centre + (EXCEEDANCE_SIGMAS * sigma).max(min_excess)
 }
+
+/// The buffers one thread's [`sector_limit`]s reuse: the neighbourhood's deviations and
+/// their distances from its median (allocated once per thread, not per cell).
+#[derive(Default)]
+struct Scratch(Vec<f64>, Vec<f64>);
 
 /// P(X ≥ e) for X ~ Bin(n/κ, p₀) at the fractional count e/κ (κ = `law`.at(n)):
 /// I_{p₀}(e/κ, n/κ − e/κ + 1). 1 when e is no more than expected.

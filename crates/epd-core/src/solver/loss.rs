@@ -38,9 +38,16 @@ pub fn mad_sigma(abs_residuals: &mut [f64]) -> f64 {
 /// The median m of `v` and the normal σ of its spread about it, [`MAD_TO_SIGMA`]·
 /// median|vᵢ − m| (`v` is reordered; medians by nearest rank). (NaN, NaN) when empty.
 pub fn median_and_mad_sigma(v: &mut [f64]) -> (f64, f64) {
+    median_and_mad_sigma_in(v, &mut Vec::new())
+}
+
+/// [`median_and_mad_sigma`] with the deviations held in `scratch` (cleared first), so
+/// that a caller taking many small medians allocates once: the same values.
+pub fn median_and_mad_sigma_in(v: &mut [f64], scratch: &mut Vec<f64>) -> (f64, f64) {
     let m = crate::check::quantile(v, 0.5);
-    let mut dev: Vec<f64> = v.iter().map(|x| (x - m).abs()).collect();
-    (m, mad_sigma(&mut dev))
+    scratch.clear();
+    scratch.extend(v.iter().map(|x| (x - m).abs()));
+    (m, mad_sigma(scratch))
 }
 
 /// The loss ρ applied to each residual.

@@ -664,11 +664,17 @@ fn informed<'a>(
 /// diameter, against 1.44×); scoring only a stratified pool of 2N–8N points
 /// (1.46–1.61×).
 fn influence(grads: &[[f64; N_PARAMS]]) -> Option<Vec<f64>> {
-    let mut m = SMatrix::<f64, N_PARAMS, N_PARAMS>::zeros();
+    // Σ gⱼgⱼᵀ on and above the diagonal (the same products, summed in the same order,
+    // as the full outer products), mirrored below.
+    let mut upper = [[0.0f64; N_PARAMS]; N_PARAMS];
     for g in grads {
-        let g = SVector::<f64, N_PARAMS>::from(*g);
-        m += g * g.transpose();
+        for (i, row) in upper.iter_mut().enumerate() {
+            for j in i..N_PARAMS {
+                row[j] += g[i] * g[j];
+            }
+        }
     }
+    let m = SMatrix::<f64, N_PARAMS, N_PARAMS>::from_fn(|i, j| upper[i.min(j)][i.max(j)]);
     // Scaled to unit diagonal so the pseudo-inverse's cut is relative per parameter.
     let d = SVector::<f64, N_PARAMS>::from_fn(|i, _| {
         let v = m[(i, i)];
@@ -705,14 +711,20 @@ fn pick(st: &[u16], scores: &[f64], k: usize, rng: &mut SplitMix) -> Vec<usize> 
     let floor = allocate(&sizes, (INFORMED_FLOOR * k as f64).round() as usize);
     let mut taken = vec![false; scores.len()];
     let mut out = Vec::with_capacity(k);
-    let by_score = |x: &usize, y: &usize| scores[*y].total_cmp(&scores[*x]);
+    // Each row with its score beside it (the selection reads them in place, not by
+    // index), highest first.
+    let with_scores = |rows: &[usize]| -> Vec<(f64, usize)> {
+        rows.iter().map(|&j| (scores[j], j)).collect()
+    };
+    let by_score = |x: &(f64, usize), y: &(f64, usize)| y.0.total_cmp(&x.0);
     for (g, t) in groups.iter_mut().zip(floor) {
         if t == 0 {
             continue;
         }
         shuffle(g, rng);
+        let mut g = with_scores(g);
         g.select_nth_unstable_by(t - 1, by_score);
-        for &j in &g[..t] {
+        for &(_, j) in &g[..t] {
             taken[j] = true;
             out.push(j);
         }
@@ -721,8 +733,9 @@ fn pick(st: &[u16], scores: &[f64], k: usize, rng: &mut SplitMix) -> Vec<usize> 
     let more = k.saturating_sub(out.len()).min(rest.len());
     if more > 0 {
         shuffle(&mut rest, rng);
+        let mut rest = with_scores(&rest);
         rest.select_nth_unstable_by(more - 1, by_score);
-        out.extend_from_slice(&rest[..more]);
+        out.extend(rest[..more].iter().map(|&(_, j)| j));
     }
     out
 }
