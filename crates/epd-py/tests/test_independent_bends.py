@@ -325,16 +325,19 @@ def test_a_large_noisy_oval_pipe_with_an_elbow_far_ahead_is_read_as_a_bend(
 ):
     """A 42" pipe 4 % oval under σ = 0.05 m with its 90° elbow (R_b = 1.5·D) 3 m ahead,
     the 10 frames (320 × 240) of `scripts/approach-grid-numpy.py`'s cell `elbow_oval,
-    42in, 0.05, x0 = 3` (its seed): at least 8 read `bend_ahead` within 5 cm of x0, and
+    42in, 0.05, x0 = 3` (its seed): every one reads `bend_ahead` within 5 cm of x0, and
     no straight estimate converges far from the oval pipe's diameters.
 
     3 of them read `straight` with no estimate: the fit on every point lacked fit at the
     bend's far wall 6 m ahead, its profile departed 0.67 m ahead, the refit before that
     saw 2 of 8 sectors and was refused as a partial view, and against that refit the
-    departure vanished. Now such a refused refit sends the survey to its near windows
-    (`epd_core::segment`), which fit the straight section without the far wall: 9 of 10
-    (the 10th reads `tee_ahead`, a departure 0.89 m ahead whose refit is not refused).
-    These frames are fixed (seeded): the binary before the change reads 7 and fails."""
+    departure vanished. Such a refused refit now sends the survey to its near windows
+    (`epd_core::segment`), which fit the straight section without the far wall. A 4th
+    read `tee_ahead` 0.89 m ahead, "lack of fit": its profile departed at the view's
+    entry, where no refit could be made (too little of the wall in view before it); such
+    a departure of a misfitting fit now goes to the near windows too. These frames are
+    fixed (seeded): the binary before the first change reads 7, the one before the
+    second 9, and both fail."""
     import sys
 
     monkeypatch.setattr(sys.modules[__name__], "SIGMA_M", 0.05)
@@ -350,7 +353,7 @@ def test_a_large_noisy_oval_pipe_with_an_elbow_far_ahead_is_read_as_a_bend(
     seen = [(r["status"], r["geometry"], r["straight_until_m"]) for r in rows]
     right = len(read_ahead(rows, "bend_ahead", ahead))
     print(f'42 in, 4 % oval, sigma 0.05 m, elbow {ahead} m ahead: {right} of 10 within 5 cm;', seen)
-    assert right >= 8, seen
+    assert right == 10, seen
     far = oval_far_off(rows, d)
     assert not far, far
 

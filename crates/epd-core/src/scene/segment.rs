@@ -547,9 +547,20 @@ pub fn segment(
         rounds += r.rounds;
         early_ring = Some(ring);
     }
-    let refused = (first_departure(&prof, seg).is_none() && misfits(&fit))
-        || (partial_refit && early_ring.is_none());
     let at_start = departs_at_start(&prof, seg);
+    // A departure past the start before which no refit could be made (too little of the
+    // wall in view before it: `refine` kept the fit on every point), found by a fit on
+    // every point that misfits: the departure is the misfit's as much as the pipe's. On
+    // the numpy caster's 42" elbows 1–3 m ahead (σ = 0.05 m, 320 × 240), 6 of 60 frames
+    // read `tee_ahead` 0.6–0.9 m ahead, at the view's entry (the wall enters a 42" pipe's
+    // view at about 0.8 m), where a fit dragged by the bend's far wall shifted 8 of 12
+    // sectors' medians by 4 mm (F = 14.4 against 13.0). The near windows' fits, clear of
+    // what lies ahead, are tried as for a refused refit.
+    let unrefitted =
+        cut.is_none() && !at_start && first_departure(&prof, seg).is_some() && misfits(&fit);
+    let refused = (first_departure(&prof, seg).is_none() && misfits(&fit))
+        || (partial_refit && early_ring.is_none())
+        || unrefitted;
     // A fit that finds no end and lacks fit: first, a straight pipe seen through a ring of
     // range error ([`ring_refit`], below), taken when its fit converges. Its refit without
     // the ring would show an end the misfit hid, so the near windows need not be tried: on

@@ -713,9 +713,8 @@ fn pick(st: &[u16], scores: &[f64], k: usize, rng: &mut SplitMix) -> Vec<usize> 
     let mut out = Vec::with_capacity(k);
     // Each row with its score beside it (the selection reads them in place, not by
     // index), highest first.
-    let with_scores = |rows: &[usize]| -> Vec<(f64, usize)> {
-        rows.iter().map(|&j| (scores[j], j)).collect()
-    };
+    let with_scores =
+        |rows: &[usize]| -> Vec<(f64, usize)> { rows.iter().map(|&j| (scores[j], j)).collect() };
     let by_score = |x: &(f64, usize), y: &(f64, usize)| y.0.total_cmp(&x.0);
     for (g, t) in groups.iter_mut().zip(floor) {
         if t == 0 {
