@@ -417,6 +417,14 @@ mod tests {
         assert!(mad_sigma(&mut []).is_nan());
         let (m, s) = median_and_mad_sigma(&mut []);
         assert!(m.is_nan() && s.is_nan());
+        // With a buffer already holding other values: cleared first, the same answer.
+        let mut scratch = vec![7.0, -3.0, 1e9, 0.5, 0.25, 2.0];
+        let mut v = [5.0, 2.0, 3.0, 4.0, 100.0];
+        assert_eq!(
+            median_and_mad_sigma_in(&mut v, &mut scratch),
+            (4.0, MAD_TO_SIGMA)
+        );
+        assert_eq!(scratch.len(), 5);
     }
 
     /// The AVX2 ln(1 + q) and Cauchy weights against the scalar code, to the bit, over
