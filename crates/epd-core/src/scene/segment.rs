@@ -531,18 +531,15 @@ pub fn segment(
     let partial_refit = cut.is_some()
         && matches!(fit.status, FitStatus::Implausible(_))
         && !matches!(first.status, FitStatus::Implausible(_));
+    // The ring refit of the fit on every point, against that fit's own profile: taken
+    // when its fit converges.
+    let ring_of_first = || {
+        let first_profile = profile(pts, &first_axis.0, &first_axis.1, seg);
+        ring_refit(pts, &first, &first_profile, method, options, seg)
+            .filter(|(r, _)| r.fit.status.is_converged())
+    };
     let mut early_ring = None;
-    if partial_refit
-        && let Some((r, ring)) = ring_refit(
-            pts,
-            &first,
-            &profile(pts, &first_axis.0, &first_axis.1, seg),
-            method,
-            options,
-            seg,
-        )
-        .filter(|(r, _)| r.fit.status.is_converged())
-    {
+    if partial_refit && let Some((r, ring)) = ring_of_first() {
         (fit, prof, cut) = (r.fit, r.profile, r.cut);
         rounds += r.rounds;
         early_ring = Some(ring);
@@ -559,11 +556,10 @@ pub fn segment(
     // own fit does not misfit (one that does holds what lies ahead as well: a 42" tee
     // 0.5 m ahead, no wall in view before it, was answered 2.2 m ahead from such a window,
     // where the fit on every point had read 0.68 m).
-    let unrefitted =
-        cut.is_none() && !at_start && first_departure(&prof, seg).is_some() && misfits(&fit);
-    let refused = (first_departure(&prof, seg).is_none() && misfits(&fit))
-        || (partial_refit && early_ring.is_none())
-        || unrefitted;
+    let departed = first_departure(&prof, seg).is_some();
+    let unrefitted = cut.is_none() && !at_start && departed && misfits(&fit);
+    let refused =
+        (!departed && misfits(&fit)) || (partial_refit && early_ring.is_none()) || unrefitted;
     // A fit that finds no end and lacks fit: first, a straight pipe seen through a ring of
     // range error ([`ring_refit`], below), taken when its fit converges. Its refit without
     // the ring would show an end the misfit hid, so the near windows need not be tried: on
@@ -646,9 +642,7 @@ pub fn segment(
         // a band's edge taken for an end, a fit that left the model), after which the
         // departure vanished: the ring is sought on the fit on every point.
         Layout::Straight if matches!(fit.status, FitStatus::Implausible(_)) && !partial_refit => {
-            let first_profile = profile(pts, &first_axis.0, &first_axis.1, seg);
-            ring_refit(pts, &first, &first_profile, method, options, seg)
-                .filter(|(r, _)| r.fit.status.is_converged())
+            ring_of_first()
         }
         _ => None,
     };
