@@ -12,7 +12,6 @@ use epd_frame::bag::{BagFrame, BagFrames, damage_report, is_bag, measure_message
 use epd_frame::report::{FileReport, columns};
 use epd_frame::shard::ShardSpec;
 use epd_frame::{EstimateConfig, EstimateSettings, measure_file};
-use rayon::prelude::*;
 
 use crate::args::{EstimateArgs, FitArgs, LossArg, OutputFormat};
 use epd_io::stderr_line;
@@ -232,6 +231,11 @@ pub(crate) fn resolve_inputs(
     Ok(inputs)
 }
 
+/// Inputs being measured at once per worker thread: two, so that when one finishes the
+/// next is already waiting in the pool while this thread reads the one after (a bag's
+/// message is decoded here), and memory holds about two frames per thread.
+pub(crate) const IN_FLIGHT_PER_THREAD: usize = 2;
+
 /// One thing to measure: a file, a bag's message, or a report already made (an input
 /// that failed, a bag's damage).
 pub(crate) enum Work {
@@ -449,60 +453,38 @@ pub fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
     if args.format == OutputFormat::Csv && args.shard.is_none_or(|s| s.k() == 1) {
         open = write(&mut sink, &epd_io::csv::line(columns()))?;
     }
-    // A few inputs (or bag messages) at a time: memory holds two batches (the one measured
-    // and the next, read meanwhile), whatever the length of a bag.
-    let batch = 2 * rayon::current_num_threads().max(1);
-    let mut queue = Queue {
+    // A few inputs (or bag messages) measured at a time, the next read as one finishes:
+    // memory holds a few frames, whatever the length of a bag (`crate::stream`).
+    let queue = Queue {
         inputs: inputs.iter(),
         bag: None,
     };
-    let mut next: Vec<Work> = queue.by_ref().take(batch).collect();
     let mut n_reports = 0usize;
-    while open && !next.is_empty() {
-        let chunk = std::mem::take(&mut next);
-        let (reports, following) = rayon::join(
-            || {
-                chunk
-                    .into_par_iter()
-                    .map(|w| {
-                        let r = w.measure(&cfg);
-                        bar.inc(1);
-                        r
-                    })
-                    .collect::<Vec<FileReport>>()
-            },
-            || queue.by_ref().take(batch).collect::<Vec<Work>>(),
-        );
-        next = following;
-        n_reports += reports.len();
-        let mut result = Ok(());
-        bar.suspend(|| {
-            for r in &reports {
-                let text = match args.format {
-                    OutputFormat::Json => r.json(),
-                    OutputFormat::Csv => r.csv(),
-                    OutputFormat::Text => r.text(),
-                };
-                if let Some(e) = r.failure() {
-                    failed.push(format!("{}: {e}", r.shown_file()));
-                }
-                uncalibrated +=
-                    usize::from(r.outcome.as_ref().is_ok_and(|e| e.intensity_without_table));
-                match write(&mut sink, &text) {
-                    Ok(true) => {}
-                    Ok(false) => {
-                        open = false;
-                        break;
-                    }
-                    Err(e) => {
-                        result = Err(e);
-                        break;
-                    }
-                }
+    let measure = |w: Work| {
+        let r = w.measure(&cfg);
+        bar.inc(1);
+        r
+    };
+    crate::stream::in_order(
+        queue,
+        IN_FLIGHT_PER_THREAD * rayon::current_num_threads(),
+        measure,
+        |r: FileReport| {
+            n_reports += 1;
+            let text = match args.format {
+                OutputFormat::Json => r.json(),
+                OutputFormat::Csv => r.csv(),
+                OutputFormat::Text => r.text(),
+            };
+            if let Some(e) = r.failure() {
+                failed.push(format!("{}: {e}", r.shown_file()));
             }
-        });
-        result?;
-    }
+            uncalibrated +=
+                usize::from(r.outcome.as_ref().is_ok_and(|e| e.intensity_without_table));
+            open = bar.suspend(|| write(&mut sink, &text))?;
+            Ok(open)
+        },
+    )?;
     bar.finish_and_clear();
     if open {
         finish_output(sink)?;

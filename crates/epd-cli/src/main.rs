@@ -37,6 +37,7 @@ mod calibrate;
 mod estimate;
 mod profile;
 mod simulate;
+mod stream;
 mod topics;
 mod view;
 

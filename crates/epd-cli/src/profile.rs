@@ -1,7 +1,7 @@
 //! `epd profile`: a run's frames (a bag's PointCloud2 messages, or point-cloud files in
 //! order) measured as `epd estimate` measures them, a few at a time, and written as one row
-//! per frame to `profile.csv` as they come (the whole run is never in memory: two batches
-//! of clouds at most), then drawn as `profile.png` (`epd_io::plot`).
+//! per frame to `profile.csv` as they come (the whole run is never in memory: two clouds
+//! per thread at most, `crate::stream`), then drawn as `profile.png` (`epd_io::plot`).
 //!
 //! The x axis: the distance travelled when `--odometry-topic` (the path length of the
 //! odometry's positions, interpolated at each cloud's stamp) or `--speed` is given, else
@@ -16,7 +16,6 @@ use epd_frame::bag::{BagFrames, damage_report, odometry};
 use epd_frame::report::FileReport;
 use epd_io::plot::{BLUE, Figure, GAP, GREEN, Panel, Point, RED, RGBColor, Series, render};
 use epd_io::stderr_line;
-use rayon::prelude::*;
 
 use crate::args::ProfileArgs;
 use crate::estimate::{Input, Work, fit_config, resolve_inputs};
@@ -398,8 +397,7 @@ pub fn run_profile(a: &ProfileArgs) -> anyhow::Result<ExitCode> {
         write(&mut csv, &epd_io::csv::line(PROFILE_COLUMNS))?;
     }
     let bar = progress(a.quiet, (keep.end.min(total) - keep.start) as usize);
-    let batch = 2 * rayon::current_num_threads().max(1);
-    let mut frames = Frames {
+    let frames = Frames {
         inputs: inputs.iter(),
         next_frame: 0,
         keep: keep.clone(),
@@ -408,39 +406,29 @@ pub fn run_profile(a: &ProfileArgs) -> anyhow::Result<ExitCode> {
     };
     let mut rows = Vec::new();
     let mut failed = 0usize;
-    let mut next: Vec<(u64, Work)> = frames.by_ref().take(batch).collect();
-    while !next.is_empty() {
-        let chunk = std::mem::take(&mut next);
-        let (reports, following) = rayon::join(
-            || {
-                chunk
-                    .into_par_iter()
-                    .map(|(k, w)| {
-                        let r = w.measure(&cfg);
-                        bar.inc(1);
-                        (k, r)
-                    })
-                    .collect::<Vec<(u64, FileReport)>>()
-            },
-            || frames.by_ref().take(batch).collect::<Vec<(u64, Work)>>(),
-        );
-        next = following;
-        for (k, r) in &reports {
-            let (fields, keep) = row(*k, r, t0, &x_of);
-            failed += usize::from(!keep.result);
-            if !keep.result && failed <= FAILURES_SHOWN && !a.quiet {
-                let why = r.failure().unwrap_or_else(|| "no result".into());
-                let shown = match &r.file_bytes {
-                    Some(b) => epd_io::name::shown_bytes(b),
-                    None => epd_io::name::escape_controls(&r.file).into_owned(),
-                };
-                bar.suspend(|| stderr_line!("{shown}: {}", epd_io::name::escape_controls(&why)));
-            }
-            let named: Vec<(&str, Field)> = PROFILE_COLUMNS.iter().copied().zip(fields).collect();
-            write(&mut csv, &epd_io::csv::fields_line(&named))?;
-            rows.push(keep);
+    // As `epd estimate` measures its inputs (`crate::stream`).
+    let measure = |(k, w): (u64, Work)| {
+        let r = w.measure(&cfg);
+        bar.inc(1);
+        (k, r)
+    };
+    let in_flight = crate::estimate::IN_FLIGHT_PER_THREAD * rayon::current_num_threads();
+    crate::stream::in_order(frames, in_flight, measure, |(k, r): (u64, FileReport)| {
+        let (fields, keep) = row(k, &r, t0, &x_of);
+        failed += usize::from(!keep.result);
+        if !keep.result && failed <= FAILURES_SHOWN && !a.quiet {
+            let why = r.failure().unwrap_or_else(|| "no result".into());
+            let shown = match &r.file_bytes {
+                Some(b) => epd_io::name::shown_bytes(b),
+                None => epd_io::name::escape_controls(&r.file).into_owned(),
+            };
+            bar.suspend(|| stderr_line!("{shown}: {}", epd_io::name::escape_controls(&why)));
         }
-    }
+        let named: Vec<(&str, Field)> = PROFILE_COLUMNS.iter().copied().zip(fields).collect();
+        write(&mut csv, &epd_io::csv::fields_line(&named))?;
+        rows.push(keep);
+        Ok(true)
+    })?;
     bar.finish_and_clear();
     csv.commit()
         .with_context(|| format!("cannot write {}", epd_io::name::shown(&csv_path)))?;

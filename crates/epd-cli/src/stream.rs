@@ -1,0 +1,177 @@
+//! Inputs measured in parallel and their results handed on in the inputs' order, a new
+//! input started as soon as any other finishes.
+//!
+//! In batches (the whole batch measured, then the next), one slow frame held the batch:
+//! a Helios2-model frame whose survey tries refits and bends costs 3–5 plain frames, its
+//! fits largely one after another, and the other thread waited idle for it at the end of
+//! every batch it was in. Here at most `in_flight` inputs are being measured (each holds
+//! its points: memory stays bounded by a few frames, whatever the length of a bag), the
+//! next is read as soon as one finishes, and results that finish before an earlier one
+//! wait, small, in a reorder buffer.
+
+use std::collections::BTreeMap;
+use std::panic::{AssertUnwindSafe, catch_unwind, resume_unwind};
+use std::sync::mpsc;
+
+/// Results finished ahead of the one awaited that are held, per input in flight, before
+/// no further input is started: a bound on the reorder buffer (a report is a few hundred
+/// bytes, its frame's points are freed when it finishes) for an input that takes far
+/// longer than the rest.
+const HELD_PER_IN_FLIGHT: usize = 16;
+
+/// Measures each item of `items` with `measure` on the rayon pool, at most `in_flight`
+/// at a time, and hands each result to `take` in the items' order. The items are read
+/// on the calling thread as room frees (a bag's next message decoded only then). `take`
+/// returning `Ok(false)` (the output closed) or an error stops: no further item is read,
+/// and those being measured finish and are dropped. A panic in `measure` is raised again
+/// on the calling thread once the items in flight have finished.
+pub(crate) fn in_order<T, R, I, F, G>(
+    items: I,
+    in_flight: usize,
+    measure: F,
+    mut take: G,
+) -> anyhow::Result<()>
+where
+    I: Iterator<Item = T>,
+    T: Send,
+    R: Send,
+    F: Fn(T) -> R + Sync,
+    G: FnMut(R) -> anyhow::Result<bool>,
+{
+    let in_flight = in_flight.max(1);
+    let (tx, rx) = mpsc::channel();
+    let measure = &measure;
+    // On the calling thread, which is none of the pool's: waiting here keeps no worker
+    // from the measurements.
+    rayon::in_place_scope(|scope| {
+        let mut items = items.fuse();
+        let (mut started, mut handed, mut running) = (0usize, 0usize, 0usize);
+        let mut done: BTreeMap<usize, R> = BTreeMap::new();
+        loop {
+            while running < in_flight && done.len() < HELD_PER_IN_FLIGHT * in_flight {
+                let Some(item) = items.next() else { break };
+                let (tx, i) = (tx.clone(), started);
+                scope.spawn(move |_| {
+                    let r = catch_unwind(AssertUnwindSafe(|| measure(item)));
+                    // The receiver outlives the scope: the send cannot fail.
+                    let _ = tx.send((i, r));
+                });
+                started += 1;
+                running += 1;
+            }
+            while let Some(r) = done.remove(&handed) {
+                handed += 1;
+                if !take(r)? {
+                    return Ok(());
+                }
+            }
+            if running == 0 {
+                return Ok(());
+            }
+            // Every task sends before it ends, and this thread holds a sender: the
+            // channel cannot close while one runs.
+            let (i, r) = rx
+                .recv()
+                .map_err(|_| anyhow::anyhow!("a measurement ended without its result"))?;
+            running -= 1;
+            match r {
+                Ok(r) => {
+                    done.insert(i, r);
+                }
+                Err(panic) => resume_unwind(panic),
+            }
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::time::Duration;
+
+    /// Items whose measurement takes a time that falls with the index, so that later
+    /// ones finish first: handed on in order all the same, never more than the window at
+    /// once.
+    #[test]
+    fn results_come_in_the_items_order_and_the_window_holds() {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .expect("pool");
+        let (now, most) = (AtomicUsize::new(0), AtomicUsize::new(0));
+        let mut seen = Vec::new();
+        pool.install(|| {
+            in_order(
+                0..24usize,
+                4,
+                |i| {
+                    let n = now.fetch_add(1, Ordering::SeqCst) + 1;
+                    most.fetch_max(n, Ordering::SeqCst);
+                    std::thread::sleep(Duration::from_millis(((24 - i) % 5) as u64 * 3));
+                    now.fetch_sub(1, Ordering::SeqCst);
+                    i * i
+                },
+                |r| {
+                    seen.push(r);
+                    Ok(true)
+                },
+            )
+        })
+        .expect("run");
+        assert_eq!(seen, (0..24).map(|i| i * i).collect::<Vec<_>>());
+        let most = most.load(Ordering::SeqCst);
+        assert!((1..=4).contains(&most), "{most} measured at once");
+    }
+
+    /// `take` saying stop: nothing more is read than the window beyond what was taken.
+    #[test]
+    fn a_closed_output_stops_the_reading() {
+        let read = AtomicUsize::new(0);
+        let items = (0..1000usize).inspect(|_| {
+            read.fetch_add(1, Ordering::SeqCst);
+        });
+        let mut taken = 0;
+        in_order(
+            items,
+            2,
+            |i| i,
+            |_| {
+                taken += 1;
+                Ok(taken < 3)
+            },
+        )
+        .expect("run");
+        assert_eq!(taken, 3);
+        // Three taken, at most two in flight and the held results beside them.
+        let read = read.load(Ordering::SeqCst);
+        assert!(read <= 3 + 2 + HELD_PER_IN_FLIGHT * 2, "{read} read");
+    }
+
+    /// An error from `take` is returned, and a panic in `measure` is raised again here.
+    #[test]
+    fn errors_and_panics_reach_the_caller() {
+        let e = in_order(
+            0..10usize,
+            2,
+            |i| i,
+            |i| {
+                anyhow::ensure!(i < 4, "stop at {i}");
+                Ok(true)
+            },
+        );
+        assert_eq!(e.expect_err("error").to_string(), "stop at 4");
+        let caught = catch_unwind(|| {
+            in_order(
+                0..10usize,
+                2,
+                |i| {
+                    assert!(i != 5, "item five");
+                    i
+                },
+                |_| Ok(true),
+            )
+        });
+        assert!(caught.is_err());
+    }
+}
