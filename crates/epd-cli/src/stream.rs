@@ -19,9 +19,10 @@ use std::sync::mpsc;
 /// longer than the rest.
 const HELD_PER_IN_FLIGHT: usize = 16;
 
-/// Measures each item of `items` with `measure` on the rayon pool, at most `in_flight`
-/// at a time, and hands each result to `take` in the items' order. The items are read
-/// on the calling thread as room frees (a bag's next message decoded only then). `take`
+/// Measures each item of `items` with `measure` on the global rayon pool, at most
+/// `in_flight` at a time, and hands each result to `take` in the items' order. The items
+/// are read on the calling thread (none of the pool's: waiting there keeps no worker from
+/// the measurements) as room frees, a bag's next message decoded only then. `take`
 /// returning `Ok(false)` (the output closed) or an error stops: no further item is read,
 /// and those being measured finish and are dropped. A panic in `measure` is raised again
 /// on the calling thread once the items in flight have finished.
@@ -29,7 +30,7 @@ pub(crate) fn in_order<T, R, I, F, G>(
     items: I,
     in_flight: usize,
     measure: F,
-    mut take: G,
+    take: G,
 ) -> anyhow::Result<()>
 where
     I: Iterator<Item = T>,
@@ -38,50 +39,72 @@ where
     F: Fn(T) -> R + Sync,
     G: FnMut(R) -> anyhow::Result<bool>,
 {
+    rayon::in_place_scope(|scope| run(scope, items, in_flight, &measure, take))
+}
+
+/// [`in_order`]'s loop, its tasks spawned in `scope`.
+fn run<'scope, T, R, I, F, G>(
+    scope: &rayon::Scope<'scope>,
+    items: I,
+    in_flight: usize,
+    measure: &'scope F,
+    mut take: G,
+) -> anyhow::Result<()>
+where
+    I: Iterator<Item = T>,
+    T: Send + 'scope,
+    R: Send + 'scope,
+    F: Fn(T) -> R + Sync,
+    G: FnMut(R) -> anyhow::Result<bool>,
+{
     let in_flight = in_flight.max(1);
     let (tx, rx) = mpsc::channel();
-    let measure = &measure;
-    // On the calling thread, which is none of the pool's: waiting here keeps no worker
-    // from the measurements.
-    rayon::in_place_scope(|scope| {
-        let mut items = items.fuse();
-        let (mut started, mut handed, mut running) = (0usize, 0usize, 0usize);
-        let mut done: BTreeMap<usize, R> = BTreeMap::new();
-        loop {
-            while running < in_flight && done.len() < HELD_PER_IN_FLIGHT * in_flight {
-                let Some(item) = items.next() else { break };
-                let (tx, i) = (tx.clone(), started);
-                scope.spawn(move |_| {
-                    let r = catch_unwind(AssertUnwindSafe(|| measure(item)));
-                    // The receiver outlives the scope: the send cannot fail.
-                    let _ = tx.send((i, r));
-                });
-                started += 1;
-                running += 1;
-            }
-            while let Some(r) = done.remove(&handed) {
-                handed += 1;
-                if !take(r)? {
-                    return Ok(());
-                }
-            }
-            if running == 0 {
+    let mut items = items.fuse();
+    let (mut started, mut handed, mut running) = (0usize, 0usize, 0usize);
+    let mut exhausted = false;
+    let mut done: BTreeMap<usize, R> = BTreeMap::new();
+    loop {
+        while running < in_flight && done.len() < HELD_PER_IN_FLIGHT * in_flight {
+            let Some(item) = items.next() else {
+                exhausted = true;
+                break;
+            };
+            let (tx, i) = (tx.clone(), started);
+            scope.spawn(move |_| {
+                let r = catch_unwind(AssertUnwindSafe(|| measure(item)));
+                // The receiver outlives the scope: the send cannot fail.
+                let _ = tx.send((i, r));
+            });
+            started += 1;
+            running += 1;
+        }
+        while let Some(r) = done.remove(&handed) {
+            handed += 1;
+            if !take(r)? {
                 return Ok(());
             }
-            // Every task sends before it ends, and this thread holds a sender: the
-            // channel cannot close while one runs.
-            let (i, r) = rx
-                .recv()
-                .map_err(|_| anyhow::anyhow!("a measurement ended without its result"))?;
-            running -= 1;
-            match r {
-                Ok(r) => {
-                    done.insert(i, r);
-                }
-                Err(panic) => resume_unwind(panic),
-            }
         }
-    })
+        if running == 0 {
+            // Everything started is handed on: done when nothing is left to read, else
+            // room for more (the reorder buffer had been full).
+            if exhausted {
+                return Ok(());
+            }
+            continue;
+        }
+        // Every task sends before it ends, and this thread holds a sender: the channel
+        // cannot close while one runs.
+        let (i, r) = rx
+            .recv()
+            .map_err(|_| anyhow::anyhow!("a measurement ended without its result"))?;
+        running -= 1;
+        match r {
+            Ok(r) => {
+                done.insert(i, r);
+            }
+            Err(panic) => resume_unwind(panic),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -90,38 +113,76 @@ mod tests {
     use std::sync::atomic::{AtomicUsize, Ordering};
     use std::time::Duration;
 
+    /// [`in_order`] on a pool of `threads` workers, called from this thread (none of
+    /// them), as `epd` calls it on the global pool from its main thread.
+    fn in_order_on<T: Send, R: Send>(
+        threads: usize,
+        items: impl Iterator<Item = T>,
+        in_flight: usize,
+        measure: impl Fn(T) -> R + Sync,
+        take: impl FnMut(R) -> anyhow::Result<bool>,
+    ) -> anyhow::Result<()> {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        pool.in_place_scope(|scope| run(scope, items, in_flight, &measure, take))
+    }
+
     /// Items whose measurement takes a time that falls with the index, so that later
     /// ones finish first: handed on in order all the same, never more than the window at
     /// once.
     #[test]
     fn results_come_in_the_items_order_and_the_window_holds() {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(3)
-            .build()
-            .expect("pool");
         let (now, most) = (AtomicUsize::new(0), AtomicUsize::new(0));
         let mut seen = Vec::new();
-        pool.install(|| {
-            in_order(
-                0..24usize,
-                4,
-                |i| {
-                    let n = now.fetch_add(1, Ordering::SeqCst) + 1;
-                    most.fetch_max(n, Ordering::SeqCst);
-                    std::thread::sleep(Duration::from_millis(((24 - i) % 5) as u64 * 3));
-                    now.fetch_sub(1, Ordering::SeqCst);
-                    i * i
-                },
-                |r| {
-                    seen.push(r);
-                    Ok(true)
-                },
-            )
-        })
+        in_order_on(
+            3,
+            0..24usize,
+            4,
+            |i| {
+                let n = now.fetch_add(1, Ordering::SeqCst) + 1;
+                most.fetch_max(n, Ordering::SeqCst);
+                std::thread::sleep(Duration::from_millis(((24 - i) % 5) as u64 * 3));
+                now.fetch_sub(1, Ordering::SeqCst);
+                i * i
+            },
+            |r| {
+                seen.push(r);
+                Ok(true)
+            },
+        )
         .expect("run");
         assert_eq!(seen, (0..24).map(|i| i * i).collect::<Vec<_>>());
         let most = most.load(Ordering::SeqCst);
         assert!((1..=4).contains(&most), "{most} measured at once");
+    }
+
+    /// One item far slower than the rest: the others finish meanwhile until the reorder
+    /// buffer is full, the slow one finishes, and the rest are still read and handed on
+    /// (a version that returned once nothing was running lost every item after the full
+    /// buffer: 91 of a 300-message bag's results, with exit status 0).
+    #[test]
+    fn a_slow_item_holding_a_full_reorder_buffer_loses_nothing() {
+        let n = 4 * HELD_PER_IN_FLIGHT * 2;
+        let mut seen = Vec::new();
+        in_order_on(
+            2,
+            0..n,
+            2,
+            |i| {
+                if i == 0 {
+                    std::thread::sleep(Duration::from_millis(300));
+                }
+                i
+            },
+            |r| {
+                seen.push(r);
+                Ok(true)
+            },
+        )
+        .expect("run");
+        assert_eq!(seen, (0..n).collect::<Vec<_>>());
     }
 
     /// `take` saying stop: nothing more is read than the window beyond what was taken.
@@ -162,7 +223,8 @@ mod tests {
         );
         assert_eq!(e.expect_err("error").to_string(), "stop at 4");
         let caught = catch_unwind(|| {
-            in_order(
+            in_order_on(
+                2,
                 0..10usize,
                 2,
                 |i| {
