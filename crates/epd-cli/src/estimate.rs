@@ -231,11 +231,6 @@ pub(crate) fn resolve_inputs(
     Ok(inputs)
 }
 
-/// Inputs being measured at once per worker thread: two, so that when one finishes the
-/// next is already waiting in the pool while this thread reads the one after (a bag's
-/// message is decoded here), and memory holds about two frames per thread.
-pub(crate) const IN_FLIGHT_PER_THREAD: usize = 2;
-
 /// One thing to measure: a file, a bag's message, or a report already made (an input
 /// that failed, a bag's damage).
 pub(crate) enum Work {
@@ -465,26 +460,20 @@ pub fn run_estimate(args: &EstimateArgs) -> anyhow::Result<ExitCode> {
         bar.inc(1);
         r
     };
-    crate::stream::in_order(
-        queue,
-        IN_FLIGHT_PER_THREAD * rayon::current_num_threads(),
-        measure,
-        |r: FileReport| {
-            n_reports += 1;
-            let text = match args.format {
-                OutputFormat::Json => r.json(),
-                OutputFormat::Csv => r.csv(),
-                OutputFormat::Text => r.text(),
-            };
-            if let Some(e) = r.failure() {
-                failed.push(format!("{}: {e}", r.shown_file()));
-            }
-            uncalibrated +=
-                usize::from(r.outcome.as_ref().is_ok_and(|e| e.intensity_without_table));
-            open = bar.suspend(|| write(&mut sink, &text))?;
-            Ok(open)
-        },
-    )?;
+    crate::stream::in_order(queue, measure, |r: FileReport| {
+        n_reports += 1;
+        let text = match args.format {
+            OutputFormat::Json => r.json(),
+            OutputFormat::Csv => r.csv(),
+            OutputFormat::Text => r.text(),
+        };
+        if let Some(e) = r.failure() {
+            failed.push(format!("{}: {e}", r.shown_file()));
+        }
+        uncalibrated += usize::from(r.outcome.as_ref().is_ok_and(|e| e.intensity_without_table));
+        open = bar.suspend(|| write(&mut sink, &text))?;
+        Ok(open)
+    })?;
     bar.finish_and_clear();
     if open {
         finish_output(sink)?;

@@ -412,8 +412,7 @@ pub fn run_profile(a: &ProfileArgs) -> anyhow::Result<ExitCode> {
         bar.inc(1);
         (k, r)
     };
-    let in_flight = crate::estimate::IN_FLIGHT_PER_THREAD * rayon::current_num_threads();
-    crate::stream::in_order(frames, in_flight, measure, |(k, r): (u64, FileReport)| {
+    crate::stream::in_order(frames, measure, |(k, r): (u64, FileReport)| {
         let (fields, keep) = row(k, &r, t0, &x_of);
         failed += usize::from(!keep.result);
         if !keep.result && failed <= FAILURES_SHOWN && !a.quiet {

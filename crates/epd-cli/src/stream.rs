@@ -19,19 +19,19 @@ use std::sync::mpsc;
 /// longer than the rest.
 const HELD_PER_IN_FLIGHT: usize = 16;
 
+/// Inputs being measured at once per worker thread: two, so that when one finishes the
+/// next is already waiting in the pool while the calling thread reads the one after (a
+/// bag's message is decoded there), and memory holds about two frames per thread.
+const IN_FLIGHT_PER_THREAD: usize = 2;
+
 /// Measures each item of `items` with `measure` on the global rayon pool, at most
-/// `in_flight` at a time, and hands each result to `take` in the items' order. The items
+/// [`IN_FLIGHT_PER_THREAD`] per worker at a time, and hands each result to `take` in the items' order. The items
 /// are read on the calling thread (none of the pool's: waiting there keeps no worker from
 /// the measurements) as room frees, a bag's next message decoded only then. `take`
 /// returning `Ok(false)` (the output closed) or an error stops: no further item is read,
 /// and those being measured finish and are dropped. A panic in `measure` is raised again
 /// on the calling thread once the items in flight have finished.
-pub(crate) fn in_order<T, R, I, F, G>(
-    items: I,
-    in_flight: usize,
-    measure: F,
-    take: G,
-) -> anyhow::Result<()>
+pub(crate) fn in_order<T, R, I, F, G>(items: I, measure: F, take: G) -> anyhow::Result<()>
 where
     I: Iterator<Item = T>,
     T: Send,
@@ -39,10 +39,11 @@ where
     F: Fn(T) -> R + Sync,
     G: FnMut(R) -> anyhow::Result<bool>,
 {
+    let in_flight = IN_FLIGHT_PER_THREAD * rayon::current_num_threads();
     rayon::in_place_scope(|scope| run(scope, items, in_flight, &measure, take))
 }
 
-/// [`in_order`]'s loop, its tasks spawned in `scope`.
+/// [`in_order`]'s loop, at most `in_flight` items being measured at once, its tasks spawned in `scope`.
 fn run<'scope, T, R, I, F, G>(
     scope: &rayon::Scope<'scope>,
     items: I,
@@ -193,7 +194,8 @@ mod tests {
             read.fetch_add(1, Ordering::SeqCst);
         });
         let mut taken = 0;
-        in_order(
+        in_order_on(
+            2,
             items,
             2,
             |i| i,
@@ -214,7 +216,6 @@ mod tests {
     fn errors_and_panics_reach_the_caller() {
         let e = in_order(
             0..10usize,
-            2,
             |i| i,
             |i| {
                 anyhow::ensure!(i < 4, "stop at {i}");
