@@ -1476,14 +1476,18 @@ fn ring_refit(
 /// point by a fraction of σ across the wall, yet 12 sector medians of hundreds of points
 /// each by many of their standard errors (numpy frames of a 30" pipe at 320 × 240,
 /// `test_straight_false_alarms.py`: the band's slices ≈ 15 mm out all around, ≈ 0.25 mm
-/// standard error).
+/// standard error). Only slices with medians in [`MIN_SECTORS_TESTED`] sectors count, as
+/// in [`ring_run`]: with fewer, every half may hold only the sectors that have medians —
+/// in a sparse slice those the opening fills, its rays run on to the branch's far wall
+/// (an off-grid numpy 16" tee 1.74 m ahead, σ = 10 mm: its one departing slice had
+/// medians in 4 sectors, its least half 8.2 mm out, and the frame read `straight`).
 fn widens_all_around(profile: &[Slice], i: usize, o: &SegmentOptions) -> bool {
     let i = i.min(profile.len());
     // (least half, its variance, the slice's size: the larger of shift and bump).
     let run: Vec<(f64, f64, f64)> = profile[i..]
         .iter()
         .take(8)
-        .filter(|s| s.departs(o))
+        .filter(|s| s.departs(o) && s.n_sectors >= MIN_SECTORS_TESTED)
         .map(|s| (s.least_half_m, s.least_half_var_m2, s.shift().max(s.bump_m)))
         .filter(|(h, v, _)| h.is_finite() && v.is_finite())
         .collect();

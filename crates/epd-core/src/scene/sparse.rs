@@ -232,10 +232,16 @@ pub const WINDOW_SLICES: [usize; 3] = [1, 2, 4];
 pub const WINDOW_SECTORS: [usize; 2] = [1, 2];
 
 /// The exceedance limit of sector `k` in slice `i`: the median +
-/// [`EXCEEDANCE_SIGMAS`]·1.4826·MAD of that sector's deviations in slice `i` and its
-/// neighbours, added one slice on each side at a time until they hold
-/// [`LOCAL_WALL_POINTS`] (or every slice is in). The noise grows with range, so the wall's
-/// spread is taken where the slice lies; and it differs between sectors, most at a
+/// [`EXCEEDANCE_SIGMAS`]·1.4826·MAD of that sector's deviations in slice `i` and the
+/// slices before it (nearer the sensor), added one at a time until they hold
+/// [`LOCAL_WALL_POINTS`], then, when the slices before hold too few, the slices after. The
+/// wall is taken before the slice because an opening is longer than a sparse sector's
+/// neighbourhood: a branch as long as a 10" pipe is wide spans 5 slices, and at 6 points a
+/// cell the 68 points of a neighbourhood taken on both sides span 11, so in the opening's
+/// first slice half of them lay in it, whose spread raised the limit above its own points
+/// (off-grid numpy tees, `scripts/offgrid-numpy.py`: 10"–16" pipes 1.3–3 m ahead, 23 of
+/// 71 frames read `straight` found with the wall before). The noise grows with range, so
+/// the wall's spread is taken near the slice; and it differs between sectors, most at a
 /// distance, where around an off-axis sensor the incidence (and so the deviations'
 /// spread, the range noise times cos θ) differs by sector: pooled over a slice's sectors,
 /// a straight `epd simulate` frame (σ = 30 mm, the sensor 57 mm off the axis) read as a
@@ -257,15 +263,13 @@ fn sector_limit<C: AsRef<[f32]>>(
     let n_slices = cells.len() / sectors;
     let (mut lo, mut hi) = (i, i);
     let mut n = cells[i * sectors + k].as_ref().len();
-    while n < LOCAL_WALL_POINTS && (lo > 0 || hi + 1 < n_slices) {
-        if lo > 0 {
-            lo -= 1;
-            n += cells[lo * sectors + k].as_ref().len();
-        }
-        if hi + 1 < n_slices {
-            hi += 1;
-            n += cells[hi * sectors + k].as_ref().len();
-        }
+    while n < LOCAL_WALL_POINTS && lo > 0 {
+        lo -= 1;
+        n += cells[lo * sectors + k].as_ref().len();
+    }
+    while n < LOCAL_WALL_POINTS && hi + 1 < n_slices {
+        hi += 1;
+        n += cells[hi * sectors + k].as_ref().len();
     }
     let Scratch(d, dev) = scratch;
     d.clear();
@@ -485,6 +489,22 @@ mod tests {
                     .all(|(i, s)| i == 20 || !s.opens())
             );
         }
+    }
+
+    /// An opening longer than a sector's neighbourhood: slices 20 to 33 of sector 3, 4
+    /// points a cell 0.2 m out. Taken over 17 slices on both sides of slice 20, the wall
+    /// would hold 9 of the opening's slices, more than half its points, and its limit would
+    /// lie above them (no exceedance); taken before it, slice 20 opens, and nothing before
+    /// it does.
+    #[test]
+    fn an_opening_longer_than_the_walls_neighbourhood_opens_at_its_start() {
+        let mut u = uniforms(47);
+        let law = DesignEffect::INDEPENDENT;
+        let (mut slices, cells) = frame(&mut u, 4, |i, k| (20..34).contains(&i) && k == 3);
+        test_openings(&mut slices, &cells, &SegmentOptions::default(), &law);
+        let open: Vec<usize> = (0..slices.len()).filter(|&i| slices[i].opens()).collect();
+        assert_eq!(open.first(), Some(&20), "{:?}", &slices[18..24]);
+        assert!((slices[20].opening_psi - 3.5 / 12.0 * std::f64::consts::TAU).abs() < 1e-12);
     }
 
     /// The sectors tested over the windows of a frame of `slices` sparse slices, every

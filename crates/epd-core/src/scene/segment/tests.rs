@@ -403,6 +403,22 @@ fn only_a_wall_out_all_around_is_a_ring() {
     let noisy = run(0.004, 0.0, 0.015, 0.03);
     departs_at_8(&noisy);
     assert!(!widens_all_around(&noisy, 8, &o), "a ring within its noise");
+    // The ring's slices seen on too few sectors for the medians' tests, departing by an
+    // opening in their sparse cells: their least halves hold only the sectors with
+    // medians, and the run is no ring.
+    let partial: Vec<Slice> = ring
+        .iter()
+        .map(|s| Slice {
+            n_sectors: MIN_SECTORS_TESTED - 1,
+            opening_p: 0.0,
+            ..*s
+        })
+        .collect();
+    assert!(partial[8].departs(&o));
+    assert!(
+        !widens_all_around(&partial, 8, &o),
+        "a ring seen on few sectors"
+    );
 }
 
 /// A ring of range error's run (`ring_run`): the slices whose every half lies out, grown
