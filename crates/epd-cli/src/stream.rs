@@ -11,6 +11,8 @@
 
 use std::collections::BTreeMap;
 use std::panic::{AssertUnwindSafe, catch_unwind, resume_unwind};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 
 /// Results finished ahead of the one awaited that are held, per input in flight, before
@@ -29,8 +31,11 @@ const IN_FLIGHT_PER_THREAD: usize = 2;
 /// are read on the calling thread (none of the pool's: waiting there keeps no worker from
 /// the measurements) as room frees, a bag's next message decoded only then. `take`
 /// returning `Ok(false)` (the output closed) or an error stops: no further item is read,
-/// and those being measured finish and are dropped. A panic in `measure` is raised again
-/// on the calling thread once the items in flight have finished.
+/// and those being measured are stopped at their next checkpoint
+/// ([`epd_core::cancel`]: each solver step and survey stage) and dropped — before, they
+/// ran to their end, and a closed output ended the run 0.2–2.3 s later on the
+/// Helios2-model bag's frames (docs/epd.md). A panic in `measure` is raised again on the
+/// calling thread once the items in flight have stopped.
 pub(crate) fn in_order<T, R, I, F, G>(items: I, measure: F, take: G) -> anyhow::Result<()>
 where
     I: Iterator<Item = T>,
@@ -59,6 +64,9 @@ where
     G: FnMut(R) -> anyhow::Result<bool>,
 {
     let in_flight = in_flight.max(1);
+    // Set however this returns, so that the measurements still running stop (the scope
+    // waits for them).
+    let stop = StopOnDrop(Arc::new(AtomicBool::new(false)));
     let (tx, rx) = mpsc::channel();
     let mut items = items.fuse();
     let (mut started, mut handed, mut running) = (0usize, 0usize, 0usize);
@@ -70,11 +78,18 @@ where
                 exhausted = true;
                 break;
             };
-            let (tx, i) = (tx.clone(), started);
+            let (tx, i, flag) = (tx.clone(), started, stop.0.clone());
             scope.spawn(move |_| {
-                let r = catch_unwind(AssertUnwindSafe(|| measure(item)));
-                // The receiver outlives the scope: the send cannot fail.
-                let _ = tx.send((i, r));
+                let r = catch_unwind(AssertUnwindSafe(|| {
+                    epd_core::cancel::run_cancellable(&flag, || measure(item))
+                }));
+                // The receiver outlives the scope: a send cannot fail. A stopped
+                // measurement's result is no longer awaited: nothing to send.
+                match r {
+                    Ok(Ok(r)) => drop(tx.send((i, Ok(r)))),
+                    Ok(Err(epd_core::cancel::Cancelled)) => {}
+                    Err(panic) => drop(tx.send((i, Err(panic)))),
+                }
             });
             started += 1;
             running += 1;
@@ -108,10 +123,19 @@ where
     }
 }
 
+/// Sets its flag when dropped: [`run`]'s stop request to the measurements in flight.
+struct StopOnDrop(Arc<AtomicBool>);
+
+impl Drop for StopOnDrop {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::sync::atomic::AtomicUsize;
     use std::time::Duration;
 
     /// [`in_order`] on a pool of `threads` workers, called from this thread (none of
@@ -163,6 +187,49 @@ mod tests {
     /// buffer is full, the slow one finishes, and the rest are still read and handed on
     /// (a version that returned once nothing was running lost every item after the full
     /// buffer: 91 of a 300-message bag's results, with exit status 0).
+    /// The output closes at the first result: the measurements then in flight, each
+    /// waiting at checkpoints for up to 20 s, stop at their next one instead of running
+    /// to their end (none of them finishes), and nothing is started after the close. On
+    /// the previous loop every one of them ran its 20 s to the end.
+    #[test]
+    fn a_closed_output_stops_the_measurements_in_flight() {
+        let (started, finished) = (AtomicUsize::new(0), AtomicUsize::new(0));
+        let mut seen = Vec::new();
+        in_order_on(
+            2,
+            0..40usize,
+            4,
+            |i| {
+                started.fetch_add(1, Ordering::SeqCst);
+                if i > 0 {
+                    for _ in 0..2000 {
+                        std::thread::sleep(Duration::from_millis(10));
+                        epd_core::cancel::checkpoint();
+                    }
+                }
+                finished.fetch_add(1, Ordering::SeqCst);
+                i
+            },
+            |r| {
+                seen.push(r);
+                Ok(false)
+            },
+        )
+        .expect("run");
+        assert_eq!(seen, vec![0]);
+        assert_eq!(
+            finished.load(Ordering::SeqCst),
+            1,
+            "only the first ran to its end"
+        );
+        // The window (4), and the one started when the first finished, before its result
+        // was handed on.
+        assert!(
+            started.load(Ordering::SeqCst) <= 5,
+            "no item started after the close"
+        );
+    }
+
     #[test]
     fn a_slow_item_holding_a_full_reorder_buffer_loses_nothing() {
         let n = 4 * HELD_PER_IN_FLIGHT * 2;
