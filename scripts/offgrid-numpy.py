@@ -31,7 +31,8 @@ Noise: the casters read the module global `SIGMA_M` (set as approach-grid-numpy.
 `set_sigma` does); the straight caster takes `sigma=`.
 
 Usage (from the repository's root; EPD_BIN overrides the binary, default target/release/epd):
-  python3 scripts/offgrid-numpy.py run [--frames N] [--first K] [--out /tmp/offgrid/results.jsonl]
+  python3 scripts/offgrid-numpy.py run [--frames N] [--first K] [--only tee,straight]
+      [--out /tmp/offgrid/results.jsonl]
       [--miss /tmp/offgrid/miss] [--work /tmp/offgrid/frames]
   python3 scripts/offgrid-numpy.py table [--out /tmp/offgrid/results.jsonl]
   python3 scripts/offgrid-numpy.py cast K [--to DIR]   # writes frame K's PLY and truth again
@@ -181,7 +182,9 @@ def run(a):
     work.mkdir(parents=True, exist_ok=True)
     miss.mkdir(parents=True, exist_ok=True)
     t_start = time.time()
-    todo = [k for k in range(a.first, a.frames) if k not in done]
+    only = set(a.only.split(",")) if a.only else None
+    todo = [k for k in range(a.first, a.frames)
+            if k not in done and (only is None or plan(k)[0] in only)]
     print(f"{len(done)} frames done, {len(todo)} to do; binary {EPD}", flush=True)
     for i, k in enumerate(todo):
         t0 = time.time()
@@ -337,6 +340,7 @@ def main():
     r = sub.add_parser("run")
     r.add_argument("--frames", type=int, default=324, help="frames k < N")
     r.add_argument("--first", type=int, default=0, help="frames k >= K only (an extension)")
+    r.add_argument("--only", default="", help="these fittings only, e.g. tee,straight")
     r.add_argument("--work", default="/tmp/offgrid/frames")
     r.add_argument("--miss", default="/tmp/offgrid/miss")
     t = sub.add_parser("table")
