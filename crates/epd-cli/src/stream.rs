@@ -183,10 +183,6 @@ mod tests {
         assert!((1..=4).contains(&most), "{most} measured at once");
     }
 
-    /// One item far slower than the rest: the others finish meanwhile until the reorder
-    /// buffer is full, the slow one finishes, and the rest are still read and handed on
-    /// (a version that returned once nothing was running lost every item after the full
-    /// buffer: 91 of a 300-message bag's results, with exit status 0).
     /// The output closes at the first result: the measurements then in flight, each
     /// waiting at checkpoints for up to 20 s, stop at their next one instead of running
     /// to their end (none of them finishes), and nothing is started after the close. On
@@ -230,6 +226,10 @@ mod tests {
         );
     }
 
+    /// One item far slower than the rest: the others finish meanwhile until the reorder
+    /// buffer is full, the slow one finishes, and the rest are still read and handed on
+    /// (a version that returned once nothing was running lost every item after the full
+    /// buffer: 91 of a 300-message bag's results, with exit status 0).
     #[test]
     fn a_slow_item_holding_a_full_reorder_buffer_loses_nothing() {
         let n = 4 * HELD_PER_IN_FLIGHT * 2;

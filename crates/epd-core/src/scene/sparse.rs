@@ -241,15 +241,14 @@ pub const WINDOW_SECTORS: [usize; 2] = [1, 2];
 /// 11, so in the opening's first slice half of them lay in it, whose spread raised the
 /// limit above its own points (off-grid numpy tees, `scripts/offgrid-numpy.py`: 10"–16"
 /// pipes 1.3–3 m ahead, 23 of 71 frames read `straight` found with the wall before);
-/// while at 2 points a cell the wall before spans 1.7 m, where the incidence, and with it
-/// the deviations' spread, changes by twice (a 12" and a 16" tee 2.75 and 2.95 m ahead
-/// read `straight` with the wall before alone, `tee_ahead` with either). A limit that errs
-/// low raises the rate the cells are tested against where that rate is above its floor
-/// (`test_openings`' p₀, pooled over the same limits, at least [`OPEN_RATE`]). The numpy
-/// straight frames of `test_straight_false_alarms.py` read otherwise in 0 of 4000 with
-/// each rule and with the lower of both. The noise grows
-/// with range, so the wall's spread is taken near the slice; and it differs between
-/// sectors, most at a
+/// while at 2 points a cell the wall before spans 1.7 m, over which the incidence, and
+/// with it the deviations' spread, changes twofold (a 12" and a 16" tee 2.75 and 2.95 m
+/// ahead read `straight` with the wall before alone, `tee_ahead` with either). A limit
+/// that errs low raises the rate the cells are tested against where that rate is above
+/// its floor (`test_openings`' p₀, pooled over the same limits, at least [`OPEN_RATE`]).
+/// The numpy straight frames of `test_straight_false_alarms.py` read otherwise in 0 of
+/// 4000 with each rule and with the lower of both. The noise grows with range, so the
+/// wall's spread is taken near the slice; and it differs between sectors, most at a
 /// distance, where around an off-axis sensor the incidence (and so the deviations'
 /// spread, the range noise times cos θ) differs by sector: pooled over a slice's sectors,
 /// a straight `epd simulate` frame (σ = 30 mm, the sensor 57 mm off the axis) read as a
@@ -552,6 +551,36 @@ mod tests {
         let open: Vec<usize> = (0..slices.len()).filter(|&i| slices[i].opens()).collect();
         assert_eq!(open.first(), Some(&20), "{:?}", &slices[18..24]);
         assert!((slices[20].opening_psi - 3.5 / 12.0 * std::f64::consts::TAU).abs() < 1e-12);
+    }
+
+    /// Far down a pipe the deviations' spread shrinks with distance (the incidence grows
+    /// more grazing): 80 slices of 2 points a cell, the spread 0.12/(i + 20) m, and a
+    /// shallow opening, 7.5 mm out, in slices 40 to 43 of sectors 3 and 4. The wall before
+    /// slice 40 spans slices 7 to 40, its spread well above the slice's own, and its
+    /// limit lies above most of the opening's points; the wall on both sides, slices 23 to
+    /// 57, lies about the slice, and the lower of the two opens the slice.
+    #[test]
+    fn a_far_opening_is_judged_by_the_wall_about_it() {
+        let mut u = uniforms(59);
+        let law = DesignEffect::INDEPENDENT;
+        let (n_slices, ns) = (80, 12);
+        let mut cells = vec![Vec::new(); n_slices * ns];
+        for i in 0..n_slices {
+            let spread = 0.12 / (i as f64 + 20.0);
+            for k in 0..ns {
+                for _ in 0..2 {
+                    let g = (-2.0 * (1.0 - u()).ln()).sqrt() * (std::f64::consts::TAU * u()).cos();
+                    let open = (40..44).contains(&i) && (3..5).contains(&k);
+                    cells[i * ns + k].push((spread * g + if open { 0.0075 } else { 0.0 }) as f32);
+                }
+            }
+        }
+        let mut slices: Vec<Slice> = (0..n_slices)
+            .map(|i| sparse_slice(i as f64 * 0.05, 2 * ns))
+            .collect();
+        test_openings(&mut slices, &cells, &SegmentOptions::default(), &law);
+        let open: Vec<usize> = (0..n_slices).filter(|&i| slices[i].opens()).collect();
+        assert_eq!(open.first(), Some(&40), "{:?}", &slices[38..44]);
     }
 
     /// The sectors tested over the windows of a frame of `slices` sparse slices, every
