@@ -25,9 +25,10 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from test_independent_frames import FRAMES, MODELS, run, score
+from test_independent_frames import FRAMES, MODELS, estimate_files, frame, run, score, write_ply
 
 SIZES = ((160, 120), (320, 240))
 MISREAD_CEILING = 0.01 + 4 * math.sqrt(0.01 * 0.99 / FRAMES)
@@ -120,6 +121,28 @@ def test_no_straight_frame_answered_far_off(surveyed, model, size):
     print(f"{case_id((model, size))}: {len(far)} far off of {converged} answered")
     assert not far, f"{case_id((model, size))}: {len(far)} answered far off: {far[:5]}"
 
+
+
+def test_a_step_of_the_wall_is_no_bend(epd_bin, tmp_path):
+    """Two multipath frames at 320 × 240 (frame 150 of the tests' seed 121, frame 133 of
+    seed 1121): the band's edge, where ranges become 2.5σ long, is a step of the wall. When
+    the fit with a bend's end was first tried for any outlet that lowers the cost
+    (2026-12-08, `epd_core::bend::end_scan`), both read `bend_ahead`: a bend of 0.12 ±
+    0.10° and 0.09 ± 0.11° (R 62 and 53 m), its end "seen" by the 1-σ of its points alone.
+    A bend must have turned by more than 3.09 of its whole 1-σ (`bend::has_turned`); both
+    read `straight` again, as they did before."""
+    paths = []
+    for seed, k in ((121, 150), (1121, 133)):
+        rng = np.random.default_rng(seed)
+        for _ in range(k):
+            frame(rng, "multipath", 320, 240)
+        pts, _, _ = frame(rng, "multipath", 320, 240)
+        p = tmp_path / f"multipath_{seed}_{k}.ply"
+        write_ply(p, pts)
+        paths.append(str(p))
+    rows = estimate_files(epd_bin, paths)
+    seen = [(r["geometry"], r["bend_radius_mm"], r["bend_angle_deg"]) for r in rows]
+    assert all(r["geometry"] == "straight" for r in rows), seen
 
 def main():
     """`python test_straight_false_alarms.py [SEED_OFFSET…]` (default 0 1000: the tests'

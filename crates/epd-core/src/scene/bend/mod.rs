@@ -331,7 +331,8 @@ fn finish(
 
 /// The exact stage from a first-order fit, its 1-σ and its diagnostics; the end is read
 /// as seen by [`end_is_seen`] on the 1-σ of the bend's own points (the cluster
-/// jackknife's), and its outlet must beat the torus run on ([`end_beats_torus`]): an error of the straight pipe's axis moves the fitted end and the angle
+/// jackknife's), the bend must have turned ([`has_turned`]) and its outlet must beat the
+/// torus run on ([`end_beats_torus`]): an error of the straight pipe's axis moves the fitted end and the angle
 /// its points reach together. The reported 1-σ add the axis's part when `axis` is given
 /// ([`BendProblem::axis_covariance`]).
 fn exact_fit(
@@ -373,9 +374,10 @@ fn exact_fit(
     let sigma = robust_sigma(rays, &geometry).unwrap_or(f64::NAN);
     let straight_sigma = straight_robust_sigma(rays, (0.5 * straight.d_max, 0.5 * straight.d_min));
     let (angle_seen, n_inliers) = angle_seen(rays, &geometry, sigma);
-    let end_seen = end_is_seen(&geometry, own(NP - 1), angle_seen)
-        && end_beats_torus(rays, &geometry, sigma, first.loss);
     let angle_sigma = sd(NP - 1);
+    let end_seen = end_is_seen(&geometry, own(NP - 1), angle_seen)
+        && has_turned(&geometry, angle_sigma)
+        && end_beats_torus(rays, &geometry, sigma, first.loss);
     BendFit {
         geometry,
         angle_seen,
@@ -405,6 +407,19 @@ fn end_is_seen(geometry: &BendGeometry, angle_sigma: f64, seen: f64) -> bool {
         && angle_sigma.is_finite()
         && angle_sigma > 0.0
         && geometry.angle + z * angle_sigma < seen
+}
+
+/// Whether a fitted end's bend has turned: Θ̂ − z·σ_Θ > 0 with `angle_sigma` the angle's
+/// whole 1-σ (the bend's points' and the straight pipe's axis's), z at the survey's
+/// false-alarm rate (3.09). A bend that has not turned is no bend: a step of the wall — a
+/// multipath band's edge on a straight pipe, its ranges 2.5σ long past 1 m — was fitted
+/// as a bend of 0.12 ± 0.10° (R 62 m) with its end seen and read `bend_ahead` (2 of the
+/// 4000 numpy straight frames of `test_straight_false_alarms.py`, once the fit with an
+/// end was tried for any outlet that lowers the cost, [`end_scan`]); the 1-σ of its
+/// points alone, without the axis's, let it through.
+fn has_turned(geometry: &BendGeometry, angle_sigma: f64) -> bool {
+    let z = crate::fit::form::normal_upper_quantile(crate::scene::profile::SURVEY_FALSE_ALARM);
+    angle_sigma.is_finite() && geometry.angle - z * angle_sigma > 0.0
 }
 
 /// The one-sided level at which a fitted end's outlet must beat the torus run on past it
