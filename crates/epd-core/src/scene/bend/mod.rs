@@ -331,10 +331,10 @@ fn finish(
 
 /// The exact stage from a first-order fit, its 1-σ and its diagnostics; the end is read
 /// as seen by [`end_is_seen`] on the 1-σ of the bend's own points (the cluster
-/// jackknife's), the bend must have turned ([`has_turned`]) and its outlet must beat the
-/// torus run on ([`end_beats_torus`]): an error of the straight pipe's axis moves the fitted end and the angle
-/// its points reach together. The reported 1-σ add the axis's part when `axis` is given
-/// ([`BendProblem::axis_covariance`]).
+/// jackknife's: an error of the straight pipe's axis moves the fitted end and the angle
+/// its points reach together), the bend must have turned ([`has_turned`]) and its
+/// outlet must beat the torus run on ([`end_beats_torus`]). The reported 1-σ add the
+/// axis's part when `axis` is given ([`BendProblem::axis_covariance`]).
 fn exact_fit(
     rays: &[(Vector3<f64>, Vector3<f64>)],
     straight: &Params,
@@ -434,7 +434,7 @@ fn has_turned(geometry: &BendGeometry, angle_sigma: f64) -> bool {
 /// −3.09; the 90° bends' false ends (their outlet out of view; ends placed at 51–54° with
 /// 1-σ 1.8–2.6°, where the inliers reach 60–62°) scored −0.93, −0.85 and −0.71. At the
 /// survey's own rate (z 3.09) a sixth of the 45° ends would be lost again.
-pub const END_SCORE_LEVEL: f64 = 0.05;
+const END_SCORE_LEVEL: f64 = 0.05;
 
 /// Whether the outlet of the fitted end of `ended` fits the points turned past it better
 /// than its torus continued, beyond noise: [`end_score`] (the fit's robust σ `sigma`, its
@@ -494,20 +494,19 @@ const END_SCAN: usize = 8;
 /// it is negative — an outlet there lowers the cost even at the open fit's placement —
 /// and the fit with an end is started there; `None` when no outlet lowers it. The
 /// decision is not the screen's: it is the fitted end's tests ([`end_is_seen`], at the
-/// survey's false-alarm rate, its 1-σ the cluster jackknife's, and [`end_beats_torus`]),
-/// so the screen only
-/// spares the fit with an end to bends whose far points the open torus fits at least as
-/// well as any outlet, as it does when the end is out of view. Measured on the off-grid
-/// numpy 90° elbows (`scripts/offgrid-numpy.py`, 0.5–3 m ahead, σ 0.01–0.05 m): the
-/// least z_k was negative in 8 of the 360 frames' first bend fits; the others pay no fit
-/// with an end (on tof-sim's 8" 90° elbows three such fits, started at 1/4, 1/2 and 3/4
-/// of the angle seen, had doubled the time of the frame). The screen was a score test at
-/// the survey's false-alarm rate over the seven (z_k < −3.63) until 2026-12-08: the open
-/// torus, already bent to the outlet, leaves an outlet little to gain at its placement,
-/// and on 10"–16" pipes (σ 0.01–0.05 m) the 45° bends' least z_k lay between −3.6 and 0
-/// in 68 of 180 frames, whose ends were then never fitted (the frames answered with the
-/// bend run on had their start early by 1.6 of its 1-σ on average; R read 5 % long on
-/// average over the 180).
+/// survey's false-alarm rate, its 1-σ the cluster jackknife's, [`has_turned`] and
+/// [`end_beats_torus`]), so the screen only spares the fit with an end to bends whose far
+/// points the open torus fits at least as well as any outlet, as it does when the end is
+/// out of view. Measured on the off-grid numpy 90° elbows (`scripts/offgrid-numpy.py`,
+/// 0.5–3 m ahead, σ 0.01–0.05 m): the least z_k was negative in 8 of the 360 frames'
+/// first bend fits; the others pay no fit with an end (on tof-sim's 8" 90° elbows three
+/// such fits, started at 1/4, 1/2 and 3/4 of the angle seen, had doubled the time of the
+/// frame). The screen was a score test at the survey's false-alarm rate over the seven
+/// (z_k < −3.63) until 2026-12-08: the open torus, already bent to the outlet, leaves an
+/// outlet little to gain at its placement, and on 10"–16" pipes (σ 0.01–0.05 m) the 45°
+/// bends' least z_k lay between −3.6 and 0 in 68 of 180 frames, whose ends were then
+/// never fitted (the frames answered with the bend run on had their start early by 1.6
+/// of its 1-σ on average; R read 5 % long on average over the 180).
 fn end_scan(rays: &[(Vector3<f64>, Vector3<f64>)], open: &FirstOrder) -> Option<f64> {
     let g = BendGeometry::from_vector(&open.report.x);
     let (seen, _) = angle_seen(rays, &g, open.sigma);
