@@ -1237,12 +1237,17 @@ mod tests {
     /// Points on the wall of `g`'s tube (its section's radius toward each angle, oval or
     /// round): 16 turned angles over 0.1–0.78 rad × 24 angles around the section.
     fn tube_targets(g: &BendGeometry) -> Vec<Vector3<f64>> {
+        tube_targets_to(g, 0.78, 16)
+    }
+
+    /// [`tube_targets`] at `rings` turned angles over 0.1–`turned_max` rad.
+    fn tube_targets_to(g: &BendGeometry, turned_max: f64, rings: usize) -> Vec<Vector3<f64>> {
         let t = g.torus().unwrap();
         let u = Vector3::new(0.0, g.direction.cos(), g.direction.sin());
         let normal = t.axis.into_inner();
         let mut targets = Vec::new();
-        for i in 0..16 {
-            let turned = 0.1 + 0.68 * i as f64 / 15.0;
+        for i in 0..rings {
+            let turned = 0.1 + (turned_max - 0.1) * i as f64 / (rings - 1) as f64;
             let along = -turned.cos() * u + turned.sin() * Vector3::x();
             let centre = t.centre + g.radius * along;
             for k in 0..24 {
@@ -1268,6 +1273,23 @@ mod tests {
             ca * u - sa * Vector3::x(),
             Vector3::new(0.0, -sd, cd),
         )
+    }
+
+    /// Points on the wall of `g`'s round outlet: 16 rings 0.05–1 m past the end × 24
+    /// angles around it.
+    fn outlet_targets(g: &BendGeometry) -> Vec<Vector3<f64>> {
+        let (end, tangent, inward, normal) = outlet_frame(g);
+        let mut targets = Vec::new();
+        for i in 0..16 {
+            let l = 0.05 + 0.95 * i as f64 / 15.0;
+            for k in 0..24 {
+                let psi = k as f64 * std::f64::consts::TAU / 24.0;
+                targets.push(
+                    end + l * tangent + g.tube_radius * (psi.cos() * inward + psi.sin() * normal),
+                );
+            }
+        }
+        targets
     }
 
     /// [`rays_toward_angle`] for the open bend.
@@ -1452,16 +1474,8 @@ mod tests {
     fn a_bend_whose_end_is_seen_is_fitted_with_its_angle() {
         let angle = 0.8;
         let (p, g) = problem_with_angle(&[], angle);
-        let (end, tangent, inward, normal) = outlet_frame(&g);
         let mut targets = tube_targets(&g);
-        for i in 0..16 {
-            let l = 0.05 + 0.95 * i as f64 / 15.0;
-            for k in 0..24 {
-                let psi = k as f64 * std::f64::consts::TAU / 24.0;
-                let off = psi.cos() * inward + psi.sin() * normal;
-                targets.push(end + l * tangent + g.tube_radius * off);
-            }
-        }
+        targets.extend(outlet_targets(&g));
         let rays = rays_toward_angle(&targets, angle);
         let (straight, beyond) = straight_and_beyond(&p, &rays);
         let start = BendGeometry {
@@ -1505,37 +1519,15 @@ mod tests {
         };
         let angle = 0.8;
         let (_, g) = problem_with_angle(&[], angle);
-        let (end, tangent, inward, normal) = outlet_frame(&g);
         let mut targets = tube_targets(&g);
-        for i in 0..16 {
-            let l = 0.05 + 0.95 * i as f64 / 15.0;
-            for k in 0..24 {
-                let psi = k as f64 * std::f64::consts::TAU / 24.0;
-                targets.push(
-                    end + l * tangent + g.tube_radius * (psi.cos() * inward + psi.sin() * normal),
-                );
-            }
-        }
+        targets.extend(outlet_targets(&g));
         let ended = on_wall(rays_toward_angle(&targets, angle));
         assert!(end_beats_torus(&ended, &g, sigma, loss));
         let early = BendGeometry { angle: 0.6, ..g };
         assert!(!end_beats_torus(&ended, &early, sigma, loss));
         // The bend running on, its tube seen to 1.1 rad.
         let (_, open) = problem_with_angle(&[], OPEN_ANGLE);
-        let t = open.torus().unwrap();
-        let u = Vector3::new(0.0, open.direction.cos(), open.direction.sin());
-        let axis = t.axis.into_inner();
-        let mut targets = Vec::new();
-        for i in 0..24 {
-            let turned = 0.1 + 1.0 * i as f64 / 23.0;
-            let along = -turned.cos() * u + turned.sin() * Vector3::x();
-            let centre = t.centre + open.radius * along;
-            for k in 0..24 {
-                let psi = k as f64 * std::f64::consts::TAU / 24.0;
-                targets.push(centre + open.tube_radius * (psi.cos() * along + psi.sin() * axis));
-            }
-        }
-        let running = on_wall(rays_toward(&targets));
+        let running = on_wall(rays_toward(&tube_targets_to(&open, 1.1, 24)));
         let claimed = BendGeometry { angle, ..open };
         assert!(end_score(&running, &claimed, sigma, loss) > 0.0);
         assert!(!end_beats_torus(&running, &claimed, sigma, loss));
