@@ -42,15 +42,15 @@ mod test_numbers;
 pub use fit::{check, cloud, estimate, init, uncertainty};
 pub use model::{params, residual, symmetry};
 pub use scene::{bend, segment, torus};
-pub use solver::{lm, loss, problem};
+pub use solver::{lm, loss, points, problem};
 
 pub use calibration::{DepthTable, Observation, TableBins};
 pub use check::{Diagnostics, FitOutcome, FitStatus, Implausible};
 pub use error::EpdError;
 pub use estimate::{
     Estimate, EstimateOptions, LossScale, Method, PoseFit, Sigmas, cramer_rao_bound,
-    cramer_rao_bound_weighted, estimate, estimate_weighted, fit_pose, gate_by_model_range,
-    model_range_gate, rms_range_residual, rms_range_residual_of,
+    cramer_rao_bound_weighted, estimate, estimate_masked, estimate_weighted, fit_pose,
+    gate_by_model_range, model_range_gate, rms_range_residual, rms_range_residual_of,
 };
 pub use lm::{Convergence, DegenerateReason, LmOptions, Status};
 pub use loss::Loss;

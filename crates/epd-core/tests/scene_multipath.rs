@@ -9,7 +9,6 @@ mod common;
 use epd_core::segment::{Layout, SegmentOptions, survey};
 use epd_core::{EstimateOptions, Method};
 use rand::RngExt;
-use rand_distr::{Distribution, Normal};
 
 /// Range noise σ (m) and the band: ranges in [1, 2] m read `BAND_BIAS_SIGMAS`·σ long.
 const SIGMA_M: f64 = 0.02;
@@ -23,22 +22,7 @@ fn banded_frame(seed: u64, bias_m: f64) -> Vec<[f64; 3]> {
 
 /// [`banded_frame`] of a pipe `od_in` inches outside.
 fn banded_frame_of(seed: u64, bias_m: f64, od_in: f64) -> Vec<[f64; 3]> {
-    let mut rng = common::rng(seed);
-    let truth = common::random_params(&mut rng, common::id_m(od_in), 0.02, 6.0, 0.2);
-    let normal = Normal::new(0.0, SIGMA_M).expect("σ is finite");
-    common::rays(320, 240)
-        .iter()
-        .filter_map(|d| {
-            let t = common::range_to_wall(&truth, d).filter(|&t| t <= 6.0)?;
-            let band = if (BAND_M.0..=BAND_M.1).contains(&t) {
-                bias_m
-            } else {
-                0.0
-            };
-            let r = t + band + normal.sample(&mut rng);
-            Some([d.x * r, d.y * r, d.z * r])
-        })
-        .collect()
+    common::banded_frame(seed, od_in, SIGMA_M, BAND_M, bias_m)
 }
 
 /// The survey of a straight frame with the defaults (ML-EPD).

@@ -97,13 +97,14 @@ pub(crate) fn run_interruptible<R: Send, E: Send>(
 }
 
 /// Working memory of an estimate beyond its input, per point (bytes): the geometry
-/// survey's per-point arrays (the fit itself adds none: the input is read in place).
-/// Measured as the growth of the peak RSS of `epd.estimate` over the input's points, on
-/// 10⁷ points (a frame repeated, whose survey refits the straight section: its copy of
-/// those points is most of it): 34.3 bytes, 30.7 since the survey's profile holds each
-/// deviation once in 32 bits; on 2·10⁶ (no refit) 7.8 bytes (with `straight_only=True`,
-/// 0.7). Reserved with a half more than the worst. tests/test_resources.py checks the
-/// measurement stays below.
+/// survey's per-point arrays (the fit itself adds none: the input is read in place, and
+/// the survey's refits read their part of it through a mask of one bit a point), and a
+/// weighted fit's (`sigma=`) clean copy of the points with their σᵢ and scales, 24 + 8 + 8 = 40 bytes.
+/// Measured as the growth of the peak RSS of `epd.estimate` over the input's points, the
+/// process's first call: 6.4–6.5 bytes on 2·10⁶ points of a simulated frame repeated, 5.8–6.1
+/// on 4·10⁶ of the numpy caster's multipath and range² frames, whose survey refits (30.7
+/// before the refits read in place), 5.1 on 10⁷. Reserved as the weighted fit's 40 and a
+/// fifth more. tests/test_resources.py checks the measurement stays below.
 pub const WORKING_BYTES_PER_POINT: usize = 48;
 
 /// Reserve (and give back) the working memory an estimate of `n` points will need, so

@@ -5,6 +5,7 @@ use crate::cloud::{clean, usable};
 use crate::error::EpdError;
 use crate::estimate::{Sigmas, View, weighted_cloud};
 use crate::params::{N_PARAMS, Params};
+use crate::points::Points;
 use crate::residual::{Geometry, Residual};
 use crate::uncertainty::covariance;
 use rayon::prelude::*;
@@ -25,7 +26,7 @@ pub fn cramer_rao_bound(
     }
     let cloud = clean(noise_free_points);
     let view = View {
-        points: &cloud.points,
+        points: Points::all(&cloud.points),
         scales: None,
     };
     fisher_bound(view, cloud.dropped, truth, sigma_range * sigma_range)
@@ -52,7 +53,7 @@ pub fn cramer_rao_bound_weighted(
     }
     let (cloud, scales, typical) = weighted_cloud(noise_free_points, sigma);
     let view = View {
-        points: &cloud.points,
+        points: Points::all(&cloud.points),
         scales: Some(&scales),
     };
     fisher_bound(view, cloud.dropped, truth, typical * typical)

@@ -85,7 +85,7 @@ pub const INLIER_SCALES: f64 = 3.29;
 /// At most this many points (evenly strided) are assessed: the statistics above then
 /// cost O(4096) whatever the frame, and their standard errors are those of 4096 points
 /// (a sector of 512 points resolves 1.2533·5/√512 = 0.28 s).
-const MAX_ASSESSED: usize = 4096;
+pub(crate) const MAX_ASSESSED: usize = 4096;
 
 /// Measures of how a fitted β agrees with its points (see the module doc).
 #[derive(Clone, Copy, Debug, PartialEq)]

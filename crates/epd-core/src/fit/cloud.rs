@@ -27,11 +27,6 @@ pub const MAX_POINT_RANGE_M: f64 = 1000.0;
 /// many, the first one's index and distance); non-finite points are not looked at (they
 /// are dropped as invalid pixels).
 pub fn check_ranges(points: &[[f64; 3]]) -> Result<(), EpdError> {
-    let far = |p: &[f64; 3]| {
-        let r2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
-        // r² overflows to +inf beyond 1.3e154 m: still far.
-        p.iter().all(|v| v.is_finite()) && r2 > MAX_POINT_RANGE_M * MAX_POINT_RANGE_M
-    };
     let count = points.par_iter().filter(|p| far(p)).count();
     if count == 0 {
         return Ok(());
@@ -47,6 +42,14 @@ pub fn check_ranges(points: &[[f64; 3]]) -> Result<(), EpdError> {
         range_m,
         limit_m: MAX_POINT_RANGE_M,
     })
+}
+
+/// Whether a finite point lies farther than [`MAX_POINT_RANGE_M`] from the sensor (what
+/// [`check_ranges`] refuses).
+pub fn far(p: &[f64; 3]) -> bool {
+    let r2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
+    // r² overflows to +inf beyond 1.3e154 m: still far.
+    p.iter().all(|v| v.is_finite()) && r2 > MAX_POINT_RANGE_M * MAX_POINT_RANGE_M
 }
 
 /// Whether a point is finite and not at the sensor origin (what [`clean`] keeps).

@@ -245,7 +245,7 @@ pub const AXIAL_CELLS: usize = 8;
 /// Points (evenly strided) whose axial distances give the cells' edges: the quantiles of
 /// 4096 points are within ±0.8 % (one binomial standard error √(q(1−q)/4096) at the
 /// median) of the whole frame's, so the cells hold equal counts to that precision.
-const CELL_EDGE_POINTS: usize = 4096;
+pub(crate) const CELL_EDGE_POINTS: usize = 4096;
 
 /// The wall's cells at `beta`: `axial` bins of equal counts of `points`
 /// (by where their sensing lines meet the wall, [`wall_point_pcs`]) times
@@ -292,7 +292,11 @@ fn cluster_sandwich_uncertainty(
     n_free: usize,
     off: &[usize],
 ) -> Option<ClusterUncertainty> {
-    let cells = wall_cells(cloud.points, canonical, AXIAL_CELLS);
+    let cells = wall_cells(
+        &cloud.points.sample(CELL_EDGE_POINTS),
+        canonical,
+        AXIAL_CELLS,
+    );
     // The bread with the loss's exact curvature: residuals past a redescending loss's
     // knee lower it, and the solver's clipped curvature would overstate it — under range
     // noise growing as r² (the far points past the Cauchy knee) the pose's ±1.96σ̂

@@ -4,23 +4,26 @@
 use nalgebra::{SMatrix, SVector};
 use rayon::prelude::*;
 
-use crate::check::{Diagnostics, FitStatus, Implausible, MIN_UNCERTAINTY_DOF, assess};
-use crate::cloud::{CleanWeighted, check_ranges, clean, clean_weighted};
+use crate::check::{
+    Diagnostics, FitStatus, Implausible, MAX_ASSESSED, MIN_UNCERTAINTY_DOF, assess,
+};
+use crate::cloud::{CleanWeighted, check_ranges, clean, clean_weighted, far, usable};
 use crate::error::EpdError;
 pub use crate::fit::bound::{
     cramer_rao_bound, cramer_rao_bound_weighted, rms_range_residual, rms_range_residual_of,
 };
 pub use crate::fit::covariance::{AXIAL_CELLS, AxisCov, CLOCK_SECTORS};
-pub(crate) use crate::fit::covariance::{SliceShift, uncertainty, wall_cells};
+pub(crate) use crate::fit::covariance::{CELL_EDGE_POINTS, SliceShift, uncertainty, wall_cells};
 use crate::fit::form::{
     DIAMETER_SHIFT_FRACTION, FORM_AXIAL_CELLS, FORM_POINTS, FormMisfit, WallCells,
     normal_upper_quantile,
 };
 pub use crate::fit::options::{EstimateOptions, LossScale, Method};
-use crate::init::initial_guess;
+use crate::init::{MAX_SAMPLE, initial_guess};
 use crate::lm::{LmReport, NormalEquations, minimize};
 use crate::loss::Loss;
 use crate::params::{N_PARAMS, Params};
+use crate::points::{Mask, Points};
 use crate::problem::PipeFit;
 use crate::residual::{Geometry, Residual};
 use crate::symmetry::{Applied, canonical_form, canonicalize};
@@ -145,10 +148,41 @@ pub fn estimate(
     check_ranges(points)?;
     let cloud = clean(points);
     let view = View {
-        points: &cloud.points,
+        points: Points::all(&cloud.points),
         scales: None,
     };
     estimate_view(view, cloud.dropped, method, options)
+}
+
+/// [`estimate`] of the points of `points` that `mask` keeps, read in place: the result
+/// of [`estimate`] on their copy, to the bit (the fit reads them in the same order, in
+/// the same chunks; [`crate::points`]), without the copy's 24 bytes per kept point — a
+/// refit of the straight pipe before a bend holds one bit per point of the frame
+/// beside it (issue 27). A mask made for a slice of another length is an
+/// [`EpdError::InvalidOption`].
+pub fn estimate_masked(
+    points: &[[f64; 3]],
+    mask: &Mask,
+    method: Method,
+    options: &EstimateOptions,
+) -> Result<Estimate, EpdError> {
+    let kept = Points::masked(points, mask).ok_or_else(|| {
+        EpdError::InvalidOption(format!(
+            "a mask for another number of points than the {} given",
+            points.len()
+        ))
+    })?;
+    if kept.iter().any(|p| !usable(p) || far(p)) {
+        // Points to drop or to refuse: the copy's path, whose counts and error name the
+        // points by their place among the kept ones.
+        let copy: Vec<[f64; 3]> = kept.iter().copied().collect();
+        return estimate(&copy, method, options);
+    }
+    let view = View {
+        points: kept,
+        scales: None,
+    };
+    estimate_view(view, 0, method, options)
 }
 
 /// [`estimate`] with a range-noise standard deviation σᵢ (m) per point: the
@@ -183,7 +217,7 @@ pub fn estimate_weighted(
     check_ranges(points)?;
     let (cloud, scales, _) = weighted_cloud(points, sigma);
     let view = View {
-        points: &cloud.points,
+        points: Points::all(&cloud.points),
         scales: Some(&scales),
     };
     estimate_view(view, cloud.dropped, method, options)
@@ -204,7 +238,7 @@ pub(crate) fn weighted_cloud(points: &[[f64; 3]], sigma: &[f64]) -> (CleanWeight
 /// Points (SCS, m; finite, non-zero) with their optional scales sᵢ (one per point).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct View<'a> {
-    pub(crate) points: &'a [[f64; 3]],
+    pub(crate) points: Points<'a>,
     pub(crate) scales: Option<&'a [f64]>,
 }
 
@@ -224,7 +258,7 @@ struct Selection {
 impl Selection {
     fn view(&self) -> View<'_> {
         View {
-            points: &self.points,
+            points: Points::all(&self.points),
             scales: self.scales.as_deref(),
         }
     }
@@ -243,12 +277,25 @@ impl<'a> View<'a> {
     /// The points for which `keep` holds, with their scales, in their order (the
     /// test runs on all cores).
     fn select(&self, keep: impl Fn(&[f64; 3]) -> bool + Sync) -> Selection {
-        let idx: Vec<usize> = (0..self.len())
-            .into_par_iter()
-            .filter(|&i| keep(&self.points[i]))
-            .collect();
+        let (idx, picked): (Vec<usize>, Vec<[f64; 3]>) = match self.points.as_slice() {
+            Some(all) => {
+                let idx: Vec<usize> = (0..all.len())
+                    .into_par_iter()
+                    .filter(|&i| keep(&all[i]))
+                    .collect();
+                let picked = idx.par_iter().map(|&i| all[i]).collect();
+                (idx, picked)
+            }
+            None => self
+                .points
+                .iter()
+                .enumerate()
+                .filter(|(_, p)| keep(p))
+                .map(|(i, p)| (i, *p))
+                .unzip(),
+        };
         Selection {
-            points: idx.par_iter().map(|&i| self.points[i]).collect(),
+            points: picked,
             scales: self.scales.map(|s| idx.par_iter().map(|&i| s[i]).collect()),
         }
     }
@@ -265,7 +312,7 @@ impl<'a> View<'a> {
 
     /// Eq. (4) over these points with `kind`, scaled.
     pub(crate) fn fit(&self, kind: Residual) -> PipeFit<'a> {
-        PipeFit::new(self.points, kind).with_scales(self.scales)
+        PipeFit::over(self.points, kind).with_scales(self.scales)
     }
 }
 
@@ -297,7 +344,7 @@ pub fn fit_pose(
     check_ranges(points)?;
     let cloud = clean(points);
     let view = View {
-        points: &cloud.points,
+        points: Points::all(&cloud.points),
         scales: None,
     };
     let dropped = cloud.dropped;
@@ -398,9 +445,12 @@ pub fn model_range_gate(beta: &Params, lo: f64, hi: f64) -> Option<impl Fn(&[f64
 fn residual_scale(pts: View<'_>, kind: Residual, x: &SVector<f64, N_PARAMS>) -> Option<f64> {
     let geom = Geometry::new(&Params::from_array((*x).into()))?;
     let stride = pts.len().div_ceil(8192).max(1);
-    let mut r: Vec<f64> = (0..pts.len())
+    let mut r: Vec<f64> = pts
+        .points
+        .iter()
+        .enumerate()
         .step_by(stride)
-        .map(|i| (pts.scale(i) * geom.residual(kind, &pts.points[i])).abs())
+        .map(|(i, p)| (pts.scale(i) * geom.residual(kind, p)).abs())
         .collect();
     let s = crate::loss::mad_sigma(&mut r);
     (s > 0.0 && s.is_finite()).then_some(s)
@@ -433,8 +483,17 @@ fn fit_cloud(
     let kind = method.residual();
     let fit = problem(cloud, kind, loss, fixed);
     let (canonical, eq) = canonical_equations(&fitted, &rep, &fit, options);
-    let form_cells = wall_cells(cloud.points, &canonical, FORM_AXIAL_CELLS);
-    let wall = WallCells::gather(cloud.points, cloud.scales, &canonical, &form_cells);
+    let form_cells = wall_cells(
+        &cloud.points.sample(CELL_EDGE_POINTS),
+        &canonical,
+        FORM_AXIAL_CELLS,
+    );
+    let wall = WallCells::gather(
+        &cloud.points.sample(FORM_POINTS),
+        cloud.scales,
+        &canonical,
+        &form_cells,
+    );
     let shared = wall
         .as_ref()
         .and_then(WallCells::shared_along_axis)
@@ -549,7 +608,7 @@ fn solve_cloud(
     let fixed = options.fixed_mask();
     let init = match start {
         Some(p) => p,
-        None => cold_start(cloud.points, options)?,
+        None => cold_start(&cloud.points.sample(MAX_SAMPLE), options)?,
     };
     let sub: Selection;
     let stage_pts: View<'_> = if options.stage_points > 0 && n > 2 * options.stage_points {
@@ -570,10 +629,11 @@ fn solve_cloud(
     let (x, rep, iterations, loss) = stages.solve(start.is_some())?;
     let fitted = Params::from_array(x.into());
     let canonical = canonical_params(&fitted, options).0;
-    let (diagnostics, implausible) = match assess(stage_pts.points, &canonical) {
-        Ok(d) => (Some(d), d.verdict(&canonical)),
-        Err(i) => (None, Some(i)),
-    };
+    let (diagnostics, implausible) =
+        match assess(&stage_pts.points.sample(MAX_ASSESSED), &canonical) {
+            Ok(d) => (Some(d), d.verdict(&canonical)),
+            Err(i) => (None, Some(i)),
+        };
     // Too few residual degrees of freedom for a 1-σ: implausible whether or not one is
     // computed (`fit_pose` reports the status `estimate` would).
     let dof = n.saturating_sub(fixed.iter().filter(|&&f| !f).count());

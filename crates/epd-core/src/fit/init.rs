@@ -44,7 +44,7 @@ use crate::residual::{Geometry, Residual};
 /// bins then hold 8 points each on average, so a bin's median stands on enough points to
 /// outvote a stray return, and the guess costs O(8192) whatever the frame. A start, not
 /// the answer: the solver refines it on every point.
-const MAX_SAMPLE: usize = 8192;
+pub(crate) const MAX_SAMPLE: usize = 8192;
 
 /// Bins per side of the direction grid: 32 × 32 representatives (about 1000) over-
 /// determine the nine coefficients of the quadric a hundredfold, and each bin spans 1/32

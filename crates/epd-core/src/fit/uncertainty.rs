@@ -9,6 +9,7 @@ use crate::fit::form::SliceMean;
 use crate::lm::NormalEquations;
 use crate::loss::Loss;
 use crate::params::{N_PARAMS, Params};
+use crate::points::Points;
 use crate::problem::{Cells, wall_point_pcs};
 use crate::residual::{Geometry, Residual};
 
@@ -273,7 +274,7 @@ pub(crate) struct SharedOffset {
 /// Held parameters get zero entries, as in the bread. `None` when β is outside the model.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn slice_offset_scores(
-    points: &[[f64; 3]],
+    points: Points<'_>,
     scales: Option<&[f64]>,
     kind: Residual,
     loss: Loss,
@@ -548,7 +549,7 @@ mod tests {
         let (a, b) = (fit(&points), fit(&shifted));
         let cells = crate::fit::estimate::wall_cells(&points, &a, 16);
         let scores = slice_offset_scores(
-            &points,
+            Points::all(&points),
             None,
             Residual::Range,
             Loss::Squared,

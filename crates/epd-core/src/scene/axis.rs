@@ -19,13 +19,13 @@
 use rayon::prelude::*;
 
 use crate::check::FitStatus;
-use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
+use crate::estimate::{Estimate, EstimateOptions, Method, estimate_masked};
 use crate::fit::form::normal_upper_quantile;
 use crate::fit::student::incomplete_beta;
 use crate::params::Params;
+use crate::points::Mask;
 use crate::residual::{Geometry, Residual};
 use crate::scene::profile::{AxisSigma, SURVEY_FALSE_ALARM};
-use crate::scene::select::select_where;
 
 /// The two-sided tail of Gaussian range noise beyond which a point counts as off the
 /// straight wall: |r| > z·s with z = Φ⁻¹(1 − `OFF_WALL_TAIL`/2) = 3.89 and s the fit's
@@ -58,13 +58,13 @@ pub fn axis_under_straight_pipe(
     let Some(off) = OffWall::count(pts, fit).filter(|o| o.excess(o.beyond, o.tail)) else {
         return own;
     };
-    let within = select_where(pts, |p| {
+    let within = Mask::new(pts, |p| {
         off.geom.residual(Residual::Range, p).abs() <= off.limit
     });
     let Ok(start) = options.with_start(fit.params) else {
         return own;
     };
-    estimate(&within, method, &start).map_or(own, |e| (e.params, AxisSigma::of(&e)))
+    estimate_masked(pts, &within, method, &start).map_or(own, |e| (e.params, AxisSigma::of(&e)))
 }
 
 /// The count of a fit's points off its wall ([`OFF_WALL_TAIL`]) and what Gaussian noise

@@ -8,6 +8,7 @@ use rayon::prelude::*;
 
 use crate::estimate::Estimate;
 use crate::params::Params;
+use crate::points::Points;
 use crate::residual::Geometry;
 use crate::segment::SegmentOptions;
 
@@ -288,6 +289,18 @@ pub fn profile(
     axis: &AxisSigma,
     o: &SegmentOptions,
 ) -> Vec<Slice> {
+    profile_of(Points::all(points), beta, axis, o)
+}
+
+/// [`profile`] of points read in place (all of a slice or those a mask keeps; the same
+/// profile as of their copy: the chunks are cut by their numbering).
+pub fn profile_of(
+    points: Points<'_>,
+    beta: &Params,
+    axis: &AxisSigma,
+    o: &SegmentOptions,
+) -> Vec<Slice> {
+    let n = points.len();
     let Some(geom) = Geometry::new(beta) else {
         return Vec::new();
     };
@@ -301,12 +314,13 @@ pub fn profile(
     // Also how many of them lie at x ≥ 0: those that pass 2 bins (x ≥ x_min = max(the
     // least x, 0) holds for every point at x ≥ 0 when the least x is ≥ 0, and selects
     // them when it is not).
-    let (x_min, x_max, n_binned) = points
-        .par_chunks(PROFILE_CHUNK)
-        .map(|chunk| {
+    let chunk_of = |k: usize| points.range(k * PROFILE_CHUNK..((k + 1) * PROFILE_CHUNK).min(n));
+    let (x_min, x_max, n_binned) = (0..n.div_ceil(PROFILE_CHUNK))
+        .into_par_iter()
+        .map(|k| {
             let (mut lo, mut hi, mut n) = (f64::INFINITY, f64::NEG_INFINITY, 0usize);
             if !watch.stopped() {
-                for_each_counted(&geom, chunk, |w| {
+                for_each_counted(&geom, &chunk_of(k), |w| {
                     (lo, hi, n) = (lo.min(w[0]), hi.max(w[0]), n + usize::from(w[0] >= 0.0));
                 });
             }
@@ -324,15 +338,17 @@ pub fn profile(
     let n_slices = (((x_max - x_min) / o.slice_m).ceil() as usize).clamp(1, 100_000);
     // Pass 2: each point's deviation into its cell, batch by batch.
     let mut store = CellStore::new(n_slices * ns, n_binned);
-    for batch in points.chunks(PROFILE_CHUNK * PROFILE_BATCH_CHUNKS) {
+    let chunks = n.div_ceil(PROFILE_CHUNK);
+    for first in (0..chunks).step_by(PROFILE_BATCH_CHUNKS) {
         // A cell's index fits 32 bits: at most 100 000 slices of at most 360 sectors
         // (`SegmentOptions::validate`).
-        let binned: Vec<Vec<(u32, f32)>> = batch
-            .par_chunks(PROFILE_CHUNK)
-            .map(|chunk| {
+        let binned: Vec<Vec<(u32, f32)>> = (first..(first + PROFILE_BATCH_CHUNKS).min(chunks))
+            .into_par_iter()
+            .map(|k| {
+                let chunk = chunk_of(k);
                 let mut pairs = Vec::with_capacity(chunk.len());
                 if !watch.stopped() {
-                    for_each_counted(&geom, chunk, |[x, y, z, d]| {
+                    for_each_counted(&geom, &chunk, |[x, y, z, d]| {
                         if x >= x_min {
                             let i = (((x - x_min) / o.slice_m) as usize).min(n_slices - 1);
                             pairs.push(((i * ns + clock.of(y, z)) as u32, d as f32));

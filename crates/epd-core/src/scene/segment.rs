@@ -44,17 +44,20 @@
 
 use nalgebra::Vector3;
 
+use crate::bend::BEND_POINTS;
 use crate::check::{FitOutcome, FitStatus, Implausible};
 use crate::cloud::clean;
 use crate::error::EpdError;
-use crate::estimate::{Estimate, EstimateOptions, Method, estimate};
+use crate::estimate::{Estimate, EstimateOptions, Method, estimate, estimate_masked};
 use crate::params::Params;
+use crate::points::{Mask, Points};
 pub use crate::scene::axis::axis_under_straight_pipe;
-use crate::scene::select::{axial_select, select_where};
+use crate::scene::select::{axial_mask, axial_sample};
 pub use crate::scene::select::{outside_ring_mask, straight_mask};
 
 pub use crate::scene::profile::{
     AxisSigma, MIN_SECTORS_TESTED, SURVEY_FALSE_ALARM, Slice, departure_evidence, profile,
+    profile_of,
 };
 
 /// What the frame shows ahead of the sensor.
@@ -172,7 +175,9 @@ pub struct Segmentation {
     /// its points (within the range gate) remain to fit it on its own; then `straight`
     /// is the last fit made, on points beyond its end too.
     pub straight_withheld: bool,
-    /// Clean points beyond the straight section's end (its bend or tee), in the SCS.
+    /// Clean points beyond the straight section's end (its bend or tee), in the SCS: an
+    /// even sample of at most [`BEND_POINTS`] of them (every ⌈n/`BEND_POINTS`⌉-th of their
+    /// n, from the first), which is what the bend fit reads of them.
     pub beyond: Vec<[f64; 3]>,
     /// Direction of the departure in the straight fit's cross-section: the angle from
     /// the PCS +Y (major) axis toward +Z (rad); for a bend, toward its centre of
@@ -263,7 +268,7 @@ fn first_departure(profile: &[Slice], o: &SegmentOptions) -> Option<usize> {
 }
 
 /// The straight pipe refitted on the points (SCS) whose ray meets the wall of `beta`
-/// before `end − margin` ([`axial_select`]); `None` when too little straight pipe is
+/// before `end − margin` ([`axial_mask`], read in place); `None` when too little straight pipe is
 /// left for it: fewer than 1000 such points, an estimate that fails on them (none
 /// within the range gate, …), or — when the departure is an opening (`opening`, see
 /// [`opens_ahead`]) — an estimate its own check refuses as a partial view
@@ -279,17 +284,19 @@ fn refit_before(
     options: &EstimateOptions,
     seg: &SegmentOptions,
 ) -> Option<Estimate> {
-    let before = axial_select(pts, beta, |x| x < end - seg.margin_m);
-    if before.len() < 1000 {
+    let before = axial_mask(pts, beta, |x| x < end - seg.margin_m);
+    if before.count() < 1000 {
         return None;
     }
-    estimate(&before, method, options).ok().filter(|e| {
-        !(opening
-            && matches!(
-                e.status,
-                FitStatus::Implausible(Implausible::PartialView { .. })
-            ))
-    })
+    estimate_masked(pts, &before, method, options)
+        .ok()
+        .filter(|e| {
+            !(opening
+                && matches!(
+                    e.status,
+                    FitStatus::Implausible(Implausible::PartialView { .. })
+                ))
+        })
 }
 
 /// Whether the departure at slice `i` is an opening confirmed as any departure is: a
@@ -438,11 +445,11 @@ fn restart_from_near(
     let mut departed_at_start = false;
     for share in RESTART_NEAREST_SHARE {
         let reach = crate::check::quantile(&mut forward, share);
-        let close = select_where(pts, |p| p[0] <= reach);
-        if close.len() < RESTART_MIN_POINTS {
+        let close = Mask::new(pts, |p| p[0] <= reach);
+        if close.count() < RESTART_MIN_POINTS {
             continue;
         }
-        let Ok(start) = estimate(&close, method, options) else {
+        let Ok(start) = estimate_masked(pts, &close, method, options) else {
             continue;
         };
         // A start that cannot be refined (its cut leaves too few points) is one that did
@@ -684,7 +691,7 @@ pub fn segment(
     // `estimate`.
     fit.n_dropped += cloud.dropped;
     let beyond = match straight_until {
-        Some(x) => axial_select(pts, &fit.params, |a| a >= x),
+        Some(x) => axial_sample(pts, &fit.params, |a| a >= x, BEND_POINTS),
         None => Vec::new(),
     };
     Ok(Segmentation {
@@ -1040,7 +1047,7 @@ fn reseat_before_bend(
     if outcome != FitOutcome::Converged && outcome != s.straight.status.outcome() {
         return first;
     }
-    let beyond = axial_select(points, &refit.params, |a| a >= cut);
+    let beyond = axial_sample(points, &refit.params, |a| a >= cut, BEND_POINTS);
     // The refit removes a lean that puts the start late: a refitted start later than the
     // first's by more than z of the first's 1-σ (z at the survey's false-alarm rate,
     // one-sided: 3.09) is another minimum, not that correction (numpy 20" 45° bend 3 m
@@ -1183,7 +1190,7 @@ fn bend_across_view(
     else {
         return Survey::plain(s);
     };
-    let beyond = axial_select(points, &beta, |x| x >= short.near_m - d_mean);
+    let beyond = axial_sample(points, &beta, |x| x >= short.near_m - d_mean, BEND_POINTS);
     // The outer wall's nearest returns lie on the side away from the centre of
     // curvature.
     let side = short.side + std::f64::consts::PI;
@@ -1423,16 +1430,16 @@ fn ring_refit(
     let (a, b) = ring_run(prof, seg)?;
     let from = prof[a].start_m - seg.slice_m;
     let to = prof.get(b).map_or(f64::INFINITY, |s| s.start_m) + seg.slice_m;
-    let kept = axial_select(pts, &fit.params, |x| x < from || x >= to);
-    if kept.len() < RESTART_MIN_POINTS {
+    let kept = axial_mask(pts, &fit.params, |x| x < from || x >= to);
+    if kept.count() < RESTART_MIN_POINTS {
         return None;
     }
-    let refit = estimate(&kept, method, options).ok()?;
+    let refit = estimate_masked(pts, &kept, method, options).ok()?;
     if matches!(refit.status, FitStatus::Implausible(_)) {
         return None;
     }
     let axis = AxisSigma::of(&refit);
-    let own = profile(&kept, &refit.params, &axis, seg);
+    let own = profile_of(Points::masked(pts, &kept)?, &refit.params, &axis, seg);
     let beyond = own
         .iter()
         .filter(|s| s.start_m >= to && s.n_sectors >= MIN_SECTORS_TESTED)

@@ -3,6 +3,7 @@
 //! before a departure, the near points, the points beyond the straight section).
 
 use crate::params::Params;
+use crate::points::{Mask, Points};
 use crate::residual::Geometry;
 
 /// The PCS axial coordinate at which a point's ray meets the wall of `beta`: the
@@ -17,41 +18,31 @@ pub(crate) fn model_axial(beta: &Params) -> Option<impl Fn(&[f64; 3]) -> f64> {
     })
 }
 
-/// The points (SCS) whose ray meets the wall of `beta` at a PCS axial coordinate that
-/// satisfies `keep` ([`model_axial`]). Empty when β leaves the model.
-pub(crate) fn axial_select(
+/// The even sample of at most `max` of the points [`axial_mask`] keeps (every
+/// ⌈n/max⌉-th of their n, from the first; [`crate::points::Points::sample`]): the points a
+/// reader that strides them to `max` (the bend fit, [`crate::bend::BEND_POINTS`]) would
+/// read, without their copy. Empty when β leaves the model.
+pub(crate) fn axial_sample(
     points: &[[f64; 3]],
     beta: &Params,
     keep: impl Fn(f64) -> bool,
+    max: usize,
 ) -> Vec<[f64; 3]> {
-    let Some(axial) = model_axial(beta) else {
-        return Vec::new();
-    };
-    select_where(points, |p| keep(axial(p)))
+    let mask = axial_mask(points, beta, keep);
+    Points::masked(points, &mask)
+        .map(|p| p.sample(max).into_owned())
+        .unwrap_or_default()
 }
 
-/// The points for which `keep` holds, in their order, in a vector of exactly their
-/// number: a refit's selection is most of a frame, and a vector grown by doubling would
-/// hold up to twice it while it grows (issue 27: the survey's memory beside its input).
-/// The test runs once per point (one byte each), serially, with a stop check every
-/// [`crate::cancel::TICKS_PER_CHECK`] points.
-pub(crate) fn select_where(points: &[[f64; 3]], keep: impl Fn(&[f64; 3]) -> bool) -> Vec<[f64; 3]> {
-    let mask: Vec<bool> = points
-        .iter()
-        .map(|p| {
-            crate::cancel::tick();
-            keep(p)
-        })
-        .collect();
-    let mut out = Vec::with_capacity(mask.iter().filter(|&&k| k).count());
-    out.extend(
-        points
-            .iter()
-            .zip(&mask)
-            .filter(|(_, k)| **k)
-            .map(|(p, _)| *p),
-    );
-    out
+/// The mask of the points (SCS) whose ray meets the wall of `beta` at a PCS axial
+/// coordinate that satisfies `keep` ([`model_axial`]): a selection read in place, one bit
+/// a point (issue 27: a refit's selection is most of a frame, and its copy held 24 B a
+/// point beside the input). Keeps none when β leaves the model.
+pub(crate) fn axial_mask(points: &[[f64; 3]], beta: &Params, keep: impl Fn(f64) -> bool) -> Mask {
+    match model_axial(beta) {
+        Some(axial) => Mask::new(points, |p| keep(axial(p))),
+        None => Mask::new(points, |_| false),
+    }
 }
 
 /// Which points (SCS) lie outside a ring of range error ([`crate::segment::Ring`]) that

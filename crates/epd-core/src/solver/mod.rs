@@ -4,4 +4,5 @@
 pub mod cells;
 pub mod lm;
 pub mod loss;
+pub mod points;
 pub mod problem;

@@ -1,6 +1,9 @@
 //! The pipe fit as a [`NormalEquationsProblem`]: eq. (4) over a point cloud with one of
 //! the three [`Residual`]s, accumulated in parallel in fixed-size chunks.
 
+use std::borrow::Cow;
+use std::ops::Range;
+
 use nalgebra::{SMatrix, SVector};
 use rayon::prelude::*;
 
@@ -11,6 +14,7 @@ use crate::residual::{Geometry, Residual};
 
 use super::cells::cells_of;
 pub use super::cells::{CellIndexer, Cells, for_each_range_and_cell, wall_point_pcs};
+use super::points::Points;
 
 /// Points per chunk. Chunks are fixed, and their partial sums are added in order, so
 /// the result does not depend on the number of threads.
@@ -20,8 +24,9 @@ pub(crate) const CHUNK: usize = 4096;
 /// per-point scales sᵢ (1 unless given) and optionally some parameters held.
 #[derive(Clone, Copy, Debug)]
 pub struct PipeFit<'a> {
-    /// Measured points x̂_i,S (SCS, m), finite and non-zero.
-    pub points: &'a [[f64; 3]],
+    /// Measured points x̂_i,S (SCS, m), finite and non-zero, read in place (all of a
+    /// slice or those a mask keeps).
+    pub points: Points<'a>,
     /// The residual function.
     pub residual: Residual,
     /// The loss applied to each (scaled) residual (squared: eq. 4 itself).
@@ -40,6 +45,12 @@ pub struct PipeFit<'a> {
 impl<'a> PipeFit<'a> {
     /// Eq. (4) over `points` with `residual` and the squared loss.
     pub fn new(points: &'a [[f64; 3]], residual: Residual) -> Self {
+        Self::over(Points::all(points), residual)
+    }
+
+    /// Eq. (4) over `points` (all of a slice or those a mask keeps) with `residual` and
+    /// the squared loss.
+    pub fn over(points: Points<'a>, residual: Residual) -> Self {
         Self {
             points,
             residual,
@@ -68,15 +79,18 @@ impl<'a> PipeFit<'a> {
         Self { fixed, ..self }
     }
 
-    /// The points and their scales, `CHUNK` at a time (the scales empty when `None`).
-    fn chunks(&self) -> impl Iterator<Item = (&'a [[f64; 3]], &'a [f64])> + 'a {
-        let scales = self.scales;
-        self.points.chunks(CHUNK).enumerate().map(move |(i, c)| {
-            (
-                c,
-                scales.map_or(&[][..], |s| &s[i * CHUNK..i * CHUNK + c.len()]),
-            )
-        })
+    /// Chunk `k`'s points and their scales (the scales empty when `None`): the points
+    /// numbered `k·CHUNK..` (at most `CHUNK`), read when the chunk's turn comes (through
+    /// a mask, a copy of that chunk only).
+    fn chunk(&self, k: usize) -> (Cow<'a, [[f64; 3]]>, &'a [f64]) {
+        let r = k * CHUNK..((k + 1) * CHUNK).min(self.points.len());
+        let scales = self.scales.map_or(&[][..], |s| &s[r.clone()]);
+        (self.points.range(r), scales)
+    }
+
+    /// The chunks' numbers.
+    fn chunk_ids(&self) -> Range<usize> {
+        0..self.points.len().div_ceil(CHUNK)
     }
 
     /// The normal equations at β, or `None` outside the model's domain.
@@ -87,18 +101,18 @@ impl<'a> PipeFit<'a> {
         // A stop request skips the remaining chunks; the checkpoint after the pass
         // unwinds before the partial sums are used (`crate::cancel::Watch`).
         let watch = crate::cancel::watch();
-        let accumulate = |(chunk, s): (&[[f64; 3]], &[f64])| {
+        let accumulate = |k: usize| {
             if watch.stopped() {
                 return NormalEquations::zero();
             }
-            accumulate_chunk(&geom, kind, loss, chunk, s, Curvature::Clipped).eq
+            let (chunk, s) = self.chunk(k);
+            accumulate_chunk(&geom, kind, loss, &chunk, s, Curvature::Clipped).eq
         };
         let mut total = if self.points.len() <= CHUNK {
-            accumulate((self.points, self.scales.unwrap_or(&[])))
+            accumulate(0)
         } else {
-            let work: Vec<_> = self.chunks().collect();
             let parts: Vec<NormalEquations<N_PARAMS>> =
-                work.into_par_iter().map(accumulate).collect();
+                self.chunk_ids().into_par_iter().map(accumulate).collect();
             crate::cancel::checkpoint();
             let mut t = NormalEquations::zero();
             for p in &parts {
@@ -137,7 +151,7 @@ impl PipeFit<'_> {
         let geom = Geometry::new(beta)?;
         let (kind, loss) = (self.residual, self.loss);
         let watch = crate::cancel::watch();
-        let one = |(chunk, scales): (&[[f64; 3]], &[f64])| {
+        let one = |k: usize| {
             let mut sw = Sandwich {
                 bread: SMatrix::zeros(),
                 meat: SMatrix::zeros(),
@@ -146,6 +160,7 @@ impl PipeFit<'_> {
             if watch.stopped() {
                 return sw;
             }
+            let (chunk, scales) = self.chunk(k);
             for (i, p) in chunk.iter().enumerate() {
                 let (r, g) = geom.residual_and_gradient(kind, p);
                 let s = scales.get(i).copied().unwrap_or(1.0);
@@ -159,8 +174,7 @@ impl PipeFit<'_> {
             }
             sw
         };
-        let work: Vec<_> = self.chunks().collect();
-        let parts: Vec<Sandwich> = work.into_par_iter().map(one).collect();
+        let parts: Vec<Sandwich> = self.chunk_ids().into_par_iter().map(one).collect();
         crate::cancel::checkpoint();
         let mut total = Sandwich {
             bread: SMatrix::zeros(),
@@ -239,9 +253,9 @@ impl PipeFit<'_> {
                     break;
                 }
                 let block = from..(from + CLUSTER_BLOCK).min(range.end);
-                let points = &self.points[block.clone()];
+                let points = self.points.range(block.clone());
                 let len = points.len();
-                cells_of(&geom, &indexer, points, &mut cell[..len]);
+                cells_of(&geom, &indexer, &points, &mut cell[..len]);
                 // Counting sort of the block's points (and scales) by cell.
                 start.fill(0);
                 for &c in &cell[..len] {

@@ -120,3 +120,31 @@ pub fn wall_point(beta: &Params, x: f64, phi: f64) -> [f64; 3] {
     ));
     [p.x, p.y, p.z]
 }
+
+/// One straight frame of a pipe `od_in` inches outside at 320 × 240 within 6 m (a random
+/// pose: tilt within ±6°, offsets within a fifth of the radius) with N(0, σ²) range
+/// noise, every range within `band` (m) read `bias_m` long (a multipath band).
+pub fn banded_frame(
+    seed: u64,
+    od_in: f64,
+    sigma: f64,
+    band: (f64, f64),
+    bias_m: f64,
+) -> Vec<[f64; 3]> {
+    let mut rng = rng(seed);
+    let truth = random_params(&mut rng, id_m(od_in), 0.02, 6.0, 0.2);
+    let normal = Normal::new(0.0, sigma).expect("σ is finite");
+    rays(320, 240)
+        .iter()
+        .filter_map(|d| {
+            let t = range_to_wall(&truth, d).filter(|&t| t <= 6.0)?;
+            let shift = if (band.0..=band.1).contains(&t) {
+                bias_m
+            } else {
+                0.0
+            };
+            let r = t + shift + normal.sample(&mut rng);
+            Some([d.x * r, d.y * r, d.z * r])
+        })
+        .collect()
+}

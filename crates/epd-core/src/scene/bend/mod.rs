@@ -180,7 +180,7 @@ pub struct BendFit {
 }
 
 /// At most this many (evenly strided) points enter the bend fit.
-const BEND_POINTS: usize = 8192;
+pub const BEND_POINTS: usize = 8192;
 
 /// The fit of a bend to `beyond` (SCS points past the straight section, from
 /// [`crate::segment::segment`]) attached to the straight fit `straight`, from `start`.
