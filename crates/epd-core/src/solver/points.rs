@@ -151,17 +151,24 @@ impl<'a> Points<'a> {
         }
         let mut out = Vec::with_capacity(r.len());
         let from = mask.index_of(r.start);
-        let (mut w, mut bits) = (
-            from / WORD,
-            mask.words[from / WORD] & (!0u64 << (from % WORD)),
-        );
-        while out.len() < r.len() {
-            while bits == 0 {
-                w += 1;
-                bits = mask.words[w];
+        let mut w = from / WORD;
+        let mut bits = mask.words[w] & (!0u64 << (from % WORD));
+        loop {
+            let need = r.len() - out.len();
+            if bits == !0u64 && need >= WORD {
+                // A whole word kept (a selection by position keeps runs): one copy.
+                out.extend_from_slice(&self.all[w * WORD..(w + 1) * WORD]);
+            } else {
+                while bits != 0 && out.len() < r.len() {
+                    out.push(self.all[w * WORD + bits.trailing_zeros() as usize]);
+                    bits &= bits - 1;
+                }
             }
-            out.push(self.all[w * WORD + bits.trailing_zeros() as usize]);
-            bits &= bits - 1;
+            if out.len() == r.len() {
+                break;
+            }
+            w += 1;
+            bits = mask.words[w];
         }
         Cow::Owned(out)
     }
