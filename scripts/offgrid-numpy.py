@@ -36,6 +36,14 @@ Usage (from the repository's root; EPD_BIN overrides the binary, default target/
       [--miss /tmp/offgrid/miss] [--work /tmp/offgrid/frames]
   python3 scripts/offgrid-numpy.py table [--out /tmp/offgrid/results.jsonl]
   python3 scripts/offgrid-numpy.py cast K [--to DIR]   # writes frame K's PLY and truth again
+  python3 scripts/offgrid-numpy.py opening [--out /tmp/offgrid/results.jsonl] [--frames N]
+`opening` casts every tee frame k < N (2160 by default) again and measures what its opening
+gives a reader at best: the rays that leave the main pipe through the opening read long by
+t - t1 (t1 where the main cylinder alone would end them, t where the caster does), and
+z_open = sqrt(sum((t - t1)^2) / sigma^2) over those rays is the log-likelihood ratio's
+scale of an oracle that knows which rays they are and by how much (no reader that must
+find them among all points, at a stated false-alarm rate, does better). It prints, per
+bin of z_open, the frames and how many --out reads right.
 `run` casts and estimates frames K .. N-1 (K = 0 by default) one at a time (one caster, one `epd --threads 1`
 at a time) and appends one JSON line per frame to --out; frames already there are skipped,
 so a run can be resumed. The PLY and a truth JSON of every frame whose geometry is wrong
@@ -334,6 +342,53 @@ def cast(a):
     print(to / f"{name}.ply")
 
 
+def opening(a):
+    """Per tee frame: the rays through the opening and z_open (see the module doc),
+    joined with --out's verdicts, printed by bin of z_open."""
+    seen = {}
+    original = tt.tee_ranges
+
+    def recorded(origin, e, x0, diameter, branch_d, phi_b):
+        t = original(origin, e, x0, diameter, branch_d, phi_b)
+        # Where the main cylinder alone ends each ray (the caster's own quadratic).
+        qa = e[:, 1] ** 2 + e[:, 2] ** 2
+        qb = 2 * (origin[1] * e[:, 1] + origin[2] * e[:, 2])
+        qc = origin[1] ** 2 + origin[2] ** 2 - (diameter / 2) ** 2
+        t1 = tt.larger_root(qa, qb, qc)
+        kept = np.isfinite(t) & (t > 0) & (t <= tt.MAX_RANGE_M)
+        seen["excess"] = (t - t1)[kept]
+        return t
+
+    tt.tee_ranges = recorded
+    try:
+        verdicts = {}
+        if Path(a.out).exists():
+            for line in Path(a.out).read_text().splitlines():
+                r = json.loads(line)
+                verdicts[r["k"]] = r
+        rows = []
+        for k in range(a.frames):
+            if plan(k)[0] != "tee":
+                continue
+            _, truth = draw(k)
+            through = seen["excess"][seen["excess"] > 0.0]
+            z = float(np.sqrt(np.sum((through / truth["sigma"]) ** 2)))
+            rows.append((z, through.size, truth, verdicts.get(k)))
+    finally:
+        tt.tee_ranges = original
+    print("| z_open | tee frames | rays through the opening (median) | read tee_ahead | misread |")
+    print("|---|---|---|---|---|")
+    edges = (0, 12, 20, 40, 80, math.inf)
+    for lo, hi in zip(edges, edges[1:]):
+        sel = [r for r in rows if lo <= r[0] < hi]
+        if not sel:
+            continue
+        read = [r for r in sel if r[3] is not None]
+        right = sum(bool(r[3].get("geom_right")) for r in read)
+        n_rays = sorted(r[1] for r in sel)[len(sel) // 2]
+        print(f"| {lo}–{hi} | {len(sel)} | {n_rays} | {right}/{len(read)} | {len(read) - right} |")
+
+
 def main():
     ap = argparse.ArgumentParser()
     sub = ap.add_subparsers(dest="mode", required=True)
@@ -347,10 +402,12 @@ def main():
     c = sub.add_parser("cast")
     c.add_argument("k", type=int)
     c.add_argument("--to", default="/tmp/offgrid/cast")
-    for p in (r, t):
+    o = sub.add_parser("opening")
+    o.add_argument("--frames", type=int, default=2160, help="tee frames k < N")
+    for p in (r, t, o):
         p.add_argument("--out", default="/tmp/offgrid/results.jsonl")
     a = ap.parse_args()
-    {"run": run, "table": table, "cast": cast}[a.mode](a)
+    {"run": run, "table": table, "cast": cast, "opening": opening}[a.mode](a)
 
 
 if __name__ == "__main__":
