@@ -493,6 +493,11 @@ pub(crate) fn quantile(v: &mut [f64], q: f64) -> f64 {
         return f64::NAN;
     }
     let k = ((q * (v.len() - 1) as f64).round() as usize).min(v.len() - 1);
+    quantile_rank(v, k)
+}
+
+/// The `k`-th smallest of `v` (from 0; reordered in place; total order); `k < v.len()`.
+pub(crate) fn quantile_rank(v: &mut [f64], k: usize) -> f64 {
     let (_, x, _) = v.select_nth_unstable_by(k, |a, b| a.total_cmp(b));
     *x
 }

@@ -52,7 +52,7 @@ use crate::estimate::{Estimate, EstimateOptions, Method, estimate, estimate_mask
 use crate::params::Params;
 use crate::points::{Mask, Points};
 pub use crate::scene::axis::axis_under_straight_pipe;
-use crate::scene::select::{axial_mask, axial_sample};
+use crate::scene::select::{axial_mask, axial_sample, quantile_of};
 pub use crate::scene::select::{outside_ring_mask, straight_mask};
 
 pub use crate::scene::profile::{
@@ -440,11 +440,12 @@ fn restart_from_near(
     // model's frame with the elbow 0.6 m ahead (`scenarios/pipeline_run.toml`) read
     // `in_bend`, its narrower window refused by the form test, where the cut on x reads
     // `bend_ahead` 0.1 mm from the truth.
-    let mut forward: Vec<f64> = pts.iter().map(|p| p[0]).collect();
+    // Each window's reach, the quantile of the forward coordinates, counted without
+    // holding them (`quantile_of`; issue 27: their copy was 8 B a point).
     // Whether a wider window's fit departed at its start too.
     let mut departed_at_start = false;
     for share in RESTART_NEAREST_SHARE {
-        let reach = crate::check::quantile(&mut forward, share);
+        let reach = quantile_of(pts, |p| p[0], share);
         let close = Mask::new(pts, |p| p[0] <= reach);
         if close.count() < RESTART_MIN_POINTS {
             continue;
