@@ -235,7 +235,8 @@ pub(crate) fn weighted_cloud(points: &[[f64; 3]], sigma: &[f64]) -> (CleanWeight
     (cloud, scales, typical)
 }
 
-/// Points (SCS, m; finite, non-zero) with their optional scales sᵢ (one per point).
+/// Points (SCS, m; finite, non-zero), read in place ([`Points`]: all of a slice or those a
+/// mask keeps), with their optional scales sᵢ (one per point read, in the points' numbering).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct View<'a> {
     pub(crate) points: Points<'a>,
